@@ -1,0 +1,123 @@
+"""Job configuration: one dataclass per stage, loaded from ``jobs/*.toml``.
+
+Every tunable lives here with its default (from the paper or the original implementation,
+see ``../shared/docs/REFERENCE.md``) and a comment saying where it comes from. The whole
+configuration is hashed into ``params_hash`` so that a catalogue records what made it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import tomllib
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mining.errors import ConfigError
+from mining.geometry.config import GeometryConfig
+
+
+@dataclass
+class SourceConfig:
+    dataset: str = "synthetic"  # one of mining.sources.DATASETS
+    root: str = ""  # dataset root folder; unused by the synthetic source
+    sequences: list[str] = field(default_factory=list)  # empty: every sequence the source finds
+    options: dict[str, Any] = field(default_factory=dict)  # source-specific keyword arguments
+
+
+@dataclass
+class JobConfig:
+    source: SourceConfig = field(default_factory=SourceConfig)
+    geometry: GeometryConfig = field(default_factory=GeometryConfig)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @property
+    def params_hash(self) -> str:
+        """Hash of everything that changes results (the source's location excluded)."""
+        d = self.to_dict()
+        d["source"] = {k: v for k, v in d["source"].items() if k not in ("root", "sequences")}
+        blob = json.dumps(d, sort_keys=True, default=str).encode()
+        return hashlib.sha256(blob).hexdigest()[:16]
+
+
+def _build(cls: type, data: dict[str, Any], where: str) -> Any:
+    """Instantiate dataclass ``cls`` from a nested dict, rejecting unknown keys."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where}: expected a table, got {type(data).__name__}")
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(data) - names
+    if unknown:
+        raise ConfigError(f"{where}: unknown key(s) {sorted(unknown)}; known: {sorted(names)}")
+    kwargs = {}
+    for key, value in data.items():
+        hint = hints[key]
+        if dataclasses.is_dataclass(hint):
+            kwargs[key] = _build(hint, value, f"{where}.{key}")
+        else:
+            kwargs[key] = _coerce(hint, value, f"{where}.{key}")
+    return cls(**kwargs)
+
+
+def _coerce(hint: Any, value: Any, where: str) -> Any:
+    origin = typing.get_origin(hint)
+    if hint is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if hint in (int, float, str, bool):
+        if not isinstance(value, hint) or (hint is int and isinstance(value, bool)):
+            raise ConfigError(f"{where}: expected {hint.__name__}, got {value!r}")
+        return value
+    if origin in (list, tuple):
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{where}: expected a list, got {value!r}")
+        return list(value) if origin is list else tuple(value)
+    if origin in (typing.Union, types.UnionType):
+        return value
+    return value
+
+
+def merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for k, v in override.items():
+        out[k] = merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def parse_override(text: str) -> dict[str, Any]:
+    """``geometry.stereo.num_disparities=128`` → nested dict; the value is parsed as TOML."""
+    if "=" not in text:
+        raise ConfigError(f"override {text!r}: expected KEY=VALUE")
+    key, raw = text.split("=", 1)
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw  # bare strings need no quotes on the command line
+    out: dict[str, Any] = {}
+    node = out
+    parts = key.strip().split(".")
+    for p in parts[:-1]:
+        node = node.setdefault(p, {})
+    node[parts[-1]] = value
+    return out
+
+
+def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> JobConfig:
+    """Defaults, then the TOML file, then ``KEY=VALUE`` overrides."""
+    data: dict[str, Any] = {}
+    if path is not None:
+        p = Path(path)
+        try:
+            data = tomllib.loads(p.read_text())
+        except FileNotFoundError:
+            raise ConfigError(f"file {p}: job config not found") from None
+        except tomllib.TOMLDecodeError as e:
+            raise ConfigError(f"file {p}: not valid TOML: {e}") from None
+    for o in overrides or []:
+        data = merge(data, parse_override(o))
+    return _build(JobConfig, data, str(path) if path else "config")

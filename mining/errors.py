@@ -1,0 +1,32 @@
+"""Errors that name the file, the frame and the reason, so a user can fix their input."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class MiningError(Exception):
+    """Base class of all errors Tube Miner raises on purpose."""
+
+
+class InputError(MiningError):
+    """Bad input: a file that is missing, unreadable, or contradicts the rest of the data.
+
+    The message always names the file, the frame (when one is concerned) and the reason.
+    """
+
+    def __init__(self, reason: str, path: str | Path | None = None, frame: int | None = None):
+        self.reason = reason
+        self.path = None if path is None else str(path)
+        self.frame = frame
+        parts = []
+        if self.path is not None:
+            parts.append(f"file {self.path}")
+        if frame is not None:
+            parts.append(f"frame {frame}")
+        where = ", ".join(parts)
+        super().__init__(f"{where}: {reason}" if where else reason)
+
+
+class ConfigError(MiningError):
+    """A job configuration that cannot be used (unknown key, wrong type, bad value)."""

@@ -1,0 +1,222 @@
+"""The few data types every stage shares.
+
+Conventions used throughout the code base:
+
+* Images are rectified, RGB, ``uint8``, shape ``(H, W, 3)``; the left camera is the
+  reference camera.
+* Camera coordinates: x right, y down, z forward, metres (the KITTI convention).
+* A *pose* is a 4×4 camera-to-world transform; the world is the first frame's camera.
+* An *egomotion* ``T_cur_prev`` is the 4×4 transform that maps a point given in the
+  previous frame's camera coordinates into the current frame's camera coordinates:
+  ``X_cur = T_cur_prev @ X_prev``. Hence ``pose_cur = pose_prev @ inv(T_cur_prev)``.
+* Disparity is in pixels, ``x_left − x_right`` (positive); invalid pixels are NaN.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class StereoCalib:
+    """Pinhole intrinsics of the rectified left camera plus the stereo baseline."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    baseline_m: float
+    width: int
+    height: int
+
+    @property
+    def K(self) -> np.ndarray:
+        """3×3 intrinsic matrix."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def bf(self) -> float:
+        """Baseline × focal length: depth = bf / disparity."""
+        return self.baseline_m * self.fx
+
+    def depth_from_disparity(self, disparity: np.ndarray) -> np.ndarray:
+        """Depth in metres; NaN where the disparity is invalid (NaN or ≤ 0)."""
+        d = np.asarray(disparity, dtype=np.float32)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = np.float32(self.bf) / d
+        z[~(d > 0)] = np.nan
+        return z
+
+    def backproject(self, u: np.ndarray, v: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """Pixel coordinates and depth → (N, 3) camera points."""
+        x = (np.asarray(u, np.float64) - self.cx) * z / self.fx
+        y = (np.asarray(v, np.float64) - self.cy) * z / self.fy
+        return np.stack([x, y, np.asarray(z, np.float64)], axis=-1)
+
+    def project(self, points: np.ndarray) -> np.ndarray:
+        """(N, 3) camera points → (N, 2) pixel coordinates (no visibility check)."""
+        p = np.asarray(points, np.float64)
+        return np.stack([self.fx * p[:, 0] / p[:, 2] + self.cx, self.fy * p[:, 1] / p[:, 2] + self.cy], axis=-1)
+
+
+@dataclass
+class ObjectTruth:
+    """Ground truth of one object instance in one frame (synthetic source only)."""
+
+    track_id: int
+    category: str  # e.g. "car", "person", "bicycle", "cone", "bin", "crate", "debris", "animal"
+    known: bool  # True when one of the 80 COCO classes covers the category
+    mask: np.ndarray  # (H, W) bool, visible pixels in the left image
+    box: tuple[float, float, float, float]  # x1, y1, x2, y2 of the visible mask, pixels
+    center_cam: np.ndarray  # (3,) object centre in the left camera frame, metres
+    size: np.ndarray  # (3,) width, height, length, metres
+    velocity_world: np.ndarray  # (3,) metres per second in the world frame
+
+
+@dataclass
+class FrameTruth:
+    """Exact ground truth of one frame, where the source knows it (synthetic)."""
+
+    depth: np.ndarray  # (H, W) float32 metres, NaN where nothing was hit (sky)
+    pose: np.ndarray  # (4, 4) camera-to-world
+    objects: list[ObjectTruth] = field(default_factory=list)
+
+
+@dataclass
+class StereoFrame:
+    """One rectified stereo pair with its calibration and time."""
+
+    dataset: str
+    sequence: str
+    index: int  # frame index within the sequence (0-based, as the source numbers it)
+    t_ns: int  # capture time, nanoseconds
+    left: np.ndarray  # (H, W, 3) uint8 RGB, rectified
+    right: np.ndarray  # (H, W, 3) uint8 RGB, rectified
+    calib: StereoCalib
+    truth: FrameTruth | None = None
+
+
+@dataclass(frozen=True)
+class SequencePlan:
+    """What a source knows about a sequence before decoding any image.
+
+    ``frames`` lists the frame indices that exist, in time order; ``t_ns`` holds their
+    timestamps. A recording gap (e.g. a missing RobotCar chunk) shows as a jump in
+    ``t_ns``; ``gaps`` lists the positions ``i`` in ``frames`` where a gap lies between
+    ``frames[i-1]`` and ``frames[i]``.
+    """
+
+    dataset: str
+    sequence: str
+    calib: StereoCalib
+    frames: tuple[int, ...]
+    t_ns: tuple[int, ...]
+    gaps: tuple[int, ...] = ()
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    @property
+    def duration_s(self) -> float:
+        return (self.t_ns[-1] - self.t_ns[0]) / 1e9 if self.frames else 0.0
+
+
+@dataclass(frozen=True)
+class Window:
+    """The unit of scheduling, retry and output: a core frame range plus its context.
+
+    Ranges are half-open positions into ``SequencePlan.frames``.
+    """
+
+    dataset: str
+    sequence: str
+    core: tuple[int, int]
+    context: tuple[int, int]
+
+    @property
+    def name(self) -> str:
+        """Deterministic name used for output files and the manifest."""
+        return f"{self.sequence}-{self.core[0]:07d}-{self.core[1]:07d}"
+
+
+def plan_windows(plan: SequencePlan, core: int = 100, before: int = 0, after: int = 0) -> list[Window]:
+    """Cut a sequence into windows of ``core`` frames, each with its context margins."""
+    if core <= 0:
+        raise ValueError("window core length must be positive")
+    n = len(plan)
+    out = []
+    for s in range(0, n, core):
+        e = min(s + core, n)
+        out.append(Window(plan.dataset, plan.sequence, (s, e), (max(0, s - before), min(n, e + after))))
+    return out
+
+
+@dataclass
+class Egomotion:
+    """Camera motion from the previous frame to this one.
+
+    ``ok`` is False when the estimate failed (too few inliers, no convergence, degenerate
+    geometry); ``T_cur_prev`` is then None. A failure is never replaced by the identity.
+    """
+
+    T_cur_prev: np.ndarray | None  # (4, 4), see the module docstring
+    inliers: int
+    matches: int  # cycle-consistent matches the estimate started from
+    rmse_px: float  # reprojection RMSE over the inliers (NaN when failed)
+    ok: bool
+    reason: str = ""  # why it failed, empty when ok
+
+
+@dataclass
+class SceneFlow:
+    """Sparse scene flow: cycle-consistent features triangulated at t−1 and t.
+
+    All arrays have N rows. ``motion`` is each point's own 3D motion between the two
+    frames in the current camera frame after removing the egomotion (zero for static
+    points, up to noise); ``NaN`` rows when the egomotion failed.
+    """
+
+    uv_prev: np.ndarray  # (N, 2) left-image pixels at t−1
+    uv: np.ndarray  # (N, 2) left-image pixels at t
+    disparity_prev: np.ndarray  # (N,)
+    disparity: np.ndarray  # (N,)
+    points_prev: np.ndarray  # (N, 3) camera t−1
+    points: np.ndarray  # (N, 3) camera t
+    motion: np.ndarray  # (N, 3) metres, current camera frame
+    inlier: np.ndarray  # (N,) bool, consistent with the egomotion (static scene)
+
+    def __len__(self) -> int:
+        return len(self.uv)
+
+
+@dataclass
+class GroundPlane:
+    """Plane n·X + d = 0 in camera coordinates, n unit length and pointing up (−y)."""
+
+    normal: np.ndarray | None  # (3,)
+    d: float
+    inliers: int
+    ok: bool
+    reason: str = ""
+
+    def height(self, points: np.ndarray) -> np.ndarray:
+        """Signed height of points above the plane (positive above), metres."""
+        if not self.ok:
+            raise ValueError("no ground plane: " + self.reason)
+        return np.asarray(points) @ self.normal + self.d
+
+
+@dataclass
+class FrameGeometry:
+    """Everything the geometry stage computes for one frame."""
+
+    index: int
+    t_ns: int
+    disparity: np.ndarray  # (H, W) float32 pixels, NaN = invalid
+    depth: np.ndarray  # (H, W) float32 metres, NaN = invalid
+    flow: SceneFlow | None  # None on the first frame of a run
+    egomotion: Egomotion | None  # None on the first frame of a run
+    ground: GroundPlane
+    timings_ms: dict[str, float] = field(default_factory=dict)

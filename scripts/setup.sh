@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# Create .venv (Python >= 3.11) and install Tube Miner into it. Idempotent and quick when
+# nothing changed. Usage: scripts/setup.sh [EXTRAS], e.g. scripts/setup.sh test,onnx
+set -euo pipefail
+cd "$(dirname "$0")/.."
+extras="${1:-onnx}"
+py="${PYTHON:-}"
+if [ -z "$py" ]; then
+  for c in python3.11 python3.12 python3.13 python3; do
+    if command -v "$c" >/dev/null && "$c" -c 'import sys; sys.exit(sys.version_info < (3, 11))'; then py="$c"; break; fi
+  done
+fi
+[ -n "$py" ] || { echo "setup: need Python >= 3.11 on PATH" >&2; exit 1; }
+[ -x .venv/bin/python ] || "$py" -m venv .venv
+stamp=".venv/.installed-$(cat pyproject.toml | sha256sum | cut -c1-16)-${extras//,/_}"
+if [ ! -f "$stamp" ]; then
+  .venv/bin/python -m pip install -q --upgrade pip >/dev/null 2>&1 || true
+  .venv/bin/python -m pip install -q -e ".[${extras}]"
+  touch "$stamp"
+fi
+export RAY_USAGE_STATS_ENABLED=0

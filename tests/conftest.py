@@ -1,0 +1,49 @@
+"""Shared fixtures. Real data lives in ../shared beside the checkout (present in CI)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("TUBE_MINER_SHARED", REPO.parent / "shared"))
+DATA = SHARED / "data"
+MODELS = SHARED / "models"
+
+os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+
+
+def _require(path: Path) -> Path:
+    # Real-data tests may skip only when ../shared/data is absent altogether; when the
+    # folder is there, a missing file is a failure.
+    if not DATA.is_dir():
+        pytest.skip(f"real data not present at {DATA}")
+    assert path.exists(), f"expected real data at {path}"
+    return path
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    return _require(DATA)
+
+
+@pytest.fixture(scope="session")
+def kitti_tracking_root() -> Path:
+    return _require(DATA / "kitti_tracking")
+
+
+@pytest.fixture(scope="session")
+def kitti_raw_root() -> Path:
+    return _require(DATA / "kitti_raw")
+
+
+@pytest.fixture(scope="session")
+def stereo_gt_root() -> Path:
+    return _require(DATA / "stereo_gt")
+
+
+@pytest.fixture(scope="session")
+def oxford_data() -> Path:
+    return _require(DATA / "oxford")
