@@ -1,0 +1,78 @@
+"""File formats of the benchmarks: KITTI disparity PNG, Middlebury PFM, KITTI odometry poses."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from mining.errors import InputError
+
+
+def write_disparity_png(path: str | Path, disparity: np.ndarray) -> None:
+    """KITTI 16-bit disparity PNG: value = round(disparity × 256), 0 = invalid."""
+    d = np.asarray(disparity, np.float64)
+    valid = np.isfinite(d) & (d > 0)
+    out = np.zeros(d.shape, np.uint16)
+    # 1/256 px is the format's resolution; clip keeps large disparities from wrapping.
+    out[valid] = np.clip(np.round(d[valid] * 256.0), 1, 65535).astype(np.uint16)
+    if not cv2.imwrite(str(path), out):
+        raise InputError("could not write disparity PNG", path)
+
+
+def read_disparity_png(path: str | Path) -> np.ndarray:
+    """KITTI 16-bit disparity PNG → float32 pixels, NaN = invalid."""
+    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if raw is None:
+        raise InputError("unreadable or missing disparity PNG", path)
+    if raw.dtype != np.uint16 or raw.ndim != 2:
+        raise InputError(f"expected a 16-bit greyscale PNG, got {raw.dtype} with shape {raw.shape}", path)
+    d = raw.astype(np.float32) / 256.0
+    d[raw == 0] = np.nan
+    return d
+
+
+def read_pfm(path: str | Path) -> np.ndarray:
+    """Portable float map (Middlebury): rows are stored bottom-to-top; ``inf`` = unknown → NaN."""
+    p = Path(path)
+    with p.open("rb") as f:
+        kind = f.readline().strip()
+        if kind not in (b"Pf", b"PF"):
+            raise InputError(f"not a PFM file (header {kind!r})", p)
+        try:
+            w, h = (int(x) for x in f.readline().split())
+            scale = float(f.readline().strip())
+        except ValueError as e:
+            raise InputError(f"bad PFM header: {e}", p) from None
+        channels = 1 if kind == b"Pf" else 3
+        data = np.frombuffer(f.read(), dtype="<f4" if scale < 0 else ">f4")
+    if data.size != w * h * channels:
+        raise InputError(f"PFM holds {data.size} values, header says {w}×{h}×{channels}", p)
+    img = np.flipud(data.reshape(h, w, channels) if channels == 3 else data.reshape(h, w)).astype(np.float32)
+    img[~np.isfinite(img)] = np.nan
+    return img
+
+
+def write_poses(path: str | Path, poses: np.ndarray) -> None:
+    """KITTI odometry poses: one row-major 3×4 camera-to-world matrix per line (NaN rows allowed)."""
+    poses = np.asarray(poses, np.float64).reshape(-1, 4, 4)
+    with open(path, "w") as f:
+        for T in poses:
+            f.write(" ".join(f"{v:.9e}" for v in T[:3].ravel()) + "\n")
+
+
+def read_poses(path: str | Path) -> np.ndarray:
+    """KITTI odometry poses file → (N, 4, 4)."""
+    p = Path(path)
+    rows = []
+    for n, line in enumerate(p.read_text().splitlines()):
+        if not line.strip():
+            continue
+        vals = line.split()
+        if len(vals) != 12:
+            raise InputError(f"line {n + 1}: expected 12 values, got {len(vals)}", p, frame=n)
+        T = np.eye(4)
+        T[:3] = np.array(vals, np.float64).reshape(3, 4)
+        rows.append(T)
+    return np.array(rows).reshape(-1, 4, 4)
