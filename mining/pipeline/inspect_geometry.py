@@ -1,0 +1,105 @@
+"""``mine inspect geometry``: run the geometry stage over a frame range and write its results.
+
+Outputs, in ``out_dir``:
+
+* ``disparity/<frame>.png`` — KITTI 16-bit disparity (value = disparity × 256, 0 = invalid);
+* ``poses.txt`` — KITTI odometry poses from the chained egomotion, one row-major 3×4
+  camera-to-world line per frame, the first frame the identity. A failed egomotion breaks
+  the chain: that frame's line and all later ones are NaN (never a guessed identity);
+* ``quality.json`` — per frame: egomotion (ok, reason, inliers, matches, RMSE, the 3×4
+  relative transform), ground plane, disparity density, flow count and timings.
+
+Each file is written under a temporary name and renamed. If a frame cannot be read, the
+frames before it stay written and ``quality.json`` records the error.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mining.errors import MiningError
+from mining.eval.formats import write_disparity_png, write_poses
+from mining.eval.odometry import chain_egomotion
+from mining.geometry.config import GeometryConfig
+from mining.geometry.stage import GeometryStage
+from mining.sources.base import Source
+from mining.types import FrameGeometry
+
+
+def _atomic(path: Path, write) -> None:
+    # The temporary name keeps the suffix: OpenCV picks the codec from it.
+    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    write(tmp)
+    os.replace(tmp, path)
+
+
+def frame_quality(g: FrameGeometry) -> dict[str, Any]:
+    """JSON-ready summary of one frame's geometry."""
+    q: dict[str, Any] = {
+        "frame": g.index,
+        "t_ns": g.t_ns,
+        "disparity_valid": float(np.isfinite(g.disparity).mean()),
+        "flow_matches": None if g.flow is None else len(g.flow),
+        "timings_ms": {k: round(v, 2) for k, v in g.timings_ms.items()},
+        "ground": {
+            "ok": g.ground.ok,
+            "reason": g.ground.reason,
+            "inliers": g.ground.inliers,
+            "normal": None if g.ground.normal is None else [float(x) for x in g.ground.normal],
+            "d": float(g.ground.d) if g.ground.ok else None,
+        },
+    }
+    e = g.egomotion
+    q["egomotion"] = None if e is None else {
+        "ok": e.ok,
+        "reason": e.reason,
+        "inliers": e.inliers,
+        "matches": e.matches,
+        "rmse_px": None if not np.isfinite(e.rmse_px) else float(e.rmse_px),
+        "T_cur_prev": None if e.T_cur_prev is None else [float(x) for x in e.T_cur_prev[:3].ravel()],
+    }
+    return q
+
+
+def inspect_geometry(
+    source: Source, sequence: str, start: int, stop: int | None, cfg: GeometryConfig, out_dir: str | Path
+) -> dict[str, Any]:
+    """Run geometry on plan positions [start, stop) of ``sequence``; returns the summary written."""
+    out = Path(out_dir)
+    (out / "disparity").mkdir(parents=True, exist_ok=True)
+    plan = source.plan(sequence)
+    stop = len(plan) if stop is None else min(stop, len(plan))
+    stage: GeometryStage | None = None
+    frames: list[dict[str, Any]] = []
+    transforms: list[np.ndarray | None] = []
+    error = None
+    try:
+        for frame in source.read(plan, start, stop):
+            if stage is None:
+                stage = GeometryStage(frame.calib, cfg)
+            g = stage.run(frame)
+            _atomic(out / "disparity" / f"{g.index:06d}.png", lambda p: write_disparity_png(p, g.disparity))
+            frames.append(frame_quality(g))
+            transforms.append(None if g.egomotion is None or not g.egomotion.ok else g.egomotion.T_cur_prev)
+    except MiningError as e:
+        error = str(e)
+        raise
+    finally:
+        summary = {
+            "dataset": source.dataset,
+            "sequence": sequence,
+            "positions": [start, stop],
+            "frames": frames,
+            "egomotion_failures": sum(1 for f in frames[1:] if not f["egomotion"]["ok"]),
+            "error": error,
+        }
+        if transforms:
+            _atomic(out / "poses.txt", lambda p: write_poses(p, chain_egomotion(transforms)))
+        _atomic(out / "quality.json", lambda p: p.write_text(json.dumps(summary, indent=1)))
+    return summary
+
