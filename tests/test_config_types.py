@@ -1,0 +1,73 @@
+"""Job configuration loading and the shared types."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mining.config import load_config
+from mining.errors import ConfigError, InputError
+from mining.types import SequencePlan, StereoCalib, plan_windows
+
+REPO_JOBS = __import__("pathlib").Path(__file__).resolve().parents[1] / "jobs"
+
+
+def test_defaults_come_from_reference():
+    cfg = load_config()
+    assert cfg.geometry.egomotion.ransac_iterations == 200
+    assert cfg.geometry.egomotion.inlier_threshold_px == 2.0
+    assert cfg.geometry.ground.iterations == 3000
+    assert cfg.geometry.ground.min_points == 1000
+    assert cfg.geometry.flow.match_radius_px == 200.0
+
+
+@pytest.mark.parametrize("name", ["synthetic", "kitti", "oxford"])
+def test_job_files_load(name):
+    cfg = load_config(REPO_JOBS / f"{name}.toml")
+    assert cfg.source.dataset == name
+
+
+def test_overrides_and_hash(tmp_path):
+    base = load_config()
+    changed = load_config(overrides=["geometry.stereo.num_disparities=96"])
+    assert changed.geometry.stereo.num_disparities == 96
+    assert changed.params_hash != base.params_hash
+    # Where the data lives does not change the results.
+    moved = load_config(overrides=['source.root="/elsewhere"'])
+    assert moved.params_hash == base.params_hash
+
+
+def test_unknown_key_and_bad_type_are_errors(tmp_path):
+    with pytest.raises(ConfigError, match="unknown key"):
+        load_config(overrides=["geometry.stereo.num_disparitys=96"])
+    with pytest.raises(ConfigError, match="expected int"):
+        load_config(overrides=['geometry.stereo.num_disparities="many"'])
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[source\n")
+    with pytest.raises(ConfigError, match="bad.toml"):
+        load_config(bad)
+
+
+def test_calib_projection_round_trip():
+    c = StereoCalib(721.5, 721.5, 609.6, 172.9, 0.5327, 1242, 375)
+    p = np.array([[1.0, 0.5, 10.0], [-3.0, 1.2, 40.0]])
+    uv = c.project(p)
+    back = c.backproject(uv[:, 0], uv[:, 1], p[:, 2])
+    np.testing.assert_allclose(back, p, atol=1e-9)
+    disp = np.array([c.bf / 10.0, 0.0, np.nan], np.float32)
+    z = c.depth_from_disparity(disp)
+    assert z[0] == pytest.approx(10.0, rel=1e-5) and np.isnan(z[1]) and np.isnan(z[2])
+
+
+def test_plan_windows_cover_sequence_once():
+    calib = StereoCalib(1, 1, 0, 0, 1, 10, 10)
+    plan = SequencePlan("synthetic", "0000", calib, tuple(range(250)), tuple(range(250)))
+    ws = plan_windows(plan, core=100, before=5, after=10)
+    assert [w.core for w in ws] == [(0, 100), (100, 200), (200, 250)]
+    assert ws[1].context == (95, 210) and ws[2].context == (195, 250)
+    assert len({w.name for w in ws}) == 3
+
+
+def test_input_error_names_file_and_frame():
+    e = InputError("truncated PNG", "/x/000003.png", frame=3)
+    assert "/x/000003.png" in str(e) and "frame 3" in str(e) and "truncated" in str(e)
