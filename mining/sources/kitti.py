@@ -1,0 +1,218 @@
+"""KITTI tracking layout: ``<split>/{image_02,image_03}/<seq>/NNNNNN.png`` + ``calib/<seq>.txt``.
+
+The tracking benchmark ships no timestamps: frames are 10 Hz, so frame ``i`` is at
+``i × 100 ms``. The plan reads the calibration and the image file listing (plus one PNG
+header for the image size), never image data.
+"""
+
+from __future__ import annotations
+
+import re
+import struct
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from mining.errors import InputError
+from mining.sources.base import Source
+from mining.sources.kitti_calib import KittiCalib, read_tracking_calib
+from mining.types import SequencePlan, StereoCalib, StereoFrame
+
+KITTI_FRAME_PERIOD_NS = 100_000_000  # ours: KITTI records at 10 Hz (Geiger et al. 2013); tracking has no timestamp file
+_SPLITS = ("training", "testing")
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def png_size(path: Path, frame: int | None = None) -> tuple[int, int]:
+    """(width, height) from a PNG's IHDR chunk, reading 24 bytes only."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(24)
+    except OSError as e:
+        raise InputError(f"cannot open image: {e.strerror}", path, frame) from None
+    if len(head) < 24 or head[:8] != _PNG_SIGNATURE or head[12:16] != b"IHDR":
+        raise InputError("not a PNG file (bad signature or IHDR header)", path, frame)
+    return struct.unpack(">II", head[16:24])
+
+
+def read_rgb(path: Path, frame: int) -> np.ndarray:
+    """Decode a colour image to (H, W, 3) uint8 RGB; InputError when missing or undecodable."""
+    if not path.is_file():
+        raise InputError("image file is missing", path, frame)
+    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if bgr is None:  # OpenCV returns None for unreadable or truncated files
+        raise InputError("cannot decode image (unreadable or truncated)", path, frame)
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def read_stereo_pair(left_path: Path, right_path: Path, frame: int, calib: StereoCalib) -> tuple[np.ndarray, np.ndarray]:
+    """Decode both images and check their sizes against each other and the calibration."""
+    left, right = read_rgb(left_path, frame), read_rgb(right_path, frame)
+    (hl, wl), (hr, wr) = left.shape[:2], right.shape[:2]
+    if (wl, hl) != (wr, hr):
+        raise InputError(f"left image is {wl}×{hl} but right image {right_path} is {wr}×{hr}", left_path, frame)
+    if (wl, hl) != (calib.width, calib.height):
+        raise InputError(
+            f"image is {wl}×{hl} but the calibration is for {calib.width}×{calib.height}", left_path, frame
+        )
+    return left, right
+
+
+def paired_frames(left_dir: Path, right_dir: Path, digits: int) -> tuple[int, ...]:
+    """Frame indices whose image (``<digits-wide index>.png``) exists in both folders.
+
+    Indices must be consecutive from the first.
+
+    A frame present on one side only, or a hole in the numbering, raises InputError
+    naming the missing file, from the directory listing alone.
+    """
+    for d in (left_dir, right_dir):
+        if not d.is_dir():
+            raise InputError("image folder is missing", d)
+
+    pattern = re.compile(rf"(\d{{{digits}}})\.png")
+
+    def listing(d: Path) -> dict[int, str]:
+        return {int(m.group(1)): n for n in _names(d) if (m := pattern.fullmatch(n))}
+
+    left, right = listing(left_dir), listing(right_dir)
+    for idx in sorted(left.keys() - right.keys()):
+        raise InputError("right image is missing for this frame", right_dir / left[idx], idx)
+    for idx in sorted(right.keys() - left.keys()):
+        raise InputError("left image is missing for this frame", left_dir / right[idx], idx)
+    frames = sorted(left)
+    if not frames:
+        raise InputError("no images found", left_dir)
+    for prev, cur in zip(frames, frames[1:]):
+        if cur != prev + 1:
+            missing = left_dir / f"{prev + 1:0{digits}d}.png"
+            raise InputError(f"image is missing: frame numbering jumps from {prev} to {cur}", missing, prev + 1)
+    return tuple(frames)
+
+
+def _names(d: Path) -> list[str]:
+    try:
+        return sorted(p.name for p in d.iterdir())
+    except OSError as e:
+        raise InputError(f"cannot list folder: {e.strerror}", d) from None
+
+
+class KittiTrackingSource(Source):
+    """KITTI tracking stereo sequences (image_02 left, image_03 right).
+
+    ``root`` holds ``training/`` and/or ``testing/``, or is itself a split folder. With
+    one split, sequences are named ``"0005"``; with both, ``"training/0005"`` (a bare
+    name is accepted when only one split has it).
+    """
+
+    dataset = "kitti"
+    _FRAME = re.compile(r"(\d{6})\.png")
+
+    def __init__(self, root: str | Path, camera_pair: tuple[str, str] = ("image_02", "image_03")):
+        if root is None:
+            raise InputError("the kitti source needs a root folder")
+        self.root = Path(root)
+        if not self.root.is_dir():
+            raise InputError("KITTI tracking root folder does not exist", self.root)
+        self.camera_pair = tuple(camera_pair)
+        if (self.root / "calib").is_dir() or (self.root / self.camera_pair[0]).is_dir():
+            self._splits = {"": self.root}
+        else:
+            self._splits = {s: self.root / s for s in _SPLITS if (self.root / s).is_dir()}
+        if not self._splits:
+            raise InputError("no KITTI tracking split (training/, testing/ or calib/) under the root", self.root)
+
+    # -- naming ---------------------------------------------------------------------
+
+    def _split_dir(self, sequence: str) -> tuple[Path, str]:
+        """Split folder and bare sequence id of a sequence name."""
+        if "/" in sequence:
+            split, seq = sequence.split("/", 1)
+            if split not in self._splits:
+                raise InputError(f"unknown split {split!r} in sequence name {sequence!r}", self.root)
+            return self._splits[split], seq
+        having = [d for d in self._splits.values() if (d / "calib" / f"{sequence}.txt").is_file()]
+        if len(having) > 1:
+            raise InputError(f"sequence {sequence!r} exists in several splits; name it as 'training/{sequence}'", self.root)
+        if not having:  # let the caller's next step name the missing calibration file
+            return next(iter(self._splits.values())), sequence
+        return having[0], sequence
+
+    def sequences(self) -> list[str]:
+        """Sequences that have a calibration file (images may be absent: calib-only use)."""
+        out = []
+        for split, d in self._splits.items():
+            calib_dir = d / "calib"
+            if not calib_dir.is_dir():
+                continue
+            names = sorted(p.stem for p in calib_dir.glob("*.txt"))
+            out += [f"{split}/{n}" if len(self._splits) > 1 else n for n in names]
+        return out
+
+    def _image_dirs(self, sequence: str) -> tuple[Path, Path]:
+        d, seq = self._split_dir(sequence)
+        return d / self.camera_pair[0] / seq, d / self.camera_pair[1] / seq
+
+    # -- calibration ----------------------------------------------------------------
+
+    def kitti_calib(self, sequence: str) -> KittiCalib:
+        """The raw KITTI matrices (P0..P3, R_rect, Tr_velo_cam, Tr_imu_velo) of a sequence."""
+        d, seq = self._split_dir(sequence)
+        return read_tracking_calib(d / "calib" / f"{seq}.txt")
+
+    def calib(self, sequence: str) -> StereoCalib:
+        """StereoCalib of image_02/image_03, usable without images.
+
+        The image size comes from the first left image's PNG header when images exist,
+        else from the recording day (KITTI_DAY_SIZES, keyed by fx).
+        """
+        kc = self.kitti_calib(sequence)
+        left_dir, _ = self._image_dirs(sequence)
+        first = self._first_image(left_dir)
+        if first is not None:
+            return self._checked_stereo(kc, first)
+        size = kc.day_size()
+        if size is None:
+            raise InputError(
+                f"no images in {left_dir} to take the image size from and fx = {kc.fx} matches no known KITTI day",
+                kc.path,
+            )
+        return kc.stereo(*size)
+
+    def _first_image(self, left_dir: Path) -> Path | None:
+        if not left_dir.is_dir():
+            return None
+        names = [n for n in _names(left_dir) if self._FRAME.fullmatch(n)]
+        return left_dir / names[0] if names else None
+
+    @staticmethod
+    def _checked_stereo(kc: KittiCalib, image: Path) -> StereoCalib:
+        frame = int(image.stem)
+        w, h = png_size(image, frame)
+        day = kc.day_size()
+        if day is not None and day != (w, h):
+            raise InputError(
+                f"image is {w}×{h} but calibration {kc.path} (fx {kc.fx}) belongs to a KITTI day "
+                f"recorded at {day[0]}×{day[1]}",
+                image,
+                frame,
+            )
+        return kc.stereo(w, h)
+
+    # -- Source interface -----------------------------------------------------------
+
+    def plan(self, sequence: str) -> SequencePlan:
+        kc = self.kitti_calib(sequence)
+        left_dir, right_dir = self._image_dirs(sequence)
+        frames = paired_frames(left_dir, right_dir, 6)
+        calib = self._checked_stereo(kc, left_dir / f"{frames[0]:06d}.png")
+        t_ns = tuple(i * KITTI_FRAME_PERIOD_NS for i in frames)
+        return SequencePlan(self.dataset, sequence, calib, frames, t_ns)
+
+    def read_frame(self, plan: SequencePlan, position: int) -> StereoFrame:
+        idx = plan.frames[position]
+        left_dir, right_dir = self._image_dirs(plan.sequence)
+        name = f"{idx:06d}.png"
+        left, right = read_stereo_pair(left_dir / name, right_dir / name, idx, plan.calib)
+        return StereoFrame(self.dataset, plan.sequence, idx, plan.t_ns[position], left, right, plan.calib)
