@@ -96,7 +96,8 @@ def lidar_depth_image(points: np.ndarray, calib: KittiCalib, width: int, height:
     flat, w = v[inside] * width + u[inside], w[inside]
     order = np.lexsort((w, flat))  # by pixel, then nearest first
     flat, w = flat[order], w[order]
-    first = np.r_[True, flat[1:] != flat[:-1]]
+    first = np.ones(len(flat), bool)
+    first[1:] = flat[1:] != flat[:-1]
     depth = np.full(width * height, np.nan, np.float32)
     depth[flat[first]] = w[first]
     return depth.reshape(height, width)
