@@ -197,3 +197,13 @@ def test_sequence_names_with_both_splits(tmp_path: Path, kitti_tracking_root: Pa
     assert src.sequences() == ["training/0005", "testing/0014"]
     assert src.plan("training/0005").frames == src.plan("0005").frames == (0, 1)
     assert src.calib("testing/0014").width == 1224
+
+
+def test_camera_pair_selects_the_projection_matrices(kitti_tracking_root: Path) -> None:
+    grey = KittiTrackingSource(kitti_tracking_root, camera_pair=("image_00", "image_01")).calib("0005")
+    assert grey.baseline_m == pytest.approx(0.5372, abs=5e-4)  # P0/P1, SOURCES.md §1.7
+    assert (grey.width, grey.height) == (1242, 375)  # no grey images here: the day table
+    with pytest.raises(InputError, match="not positive"):
+        KittiTrackingSource(kitti_tracking_root, camera_pair=("image_03", "image_02")).plan("0005")
+    with pytest.raises(InputError, match="camera_pair"):
+        KittiTrackingSource(kitti_tracking_root, camera_pair=("left", "right"))

@@ -99,7 +99,11 @@ def _names(d: Path) -> list[str]:
 
 
 class KittiTrackingSource(Source):
-    """KITTI tracking stereo sequences (image_02 left, image_03 right).
+    """KITTI tracking stereo sequences (image_02 left, image_03 right by default).
+
+    The StereoCalib is that of the left camera's own frame (image_02: rectified camera 0
+    shifted by ``KittiCalib.t_cam2``); KITTI labels and detections are in rectified
+    camera 0, see ``kitti_calib(seq).rect0_to_cam2``.
 
     ``root`` holds ``training/`` and/or ``testing/``, or is itself a split folder. With
     one split, sequences are named ``"0005"``; with both, ``"training/0005"`` (a bare
@@ -116,6 +120,11 @@ class KittiTrackingSource(Source):
         if not self.root.is_dir():
             raise InputError("KITTI tracking root folder does not exist", self.root)
         self.camera_pair = tuple(camera_pair)
+        # image_0N is imaged through P_N; the calibration follows the chosen pair.
+        cams = [re.fullmatch(r"image_0([0-3])", c) for c in self.camera_pair]
+        if len(cams) != 2 or not all(cams):
+            raise InputError(f"camera_pair must name two of image_00..image_03, got {camera_pair!r}", self.root)
+        self._cams = (int(cams[0].group(1)), int(cams[1].group(1)))
         if (self.root / "calib").is_dir() or (self.root / self.camera_pair[0]).is_dir():
             self._splits = {"": self.root}
         else:
@@ -178,7 +187,7 @@ class KittiTrackingSource(Source):
                 f"no images in {left_dir} to take the image size from and fx = {kc.fx} matches no known KITTI day",
                 kc.path,
             )
-        return kc.stereo(*size)
+        return kc.stereo(*size, *self._cams)
 
     def _first_image(self, left_dir: Path) -> Path | None:
         if not left_dir.is_dir():
@@ -186,8 +195,7 @@ class KittiTrackingSource(Source):
         names = [n for n in _names(left_dir) if self._FRAME.fullmatch(n)]
         return left_dir / names[0] if names else None
 
-    @staticmethod
-    def _checked_stereo(kc: KittiCalib, image: Path) -> StereoCalib:
+    def _checked_stereo(self, kc: KittiCalib, image: Path) -> StereoCalib:
         frame = int(image.stem)
         w, h = png_size(image, frame)
         day = kc.day_size()
@@ -198,7 +206,7 @@ class KittiTrackingSource(Source):
                 image,
                 frame,
             )
-        return kc.stereo(w, h)
+        return kc.stereo(w, h, *self._cams)
 
     # -- Source interface -----------------------------------------------------------
 

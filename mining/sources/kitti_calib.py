@@ -81,7 +81,7 @@ def _homogeneous(m: np.ndarray) -> np.ndarray:
     return out
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # arrays: compare fields with numpy, not ==
 class KittiCalib:
     """The KITTI calibration of one sequence (tracking) or one recording day (raw).
 
@@ -110,10 +110,21 @@ class KittiCalib:
         """image_02 ↔ image_03 baseline, (P2[0,3] − P3[0,3]) / fx."""
         return float((self.P2[0, 3] - self.P3[0, 3]) / self.P2[0, 0])
 
+    def P(self, camera: int) -> np.ndarray:
+        """3×4 projection of camera 0–3 (image_0N)."""
+        if camera not in (0, 1, 2, 3):
+            raise ValueError(f"KITTI has cameras 0–3, not {camera}")
+        return getattr(self, f"P{camera}")
+
+    def t_cam(self, camera: int) -> np.ndarray:
+        """(3,) offset of a camera's own frame: X_cam = X_rect0 + t_cam, since P = K [I | t]."""
+        P = self.P(camera)
+        return np.linalg.solve(P[:, :3], P[:, 3])
+
     @property
     def t_cam2(self) -> np.ndarray:
-        """(3,) position offset of image_02's frame: X_cam2 = X_rect0 + t_cam2."""
-        return np.linalg.solve(self.P2[:, :3], self.P2[:, 3])
+        """(3,) offset of image_02's frame: X_cam2 = X_rect0 + t_cam2."""
+        return self.t_cam(2)
 
     @property
     def T_cam2_rect0(self) -> np.ndarray:
@@ -143,16 +154,17 @@ class KittiCalib:
                 return size
         return None
 
-    def stereo(self, width: int, height: int) -> StereoCalib:
-        """StereoCalib of the image_02 (left) / image_03 (right) pair, image_02 frame."""
-        b = self.baseline_m
+    def stereo(self, width: int, height: int, left: int = 2, right: int = 3) -> StereoCalib:
+        """StereoCalib of a camera pair (default image_02 / image_03), in the left camera's frame."""
+        Pl, Pr = self.P(left), self.P(right)
+        b = float((Pl[0, 3] - Pr[0, 3]) / Pl[0, 0])
         if not b > 0:
-            raise InputError(f"image_02/image_03 baseline {b:.4f} m is not positive (P2 and P3 swapped?)", self.path)
-        cx, cy = float(self.P2[0, 2]), float(self.P2[1, 2])
+            raise InputError(f"baseline P{left}→P{right} = {b:.4f} m is not positive (left and right swapped?)", self.path)
+        cx, cy = float(Pl[0, 2]), float(Pl[1, 2])
         if not (0 < cx < width and 0 < cy < height):
             raise InputError(f"principal point ({cx:.1f}, {cy:.1f}) lies outside the {width}×{height} image", self.path)
         return StereoCalib(
-            fx=self.fx, fy=float(self.P2[1, 1]), cx=cx, cy=cy, baseline_m=b, width=int(width), height=int(height)
+            fx=float(Pl[0, 0]), fy=float(Pl[1, 1]), cx=cx, cy=cy, baseline_m=b, width=int(width), height=int(height)
         )
 
 

@@ -66,7 +66,8 @@ class OxtsPacket(NamedTuple):
 
 
 def parse_timestamp_ns(text: str) -> int | None:
-    """'YYYY-MM-DD HH:MM:SS.nnnnnnnnn' → integer ns since the epoch (UTC clock), exactly."""
+    """'YYYY-MM-DD HH:MM:SS.nnnnnnnnn' → integer ns, exactly; the wall-clock time is read as UTC
+    (KITTI writes local time; only differences matter)."""
     m = _TIMESTAMP.fullmatch(text.strip())
     if m is None:
         return None
