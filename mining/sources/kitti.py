@@ -62,10 +62,9 @@ def read_stereo_pair(left_path: Path, right_path: Path, frame: int, calib: Stere
 def paired_frames(left_dir: Path, right_dir: Path, digits: int) -> tuple[int, ...]:
     """Frame indices whose image (``<digits-wide index>.png``) exists in both folders.
 
-    Indices must be consecutive from the first.
-
-    A frame present on one side only, or a hole in the numbering, raises InputError
-    naming the missing file, from the directory listing alone.
+    Indices must be consecutive from the first. A frame present on one side only, or a
+    hole in the numbering, raises InputError naming the missing file, from the directory
+    listing alone.
     """
     for d in (left_dir, right_dir):
         if not d.is_dir():
@@ -77,9 +76,11 @@ def paired_frames(left_dir: Path, right_dir: Path, digits: int) -> tuple[int, ..
         return {int(m.group(1)): n for n in _names(d) if (m := pattern.fullmatch(n))}
 
     left, right = listing(left_dir), listing(right_dir)
-    for idx in sorted(left.keys() - right.keys()):
+    if only_left := sorted(left.keys() - right.keys()):
+        idx = only_left[0]
         raise InputError("right image is missing for this frame", right_dir / left[idx], idx)
-    for idx in sorted(right.keys() - left.keys()):
+    if only_right := sorted(right.keys() - left.keys()):
+        idx = only_right[0]
         raise InputError("left image is missing for this frame", left_dir / right[idx], idx)
     frames = sorted(left)
     if not frames:
