@@ -38,6 +38,14 @@ class FlowConfig:
     max_depth_m: float = 90.0  # REFERENCE: points beyond 90 m depth are ignored
     max_lateral_m: float = 30.0  # REFERENCE: points beyond 30 m lateral are ignored
     max_features: int = 4000  # ours: corners detected per image before matching
+    detect_bucket_max: int = 8  # ours: corners kept per bucket for scene flow (spreads them over the image)
+    fast_threshold: int = 20  # ours: FAST corner threshold (grey levels)
+    max_disparity_px: float = 128.0  # ours: left/right matches must lie within the stereo search range
+    lk_window: int = 9  # ours: Lucas–Kanade window, px
+    lk_levels: int = 3  # ours: temporal LK pyramid levels without a motion prior (reach ≈ window · 2^levels)
+    lk_levels_predicted: int = 1  # ours: temporal LK levels when the last egomotion predicts the match
+    lk_levels_stereo: int = 1  # ours: left/right LK levels (the dense disparity or prediction starts it)
+    lk_iterations: int = 20  # ours: LK iterations per level
 
 
 @dataclass
@@ -48,6 +56,7 @@ class EgomotionConfig:
     inlier_threshold_px: float = 2.0  # REFERENCE: reprojection inlier threshold, px
     min_inliers: int = 20  # ours: fewer inliers → the estimate is flagged as failed
     max_rmse_px: float = 1.5  # ours: inlier RMSE above this → flagged as failed
+    refine_iterations: int = 20  # ours: Gauss–Newton iterations at most (it converges in ~5)
     seed: int = 0  # ours: RANSAC seed, results are reproducible
 
 
