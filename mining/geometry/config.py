@@ -71,6 +71,11 @@ class GroundConfig:
     iterations: int = 3000  # REFERENCE: RANSAC iterations
     min_points: int = 1000  # REFERENCE: fewer candidate points → no plane
     max_points: int = 20000  # ours: subsample the candidates for speed
+    pixel_step: int = 3  # ours: take every 3rd disparity pixel in each direction as a candidate
+    max_depth_m: float = 40.0  # ours: farther stereo points are too noisy to pin the plane
+    score_points: int = 2000  # ours: RANSAC counts support on this many random candidates
+    batch: int = 100  # ours: hypotheses scored per vectorised batch
+    confidence: float = 0.999  # ours: adaptive RANSAC stop; `iterations` is the cap
     seed: int = 0  # ours: RANSAC seed
 
 

@@ -77,7 +77,7 @@ def _refine(
         J_proj[:, 1, 1] = J_proj[:, 3, 1] = fy / z
         J_proj[:, 1, 2] = J_proj[:, 3, 2] = -fy * y / z**2
         J_pose = np.concatenate([-_skew(P), np.tile(np.eye(3), (len(P), 1, 1))], axis=2)  # dP / d(ω, τ)
-        J = np.einsum("nij,njk->nik", J_proj, J_pose).reshape(-1, 6)
+        J = (J_proj @ J_pose).reshape(-1, 6)
         delta = np.linalg.lstsq(J, -res, rcond=None)[0]
         dR = Rotation.from_rotvec(delta[:3]).as_matrix()
         R, t = dR @ R, dR @ t + delta[3:]
@@ -110,7 +110,7 @@ def estimate_egomotion(
     rng = np.random.default_rng(cfg.seed)
     triplets = np.argsort(rng.random((cfg.ransac_iterations, len(idx))), axis=1)[:, :3]
     R, t = _kabsch_batch(X_prev[triplets], X_cur[triplets])
-    moved = np.einsum("kij,nj->kni", R, X_prev) + t[:, None, :]
+    moved = X_prev @ np.transpose(R, (0, 2, 1)) + t[:, None, :]  # (k, n, 3)
     z = moved[..., 2]
     with np.errstate(divide="ignore", invalid="ignore"):
         ul = calib.fx * moved[..., 0] / z + calib.cx
