@@ -123,3 +123,138 @@ def write_robotcar_fixture(
             cv2.imwrite(str(trav / "stereo" / d / f"{t_us}.png"), raw)
     (trav / "stereo.timestamps").write_text("\n".join(lines) + "\n")
     return trav
+
+
+# -- ROS 2 MCAP ------------------------------------------------------------------------------
+
+# Message definitions in the concatenated "ros2msg" form rosbag2 stores in MCAP schemas,
+# written from the ROS 2 (Humble) interface files of sensor_msgs, std_msgs and
+# builtin_interfaces.
+_SEP = "=" * 80
+_TIME_MSG = "int32 sec\nuint32 nanosec\n"
+_HEADER_MSG = "builtin_interfaces/Time stamp\nstring frame_id\n"
+_DEPS = f"{_SEP}\nMSG: std_msgs/Header\n{_HEADER_MSG}{_SEP}\nMSG: builtin_interfaces/Time\n{_TIME_MSG}"
+IMAGE_MSGDEF = (
+    "std_msgs/Header header\nuint32 height\nuint32 width\nstring encoding\nuint8 is_bigendian\nuint32 step\n"
+    "uint8[] data\n" + _DEPS
+)
+COMPRESSED_IMAGE_MSGDEF = "std_msgs/Header header\nstring format\nuint8[] data\n" + _DEPS
+CAMERA_INFO_MSGDEF = (
+    "std_msgs/Header header\nuint32 height\nuint32 width\nstring distortion_model\nfloat64[] d\n"
+    "float64[9] k\nfloat64[9] r\nfloat64[12] p\nuint32 binning_x\nuint32 binning_y\n"
+    "sensor_msgs/RegionOfInterest roi\n"
+    f"{_SEP}\nMSG: sensor_msgs/RegionOfInterest\n"
+    "uint32 x_offset\nuint32 y_offset\nuint32 height\nuint32 width\nbool do_rectify\n" + _DEPS
+)
+
+def camera_info(calib: StereoCalib, stamp_ns: int, frame_id: str, right: bool) -> dict:
+    """A rectified sensor_msgs/CameraInfo; the right P carries −fx·baseline (ROS convention)."""
+    K = [calib.fx, 0.0, calib.cx, 0.0, calib.fy, calib.cy, 0.0, 0.0, 1.0]
+    tx = -calib.fx * calib.baseline_m if right else 0.0
+    P = [calib.fx, 0.0, calib.cx, tx, 0.0, calib.fy, calib.cy, 0.0, 0.0, 0.0, 1.0, 0.0]
+    return {
+        "header": _header(stamp_ns, frame_id),
+        "height": calib.height,
+        "width": calib.width,
+        "distortion_model": "plumb_bob",
+        "d": [0.0] * 5,
+        "k": K,
+        "r": [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+        "p": P,
+        "binning_x": 0,
+        "binning_y": 0,
+        "roi": {"x_offset": 0, "y_offset": 0, "height": 0, "width": 0, "do_rectify": False},
+    }
+
+
+def _header(stamp_ns: int, frame_id: str) -> dict:
+    return {"stamp": {"sec": stamp_ns // 1_000_000_000, "nanosec": stamp_ns % 1_000_000_000}, "frame_id": frame_id}
+
+
+def image_message(rgb: np.ndarray, stamp_ns: int, frame_id: str, encoding: str = "rgb8") -> dict:
+    """A sensor_msgs/Image holding ``rgb`` in ``encoding`` (rgb8, bgr8, mono8, bayer_*8)."""
+    if encoding == "rgb8":
+        data = rgb
+    elif encoding == "bgr8":
+        data = rgb[..., ::-1]
+    elif encoding == "mono8":
+        data = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+    elif encoding.startswith("bayer_") and encoding.endswith("8"):
+        data = bayer_mosaic(rgb, encoding[len("bayer_") : -1])
+    else:
+        raise ValueError(f"fixture writer does not handle encoding {encoding!r}")
+    data = np.ascontiguousarray(data)
+    h, w = data.shape[:2]
+    return {
+        "header": _header(stamp_ns, frame_id),
+        "height": h,
+        "width": w,
+        "encoding": encoding,
+        "is_bigendian": 0,
+        "step": data.strides[0],
+        "data": data.tobytes(),
+    }
+
+
+def compressed_image_message(rgb: np.ndarray, stamp_ns: int, frame_id: str, fmt: str = "png") -> dict:
+    """A sensor_msgs/CompressedImage as image_transport writes it (BGR inside the file)."""
+    ok, buf = cv2.imencode("." + fmt, np.ascontiguousarray(rgb[..., ::-1]))
+    if not ok:
+        raise ValueError(f"OpenCV could not encode {fmt}")
+    return {"header": _header(stamp_ns, frame_id), "format": f"rgb8; {fmt} compressed bgr8", "data": buf.tobytes()}
+
+
+def write_stereo_mcap(
+    path: str | Path,
+    left_frames: Sequence[np.ndarray],
+    right_frames: Sequence[np.ndarray],
+    calib: StereoCalib,
+    t0_ns: int = 1_700_000_000_000_000_000,
+    hz: float = 10.0,
+    compressed: bool = False,
+    encoding: str = "rgb8",
+    namespace: str = "/stereo",
+    right_offset_ns: int = 0,
+    log_delay_ns: int = 3_000_000,
+    with_camera_info: bool = True,
+    skip_right: Sequence[int] = (),
+) -> dict[str, str]:
+    """Write a ROS 2 MCAP with left/right images and CameraInfo, one message each per frame.
+
+    Header stamps are ``t0_ns + i/hz`` (the right camera ``right_offset_ns`` later); log
+    times are the stamps plus ``log_delay_ns``, as a recorder sees them. Frames listed in
+    ``skip_right`` get no right image. Returns the topic names used.
+    """
+    from mcap_ros2.writer import Writer
+
+    suffix = "image_raw/compressed" if compressed else "image_raw"
+    topics = {
+        "left": f"{namespace}/left/{suffix}",
+        "right": f"{namespace}/right/{suffix}",
+        "left_info": f"{namespace}/left/camera_info",
+        "right_info": f"{namespace}/right/camera_info",
+    }
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        if compressed:
+            img_schema = writer.register_msgdef("sensor_msgs/msg/CompressedImage", COMPRESSED_IMAGE_MSGDEF)
+        else:
+            img_schema = writer.register_msgdef("sensor_msgs/msg/Image", IMAGE_MSGDEF)
+        info_schema = writer.register_msgdef("sensor_msgs/msg/CameraInfo", CAMERA_INFO_MSGDEF)
+        for i, (lf, rf) in enumerate(zip(left_frames, right_frames, strict=True)):
+            stamp = t0_ns + round(i * 1e9 / hz)
+            for side, rgb, t in (("left", lf, stamp), ("right", rf, stamp + right_offset_ns)):
+                if side == "right" and i in skip_right:
+                    continue
+                frame_id = f"{namespace.strip('/')}_{side}_optical"
+                if with_camera_info:
+                    info = camera_info(calib, t, frame_id, right=side == "right")
+                    writer.write_message(topics[f"{side}_info"], info_schema, info, log_time=t + log_delay_ns)
+                msg = (
+                    compressed_image_message(rgb, t, frame_id)
+                    if compressed
+                    else image_message(rgb, t, frame_id, encoding)
+                )
+                writer.write_message(topics[side], img_schema, msg, log_time=t + log_delay_ns)
+        writer.finish()
+    return topics

@@ -1,0 +1,374 @@
+"""ROS 2 stereo recordings in MCAP files (one file = one sequence, named by its stem).
+
+A sequence needs a left and a right image topic (``sensor_msgs/msg/Image`` or
+``sensor_msgs/msg/CompressedImage``) and a ``sensor_msgs/msg/CameraInfo`` topic for each
+camera. The images must already be rectified; the calibration comes from the projection
+matrices P: fx = P[0], cx = P[2], fy = P[5], cy = P[6] and baseline = (P_l[3] − P_r[3]) / P_r[0]
+(= −P_r[3] / P_r[0] when the left camera is the reference, the ROS convention).
+
+Left and right images are paired by their header stamps (nearest neighbour, mutual, within
+``max_pair_dt_ns``); frames without a partner are skipped and counted in ``pairing()``.
+The frame index is the left message's position in the left topic (ordered by stamp), so a
+skipped frame leaves a hole in ``plan.frames`` and a gap in ``plan.gaps``.
+
+``plan`` reads the summary, CameraInfo and the first 12 bytes (CDR encapsulation + stamp)
+of each image message; it never decodes an image. ``read_frame`` seeks to the chunks that
+hold the two messages via the chunk index (log-time filter), not a rescan.
+"""
+
+from __future__ import annotations
+
+import bisect
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from mining.errors import InputError
+from mining.sources.base import Source
+from mining.types import SequencePlan, StereoCalib, StereoFrame
+
+# ours: hardware-triggered stereo stamps agree to well under a millisecond; 5 ms tolerates
+# software-triggered pairs while staying far below a frame period (50 ms at 20 Hz).
+MAX_PAIR_DT_NS = 5_000_000
+
+# ours: a frame interval longer than this many median intervals is a recording gap.
+GAP_FACTOR = 1.5
+
+# ours: intrinsics of the left and right CameraInfo must agree this closely (rectified pair).
+RECTIFIED_TOL_PX = 1e-3
+
+IMAGE_TYPES = {
+    "sensor_msgs/msg/Image": "raw",
+    "sensor_msgs/Image": "raw",
+    "sensor_msgs/msg/CompressedImage": "compressed",
+    "sensor_msgs/CompressedImage": "compressed",
+}
+INFO_TYPES = {"sensor_msgs/msg/CameraInfo", "sensor_msgs/CameraInfo"}
+
+# ROS Bayer encoding pattern → OpenCV code. OpenCV names a pattern after the 2nd and 3rd
+# pixel of its 2nd row (so GBRG is "GR"); checked by the round-trip tests.
+BAYER_TO_RGB = {
+    "rggb": cv2.COLOR_BayerBG2RGB,
+    "bggr": cv2.COLOR_BayerRG2RGB,
+    "gbrg": cv2.COLOR_BayerGR2RGB,
+    "grbg": cv2.COLOR_BayerGB2RGB,
+}
+RAW_CHANNELS = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1}
+
+
+def header_stamp_ns(data: bytes | memoryview) -> int:
+    """The ``header.stamp`` of a CDR-encoded message whose first field is a std_msgs/Header."""
+    if len(data) < 12:
+        raise ValueError("message shorter than a CDR header stamp")
+    fmt = "<iI" if data[1] & 1 else ">iI"  # encapsulation id: odd = little endian
+    sec, nanosec = struct.unpack_from(fmt, data, 4)
+    return sec * 1_000_000_000 + nanosec
+
+
+@dataclass
+class _Index:
+    """What plan() learned about one file; read_frame() needs it to find messages."""
+
+    path: Path
+    topics: tuple[str, str]
+    kinds: tuple[str, str]  # "raw" or "compressed"
+    left: list[tuple[int, int]]  # (stamp_ns, log_time) per left message, sorted by stamp
+    right: list[tuple[int, int]]
+    partner: dict[int, int]  # left position → right position
+    calib: StereoCalib
+    unpaired_left: int
+    unpaired_right: int
+    info_topics: tuple[str, str]
+
+
+def _open_error(path: Path, err: Exception) -> InputError:
+    return InputError(
+        f"not a readable MCAP file, or truncated (no intact footer/summary): {type(err).__name__}: {err}. "
+        "A recording cut short can be rebuilt with `mcap recover`",
+        path,
+    )
+
+
+class McapSource(Source):
+    """Stereo pairs from ROS 2 MCAP files under ``root`` (a folder of .mcap files or one file)."""
+
+    dataset = "mcap"
+
+    def __init__(
+        self,
+        root: str | Path,
+        left_topic: str | None = None,
+        right_topic: str | None = None,
+        left_info: str | None = None,
+        right_info: str | None = None,
+        max_pair_dt_ns: int = MAX_PAIR_DT_NS,
+        time_source: str = "header",
+    ):
+        if time_source not in ("header", "log"):
+            raise InputError(f"time_source must be 'header' or 'log', got {time_source!r}")
+        self.root = Path(root)
+        self.left_topic, self.right_topic = left_topic, right_topic
+        self.left_info, self.right_info = left_info, right_info
+        self.max_pair_dt_ns = int(max_pair_dt_ns)
+        self.time_source = time_source
+        self._index: dict[str, _Index] = {}
+
+    # -- files ---------------------------------------------------------------------------
+
+    def sequences(self) -> list[str]:
+        if self.root.is_file():
+            return [self.root.stem]
+        if not self.root.is_dir():
+            raise InputError("MCAP root not found", self.root)
+        return sorted(p.stem for p in self.root.glob("*.mcap"))
+
+    def _path(self, sequence: str) -> Path:
+        path = self.root if self.root.is_file() else self.root / f"{sequence}.mcap"
+        if path.stem != sequence or not path.is_file():
+            raise InputError(f"no MCAP file for sequence {sequence!r}", path)
+        return path
+
+    @staticmethod
+    def _reader(f: Any, path: Path) -> tuple[Any, Any, Any]:
+        """Reader, summary and a CDR decoder factory (its cache is per file: schema ids are)."""
+        from mcap.reader import make_reader
+        from mcap_ros2.decoder import DecoderFactory
+
+        try:
+            reader = make_reader(f, validate_crcs=True)  # chunk CRCs catch corrupt bytes
+            summary = reader.get_summary()
+        except Exception as err:  # the mcap library raises assorted types on bad bytes
+            raise _open_error(path, err) from None
+        if summary is None:
+            raise InputError("MCAP file has no summary section; re-index it with `mcap recover`", path)
+        return reader, summary, DecoderFactory()
+
+    # -- planning ------------------------------------------------------------------------
+
+    def _choose(self, path: Path, summary: Any) -> tuple[tuple[str, str], tuple[str, str], tuple[str, str]]:
+        channels = {ch.topic: summary.schemas[ch.schema_id].name if ch.schema_id else "" for ch in summary.channels.values()}
+        images = sorted(t for t, s in channels.items() if s in IMAGE_TYPES)
+        infos = sorted(t for t, s in channels.items() if s in INFO_TYPES)
+
+        def pick(explicit: str | None, pool: list[str], side: str, what: str, near: str | None = None) -> str:
+            if explicit is not None:
+                if explicit not in pool:
+                    raise InputError(f"{what} topic {explicit!r} not found; {what} topics here: {pool}", path)
+                return explicit
+            hits = [t for t in pool if side in t.lower()]
+            if near is not None and len(hits) > 1:  # the CameraInfo beside the image topic
+                common = [len(_common_prefix(t, near)) for t in hits]
+                hits = [t for t, c in zip(hits, common) if c == max(common)]
+            if len(hits) != 1:
+                found = hits or pool
+                if not found:
+                    raise InputError(f"no {what} topic in the file (topics: {sorted(channels)})", path)
+                raise InputError(
+                    f"cannot tell the {side} {what} topic among {found}; pass {side}_"
+                    f"{'topic' if what == 'image' else 'info'}=... explicitly",
+                    path,
+                )
+            return hits[0]
+
+        lt = pick(self.left_topic, images, "left", "image")
+        rt = pick(self.right_topic, images, "right", "image")
+        li = pick(self.left_info, infos, "left", "CameraInfo", near=lt)
+        ri = pick(self.right_info, infos, "right", "CameraInfo", near=rt)
+        kinds = (IMAGE_TYPES[channels[lt]], IMAGE_TYPES[channels[rt]])
+        return (lt, rt), (li, ri), kinds
+
+    def _build_index(self, sequence: str) -> _Index:
+        path = self._path(sequence)
+        with open(path, "rb") as f:
+            reader, summary, factory = self._reader(f, path)
+            (lt, rt), (lit, rit), kinds = self._choose(path, summary)
+            stamps: dict[str, list[tuple[int, int]]] = {lt: [], rt: []}
+            infos: dict[str, Any] = {}
+            try:
+                for d in _iter(reader, [lt, rt, lit, rit]):
+                    schema, channel, message = d
+                    if channel.topic in stamps:
+                        if self.time_source == "log":
+                            stamp = message.log_time
+                        else:
+                            stamp = header_stamp_ns(message.data)
+                        stamps[channel.topic].append((stamp, message.log_time))
+                    elif channel.topic not in infos:  # the first CameraInfo of each camera
+                        decode = factory.decoder_for(channel.message_encoding, schema)
+                        infos[channel.topic] = decode(message.data)
+            except InputError:
+                raise
+            except Exception as err:
+                raise InputError(f"cannot read messages (corrupt chunk?): {type(err).__name__}: {err}", path) from None
+        for topic in (lit, rit):
+            if topic not in infos:
+                raise InputError(f"CameraInfo topic {topic} has no messages", path)
+        for topic in (lt, rt):
+            if not stamps[topic]:
+                raise InputError(f"image topic {topic} has no messages", path)
+            if self.time_source == "header" and all(s == 0 for s, _ in stamps[topic]):
+                raise InputError(f"image topic {topic} has zero header stamps; use time_source='log'", path)
+        calib = _calib_from_infos(infos[lit], infos[rit], path, lit, rit)
+        left = sorted(stamps[lt])
+        right = sorted(stamps[rt])
+        partner = _pair(left, right, self.max_pair_dt_ns)
+        return _Index(
+            path, (lt, rt), kinds, left, right, partner, calib,
+            unpaired_left=len(left) - len(partner), unpaired_right=len(right) - len(partner),
+            info_topics=(lit, rit),
+        )  # fmt: skip
+
+    def plan(self, sequence: str) -> SequencePlan:
+        idx = self._build_index(sequence)
+        frames = tuple(sorted(idx.partner))
+        if not frames:
+            raise InputError(
+                f"no left/right pair within {self.max_pair_dt_ns} ns on {idx.topics[0]} and {idx.topics[1]}", idx.path
+            )
+        t_ns = tuple(idx.left[i][0] for i in frames)
+        dt = np.diff(np.asarray(t_ns, dtype=np.int64))
+        median = float(np.median(dt)) if len(dt) else 0.0
+        gaps = tuple(
+            i for i in range(1, len(frames)) if frames[i] != frames[i - 1] + 1 or dt[i - 1] > GAP_FACTOR * median
+        )
+        self._index[sequence] = idx
+        return SequencePlan(self.dataset, sequence, idx.calib, frames, t_ns, gaps)
+
+    def pairing(self, sequence: str) -> dict[str, Any]:
+        """Topics used and how many images found no partner."""
+        if sequence not in self._index:
+            self.plan(sequence)
+        idx = self._index[sequence]
+        return {
+            "left_topic": idx.topics[0],
+            "right_topic": idx.topics[1],
+            "left_info": idx.info_topics[0],
+            "right_info": idx.info_topics[1],
+            "pairs": len(idx.partner),
+            "unpaired_left": idx.unpaired_left,
+            "unpaired_right": idx.unpaired_right,
+        }
+
+    # -- reading -------------------------------------------------------------------------
+
+    def read_frame(self, plan: SequencePlan, position: int) -> StereoFrame:
+        idx = self._index.get(plan.sequence)
+        if idx is None:
+            self.plan(plan.sequence)
+            idx = self._index[plan.sequence]
+        frame = plan.frames[position]
+        if frame not in idx.partner:
+            raise InputError("frame is not a stereo pair in this file (plan from another file?)", idx.path, frame)
+        wanted = {idx.topics[0]: idx.left[frame], idx.topics[1]: idx.right[idx.partner[frame]]}
+        logs = [lt for _, lt in wanted.values()]
+        found: dict[str, np.ndarray] = {}
+        try:
+            with open(idx.path, "rb") as f:
+                reader, _, factory = self._reader(f, idx.path)
+                for schema, channel, message in _iter(reader, list(wanted), min(logs), max(logs) + 1):
+                    stamp_log = wanted.get(channel.topic)
+                    if stamp_log is None or channel.topic in found or message.log_time != stamp_log[1]:
+                        continue
+                    stamp = message.log_time if self.time_source == "log" else header_stamp_ns(message.data)
+                    if stamp != stamp_log[0]:
+                        continue
+                    msg = factory.decoder_for(channel.message_encoding, schema)(message.data)
+                    kind = idx.kinds[0 if channel.topic == idx.topics[0] else 1]
+                    found[channel.topic] = decode_image(msg, kind, idx.path, frame, channel.topic)
+        except InputError as err:
+            if err.frame is None:
+                raise InputError(err.reason, err.path, frame) from None
+            raise
+        except Exception as err:
+            raise InputError(f"cannot read the image messages (corrupt or truncated data): {type(err).__name__}: {err}", idx.path, frame) from None
+        for topic in wanted:
+            if topic not in found:
+                raise InputError(f"image message on {topic} not found where the plan put it", idx.path, frame)
+        left, right = found[idx.topics[0]], found[idx.topics[1]]
+        for topic, img in ((idx.topics[0], left), (idx.topics[1], right)):
+            if img.shape[:2] != (plan.calib.height, plan.calib.width):
+                raise InputError(
+                    f"{topic} image is {img.shape[1]}x{img.shape[0]} but CameraInfo says "
+                    f"{plan.calib.width}x{plan.calib.height}",
+                    idx.path,
+                    frame,
+                )
+        return StereoFrame(self.dataset, plan.sequence, frame, plan.t_ns[position], left, right, plan.calib)
+
+
+def _iter(reader: Any, topics: list[str], start: int | None = None, end: int | None = None):
+    return reader.iter_messages(topics=topics, starting_at=start, ending_before=end)
+
+
+def _common_prefix(a: str, b: str) -> str:
+    n = 0
+    while n < min(len(a), len(b)) and a[n] == b[n]:
+        n += 1
+    return a[:n]
+
+
+def _pair(left: list[tuple[int, int]], right: list[tuple[int, int]], tol: int) -> dict[int, int]:
+    """Mutual nearest neighbours by stamp within ``tol``: left position → right position."""
+    ls = [s for s, _ in left]
+    rs = [s for s, _ in right]
+
+    def nearest(stamps: list[int], t: int) -> int:
+        j = bisect.bisect_left(stamps, t)
+        cands = [k for k in (j - 1, j) if 0 <= k < len(stamps)]
+        return min(cands, key=lambda k: abs(stamps[k] - t))
+
+    out = {}
+    for i, t in enumerate(ls):
+        j = nearest(rs, t)
+        if abs(rs[j] - t) <= tol and nearest(ls, rs[j]) == i:
+            out[i] = j
+    return out
+
+
+def _calib_from_infos(left: Any, right: Any, path: Path, left_topic: str, right_topic: str) -> StereoCalib:
+    Pl = np.asarray(left.p, dtype=np.float64)
+    Pr = np.asarray(right.p, dtype=np.float64)
+    for P, topic in ((Pl, left_topic), (Pr, right_topic)):
+        if P.shape != (12,) or not P[0] > 0 or not P[5] > 0:
+            raise InputError(f"CameraInfo on {topic} has no projection matrix P (uncalibrated camera?)", path)
+    kl, kr = Pl[[0, 5, 2, 6]], Pr[[0, 5, 2, 6]]
+    if np.abs(kl - kr).max() > RECTIFIED_TOL_PX:
+        raise InputError(f"CameraInfo P of {left_topic} and {right_topic} differ in fx, fy, cx, cy: not rectified", path)
+    if (left.width, left.height) != (right.width, right.height):
+        raise InputError(f"CameraInfo sizes differ: {left_topic} vs {right_topic}", path)
+    baseline = (Pl[3] - Pr[3]) / Pr[0]
+    if not baseline > 0:
+        raise InputError(f"CameraInfo P[3] of {right_topic} gives baseline {baseline:.4f} m; expected −fx·baseline < 0", path)
+    return StereoCalib(float(Pl[0]), float(Pl[5]), float(Pl[2]), float(Pl[6]), float(baseline), int(left.width), int(left.height))
+
+
+def decode_image(msg: Any, kind: str, path: Path, frame: int, topic: str) -> np.ndarray:
+    """A decoded sensor_msgs Image / CompressedImage → RGB uint8 (H, W, 3)."""
+    buf = np.frombuffer(msg.data, dtype=np.uint8)
+    if kind == "compressed":
+        if "compresseddepth" in msg.format.lower():
+            raise InputError(f"{topic}: compressedDepth images are not colour images", path, frame)
+        img = cv2.imdecode(buf, cv2.IMREAD_COLOR)
+        if img is None:
+            raise InputError(f"{topic}: cannot decode CompressedImage ({msg.format!r})", path, frame)
+        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    enc = msg.encoding.lower()
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    bayer = enc[len("bayer_") : -1] if enc.startswith("bayer_") and enc.endswith("8") else None
+    c = 1 if bayer in BAYER_TO_RGB else RAW_CHANNELS.get(enc)
+    if c is None:
+        raise InputError(f"{topic}: image encoding {msg.encoding!r} not supported (8-bit colour, mono or Bayer)", path, frame)
+    if step < w * c or len(buf) < step * h:
+        raise InputError(f"{topic}: image data holds {len(buf)} bytes, too few for {w}x{h} {enc} step {step}", path, frame)
+    img = buf[: step * h].reshape(h, step)[:, : w * c].reshape(h, w, c)
+    if bayer is not None:
+        return cv2.cvtColor(img[..., 0], BAYER_TO_RGB[bayer])
+    if enc in ("rgb8", "rgba8"):
+        return np.ascontiguousarray(img[..., :3])
+    if enc in ("bgr8", "bgra8"):
+        return np.ascontiguousarray(img[..., 2::-1])
+    return cv2.cvtColor(img[..., 0], cv2.COLOR_GRAY2RGB)
