@@ -260,3 +260,20 @@ def test_colour_image_instead_of_raw_bayer(robotcar_copy, kitti):
     with pytest.raises(InputError, match="single-channel") as err:
         src.read_frame(plan, 1)
     assert "frame 1" in str(err.value)
+
+
+def test_source_pickles_without_lut_maps_and_reads_after(robotcar, kitti):
+    import pickle
+
+    src = OxfordSource(robotcar)
+    plan = src.plan("2014-12-09-13-21-02")
+    clone = pickle.loads(pickle.dumps(src))
+    assert clone._cameras == {}
+    assert np.array_equal(clone.read_frame(plan, 5).left, src.read_frame(plan, 5).left)
+
+
+def test_unknown_pair_is_a_config_error(robotcar):
+    from mining.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="ultra"):
+        OxfordSource(robotcar, pair="ultra")

@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mining.errors import InputError
+from mining.errors import ConfigError, InputError
 from mining.sources.base import Source
 from mining.types import SequencePlan, StereoCalib, StereoFrame
 
@@ -53,7 +53,7 @@ BAYER_GBRG_TO_RGB = cv2.COLOR_BayerGR2RGB
 # rotation to within this; beyond it the files do not describe a rectified pair.
 RECTIFIED_TOL = 1e-3
 
-# ours: timestamps listed in stereo.timestamps for the stereo camera.
+# RobotCar layout: the stereo camera's timestamps file in each traversal folder.
 TIMESTAMPS_FILE = "stereo.timestamps"
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -170,12 +170,16 @@ class OxfordSource(Source):
         allow_missing_lut: bool = False,
     ):
         if pair not in PAIRS:
-            raise InputError(f"unknown RobotCar stereo pair {pair!r}; known: {sorted(PAIRS)}")
+            raise ConfigError(f"unknown RobotCar stereo pair {pair!r}; known: {sorted(PAIRS)}")
         self.root = Path(root)
         self.pair = pair
         self.models_dir = Path(models_dir) if models_dir is not None else self.root / "models"
         self.allow_missing_lut = allow_missing_lut
         self._cameras: dict[str, tuple[_Camera, _Camera]] = {}
+
+    def __getstate__(self) -> dict:
+        # Shipped to workers without the LUT maps (~20 MB per 1280x960 pair); they reload.
+        return {**self.__dict__, "_cameras": {}}
 
     def sequences(self) -> list[str]:
         if not self.root.is_dir():
