@@ -75,7 +75,6 @@ class GeometryStage:
 
         ground = estimate_ground(disparity, calib, cfg.ground)
         timings["ground"] = (time.perf_counter() - t3) * 1e3
-        timings["total"] = sum(timings.values())
 
         self._prev, self._prev_index = cur, frame.index
         return FrameGeometry(frame.index, frame.t_ns, disparity, depth, flow, egomotion, ground, timings)
