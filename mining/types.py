@@ -220,3 +220,30 @@ class FrameGeometry:
     egomotion: Egomotion | None  # None on the first frame of a run
     ground: GroundPlane
     timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+N_CLASSES = 81  # the 80 COCO classes + "unknown" (the paper's category vector c ∈ R^81)
+UNKNOWN_CLASS = 80  # index of "unknown" in a class posterior
+
+
+@dataclass
+class Proposals:
+    """One frame's image-level mask proposals, as a struct of arrays (N proposals).
+
+    Masks are COCO compressed RLEs (``{"size": [h, w], "counts": bytes}``, as
+    ``pycocotools.mask.encode`` makes them) so that no stage holds full-frame arrays per
+    proposal. ``posterior`` is an (N, 81) distribution over the 80 COCO classes plus
+    unknown (rows sum to 1), or None when the proposer has no classes.
+    """
+
+    frame: int
+    rles: list[dict]
+    boxes: np.ndarray  # (N, 4) float32 x1, y1, x2, y2 pixels
+    objectness: np.ndarray  # (N,) float32 in [0, 1]
+    posterior: np.ndarray | None = None  # (N, 81) float32
+    proposer: list[str] = field(default_factory=list)  # which proposer made each row
+    position: np.ndarray | None = None  # (N, 3) camera metres where the proposer measures 3D (e.g. LiDAR boxes), NaN rows otherwise
+    size: np.ndarray | None = None  # (N, 3) width, height, length metres where known, NaN rows otherwise
+
+    def __len__(self) -> int:
+        return len(self.rles)
