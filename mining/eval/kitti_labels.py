@@ -1,0 +1,135 @@
+"""Reader of KITTI tracking label and result files (``label_02/<seq>.txt`` and tracker output).
+
+One object per line, space separated (shared/data/SOURCES.md §1.4, §1.5):
+
+    frame track_id type truncated occluded alpha x1 y1 x2 y2 h w l x y z rotation_y [score]
+
+Ground truth has 17 columns; tracker results add an 18th, the score. A file must use one
+column count throughout. DontCare rows carry track id −1 and placeholder values; they are
+read like any other row (what they mean is up to the evaluation). Rows keep file order,
+which the evaluation relies on for reproducible matching.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mining.errors import InputError
+
+LABEL_COLUMNS = 17  # KITTI tracking devkit: label_02 lines
+RESULT_COLUMNS = 18  # KITTI tracking devkit: result lines = label columns + score
+
+
+@dataclass
+class KittiTrackingRows:
+    """All rows of one file, column by column (N rows)."""
+
+    path: Path
+    frame: np.ndarray  # (N,) int64, 0-based frame index
+    track_id: np.ndarray  # (N,) int64; −1 for DontCare and for untracked detections
+    type: np.ndarray  # (N,) str, as written (Car, Van, Pedestrian, Person, DontCare, …)
+    truncated: np.ndarray  # (N,) float64, truncation level 0/1/2 (−1 for DontCare)
+    occluded: np.ndarray  # (N,) float64, occlusion level 0…3 (−1 for DontCare)
+    alpha: np.ndarray  # (N,) float64, observation angle [rad]
+    box: np.ndarray  # (N, 4) float64, x1 y1 x2 y2 in image_02 [px]
+    dimensions: np.ndarray  # (N, 3) float64, h w l [m]
+    location: np.ndarray  # (N, 3) float64, x y z bottom centre, rectified camera [m]
+    rotation_y: np.ndarray  # (N,) float64 [rad]
+    score: np.ndarray  # (N,) float64; NaN when the file has 17 columns (ground truth)
+
+    def __len__(self) -> int:
+        return int(self.frame.shape[0])
+
+    @property
+    def has_score(self) -> bool:
+        return len(self) > 0 and not np.isnan(self.score).all()
+
+
+def _as_int(text: str, what: str, path: Path, line_no: int, frame: int | None) -> int:
+    try:
+        value = float(text)
+    except ValueError:
+        raise InputError(f"line {line_no}: {what} {text!r} is not a number", path, frame) from None
+    if not value.is_integer():
+        raise InputError(f"line {line_no}: {what} {text!r} is not an integer", path, frame)
+    return int(value)
+
+
+def read_kitti_tracking(path: str | Path, require_score: bool = False) -> KittiTrackingRows:
+    """Read a KITTI tracking label (17 columns) or result (18 columns) file.
+
+    An empty file is valid (no objects). ``require_score`` demands the 18-column result format.
+    """
+    p = Path(path)
+    try:
+        lines = p.read_text().splitlines()
+    except OSError as e:
+        raise InputError(f"cannot read KITTI tracking file: {e.strerror or e}", p) from None
+
+    frames, ids, types, numbers = [], [], [], []
+    n_columns = None
+    for line_no, line in enumerate(lines, start=1):
+        fields = line.split()
+        if not fields:
+            continue  # a trailing blank line is common and harmless
+        frame = _as_int(fields[0], "frame", p, line_no, None)
+        if len(fields) not in (LABEL_COLUMNS, RESULT_COLUMNS):
+            raise InputError(
+                f"line {line_no}: expected {LABEL_COLUMNS} (label) or {RESULT_COLUMNS} (result) columns, got {len(fields)}",
+                p, frame,
+            )
+        if n_columns is None:
+            n_columns = len(fields)
+        elif len(fields) != n_columns:
+            raise InputError(f"line {line_no}: {len(fields)} columns where earlier lines have {n_columns}", p, frame)
+        if frame < 0:
+            raise InputError(f"line {line_no}: negative frame index {frame}", p, frame)
+        frames.append(frame)
+        ids.append(_as_int(fields[1], "track id", p, line_no, frame))
+        types.append(fields[2])
+        try:
+            row = [float(x) for x in fields[3:]]
+        except ValueError:
+            raise InputError(f"line {line_no}: a numeric column is not a number", p, frame) from None
+        if not np.isfinite(row[3:7]).all():
+            raise InputError(f"line {line_no}: 2D box is not finite", p, frame)
+        if n_columns == LABEL_COLUMNS:
+            row.append(np.nan)
+        numbers.append(row)
+
+    if require_score and n_columns == LABEL_COLUMNS:
+        raise InputError(f"tracking results need {RESULT_COLUMNS} columns (label columns + score), got {LABEL_COLUMNS}", p)
+
+    num = np.asarray(numbers, np.float64).reshape(-1, RESULT_COLUMNS - 3)
+    return KittiTrackingRows(
+        path=p,
+        frame=np.asarray(frames, np.int64),
+        track_id=np.asarray(ids, np.int64),
+        type=np.asarray(types, dtype=str),
+        truncated=num[:, 0],
+        occluded=num[:, 1],
+        alpha=num[:, 2],
+        box=num[:, 3:7],
+        dimensions=num[:, 7:10],
+        location=num[:, 10:13],
+        rotation_y=num[:, 13],
+        score=num[:, 14],
+    )
+
+
+def write_kitti_tracking(path: str | Path, rows: KittiTrackingRows, with_score: bool = True) -> None:
+    """Write rows in the KITTI tracking format; 18 columns with ``with_score`` (NaN scores → 1)."""
+    out = []
+    for i in range(len(rows)):
+        values = [rows.alpha[i], *rows.box[i], *rows.dimensions[i], *rows.location[i], rows.rotation_y[i]]
+        # Levels are small integers in KITTI files; %g keeps them so.
+        text = (f"{rows.frame[i]} {rows.track_id[i]} {rows.type[i]} {rows.truncated[i]:g} {rows.occluded[i]:g} "
+                + " ".join(f"{v:.6f}" for v in values))
+        if with_score:
+            score = 1.0 if np.isnan(rows.score[i]) else rows.score[i]
+            text += f" {score:.6f}"
+        out.append(text)
+    Path(path).write_text("\n".join(out) + ("\n" if out else ""))
