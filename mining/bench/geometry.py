@@ -97,7 +97,8 @@ def bench_stereo(data: Path, cfg: GeometryConfig) -> dict[str, Any]:
 def bench_egomotion(data: Path, cfg: GeometryConfig, synthetic_frames: int) -> tuple[list[dict[str, Any]], list[dict[str, float]]]:
     rows = []
     raw = open_source("kitti-raw", str(data / "kitti_raw"))
-    oxts = raw.oxts_poses(RAW_DRIVE)
+    oxts_frames, oxts = raw.oxts_poses(RAW_DRIVE)
+    assert list(oxts_frames) == list(range(len(oxts))), "OXTS must cover the first frames"
     geoms = _run_sequence(raw, RAW_DRIVE, cfg, 0, len(oxts))
     rows.append(_egomotion_row("kitti-raw 0001 frames 0-4 vs OXTS", geoms, oxts))
 
