@@ -20,6 +20,8 @@ Counts over the sequence:
     MOTP = mean similarity of the TPs       sMOTA = (Σ S − FP − IDSW) / (TP + FN)
 
 Across sequences all counts (MT/PT/ML included) add up. Inputs as in ``hota.py``.
+The ratios use max(1, denominator), as TrackEval does, so a sequence without ground truth
+has MOTA = −FP (TrackEval leaves such a sequence's own MOTA at 0; combined numbers agree).
 """
 
 from __future__ import annotations

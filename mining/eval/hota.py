@@ -67,27 +67,28 @@ def hota_sums(gt_ids: Sequence[np.ndarray], tracker_ids: Sequence[np.ndarray],
     denominator = gt_count[:, None] + tr_count[None, :] - soft_matches
     a_max = np.divide(soft_matches, denominator, out=np.zeros_like(soft_matches), where=denominator > 0)
 
-    # Frame-by-frame matching; n(g, p) per α.
-    pair_matches = np.zeros((len(ALPHAS), n_gt, n_tr))
+    # Frame-by-frame matching, once for all α: the matched pairs and their similarity.
+    matched_g, matched_p, matched_s = [], [], []
     for g, p, s in zip(gt_ids, tracker_ids, similarity):
         if len(g) == 0 or len(p) == 0:
-            sums["FN"] += len(g)
-            sums["FP"] += len(p)
             continue
         rows, cols = linear_sum_assignment(a_max[g[:, None], p[None, :]] * s, maximize=True)
-        matched_s = s[rows, cols]
-        for a, alpha in enumerate(ALPHAS):
-            keep = matched_s >= alpha - _EPS
-            n_match = int(keep.sum())
-            sums["TP"][a] += n_match
-            sums["FN"][a] += len(g) - n_match
-            sums["FP"][a] += len(p) - n_match
-            sums["loc_sum"][a] += matched_s[keep].sum()
-            pair_matches[a, g[rows[keep]], p[cols[keep]]] += 1
+        matched_g.append(g[rows])
+        matched_p.append(p[cols])
+        matched_s.append(s[rows, cols])
+    matched_g = np.concatenate(matched_g or [np.empty(0, int)])
+    matched_p = np.concatenate(matched_p or [np.empty(0, int)])
+    matched_s = np.concatenate(matched_s or [np.empty(0)])
 
-    # Each TP of pair (g, p) scores A(c); summing over the TPs weights A(c) by n(g, p).
-    for a in range(len(ALPHAS)):
-        n_gp = pair_matches[a]
+    n_gt_dets, n_tr_dets = gt_count.sum(), tr_count.sum()
+    for a, alpha in enumerate(ALPHAS):
+        tp = matched_s >= alpha - _EPS  # a matched pair is a TP at α only if S ≥ α
+        sums["TP"][a] = tp.sum()
+        sums["FN"][a] = n_gt_dets - tp.sum()
+        sums["FP"][a] = n_tr_dets - tp.sum()
+        sums["loc_sum"][a] = matched_s[tp].sum()
+        # n(g, p): TPs of each id pair. Each of them scores A(c), so the sum over TPs weights A(c) by n(g, p).
+        n_gp = np.bincount(matched_g[tp] * n_tr + matched_p[tp], minlength=n_gt * n_tr).reshape(n_gt, n_tr)
         sums["ass_sum"][a] = (n_gp * n_gp / np.maximum(1, gt_count[:, None] + tr_count[None, :] - n_gp)).sum()
         sums["ass_re_sum"][a] = (n_gp * n_gp / np.maximum(1, gt_count[:, None])).sum()
         sums["ass_pr_sum"][a] = (n_gp * n_gp / np.maximum(1, tr_count[None, :])).sum()

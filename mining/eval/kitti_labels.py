@@ -50,6 +50,10 @@ class KittiTrackingRows:
 
 def _as_int(text: str, what: str, path: Path, line_no: int, frame: int | None) -> int:
     try:
+        return int(text)
+    except ValueError:
+        pass  # "3.0" is an integer too; anything else is reported below
+    try:
         value = float(text)
     except ValueError:
         raise InputError(f"line {line_no}: {what} {text!r} is not a number", path, frame) from None
@@ -69,7 +73,7 @@ def read_kitti_tracking(path: str | Path, require_score: bool = False) -> KittiT
     except OSError as e:
         raise InputError(f"cannot read KITTI tracking file: {e.strerror or e}", p) from None
 
-    frames, ids, types, numbers = [], [], [], []
+    frames, ids, types, numbers, line_nos = [], [], [], [], []
     n_columns = None
     for line_no, line in enumerate(lines, start=1):
         fields = line.split()
@@ -88,14 +92,13 @@ def read_kitti_tracking(path: str | Path, require_score: bool = False) -> KittiT
         if frame < 0:
             raise InputError(f"line {line_no}: negative frame index {frame}", p, frame)
         frames.append(frame)
+        line_nos.append(line_no)
         ids.append(_as_int(fields[1], "track id", p, line_no, frame))
         types.append(fields[2])
         try:
             row = [float(x) for x in fields[3:]]
         except ValueError:
             raise InputError(f"line {line_no}: a numeric column is not a number", p, frame) from None
-        if not np.isfinite(row[3:7]).all():
-            raise InputError(f"line {line_no}: 2D box is not finite", p, frame)
         if n_columns == LABEL_COLUMNS:
             row.append(np.nan)
         numbers.append(row)
@@ -104,6 +107,10 @@ def read_kitti_tracking(path: str | Path, require_score: bool = False) -> KittiT
         raise InputError(f"tracking results need {RESULT_COLUMNS} columns (label columns + score), got {LABEL_COLUMNS}", p)
 
     num = np.asarray(numbers, np.float64).reshape(-1, RESULT_COLUMNS - 3)
+    bad_box = ~np.isfinite(num[:, 3:7]).all(axis=1)
+    if bad_box.any():
+        i = int(np.flatnonzero(bad_box)[0])
+        raise InputError(f"line {line_nos[i]}: 2D box is not finite", p, frames[i])
     return KittiTrackingRows(
         path=p,
         frame=np.asarray(frames, np.int64),
