@@ -1,0 +1,45 @@
+"""Proposal-stage settings. REFERENCE values from ../shared/docs/REFERENCE.md §5 unless marked ours."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass
+class OnnxConfig:
+    """A YOLO-seg-family ONNX instance segmentation model run through onnxruntime.
+
+    The project ships no weights: ``model_path`` is always the user's. Input sizes are either
+    both ``"auto"`` (the frame's own size, scaled down to ``auto_max_side`` if larger, rounded
+    up to multiples of 32) or both pixel counts that are multiples of 32.
+    """
+
+    model_path: str = ""  # ours: user-given model file (weights are not bundled: AGPL-3.0)
+    cache_dir: str = ""  # ours: where converted float models are kept; "" = ~/.cache/tube_miner/onnx
+    input_height: int | str = "auto"  # ours: "auto" = the frame's aspect; 320 squashes KITTI to 320×97
+    input_width: int | str = "auto"  # ours: see input_height
+    auto_max_side: int = 1280  # ours: "auto" never runs larger than this on the long side (KITTI 1242 → 1248)
+    score_threshold: float = 0.01  # ours: low on purpose, generic proposals live on recall (REFERENCE's 0.8 cut is a ⚠)
+    nms_iou: float = 0.7  # ours: class-agnostic NMS box IoU (Ultralytics' default); tubes prune the rest
+    max_proposals: int = 300  # REFERENCE: sorted by score, at most 300 kept
+    mask_threshold: float = 0.5  # ours: sigmoid mask probability cut (Ultralytics' choice)
+    intra_op_num_threads: int = 1  # ours: one thread per proposer; Ray parallelises over actors
+    pad_value: int = 114  # ours: letterbox grey the YOLO family was trained with
+
+
+@dataclass
+class ProposalFilterConfig:
+    """Geometric filters applied once proposals are localised in 3D (a later stage)."""
+
+    min_box_area_px: float = 100.0  # REFERENCE: drop proposals whose box area < 100 px²
+    max_abs_x_m: float = 50.0  # REFERENCE: drop ground-projected |X| > 50 m
+    z_range_m: tuple[float, float] = (0.0, 60.0)  # REFERENCE: drop ground-projected Z outside (0, 60) m
+    height_range_m: tuple[float, float] = (0.1, 5.0)  # REFERENCE: drop height above the ground plane outside (0.1, 5.0) m
+    max_proposals: int = 300  # REFERENCE: sorted by score, at most 300 kept (authors advise ≤ 500)
+
+
+@dataclass
+class ProposalConfig:
+    proposer: str = "onnx"  # ours: which proposer makes the image-level masks
+    onnx: OnnxConfig = field(default_factory=OnnxConfig)
+    filters: ProposalFilterConfig = field(default_factory=ProposalFilterConfig)

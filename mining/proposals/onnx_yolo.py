@@ -1,0 +1,241 @@
+"""Image-level mask proposals from a YOLO-seg-family ONNX model (onnxruntime, CPU).
+
+The model runs at the frame's own aspect ratio (letterboxed to multiples of 32), after a
+one-off conversion to float at that size (``onnx_convert``). Decoding follows the model
+card (../shared/models/SOURCES.md, "Decoding"):
+
+* objectness = max class probability (the 80 outputs are already sigmoids; there is no
+  separate objectness), class = argmax;
+* low-confidence predictions are kept on purpose: generic proposals live on recall;
+* class-agnostic NMS, at most ``max_proposals`` kept, sorted by score;
+* mask = sigmoid(coefficients · prototypes), computed only inside the box, mapped from the
+  prototype grid (1/4 of the input) to frame pixels in one affine warp (upsampling, padding
+  removal and resizing at once), thresholded, and run-length encoded straight from the crop.
+
+Class posterior over the 80 COCO classes + unknown: the sigmoid scores p_1..p_80 are
+independent "is it class k" probabilities, not a distribution. The model's confidence that
+the object is *some* known class is max p, so u = 1 − max p is the mass left for "none of
+the 80", i.e. unknown. posterior = [p_1..p_80, u] / (Σp + u) keeps the ranking and ratios
+between known classes, grows the unknown share as the detector grows unsure, and sums to 1.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from pycocotools import mask as mask_utils
+
+from mining.errors import ConfigError, InputError
+from mining.proposals.config import OnnxConfig
+from mining.proposals.onnx_convert import converted_model
+from mining.types import N_CLASSES, Proposals
+
+PROPOSER_NAME = "onnx"
+N_COCO = 80  # class scores in the model output (rows 4..83)
+N_COEFFS = 32  # mask coefficients per anchor (rows 84..115)
+SIZE_MULTIPLE = 32  # largest model stride: input sides must be multiples of it
+
+
+def default_cache_dir() -> Path:
+    return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "tube_miner" / "onnx"
+
+
+@dataclass(frozen=True)
+class Letterbox:
+    """Where a frame lands in the model input: resized by ``scale``, offset by the padding."""
+
+    input_hw: tuple[int, int]
+    scale: float
+    resized_hw: tuple[int, int]
+    pad_x: int
+    pad_y: int
+
+
+def plan_letterbox(cfg: OnnxConfig, frame_hw: tuple[int, int]) -> Letterbox:
+    """Model input size and letterbox placement for frames of size ``frame_hw``."""
+    H, W = frame_hw
+    size = (cfg.input_height, cfg.input_width)
+    if size == ("auto", "auto"):
+        scale = min(1.0, cfg.auto_max_side / max(H, W))  # never upsample, cap the long side
+        h_in = math.ceil(round(H * scale) / SIZE_MULTIPLE) * SIZE_MULTIPLE
+        w_in = math.ceil(round(W * scale) / SIZE_MULTIPLE) * SIZE_MULTIPLE
+    elif all(isinstance(s, int) and not isinstance(s, bool) and s > 0 and s % SIZE_MULTIPLE == 0 for s in size):
+        h_in, w_in = size
+        scale = min(h_in / H, w_in / W)
+    else:
+        raise ConfigError(f"proposals.onnx input_height/input_width: both 'auto' or both positive multiples of "
+                          f"{SIZE_MULTIPLE}, got {size!r}")
+    nh, nw = min(h_in, round(H * scale)), min(w_in, round(W * scale))
+    return Letterbox((h_in, w_in), scale, (nh, nw), (w_in - nw) // 2, (h_in - nh) // 2)
+
+
+def letterbox_image(image: np.ndarray, lb: Letterbox, pad_value: int) -> np.ndarray:
+    """(H, W, 3) uint8 RGB → (1, 3, h, w) float32 in [0, 1], as the model expects."""
+    h_in, w_in = lb.input_hw
+    nh, nw = lb.resized_hw
+    canvas = np.full((h_in, w_in, 3), pad_value, np.uint8)
+    resized = image if image.shape[:2] == (nh, nw) else cv2.resize(image, (nw, nh), interpolation=cv2.INTER_LINEAR)
+    canvas[lb.pad_y:lb.pad_y + nh, lb.pad_x:lb.pad_x + nw] = resized
+    return (canvas.transpose(2, 0, 1)[None].astype(np.float32)) * np.float32(1.0 / 255.0)
+
+
+def class_posterior(probs: np.ndarray) -> np.ndarray:
+    """(N, 80) sigmoid class scores → (N, 81) distribution with unknown mass 1 − max p (see module doc)."""
+    p = np.asarray(probs, np.float64)
+    u = 1.0 - p.max(axis=1, keepdims=True)
+    full = np.concatenate([p, u], axis=1)
+    return (full / full.sum(axis=1, keepdims=True)).astype(np.float32)
+
+
+def crop_rle(crop: np.ndarray, x0: int, y0: int, height: int, width: int) -> dict:
+    """COCO compressed RLE of a full ``height × width`` mask that is zero outside ``crop``.
+
+    ``crop`` (h, w) bool sits with its top-left pixel at (x0, y0). COCO RLE runs go down the
+    columns (Fortran order), alternating zeros and ones, starting with zeros.
+    """
+    h, w = crop.shape
+    padded = np.zeros((h + 2, w), np.int8)
+    padded[1:-1] = crop
+    edges = np.diff(padded, axis=0).T  # (w, h + 1): +1 where a run of ones starts, −1 after it ends
+    cols, rows = np.nonzero(edges)  # column-major order, as COCO counts run
+    pos = (x0 + cols).astype(np.int64) * height + (y0 + rows)
+    # A run that touches the bottom of one column and the top of the next is one run in
+    # Fortran order: drop the end/start pair that meets at the same position.
+    starts, ends = pos[0::2], pos[1::2]
+    join = np.nonzero(ends[:-1] == starts[1:])[0]
+    if join.size:
+        starts, ends = np.delete(starts, join + 1), np.delete(ends, join)
+    bounds = np.empty(2 * starts.size + 2, np.int64)
+    bounds[0], bounds[-1] = 0, height * width
+    bounds[1:-1:2], bounds[2:-1:2] = starts, ends
+    counts = np.diff(bounds).tolist()
+    return mask_utils.frPyObjects({"size": [height, width], "counts": counts}, height, width)
+
+
+def nms_keep(boxes: np.ndarray, scores: np.ndarray, iou: float, top_k: int) -> np.ndarray:
+    """Class-agnostic NMS (OpenCV); indices of kept boxes, best score first."""
+    if len(boxes) == 0:
+        return np.zeros(0, np.int64)
+    xywh = np.column_stack([boxes[:, :2], boxes[:, 2:] - boxes[:, :2]]).astype(np.float64)
+    keep = cv2.dnn.NMSBoxes(xywh, scores.astype(np.float32), 0.0, iou, top_k=top_k)
+    return np.asarray(keep, np.int64).reshape(-1)
+
+
+class OnnxProposer:
+    """Loads the (converted) model once and turns frames into ``Proposals``.
+
+    Meant to live as a long-lived worker (a Ray actor): conversion and session creation
+    happen in the constructor when the frame size is known, else on the first frame.
+    """
+
+    def __init__(self, cfg: OnnxConfig, frame_size: tuple[int, int] | None = None):
+        if not cfg.model_path:
+            raise ConfigError("proposals.onnx.model_path is empty: give the path of a YOLO-seg ONNX model "
+                              "(weights are not bundled)")
+        self.cfg = cfg
+        self.model_path = Path(cfg.model_path).expanduser()
+        if not self.model_path.is_file():
+            raise InputError("ONNX model not found (proposals.onnx.model_path)", self.model_path)
+        self.cache_dir = Path(cfg.cache_dir).expanduser() if cfg.cache_dir else default_cache_dir()
+        self._sessions: dict[tuple[int, int], object] = {}
+        self.last_timings_ms: dict[str, float] = {}
+        fixed = isinstance(cfg.input_height, int) and isinstance(cfg.input_width, int)
+        if frame_size is not None or fixed:
+            self._session(plan_letterbox(cfg, frame_size or (cfg.input_height, cfg.input_width)).input_hw)
+
+    def _session(self, input_hw: tuple[int, int]):
+        if input_hw not in self._sessions:
+            import onnxruntime as ort
+
+            path = converted_model(self.model_path, self.cache_dir, *input_hw)
+            opts = ort.SessionOptions()
+            opts.intra_op_num_threads = self.cfg.intra_op_num_threads
+            opts.inter_op_num_threads = 1
+            opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+            sess = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+            self._sessions[input_hw] = (sess, sess.get_inputs()[0].name)
+        return self._sessions[input_hw]
+
+    def raw_outputs(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray, Letterbox]:
+        """Run the network: (116, N) predictions, (32, h/4, w/4) prototypes and the letterbox."""
+        lb = plan_letterbox(self.cfg, image.shape[:2])
+        sess, name = self._session(lb.input_hw)
+        out0, out1 = sess.run(None, {name: letterbox_image(image, lb, self.cfg.pad_value)})
+        return out0[0], out1[0], lb
+
+    def __call__(self, frame: int, image: np.ndarray) -> Proposals:
+        if not (isinstance(image, np.ndarray) and image.ndim == 3 and image.shape[2] == 3 and image.dtype == np.uint8):
+            shape = getattr(image, "shape", None)
+            raise InputError(f"expected an (H, W, 3) uint8 RGB image, got {shape} {getattr(image, 'dtype', '')}",
+                             frame=frame)
+        t0 = time.perf_counter()
+        pred, protos, lb = self.raw_outputs(image)
+        t1 = time.perf_counter()
+        H, W = image.shape[:2]
+        cfg = self.cfg
+
+        probs = pred[4:4 + N_COCO].T  # (N, 80)
+        score = probs.max(axis=1)
+        cand = np.nonzero(score >= cfg.score_threshold)[0]
+        cxcywh = pred[:4, cand].T.astype(np.float64)
+        boxes = np.column_stack([cxcywh[:, :2] - cxcywh[:, 2:] / 2, cxcywh[:, :2] + cxcywh[:, 2:] / 2])
+        boxes -= [lb.pad_x, lb.pad_y, lb.pad_x, lb.pad_y]
+        boxes /= lb.scale
+        boxes = np.clip(boxes, 0, [W, H, W, H])
+        # NMS on the clipped frame boxes, so the kept set satisfies the IoU bound as stored.
+        keep = nms_keep(boxes, score[cand], cfg.nms_iou, cfg.max_proposals)
+        idx, boxes = cand[keep], boxes[keep]
+        t2 = time.perf_counter()
+
+        rles, kept = self._masks(pred[4 + N_COCO:4 + N_COCO + N_COEFFS, idx].T, protos, boxes, lb, (H, W))
+        idx, boxes = idx[kept], boxes[kept]
+        t3 = time.perf_counter()
+        self.last_timings_ms = {"network": 1e3 * (t1 - t0), "nms": 1e3 * (t2 - t1), "masks": 1e3 * (t3 - t2)}
+        return Proposals(
+            frame=frame,
+            rles=rles,
+            boxes=boxes.astype(np.float32).reshape(-1, 4),
+            objectness=score[idx].astype(np.float32),
+            posterior=class_posterior(probs[idx]) if len(idx) else np.zeros((0, N_CLASSES), np.float32),
+            proposer=[PROPOSER_NAME] * len(idx),
+        )
+
+    def _masks(self, coeffs: np.ndarray, protos: np.ndarray, boxes: np.ndarray, lb: Letterbox,
+               frame_hw: tuple[int, int]) -> tuple[list[dict], np.ndarray]:
+        """RLE masks of the kept boxes; proposals whose mask comes out empty are dropped (they
+        cannot be localised in 3D)."""
+        H, W = frame_hw
+        c, hp, wp = protos.shape
+        ps = lb.input_hw[0] / hp  # prototype stride in input pixels (4)
+        # Frame pixel centre u → prototype coordinate a·u + b (pixel-centre convention throughout).
+        a = lb.scale / ps
+        bx = (0.5 * lb.scale + lb.pad_x) / ps - 0.5
+        by = (0.5 * lb.scale + lb.pad_y) / ps - 0.5
+        cut = math.log(self.cfg.mask_threshold / (1.0 - self.cfg.mask_threshold))  # threshold on logits
+        rles, kept = [], []
+        for i, (x1, y1, x2, y2) in enumerate(boxes):
+            # Pixels whose centres lie inside the box.
+            X1, Y1 = max(0, math.ceil(x1 - 0.5)), max(0, math.ceil(y1 - 0.5))
+            X2, Y2 = min(W, math.floor(x2 - 0.5) + 1), min(H, math.floor(y2 - 0.5) + 1)
+            if X2 <= X1 or Y2 <= Y1:
+                continue
+            px0 = max(0, math.floor(a * X1 + bx))
+            px1 = min(wp, math.ceil(a * (X2 - 1) + bx) + 2)
+            py0 = max(0, math.floor(a * Y1 + by))
+            py1 = min(hp, math.ceil(a * (Y2 - 1) + by) + 2)
+            logits = (coeffs[i] @ protos[:, py0:py1, px0:px1].reshape(c, -1)).reshape(py1 - py0, px1 - px0)
+            warp = np.array([[a, 0.0, a * X1 + bx - px0], [0.0, a, a * Y1 + by - py0]])
+            up = cv2.warpAffine(logits, warp, (X2 - X1, Y2 - Y1), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                borderMode=cv2.BORDER_REPLICATE)
+            crop = up > cut
+            if not crop.any():
+                continue
+            rles.append(crop_rle(crop, X1, Y1, H, W))
+            kept.append(i)
+        return rles, np.asarray(kept, np.int64)
