@@ -1,0 +1,35 @@
+"""Co-selection settings: the QUBO energy's weights and the solver's search limits.
+
+Defaults from REFERENCE.md ("Co-selection") and the original implementation unless noted.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass
+class SelectConfig:
+    # --- the energy: maximise mᵀQm, Q_ii = score_i − ε1, Q_ij = −½·ε2·Σ_t maskIoU_t(i, j)
+    epsilon1: float = 20.0  # REFERENCE: ε1, price of selecting a tube (unary offset)
+    epsilon2: float = 30.0  # REFERENCE: ε2, weight of the pairwise overlap penalty
+    window_frames: int = 100  # REFERENCE/paper: batches of 100 frames (original: ±50 frames around each frame)
+    box_iou_gate: float = 0.1  # REFERENCE: a frame's mask IoU counts only when the boxes' IoU exceeds this
+
+    # --- the original's greedy multi-branch search (Schindler et al. ECCV 2006)
+    # The first two branch widths narrow as the problem grows: problems with fewer than
+    # branch_size_limits[k] candidates use branch_head_widths[k]; larger ones the last entry.
+    branch_size_limits: list[int] = field(default_factory=lambda: [50, 70, 100, 250])  # REFERENCE
+    branch_head_widths: list[list[int]] = field(
+        default_factory=lambda: [[50, 50], [70, 25], [50, 20], [50, 10], [50, 5]]
+    )  # REFERENCE: widths of search levels 1–2 per size class
+    branch_tail_widths: list[int] = field(default_factory=lambda: [5, 2, 1, 1])  # REFERENCE: levels 3–6; deeper levels are greedy (width 1)
+
+    # --- our production solver (mining.select.qubo.solve)
+    solver: str = "auto"  # ours: "auto" (reduce, split, exact or multi-branch + local search), "multibranch" (the original's), "exhaustive"
+    exact_max_candidates: int = 20  # ours: components this small are solved exactly by enumeration (2^20 in a few ms)
+    tabu_iterations: int = 2000  # ours: at most this many 1-flip tabu moves per start on a large component
+    tabu_stall_iterations: int = 100  # ours: a tabu run stops after this many moves without a new best
+    tabu_restarts: int = 2  # ours: extra tabu runs from seeded random perturbations of the best solution
+    seed: int = 0  # ours: seeds tabu tenure jitter and perturbations, so results are reproducible
+    time_limit_s: float = 0.0  # ours: wall-clock cap on the local search per component; 0 = none (keeps results deterministic)
