@@ -99,6 +99,22 @@ def test_dontcare_suppresses_a_false_positive(tmp_path):
     partly = line(3, 50, "Car", (740, 100, 840, 200), score=1)  # 40 % inside: still a FP
     m = evaluate(tmp_path, gt, [line(t, 7, "Car", A, score=1) for t in range(N)] + [partly])["Car"]
     assert m["FP"] == 1
+    # The rule is intersection over the tracker box's area, not IoU: a small box wholly
+    # inside a large DontCare region (IoU 0.12) is suppressed.
+    gt = two_cars() + [line(3, -1, "DontCare", (700, 50, 1000, 250), -1, -1)]
+    small = line(3, 50, "Car", (800, 100, 900, 170), score=1)
+    m = evaluate(tmp_path, gt, [line(t, 7, "Car", A, score=1) for t in range(N)] + [small])["Car"]
+    assert m["FP"] == 0
+
+
+def test_iou_of_exactly_one_half_is_a_match(tmp_path):
+    gt = [line(t, 1, "Car", (0, 0, 100, 100)) for t in range(4)]
+    res = [line(t, 5, "Car", (0, 0, 100, 50), score=1) for t in range(4)]  # IoU = 5000 / 10000
+    m = evaluate(tmp_path, gt, res)["Car"]
+    assert (m["TP"], m["FP"], m["FN"], m["IDTP"]) == (4, 0, 0, 4)
+    assert m["MOTP"] == pytest.approx(0.5) and m["IDF1"] == pytest.approx(1.0)
+    # HOTA: a TP for α ≤ 0.5 only (10 of the 19 thresholds), with A(c) = 1 there.
+    assert m["HOTA"] == pytest.approx(10 / 19)
 
 
 def test_neighbour_class_and_ignored_gt_are_neither_fp_nor_fn(tmp_path):
@@ -255,8 +271,9 @@ def perturb(gt_file: Path, out_file: Path, rng: np.random.Generator) -> None:
         frame, tid, typ = int(r[0]), int(r[1]), r[2]
         box = np.array([float(x) for x in r[6:10]])
         if typ == "DontCare":
-            if rng.random() < 0.3:  # a false positive inside the DontCare region
-                out.append(line(frame, 8000 + rng.integers(100), "Car", box.round(2), score=0.1))
+            if rng.random() < 0.3:  # a false positive, shrunk by up to 30 %, inside the DontCare region
+                shrink = rng.uniform(0, 0.3) * np.array([1, 1, -1, -1]) * np.tile(box[2:] - box[:2], 2)
+                out.append(line(frame, 100_000 + len(out), "Car", (box + shrink).round(2), score=0.1))
             continue
         if rng.random() < 0.1:
             continue
@@ -310,7 +327,7 @@ CROSS_CHECKED = [("HOTA", f, f) for f in ("HOTA", "DetA", "AssA", "DetRe", "DetP
 def test_agrees_with_trackeval_on_perturbed_real_sequences(kitti, tmp_path):
     trackeval = pytest.importorskip("trackeval")
     labels, seqmap = kitti
-    frames = {s: read_seqmap(seqmap)[s] for s in ("0005", "0011")}
+    frames = {s: read_seqmap(seqmap)[s] for s in ("0005", "0011", "0019")}
     results = tmp_path / "results"
     rng = np.random.default_rng(5)
     for seq in frames:
