@@ -144,6 +144,7 @@ class OnnxProposer:
             raise InputError("ONNX model not found (proposals.onnx.model_path)", self.model_path)
         self.cache_dir = Path(cfg.cache_dir).expanduser() if cfg.cache_dir else default_cache_dir()
         self._sessions: dict[tuple[int, int], object] = {}
+        self.converted_paths: dict[tuple[int, int], Path] = {}  # input size → converted float model
         self.last_timings_ms: dict[str, float] = {}
         fixed = isinstance(cfg.input_height, int) and isinstance(cfg.input_width, int)
         if frame_size is not None or fixed:
@@ -154,6 +155,7 @@ class OnnxProposer:
             import onnxruntime as ort
 
             path = converted_model(self.model_path, self.cache_dir, *input_hw)
+            self.converted_paths[input_hw] = path
             opts = ort.SessionOptions()
             opts.intra_op_num_threads = self.cfg.intra_op_num_threads
             opts.inter_op_num_threads = 1
@@ -177,65 +179,69 @@ class OnnxProposer:
         t0 = time.perf_counter()
         pred, protos, lb = self.raw_outputs(image)
         t1 = time.perf_counter()
-        H, W = image.shape[:2]
-        cfg = self.cfg
+        out = decode_predictions(frame, pred, protos, lb, image.shape[:2], self.cfg)
+        self.last_timings_ms = {"network": 1e3 * (t1 - t0), "decode": 1e3 * (time.perf_counter() - t1)}
+        return out
 
-        probs = pred[4:4 + N_COCO].T  # (N, 80)
-        score = probs.max(axis=1)
-        cand = np.nonzero(score >= cfg.score_threshold)[0]
-        cxcywh = pred[:4, cand].T.astype(np.float64)
-        boxes = np.column_stack([cxcywh[:, :2] - cxcywh[:, 2:] / 2, cxcywh[:, :2] + cxcywh[:, 2:] / 2])
-        boxes -= [lb.pad_x, lb.pad_y, lb.pad_x, lb.pad_y]
-        boxes /= lb.scale
-        boxes = np.clip(boxes, 0, [W, H, W, H])
-        # NMS on the clipped frame boxes, so the kept set satisfies the IoU bound as stored.
-        keep = nms_keep(boxes, score[cand], cfg.nms_iou, cfg.max_proposals)
-        idx, boxes = cand[keep], boxes[keep]
-        t2 = time.perf_counter()
 
-        rles, kept = self._masks(pred[4 + N_COCO:4 + N_COCO + N_COEFFS, idx].T, protos, boxes, lb, (H, W))
-        idx, boxes = idx[kept], boxes[kept]
-        t3 = time.perf_counter()
-        self.last_timings_ms = {"network": 1e3 * (t1 - t0), "nms": 1e3 * (t2 - t1), "masks": 1e3 * (t3 - t2)}
-        return Proposals(
-            frame=frame,
-            rles=rles,
-            boxes=boxes.astype(np.float32).reshape(-1, 4),
-            objectness=score[idx].astype(np.float32),
-            posterior=class_posterior(probs[idx]) if len(idx) else np.zeros((0, N_CLASSES), np.float32),
-            proposer=[PROPOSER_NAME] * len(idx),
-        )
+def decode_predictions(frame: int, pred: np.ndarray, protos: np.ndarray, lb: Letterbox,
+                       frame_hw: tuple[int, int], cfg: OnnxConfig) -> Proposals:
+    """Network outputs → Proposals in frame pixels: threshold, class-agnostic NMS, masks, posterior."""
+    H, W = frame_hw
+    probs = pred[4:4 + N_COCO].T  # (N, 80)
+    score = probs.max(axis=1)
+    cand = np.nonzero(score >= cfg.score_threshold)[0]
+    cxcywh = pred[:4, cand].T.astype(np.float64)
+    boxes = np.column_stack([cxcywh[:, :2] - cxcywh[:, 2:] / 2, cxcywh[:, :2] + cxcywh[:, 2:] / 2])
+    boxes -= [lb.pad_x, lb.pad_y, lb.pad_x, lb.pad_y]
+    boxes /= lb.scale
+    boxes = np.clip(boxes, 0, [W, H, W, H])
+    # NMS on the clipped frame boxes, so the kept set satisfies the IoU bound as stored.
+    keep = nms_keep(boxes, score[cand], cfg.nms_iou, cfg.max_proposals)
+    idx, boxes = cand[keep], boxes[keep]
+    coeffs = pred[4 + N_COCO:4 + N_COCO + N_COEFFS, idx].T
+    rles, kept = _masks(coeffs, protos, boxes, lb, frame_hw, cfg.mask_threshold)
+    idx, boxes = idx[kept], boxes[kept]
+    return Proposals(
+        frame=frame,
+        rles=rles,
+        boxes=boxes.astype(np.float32).reshape(-1, 4),
+        objectness=score[idx].astype(np.float32),
+        posterior=class_posterior(probs[idx]) if len(idx) else np.zeros((0, N_CLASSES), np.float32),
+        proposer=[PROPOSER_NAME] * len(idx),
+    )
 
-    def _masks(self, coeffs: np.ndarray, protos: np.ndarray, boxes: np.ndarray, lb: Letterbox,
-               frame_hw: tuple[int, int]) -> tuple[list[dict], np.ndarray]:
-        """RLE masks of the kept boxes; proposals whose mask comes out empty are dropped (they
-        cannot be localised in 3D)."""
-        H, W = frame_hw
-        c, hp, wp = protos.shape
-        ps = lb.input_hw[0] / hp  # prototype stride in input pixels (4)
-        # Frame pixel centre u → prototype coordinate a·u + b (pixel-centre convention throughout).
-        a = lb.scale / ps
-        bx = (0.5 * lb.scale + lb.pad_x) / ps - 0.5
-        by = (0.5 * lb.scale + lb.pad_y) / ps - 0.5
-        cut = math.log(self.cfg.mask_threshold / (1.0 - self.cfg.mask_threshold))  # threshold on logits
-        rles, kept = [], []
-        for i, (x1, y1, x2, y2) in enumerate(boxes):
-            # Pixels whose centres lie inside the box.
-            X1, Y1 = max(0, math.ceil(x1 - 0.5)), max(0, math.ceil(y1 - 0.5))
-            X2, Y2 = min(W, math.floor(x2 - 0.5) + 1), min(H, math.floor(y2 - 0.5) + 1)
-            if X2 <= X1 or Y2 <= Y1:
-                continue
-            px0 = max(0, math.floor(a * X1 + bx))
-            px1 = min(wp, math.ceil(a * (X2 - 1) + bx) + 2)
-            py0 = max(0, math.floor(a * Y1 + by))
-            py1 = min(hp, math.ceil(a * (Y2 - 1) + by) + 2)
-            logits = (coeffs[i] @ protos[:, py0:py1, px0:px1].reshape(c, -1)).reshape(py1 - py0, px1 - px0)
-            warp = np.array([[a, 0.0, a * X1 + bx - px0], [0.0, a, a * Y1 + by - py0]])
-            up = cv2.warpAffine(logits, warp, (X2 - X1, Y2 - Y1), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                                borderMode=cv2.BORDER_REPLICATE)
-            crop = up > cut
-            if not crop.any():
-                continue
-            rles.append(crop_rle(crop, X1, Y1, H, W))
-            kept.append(i)
-        return rles, np.asarray(kept, np.int64)
+
+def _masks(coeffs: np.ndarray, protos: np.ndarray, boxes: np.ndarray, lb: Letterbox,
+           frame_hw: tuple[int, int], mask_threshold: float) -> tuple[list[dict], np.ndarray]:
+    """RLE masks of the kept boxes; proposals whose mask comes out empty are dropped (they
+    cannot be localised in 3D)."""
+    H, W = frame_hw
+    c, hp, wp = protos.shape
+    ps = lb.input_hw[0] / hp  # prototype stride in input pixels (4)
+    # Frame pixel centre u → prototype coordinate a·u + b (pixel-centre convention throughout).
+    a = lb.scale / ps
+    bx = (0.5 * lb.scale + lb.pad_x) / ps - 0.5
+    by = (0.5 * lb.scale + lb.pad_y) / ps - 0.5
+    cut = math.log(mask_threshold / (1.0 - mask_threshold))  # threshold on logits
+    rles, kept = [], []
+    for i, (x1, y1, x2, y2) in enumerate(boxes):
+        # Pixels whose centres lie inside the box.
+        X1, Y1 = max(0, math.ceil(x1 - 0.5)), max(0, math.ceil(y1 - 0.5))
+        X2, Y2 = min(W, math.floor(x2 - 0.5) + 1), min(H, math.floor(y2 - 0.5) + 1)
+        if X2 <= X1 or Y2 <= Y1:
+            continue
+        px0 = max(0, math.floor(a * X1 + bx))
+        px1 = min(wp, math.ceil(a * (X2 - 1) + bx) + 2)
+        py0 = max(0, math.floor(a * Y1 + by))
+        py1 = min(hp, math.ceil(a * (Y2 - 1) + by) + 2)
+        logits = (coeffs[i] @ protos[:, py0:py1, px0:px1].reshape(c, -1)).reshape(py1 - py0, px1 - px0)
+        warp = np.array([[a, 0.0, a * X1 + bx - px0], [0.0, a, a * Y1 + by - py0]])
+        up = cv2.warpAffine(logits, warp, (X2 - X1, Y2 - Y1), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                            borderMode=cv2.BORDER_REPLICATE)
+        crop = up > cut
+        if not crop.any():
+            continue
+        rles.append(crop_rle(crop, X1, Y1, H, W))
+        kept.append(i)
+    return rles, np.asarray(kept, np.int64)
