@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from pycocotools import mask as mask_utils
 
-from conftest import DATA, MODELS
+from conftest import MODELS
 from mining.errors import ConfigError, InputError
 from mining.eval.kitti_labels import read_kitti_tracking
 from mining.eval.kitti_mot import box_iou
@@ -26,7 +26,6 @@ onnx = pytest.importorskip("onnx")
 ort = pytest.importorskip("onnxruntime")
 
 INT8_MODEL = MODELS / "yolov8n-seg_int8.onnx"
-SEQ = DATA / "kitti_tracking" / "training"
 
 
 @pytest.fixture(scope="module")

@@ -19,7 +19,7 @@ class OnnxConfig:
     input_height: int | str = "auto"  # ours: "auto" = the frame's aspect; 320 squashes KITTI to 320×97
     input_width: int | str = "auto"  # ours: see input_height
     auto_max_side: int = 1280  # ours: "auto" never runs larger than this on the long side (KITTI 1242 → 1248)
-    score_threshold: float = 0.01  # ours: low on purpose, generic proposals live on recall (REFERENCE's 0.8 cut is a ⚠)
+    score_threshold: float = 0.01  # ours: low on purpose, proposals live on recall (REFERENCE's 0.8 cut is a ⚠)
     nms_iou: float = 0.7  # ours: class-agnostic NMS box IoU (Ultralytics' default); tubes prune the rest
     max_proposals: int = 300  # REFERENCE: sorted by score, at most 300 kept
     mask_threshold: float = 0.5  # ours: sigmoid mask probability cut (Ultralytics' choice)
@@ -34,7 +34,7 @@ class ProposalFilterConfig:
     min_box_area_px: float = 100.0  # REFERENCE: drop proposals whose box area < 100 px²
     max_abs_x_m: float = 50.0  # REFERENCE: drop ground-projected |X| > 50 m
     z_range_m: tuple[float, float] = (0.0, 60.0)  # REFERENCE: drop ground-projected Z outside (0, 60) m
-    height_range_m: tuple[float, float] = (0.1, 5.0)  # REFERENCE: drop height above the ground plane outside (0.1, 5.0) m
+    height_range_m: tuple[float, float] = (0.1, 5.0)  # REFERENCE: drop height above ground outside (0.1, 5.0) m
     max_proposals: int = 300  # REFERENCE: sorted by score, at most 300 kept (authors advise ≤ 500)
 
 

@@ -63,7 +63,7 @@ def _input_hw(model, path: Path) -> tuple[int, int]:
 
 def _dequantise_convs(model, path: Path) -> int:
     """Replace each quantised conv chain by a float Conv; returns how many were replaced."""
-    onnx = _onnx()
+    _onnx()
     from onnx import helper, numpy_helper
 
     g = model.graph
@@ -74,13 +74,20 @@ def _dequantise_convs(model, path: Path) -> int:
         for i in n.input:
             consumers[i].append(n)
 
+    def only_consumer(name: str, op: str):
+        users = consumers[name]
+        if len(users) != 1 or users[0].op_type != op:
+            raise InputError(f"quantised conv: {name!r} should feed exactly one {op}", path)
+        return users[0]
+
     def const(name: str) -> np.ndarray:
         if name not in inits:
             raise InputError(f"quantised conv: {name!r} is not a constant", path)
         return numpy_helper.to_array(inits[name])
 
-    new_nodes: dict[int, object] = {}  # id(ConvInteger node) → float Conv replacing the chain
-    dropped: set[int] = set()
+    # Nodes are keyed by their first output name (unique in a graph).
+    new_nodes: dict[str, object] = {}  # ConvInteger output → float Conv replacing the chain
+    dropped: set[str] = set()  # Cast and Mul outputs of replaced chains
     new_inits = []
     for n in g.node:
         if n.op_type != "ConvInteger":
@@ -89,12 +96,8 @@ def _dequantise_convs(model, path: Path) -> int:
         dql = producer.get(x_q)
         if dql is None or dql.op_type != "DynamicQuantizeLinear" or dql.output[0] != x_q or dql.output[2] != x_zp:
             raise InputError(f"ConvInteger {n.name!r}: its input is not a DynamicQuantizeLinear output", path)
-        (cast,) = consumers[n.output[0]] if len(consumers[n.output[0]]) == 1 else (None,)
-        if cast is None or cast.op_type != "Cast":
-            raise InputError(f"ConvInteger {n.name!r}: not followed by a single Cast", path)
-        (mul,) = consumers[cast.output[0]] if len(consumers[cast.output[0]]) == 1 else (None,)
-        if mul is None or mul.op_type != "Mul":
-            raise InputError(f"ConvInteger {n.name!r}: Cast not followed by a single scale Mul", path)
+        cast = only_consumer(n.output[0], "Cast")
+        mul = only_consumer(cast.output[0], "Mul")
         # The Mul must scale by input_scale · weight_scale, the scale product of this chain.
         scale_name = mul.input[1] if mul.input[0] == cast.output[0] else mul.input[0]
         scales = producer.get(scale_name)
@@ -110,15 +113,15 @@ def _dequantise_convs(model, path: Path) -> int:
         w_name = w_q.replace("_quantized", "") + "_float"
         new_inits.append(numpy_helper.from_array(weight.astype(np.float32), w_name))
         attrs = {a.name: helper.get_attribute_value(a) for a in n.attribute}
-        conv = helper.make_node("Conv", [dql.input[0], w_name], [mul.output[0]], name=n.name.replace("_quant", "") + "_float", **attrs)
-        new_nodes[id(n)] = conv
-        dropped.update({id(cast), id(mul), id(scales)})
+        conv = helper.make_node("Conv", [dql.input[0], w_name], [mul.output[0]], name=n.name + "_float", **attrs)
+        new_nodes[n.output[0]] = conv
+        dropped.update({cast.output[0], mul.output[0]})  # the scale products die with them below
 
     nodes = []
     for n in g.node:
-        if id(n) in new_nodes:
-            nodes.append(new_nodes[id(n)])
-        elif id(n) not in dropped:
+        if n.output[0] in new_nodes:
+            nodes.append(new_nodes[n.output[0]])
+        elif n.output[0] not in dropped:
             nodes.append(n)
     del g.node[:]
     g.node.extend(nodes)
