@@ -137,6 +137,19 @@ def multibranch_widths(n: int, cfg: SelectConfig | None = None) -> list[int]:
     return list(cfg.branch_head_widths[k]) + list(cfg.branch_tail_widths)
 
 
+def _first_of_each_set(sets: np.ndarray) -> np.ndarray:
+    """Indices (ascending) of the first row of each distinct row of a boolean matrix."""
+    packed = np.packbits(sets, axis=1)
+    words = np.zeros((packed.shape[0], -(-packed.shape[1] // 8) * 8), dtype=np.uint8)
+    words[:, : packed.shape[1]] = packed
+    words = words.view(np.uint64)  # 64 items per word
+    order = np.lexsort(words.T[::-1])
+    w = words[order]
+    new = np.ones(len(order), dtype=bool)
+    new[1:] = (w[1:] != w[:-1]).any(axis=1)
+    return np.sort(order[new])
+
+
 def solve_multibranch(Q: np.ndarray, widths: list[int] | None = None) -> tuple[np.ndarray, float]:
     """The original's greedy multi-branch search.
 
@@ -166,7 +179,7 @@ def solve_multibranch(Q: np.ndarray, widths: list[int] | None = None) -> tuple[n
 
     def add(rows: np.ndarray, items: np.ndarray) -> None:
         nonlocal sets, values, gains
-        sets, values, gains = sets[rows].copy(), values[rows] + gains[rows, items], gains[rows] + 2.0 * off[items]
+        sets, values, gains = sets[rows], values[rows] + gains[rows, items], gains[rows] + 2.0 * off[items]
         r = np.arange(rows.size)
         sets[r, items] = True
         gains[r, items] = -np.inf
@@ -184,9 +197,7 @@ def solve_multibranch(Q: np.ndarray, widths: list[int] | None = None) -> tuple[n
         if rows.size == 0:
             break
         add(rows, top[rows, cols])
-        # merge branches holding the same set
-        _, first = np.unique(np.packbits(sets, axis=1), axis=0, return_index=True)
-        first.sort()
+        first = _first_of_each_set(sets)
         sets, values, gains = sets[first], values[first], gains[first]
         i = int(np.argmax(values))
         if values[i] > best_v:
@@ -201,6 +212,8 @@ def solve_multibranch(Q: np.ndarray, widths: list[int] | None = None) -> tuple[n
             break
         rows = np.nonzero(live)[0]
         add(rows, j[rows])
+        first = _first_of_each_set(sets)  # greedy branches often converge
+        sets, values, gains = sets[first], values[first], gains[first]
         i = int(np.argmax(values))
         if values[i] > best_v:
             best_v, best_set = float(values[i]), sets[i].copy()
@@ -315,7 +328,8 @@ def solve_large(Q: np.ndarray, cfg: SelectConfig | None = None) -> tuple[np.ndar
         if v > best_v + tol:
             best_m, best_v = m, v
 
-    for start in (best_m.copy(), greedy_m):
+    starts = [best_m.copy()] if np.array_equal(greedy_m, best_m) else [best_m.copy(), greedy_m]
+    for start in starts:
         consider(_tabu(Q, start, iterations, stall, rng, deadline)[0])
     for _ in range(cfg.tabu_restarts):
         if deadline and time.perf_counter() > deadline:
@@ -342,21 +356,21 @@ def fix_forced(Q: np.ndarray) -> np.ndarray:
     Q = _symmetric(Q)
     n = Q.shape[0]
     diag = np.diagonal(Q).copy()
-    off = Q - np.diag(diag)
-    pos, neg = np.maximum(off, 0.0), np.minimum(off, 0.0)
+    off = csr_matrix(Q - np.diag(diag))  # overlaps are sparse: most tube pairs never meet
+    pos, neg = off.maximum(0.0), off.minimum(0.0)
     state = np.full(n, -1, dtype=np.int8)
     base = diag.copy()  # diag plus 2·Σ over kept candidates
     while True:
-        free = state < 0
+        free = (state < 0).astype(np.float64)
         hi = base + 2.0 * (pos @ free)
         lo = base + 2.0 * (neg @ free)
-        drop = free & (hi <= 0)
-        keep = free & (lo >= 0) & ~drop
+        drop = (free > 0) & (hi <= 0)
+        keep = (free > 0) & (lo >= 0) & ~drop
         if not (drop.any() or keep.any()):
             return state
         state[drop] = 0
         state[keep] = 1
-        base += 2.0 * (off @ keep)
+        base += 2.0 * (off @ keep.astype(np.float64))
 
 
 def solve(Q: np.ndarray, cfg: SelectConfig | None = None) -> tuple[np.ndarray, float]:
