@@ -415,3 +415,11 @@ def test_timing_100_500_2000(kitti_tracks):
             if n in limits:
                 assert t_ours <= limits[n], lines[-1]
     print("\n" + "\n".join(lines))
+
+
+def test_time_limit_still_returns_at_least_multibranch(kitti_tracks):
+    Q = _sparse_problem(300, np.random.default_rng(47), degree=5.0)
+    v_mb = solve_multibranch(Q)[1]
+    m, v = solve(Q, SelectConfig(time_limit_s=1e-6, exact_max_candidates=0))
+    assert v == pytest.approx(qubo_value(Q, m))
+    assert v >= v_mb - 1e-9 * abs(v_mb)

@@ -100,7 +100,10 @@ def solve_exhaustive(Q: np.ndarray) -> tuple[np.ndarray, float]:
     + 2·lowᵀQ_LH·high, so one matrix product gives the values of a whole block of
     (low, high) combinations.
     """
-    Q = _symmetric(Q)
+    return _exhaustive(_symmetric(Q))
+
+
+def _exhaustive(Q: np.ndarray) -> tuple[np.ndarray, float]:
     n = Q.shape[0]
     if n > EXHAUSTIVE_MAX:
         raise InputError(f"co-selection: exhaustive search takes at most {EXHAUSTIVE_MAX} candidates, got {n}")
@@ -133,6 +136,8 @@ def solve_exhaustive(Q: np.ndarray) -> tuple[np.ndarray, float]:
 def multibranch_widths(n: int, cfg: SelectConfig | None = None) -> list[int]:
     """The original's branch width per search level for a problem of n candidates."""
     cfg = cfg or SelectConfig()
+    if len(cfg.branch_head_widths) != len(cfg.branch_size_limits) + 1:
+        raise ConfigError("select: branch_head_widths needs one entry more than branch_size_limits")
     k = next((i for i, limit in enumerate(cfg.branch_size_limits) if n < limit), len(cfg.branch_size_limits))
     return list(cfg.branch_head_widths[k]) + list(cfg.branch_tail_widths)
 
@@ -163,9 +168,11 @@ def solve_multibranch(Q: np.ndarray, widths: list[int] | None = None) -> tuple[n
     only, so this returns what the original's depth-first recursion returns.
     """
     Q = _symmetric(Q)
+    return _multibranch(Q, multibranch_widths(Q.shape[0]) if widths is None else widths)
+
+
+def _multibranch(Q: np.ndarray, widths: list[int]) -> tuple[np.ndarray, float]:
     n = Q.shape[0]
-    if widths is None:
-        widths = multibranch_widths(n)
     if n == 0:
         return np.zeros(0, dtype=bool), 0.0
     diag = np.diagonal(Q).copy()
@@ -309,8 +316,10 @@ def solve_large(Q: np.ndarray, cfg: SelectConfig | None = None) -> tuple[np.ndar
     Starts include the multi-branch result, so the answer is never worse than the
     original's. Deterministic for a given cfg.seed (unless cfg.time_limit_s cuts it short).
     """
-    cfg = cfg or SelectConfig()
-    Q = _symmetric(Q)
+    return _large(_symmetric(Q), cfg or SelectConfig())
+
+
+def _large(Q: np.ndarray, cfg: SelectConfig) -> tuple[np.ndarray, float]:
     n = Q.shape[0]
     if n == 0:
         return np.zeros(0, dtype=bool), 0.0
@@ -319,8 +328,8 @@ def solve_large(Q: np.ndarray, cfg: SelectConfig | None = None) -> tuple[np.ndar
     iterations, stall = cfg.tabu_iterations, cfg.tabu_stall_iterations
     tol = _tol(Q)
 
-    best_m, best_v = solve_multibranch(Q, multibranch_widths(n, cfg))
-    greedy_m, _ = solve_multibranch(Q, [])
+    best_m, best_v = _multibranch(Q, multibranch_widths(n, cfg))
+    greedy_m, _ = _multibranch(Q, [])
 
     def consider(m: np.ndarray) -> None:
         nonlocal best_m, best_v
@@ -353,10 +362,15 @@ def fix_forced(Q: np.ndarray) -> np.ndarray:
     until nothing changes. In co-selection all Q_ij ≤ 0, so every tube with
     score ≤ ε1 is dropped at once.
     """
-    Q = _symmetric(Q)
+    return _fix_forced(_symmetric(Q))
+
+
+def _fix_forced(Q: np.ndarray) -> np.ndarray:
     n = Q.shape[0]
     diag = np.diagonal(Q).copy()
-    off = csr_matrix(Q - np.diag(diag))  # overlaps are sparse: most tube pairs never meet
+    off = csr_matrix(Q)  # overlaps are sparse: most tube pairs never meet
+    off.setdiag(0.0)
+    off.eliminate_zeros()
     pos, neg = off.maximum(0.0), off.minimum(0.0)
     state = np.full(n, -1, dtype=np.int8)
     base = diag.copy()  # diag plus 2·Σ over kept candidates
@@ -383,15 +397,15 @@ def solve(Q: np.ndarray, cfg: SelectConfig | None = None) -> tuple[np.ndarray, f
     Q = _symmetric(Q)
     n = Q.shape[0]
     if cfg.solver == "exhaustive":
-        return solve_exhaustive(Q)
+        return _exhaustive(Q)
     if cfg.solver == "multibranch":
-        return solve_multibranch(Q, multibranch_widths(n, cfg))
+        return _multibranch(Q, multibranch_widths(n, cfg))
     if cfg.solver != "auto":
         raise ConfigError(f"select.solver: unknown solver {cfg.solver!r}; known: auto, multibranch, exhaustive")
     if cfg.exact_max_candidates > EXHAUSTIVE_MAX:
         raise ConfigError(f"select.exact_max_candidates: at most {EXHAUSTIVE_MAX}, got {cfg.exact_max_candidates}")
 
-    state = fix_forced(Q)
+    state = _fix_forced(Q)
     m = state == 1
     free = np.nonzero(state < 0)[0]
     if free.size:
@@ -400,15 +414,16 @@ def solve(Q: np.ndarray, cfg: SelectConfig | None = None) -> tuple[np.ndarray, f
         sub[np.diag_indices(free.size)] += 2.0 * Q[np.ix_(free, np.nonzero(m)[0])].sum(axis=1)
         links = sub != 0
         np.fill_diagonal(links, False)
-        n_groups, label = connected_components(csr_matrix(links), directed=False)
-        for g in range(n_groups):
-            members = np.nonzero(label == g)[0]
+        _, label = connected_components(csr_matrix(links), directed=False)
+        order = np.argsort(label, kind="stable")
+        groups = np.split(order, np.nonzero(np.diff(label[order]))[0] + 1)
+        for members in groups:
             part = sub[np.ix_(members, members)]
-            if members.size == 1:
+            if members.size == 1:  # a tube that overlaps no undecided tube
                 chosen = part[0, 0] > 0
             elif members.size <= cfg.exact_max_candidates:
-                chosen = solve_exhaustive(part)[0]
+                chosen = _exhaustive(part)[0]
             else:
-                chosen = solve_large(part, cfg)[0]
+                chosen = _large(part, cfg)[0]
             m[free[members]] = chosen
     return m, qubo_value(Q, m)
