@@ -273,8 +273,10 @@ def _tabu(
         free_at[i] = it + tenure + jitter[it]
         if v > best_v + tol:
             best_m, best_v, last_best = m.copy(), v, it
-        if deadline and it % 64 == 63 and time.perf_counter() > deadline:
-            break
+        if it % 256 == 255:  # wash out the rounding that the running updates pick up
+            delta, v = _flip_gains(diag, off @ m, m), qubo_value(Q, m)
+            if deadline and time.perf_counter() > deadline:
+                break
     return best_m.astype(bool), qubo_value(Q, best_m)
 
 
