@@ -19,7 +19,7 @@ class SelectConfig:
     # --- the original's greedy multi-branch search (Schindler et al. ECCV 2006)
     # The first two branch widths narrow as the problem grows: problems with fewer than
     # branch_size_limits[k] candidates use branch_head_widths[k]; larger ones the last entry.
-    branch_size_limits: list[int] = field(default_factory=lambda: [50, 70, 100, 250])  # REFERENCE
+    branch_size_limits: list[int] = field(default_factory=lambda: [50, 70, 100, 250])  # REFERENCE ("narrowing"; tiers from the original implementation)
     branch_head_widths: list[list[int]] = field(
         default_factory=lambda: [[50, 50], [70, 25], [50, 20], [50, 10], [50, 5]]
     )  # REFERENCE: widths of search levels 1–2 per size class
