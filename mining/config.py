@@ -19,6 +19,8 @@ from typing import Any
 
 from mining.errors import ConfigError
 from mining.geometry.config import GeometryConfig
+from mining.proposals.config import ProposalConfig
+from mining.select.config import SelectConfig
 
 
 @dataclass
@@ -33,6 +35,8 @@ class SourceConfig:
 class JobConfig:
     source: SourceConfig = field(default_factory=SourceConfig)
     geometry: GeometryConfig = field(default_factory=GeometryConfig)
+    proposals: ProposalConfig = field(default_factory=ProposalConfig)
+    select: SelectConfig = field(default_factory=SelectConfig)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
