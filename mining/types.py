@@ -247,3 +247,25 @@ class Proposals:
 
     def __len__(self) -> int:
         return len(self.rles)
+
+
+@dataclass
+class Observations:
+    """One frame's proposals localised in 3D: the paper's position p, velocity v and size s.
+
+    Row i belongs to ``proposals`` row i. Positions are in the current camera frame;
+    NaN rows where the mask holds too few valid depth points to localise.
+    """
+
+    proposals: Proposals
+    t_ns: int
+    position: np.ndarray  # (N, 3) median of the mask's 3D points, camera metres
+    covariance: np.ndarray  # (N, 3, 3) triangulation covariance (+ prior), m²
+    footpoint: np.ndarray  # (N, 3) position projected onto the ground plane
+    velocity: np.ndarray  # (N, 3) m/s in the camera frame, NaN without enough flow samples
+    velocity_covariance: np.ndarray  # (N, 3, 3)
+    size: np.ndarray  # (N, 3) width, height, length metres
+    n_points: np.ndarray  # (N,) valid depth points inside the mask
+
+    def __len__(self) -> int:
+        return len(self.proposals)
