@@ -18,8 +18,8 @@ from mining.eval.kitti_labels import read_kitti_tracking
 from mining.eval.kitti_mot import box_iou
 from mining.proposals.config import OnnxConfig
 from mining.proposals.onnx_convert import anchor_grid, converted_model, convert_to_float
-from mining.proposals.onnx_yolo import (OnnxProposer, crop_rle, decode_predictions, letterbox_image,
-                                        plan_letterbox)
+from mining.masks import crop_rle
+from mining.proposals.onnx_yolo import OnnxProposer, decode_predictions, letterbox_image, plan_letterbox
 from mining.types import N_CLASSES
 
 onnx = pytest.importorskip("onnx")

@@ -34,6 +34,7 @@ from pycocotools import mask as mask_utils
 from mining.errors import ConfigError, InputError
 from mining.proposals.config import OnnxConfig
 from mining.proposals.onnx_convert import converted_model
+from mining.masks import crop_rle
 from mining.types import N_CLASSES, Proposals
 
 PROPOSER_NAME = "onnx"
@@ -91,31 +92,6 @@ def class_posterior(probs: np.ndarray) -> np.ndarray:
     u = 1.0 - p.max(axis=1, keepdims=True)
     full = np.concatenate([p, u], axis=1)
     return (full / full.sum(axis=1, keepdims=True)).astype(np.float32)
-
-
-def crop_rle(crop: np.ndarray, x0: int, y0: int, height: int, width: int) -> dict:
-    """COCO compressed RLE of a full ``height × width`` mask that is zero outside ``crop``.
-
-    ``crop`` (h, w) bool sits with its top-left pixel at (x0, y0). COCO RLE runs go down the
-    columns (Fortran order), alternating zeros and ones, starting with zeros.
-    """
-    h, w = crop.shape
-    padded = np.zeros((h + 2, w), np.int8)
-    padded[1:-1] = crop
-    edges = np.diff(padded, axis=0).T  # (w, h + 1): +1 where a run of ones starts, −1 after it ends
-    cols, rows = np.nonzero(edges)  # column-major order, as COCO counts run
-    pos = (x0 + cols).astype(np.int64) * height + (y0 + rows)
-    # A run that touches the bottom of one column and the top of the next is one run in
-    # Fortran order: drop the end/start pair that meets at the same position.
-    starts, ends = pos[0::2], pos[1::2]
-    join = np.nonzero(ends[:-1] == starts[1:])[0]
-    if join.size:
-        starts, ends = np.delete(starts, join + 1), np.delete(ends, join)
-    bounds = np.empty(2 * starts.size + 2, np.int64)
-    bounds[0], bounds[-1] = 0, height * width
-    bounds[1:-1:2], bounds[2:-1:2] = starts, ends
-    counts = np.diff(bounds).tolist()
-    return mask_utils.frPyObjects({"size": [height, width], "counts": counts}, height, width)
 
 
 def nms_keep(boxes: np.ndarray, scores: np.ndarray, iou: float, top_k: int) -> np.ndarray:

@@ -1,0 +1,135 @@
+"""COCO RLE masks without full-frame arrays: every stage works on runs or cropped masks.
+
+A COCO RLE runs down the columns (Fortran order), alternating zeros and ones, starting
+with zeros. The compressed ``counts`` string stores each run length in 5-bit groups
+(continuation bit 0x20, characters offset by 48), and from the third run on as the
+difference to the run two places before it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pycocotools import mask as mask_utils
+
+
+def rle_counts(rle: dict) -> np.ndarray:
+    """Run lengths of a COCO RLE (compressed string or plain list), vectorised."""
+    counts = rle["counts"]
+    if isinstance(counts, list):
+        return np.asarray(counts, np.int64)
+    raw = np.frombuffer(counts.encode() if isinstance(counts, str) else counts, np.uint8).astype(np.int64) - 48
+    if raw.size == 0:
+        return np.zeros(0, np.int64)
+    last = (raw & 0x20) == 0  # the character that ends a number
+    ends = np.nonzero(last)[0]
+    starts = np.concatenate([[0], ends[:-1] + 1])
+    # Position of each character within its number → its 5-bit shift.
+    number = np.cumsum(np.concatenate([[0], last[:-1]]))
+    shift = 5 * (np.arange(raw.size) - starts[number])
+    values = np.add.reduceat((raw & 0x1F) << shift, starts)
+    negative = (raw[ends] & 0x10) != 0
+    values[negative] -= 1 << (5 * (ends[negative] - starts[negative] + 1))
+    # Runs from the fourth on are stored relative to the run two places before.
+    if values.size > 3:
+        values[3::2] = np.cumsum(values[3::2]) + values[1]
+    if values.size > 4:
+        values[4::2] = np.cumsum(values[4::2]) + values[2]
+    return values
+
+
+def mask_pixels(rle: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column indices of a mask's pixels, without building the full frame."""
+    h = int(rle["size"][0])
+    counts = rle_counts(rle)
+    bounds = np.cumsum(counts)
+    starts, lengths = bounds[0::2][: counts[1::2].size], counts[1::2]
+    keep = lengths > 0
+    starts, lengths = starts[keep], lengths[keep]
+    if starts.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    total = int(lengths.sum())
+    # idx = start of the run each pixel belongs to + its offset inside the run.
+    offsets = np.arange(total) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+    idx = np.repeat(starts, lengths) + offsets
+    return idx % h, idx // h
+
+
+def crop_rle(crop: np.ndarray, x0: int, y0: int, height: int, width: int) -> dict:
+    """COCO compressed RLE of a full ``height × width`` mask that is zero outside ``crop``.
+
+    ``crop`` (h, w) bool sits with its top-left pixel at (x0, y0) and must lie inside
+    the frame.
+    """
+    h, w = crop.shape
+    padded = np.zeros((h + 2, w), np.int8)
+    padded[1:-1] = crop
+    edges = np.diff(padded, axis=0).T  # (w, h + 1): +1 where a run of ones starts, −1 after it ends
+    cols, rows = np.nonzero(edges)  # column-major order, as COCO counts run
+    pos = (x0 + cols).astype(np.int64) * height + (y0 + rows)
+    # A run that touches the bottom of one column and the top of the next is one run in
+    # Fortran order: drop the end/start pair that meets at the same position.
+    starts, ends = pos[0::2], pos[1::2]
+    join = np.nonzero(ends[:-1] == starts[1:])[0]
+    if join.size:
+        starts, ends = np.delete(starts, join + 1), np.delete(ends, join)
+    bounds = np.empty(2 * starts.size + 2, np.int64)
+    bounds[0], bounds[-1] = 0, height * width
+    bounds[1:-1:2], bounds[2:-1:2] = starts, ends
+    counts = np.diff(bounds).tolist()
+    return mask_utils.frPyObjects({"size": [height, width], "counts": counts}, height, width)
+
+
+def box_rle(box: np.ndarray, height: int, width: int) -> dict:
+    """RLE of the pixels covered by box (x1, y1, x2, y2), clipped to the frame."""
+    x1, y1 = max(0, int(np.floor(box[0]))), max(0, int(np.floor(box[1])))
+    x2, y2 = min(width, int(np.ceil(box[2]))), min(height, int(np.ceil(box[3])))
+    if x2 <= x1 or y2 <= y1:
+        return crop_rle(np.zeros((0, 0), bool), 0, 0, height, width)
+    return crop_rle(np.ones((y2 - y1, x2 - x1), bool), x1, y1, height, width)
+
+
+def areas(rles: list[dict]) -> np.ndarray:
+    """Mask areas; chunked because pycocotools 2.0.11 overflows on more than 255 RLEs."""
+    out = np.zeros(len(rles), np.int64)
+    for s in range(0, len(rles), 255):
+        out[s : s + 255] = mask_utils.area(rles[s : s + 255])
+    return out
+
+
+def mask_iou(a: list[dict], b: list[dict]) -> np.ndarray:
+    """(len(a), len(b)) mask IoU, one batched pycocotools call."""
+    if not a or not b:
+        return np.zeros((len(a), len(b)))
+    return np.asarray(mask_utils.iou(a, b, [0] * len(b)), np.float64).reshape(len(a), len(b))
+
+
+def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(len(a), len(b)) IoU of x1, y1, x2, y2 boxes."""
+    a = np.asarray(a, np.float64).reshape(-1, 4)
+    b = np.asarray(b, np.float64).reshape(-1, 4)
+    iw = np.clip(np.minimum(a[:, None, 2], b[None, :, 2]) - np.maximum(a[:, None, 0], b[None, :, 0]), 0, None)
+    ih = np.clip(np.minimum(a[:, None, 3], b[None, :, 3]) - np.maximum(a[:, None, 1], b[None, :, 1]), 0, None)
+    inter = iw * ih
+    area_a = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
+    area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    union = area_a[:, None] + area_b[None, :] - inter
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(union > 0, inter / union, 0.0)
+
+
+def size_similarity(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(len(a), len(b)) 2D size similarity of boxes: product of width and height ratios (≤ 1)."""
+    a = np.asarray(a, np.float64).reshape(-1, 4)
+    b = np.asarray(b, np.float64).reshape(-1, 4)
+    wa, ha = a[:, 2] - a[:, 0], a[:, 3] - a[:, 1]
+    wb, hb = b[:, 2] - b[:, 0], b[:, 3] - b[:, 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rw = np.minimum(wa[:, None], wb[None]) / np.maximum(wa[:, None], wb[None])
+        rh = np.minimum(ha[:, None], hb[None]) / np.maximum(ha[:, None], hb[None])
+    return np.nan_to_num(rw * rh)
+
+
+def rle_box(rle: dict) -> np.ndarray:
+    """x1, y1, x2, y2 of a mask (pycocotools gives x, y, w, h)."""
+    x, y, w, h = mask_utils.toBbox(rle)
+    return np.array([x, y, x + w, y + h], np.float64)
