@@ -39,7 +39,40 @@ class ProposalFilterConfig:
 
 
 @dataclass
+class JsonProposalsConfig:
+    """Per-frame proposal files in the original 4D-GVT JSON format (``precomputed`` proposer)."""
+
+    folder: str = ""  # ours: user-given folder of NNNNNN.json files, one per frame
+    filename_digits: int = 6  # ours: zero-padded frame index in the file name (4D-GVT files: 000042.json)
+    category_ids: str = "agnostic"  # ours: without second_posterior, category_id is "agnostic" (no classes) or "coco" (ids 1..90)
+
+
+@dataclass
+class KittiDetectionsConfig:
+    """KITTI tracking detection files (PointRCNN comma files or 18-column results) as box-mask proposals.
+
+    objectness = 1 / (1 + exp(−(score − score_offset) / score_scale)): the detectors' scores are
+    unbounded; defaults fitted on PointRCNN vs label_02 (see precomputed.py).
+    """
+
+    path: str = ""  # ours: a detections folder (PointRCNN: <path>/<Class>/<seq>.txt; results: <path>/<seq>.txt) or a file
+    score_offset: float = 2.0  # ours: raw score at objectness 0.5 (placeholder until fitted)
+    score_scale: float = 1.0  # ours: raw-score units per logit of objectness (placeholder until fitted)
+
+
+@dataclass
+class UnionConfig:
+    """Several proposers' outputs merged into one set per frame."""
+
+    mask_iou: float = 0.7  # ours: proposals of different proposers above this mask IoU are the same object
+
+
+@dataclass
 class ProposalConfig:
     proposer: str = "onnx"  # ours: which proposer makes the image-level masks
     onnx: OnnxConfig = field(default_factory=OnnxConfig)
     filters: ProposalFilterConfig = field(default_factory=ProposalFilterConfig)
+    json: JsonProposalsConfig = field(default_factory=JsonProposalsConfig)
+    kitti_detections: KittiDetectionsConfig = field(default_factory=KittiDetectionsConfig)
+    union: UnionConfig = field(default_factory=UnionConfig)
+
