@@ -248,6 +248,28 @@ class Proposals:
     def __len__(self) -> int:
         return len(self.rles)
 
+    def take(self, idx: np.ndarray) -> Proposals:
+        """The proposals at ``idx`` (indices or a boolean mask), in that order."""
+        idx = np.flatnonzero(idx) if np.asarray(idx).dtype == bool else np.asarray(idx, np.int64)
+
+        def rows(a):
+            return None if a is None else a[idx]
+
+        return Proposals(
+            frame=self.frame,
+            rles=[self.rles[i] for i in idx],
+            boxes=self.boxes[idx],
+            objectness=self.objectness[idx],
+            posterior=rows(self.posterior),
+            proposer=[self.proposer[i] for i in idx] if self.proposer else [],
+            position=rows(self.position),
+            size=rows(self.size),
+        )
+
+    @staticmethod
+    def empty(frame: int) -> Proposals:
+        return Proposals(frame, [], np.zeros((0, 4), np.float32), np.zeros(0, np.float32))
+
 
 @dataclass
 class Observations:
@@ -269,3 +291,21 @@ class Observations:
 
     def __len__(self) -> int:
         return len(self.proposals)
+
+
+@dataclass
+class TrackingFrame:
+    """Everything the tube stage needs about one frame.
+
+    ``pose`` is camera-to-world for the current *segment*: a failed egomotion starts a new
+    segment (``segment`` increments) because nothing links the two sides; tubes never
+    cross a segment border. ``depth`` is None in detections-only mode (no images).
+    """
+
+    index: int
+    t_ns: int
+    calib: StereoCalib
+    pose: np.ndarray  # (4, 4) camera-to-world within the segment
+    segment: int
+    observations: Observations
+    depth: np.ndarray | None = None  # (H, W) float32 metres, NaN invalid
