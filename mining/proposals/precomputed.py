@@ -1,0 +1,364 @@
+"""Proposals read from files instead of computed: the ``precomputed`` proposers.
+
+Two inputs:
+
+* ``JsonProposals`` — the original 4D-GVT per-frame proposal JSON (one ``NNNNNN.json`` per
+  frame, a list of ``{segmentation: {size, counts}, score, category_id, bbox?,
+  second_category_id?, second_posterior?}``; shared/data/proposals_4dgvt_format/*/README.md).
+  objectness = ``score``; box = ``bbox`` (x, y, w, h) when present, else the mask's box.
+  Posterior: ``second_posterior`` is sparse ``{size: 81, values: {"k": p}}`` with key 0 =
+  background and keys 1..80 = the COCO classes in contiguous order; key 0 becomes our
+  ``UNKNOWN_CLASS`` (the original's 81st class is "background/unknown", REFERENCE "Known and
+  unknown"), keys k ≥ 1 become column k − 1, and each row is normalised to sum 1. A file
+  without any ``second_posterior`` has no class information: with ``category_ids =
+  "agnostic"`` (the README's files: category_id 1 = the single "object" class) the posterior
+  is None; with ``"coco"`` the category_id is a COCO id (1..90) and the row puts ``score`` on
+  that class and 1 − score on unknown, the same split the original uses for background.
+  A file where only some elements carry ``second_posterior`` is rejected.
+
+* ``KittiDetections`` — KITTI tracking detection files: PointRCNN's comma-separated 15-column
+  files (SOURCES.md §1.6) and the 18-column tracking result format (§1.5). Each detection
+  becomes a box-shaped mask (the pixels whose centres lie inside the box clipped to the
+  image). The scores are unbounded, so objectness is a logistic map
+  1 / (1 + exp(−(score − score_offset) / score_scale)); the defaults are fitted on PointRCNN
+  against label_02 (KittiDetectionsConfig). The raw score stays available through
+  ``raw_scores(frame)``. Posterior: objectness on the detector's class mapped to COCO
+  (KITTI_TYPE_TO_COCO), 1 − objectness on unknown. 3D: KITTI locations are box *bottom*
+  centres in rectified camera 0; position = location − (0, h/2, 0) moved into the image_02
+  frame, size = (w, h, l). Detections without 3D (Regionlets' −1/−1000 placeholders) get NaN rows.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from pycocotools import mask as mask_utils
+
+from mining.errors import InputError
+from mining.eval.kitti_labels import read_kitti_tracking
+from mining.proposals.coco import CATEGORY_ID_TO_INDEX, CLASS_INDEX
+from mining.proposals.config import JsonProposalsConfig, KittiDetectionsConfig
+from mining.sources.kitti_calib import KittiCalib
+from mining.types import N_CLASSES, UNKNOWN_CLASS, Proposals
+
+JSON_PROPOSER = "json"
+KITTI_PROPOSER = "kitti_detections"
+
+# ours: KITTI object type → COCO class; None = no COCO class (all mass on unknown).
+# A Cyclist box holds a person on a bicycle; we name the vehicle, as the brief of this stage asks.
+KITTI_TYPE_TO_COCO: dict[str, str | None] = {
+    "Car": "car", "Van": "car", "Truck": "truck", "Pedestrian": "person", "Person": "person",
+    "Person_sitting": "person", "Cyclist": "bicycle", "Tram": "train", "Misc": None,
+}
+POINTRCNN_TYPES = {1: "Pedestrian", 2: "Car", 3: "Cyclist"}  # SOURCES.md §1.6 type codes
+POINTRCNN_COLUMNS = 15  # frame, type, x1 y1 x2 y2, score, h w l, x y z, rot_y, alpha
+
+
+def empty_proposals(frame: int, with_classes: bool, with_3d: bool, name: str) -> Proposals:
+    return Proposals(
+        frame=frame, rles=[], boxes=np.zeros((0, 4), np.float32), objectness=np.zeros(0, np.float32),
+        posterior=np.zeros((0, N_CLASSES), np.float32) if with_classes else None, proposer=[],
+        position=np.zeros((0, 3), np.float32) if with_3d else None,
+        size=np.zeros((0, 3), np.float32) if with_3d else None,
+    )
+
+
+# -- 4D-GVT JSON --------------------------------------------------------------------
+
+
+class JsonProposals:
+    """Per-frame proposals from a folder of 4D-GVT JSON files; ``proposals(frame)`` reads one.
+
+    ``image_size`` (w, h), when given, is checked against every mask's size.
+    """
+
+    def __init__(self, folder: str | Path, cfg: JsonProposalsConfig | None = None,
+                 image_size: tuple[int, int] | None = None, name: str = JSON_PROPOSER):
+        self.cfg = cfg or JsonProposalsConfig()
+        if self.cfg.category_ids not in ("agnostic", "coco"):
+            raise InputError(f"category_ids must be 'agnostic' or 'coco', got {self.cfg.category_ids!r}", folder)
+        self.folder = Path(folder)
+        if not self.folder.is_dir():
+            raise InputError("proposal folder does not exist", self.folder)
+        self.image_size = image_size
+        self.name = name
+
+    def path(self, frame: int) -> Path:
+        return self.folder / f"{frame:0{self.cfg.filename_digits}d}.json"
+
+    def frames(self) -> list[int]:
+        """Frame indices that have a file, ascending."""
+        pattern = re.compile(rf"(\d{{{self.cfg.filename_digits}}})\.json")
+        return sorted(int(m.group(1)) for p in self.folder.iterdir() if (m := pattern.fullmatch(p.name)))
+
+    def __call__(self, frame: int, image: np.ndarray | None = None) -> Proposals:
+        """Proposals of ``frame``; ``image`` (optional) only checks the frame size."""
+        size = self.image_size if image is None else (image.shape[1], image.shape[0])
+        return read_proposal_json(self.path(frame), frame, self.cfg.category_ids, size, self.name)
+
+
+def read_proposal_json(path: str | Path, frame: int, category_ids: str = "agnostic",
+                       image_size: tuple[int, int] | None = None, name: str = JSON_PROPOSER) -> Proposals:
+    """One 4D-GVT proposal JSON file → Proposals sorted by score (see the module doc)."""
+    path = Path(path)
+    try:
+        items = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError("proposal file for this frame is missing", path, frame) from None
+    except json.JSONDecodeError as e:
+        raise InputError(f"not valid JSON at line {e.lineno} column {e.colno}: {e.msg}", path, frame) from None
+    if not isinstance(items, list):
+        raise InputError(f"expected a JSON list of proposals, got {type(items).__name__}", path, frame)
+    if not items:
+        return empty_proposals(frame, category_ids == "coco", False, name)
+
+    n = len(items)
+    rles, boxes, scores = [], np.zeros((n, 4)), np.zeros(n)
+    has_post = [isinstance(it, dict) and "second_posterior" in it for it in items]
+    if any(has_post) and not all(has_post):
+        raise InputError(f"element {has_post.index(False)}: no second_posterior where other elements have one",
+                         path, frame)
+    posterior = np.zeros((n, N_CLASSES)) if (all(has_post) or category_ids == "coco") else None
+    frame_hw = None
+    for i, it in enumerate(items):
+        def bad(reason: str) -> InputError:
+            return InputError(f"element {i}: {reason}", path, frame)
+
+        if not isinstance(it, dict):
+            raise bad(f"expected an object, got {type(it).__name__}")
+        seg = it.get("segmentation")
+        if not (isinstance(seg, dict) and isinstance(seg.get("counts"), str) and isinstance(seg.get("size"), list)
+                and len(seg["size"]) == 2 and all(isinstance(v, int) and v > 0 for v in seg["size"])):
+            raise bad("segmentation must be a compressed COCO RLE {size: [h, w], counts: str}")
+        hw = tuple(seg["size"])
+        if frame_hw is None:
+            frame_hw = hw
+            if image_size is not None and hw != (image_size[1], image_size[0]):
+                raise bad(f"mask size {hw[1]}×{hw[0]} differs from the image size {image_size[0]}×{image_size[1]}")
+        elif hw != frame_hw:
+            raise bad(f"mask size {hw} differs from element 0's {frame_hw}")
+        rles.append({"size": list(hw), "counts": seg["counts"].encode("ascii")})
+        score = it.get("score")
+        if isinstance(score, bool) or not isinstance(score, (int, float)) or not 0.0 <= score <= 1.0:
+            raise bad(f"score must be a number in [0, 1], got {score!r}")
+        scores[i] = score
+        bbox = it.get("bbox")
+        if bbox is not None:
+            if not (isinstance(bbox, list) and len(bbox) == 4 and all(_finite(v) for v in bbox)) or min(bbox[2:]) < 0:
+                raise bad(f"bbox must be [x, y, w, h] with w, h ≥ 0, got {bbox!r}")
+            boxes[i] = bbox
+        else:
+            boxes[i] = mask_utils.toBbox(rles[-1])
+        if posterior is not None:
+            posterior[i] = (_second_posterior(it["second_posterior"], bad) if has_post[i]
+                            else _coco_one_hot(it.get("category_id"), score, bad))
+    boxes[:, 2:] += boxes[:, :2]
+    order = np.argsort(-scores, kind="stable")
+    return Proposals(
+        frame=frame,
+        rles=[rles[i] for i in order],
+        boxes=boxes[order].astype(np.float32),
+        objectness=scores[order].astype(np.float32),
+        posterior=None if posterior is None else posterior[order].astype(np.float32),
+        proposer=[name] * n,
+    )
+
+
+def _finite(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _second_posterior(sp, bad) -> np.ndarray:
+    """Sparse ``{size: 81, values: {"k": p}}`` (0 = background, 1..80 = classes) → our 81 layout."""
+    if not (isinstance(sp, dict) and sp.get("size") == N_CLASSES and isinstance(sp.get("values"), dict)):
+        raise bad(f"second_posterior must be {{size: {N_CLASSES}, values: {{index: p}}}}")
+    row = np.zeros(N_CLASSES)
+    for key, p in sp["values"].items():
+        if not (key.isdigit() and int(key) < N_CLASSES) or not _finite(p) or p < 0:
+            raise bad(f"second_posterior entry {key!r}: {p!r} is not an index 0..80 with a probability ≥ 0")
+        k = int(key)
+        row[UNKNOWN_CLASS if k == 0 else k - 1] = p
+    total = row.sum()
+    if not total > 0:
+        raise bad("second_posterior has no mass")
+    return row / total
+
+
+def _coco_one_hot(category_id, score: float, bad) -> np.ndarray:
+    if isinstance(category_id, bool) or category_id not in CATEGORY_ID_TO_INDEX:
+        raise bad(f"category_id {category_id!r} is not a COCO category id")
+    row = np.zeros(N_CLASSES)
+    row[CATEGORY_ID_TO_INDEX[category_id]] = score
+    row[UNKNOWN_CLASS] += 1.0 - score
+    return row
+
+
+# -- KITTI detection files ----------------------------------------------------------
+
+
+class KittiDetections:
+    """All detections of one KITTI tracking sequence, parsed once, served per frame.
+
+    ``source``: a file, a list of files, or a folder holding ``<sequence>.txt`` (result
+    format) or ``<Class>/<sequence>.txt`` sub-folders (PointRCNN). Each file is recognised by
+    its first line: commas → PointRCNN, else the 18-column result format. ``calib`` moves the
+    3D boxes from rectified camera 0 into the image_02 frame; ``image_size`` is (w, h).
+    """
+
+    def __init__(self, source: str | Path | Sequence[str | Path], sequence: str, calib: KittiCalib,
+                 image_size: tuple[int, int], cfg: KittiDetectionsConfig | None = None, name: str = KITTI_PROPOSER):
+        self.cfg = cfg or KittiDetectionsConfig()
+        if not self.cfg.score_scale > 0:
+            raise InputError(f"score_scale must be positive, got {self.cfg.score_scale}")
+        self.sequence = sequence
+        self.width, self.height = int(image_size[0]), int(image_size[1])
+        self.name = name
+        self.files = _detection_files(source, sequence)
+        parts = [_read_detection_file(f) for f in self.files]
+        frame = np.concatenate([p[0] for p in parts])
+        cls = np.concatenate([p[1] for p in parts])
+        num = np.concatenate([p[2] for p in parts])  # x1 y1 x2 y2 score h w l x y z
+        # One sort: by frame, best score first within a frame; frames index into it.
+        order = np.lexsort((-num[:, 4], frame))
+        self._frame, self._cls, num = frame[order], cls[order], num[order]
+        self._box = np.clip(num[:, :4], 0, [self.width, self.height, self.width, self.height])
+        self._raw = num[:, 4]
+        self._objectness = objectness_from_score(self._raw, self.cfg)
+        h, w, l = num[:, 5], num[:, 6], num[:, 7]
+        bottom = num[:, 8:11]
+        has_3d = (h > 0) & (w > 0) & (l > 0) & (bottom[:, 2] > 0)  # Regionlets write −1 / −1000
+        centre = bottom - np.column_stack([np.zeros_like(h), h / 2, np.zeros_like(h)])
+        self._position = np.where(has_3d[:, None], calib.rect0_to_cam2(centre), np.nan)
+        self._size = np.where(has_3d[:, None], np.column_stack([w, h, l]), np.nan)
+        # Boxes that clip to nothing (entirely outside the image) have no pixels to localise.
+        self._visible = (self._box[:, 2] > self._box[:, 0]) & (self._box[:, 3] > self._box[:, 1])
+
+    def _rows(self, frame: int) -> np.ndarray:
+        if frame < 0:
+            raise InputError(f"negative frame index {frame}", self.files[0], frame)
+        lo, hi = np.searchsorted(self._frame, [frame, frame + 1])
+        idx = np.arange(lo, hi)
+        return idx[self._visible[idx]]
+
+    def frames(self) -> list[int]:
+        """Frames with at least one detection."""
+        return np.unique(self._frame).tolist()
+
+    def raw_scores(self, frame: int) -> np.ndarray:
+        """The detector's unbounded scores, row for row with ``self(frame)``."""
+        return self._raw[self._rows(frame)].copy()
+
+    def __call__(self, frame: int, image: np.ndarray | None = None) -> Proposals:
+        if image is not None and image.shape[:2] != (self.height, self.width):
+            raise InputError(f"image is {image.shape[1]}×{image.shape[0]}, detections were set up for "
+                             f"{self.width}×{self.height}", self.files[0], frame)
+        idx = self._rows(frame)
+        if idx.size == 0:
+            return empty_proposals(frame, True, True, self.name)
+        box = self._box[idx]
+        xywh = np.column_stack([box[:, :2], box[:, 2:] - box[:, :2]])
+        rles = mask_utils.frPyObjects(xywh, self.height, self.width)
+        obj = self._objectness[idx]
+        posterior = np.zeros((idx.size, N_CLASSES))
+        cls = self._cls[idx]
+        known = cls >= 0
+        posterior[known, cls[known]] = obj[known]
+        posterior[:, UNKNOWN_CLASS] = np.where(known, 1.0 - obj, 1.0)
+        return Proposals(
+            frame=frame, rles=rles, boxes=box.astype(np.float32), objectness=obj.astype(np.float32),
+            posterior=posterior.astype(np.float32), proposer=[self.name] * idx.size,
+            position=self._position[idx].astype(np.float32), size=self._size[idx].astype(np.float32),
+        )
+
+
+def objectness_from_score(score: np.ndarray, cfg: KittiDetectionsConfig) -> np.ndarray:
+    """Unbounded detector score → objectness in (0, 1), logistic (see KittiDetectionsConfig)."""
+    z = (np.asarray(score, np.float64) - cfg.score_offset) / cfg.score_scale
+    return 0.5 * (1.0 + np.tanh(0.5 * z))  # = 1 / (1 + e^−z) without overflow
+
+
+def _detection_files(source, sequence: str) -> list[Path]:
+    if isinstance(source, (str, Path)):
+        p = Path(source)
+        if p.is_file():
+            return [p]
+        if not p.is_dir():
+            raise InputError("detections path does not exist", p)
+        if (p / f"{sequence}.txt").is_file():
+            return [p / f"{sequence}.txt"]
+        found = sorted(d / f"{sequence}.txt" for d in p.iterdir() if (d / f"{sequence}.txt").is_file())
+        if not found:
+            raise InputError(f"no {sequence}.txt in the folder or its sub-folders", p)
+        return found
+    files = [Path(f) for f in source]
+    for f in files:
+        if not f.is_file():
+            raise InputError("detections file does not exist", f)
+    if not files:
+        raise InputError("no detection files given")
+    return files
+
+
+def _read_detection_file(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(frame, COCO class index or −1, [x1 y1 x2 y2 score h w l x y z]) of one file."""
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise InputError(f"cannot read detections: {e.strerror or e}", path) from None
+    first = next((line for line in text.splitlines() if line.strip()), "")
+    if "," in first:
+        return _read_pointrcnn(path, text)
+    rows = read_kitti_tracking(path, require_score=True)
+    keep = rows.type != "DontCare"
+    cls = np.full(len(rows), -1, np.int64)
+    for t in np.unique(rows.type[keep]):
+        if t not in KITTI_TYPE_TO_COCO:
+            i = int(np.flatnonzero(rows.type == t)[0])
+            raise InputError(f"unknown KITTI object type {t!r}", path, int(rows.frame[i]))
+        coco = KITTI_TYPE_TO_COCO[t]
+        cls[rows.type == t] = -1 if coco is None else CLASS_INDEX[coco]
+    num = np.column_stack([rows.box, rows.score, rows.dimensions, rows.location])
+    return rows.frame[keep], cls[keep], num[keep]
+
+
+def _read_pointrcnn(path: Path, text: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    lines = [(no, line) for no, line in enumerate(text.splitlines(), 1) if line.strip()]
+    for no, line in lines:
+        if line.count(",") != POINTRCNN_COLUMNS - 1:
+            raise InputError(f"line {no}: expected {POINTRCNN_COLUMNS} comma-separated columns, "
+                             f"got {line.count(',') + 1}", path, _leading_int(line))
+    if not lines:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 11))
+    try:
+        table = np.array(",".join(line for _, line in lines).split(","), dtype=np.float64)
+    except ValueError:  # find the culprit only on failure; parsing stays vectorised
+        for no, line in lines:
+            try:
+                [float(v) for v in line.split(",")]
+            except ValueError:
+                raise InputError(f"line {no}: a column is not a number", path, _leading_int(line)) from None
+        raise
+    table = table.reshape(-1, POINTRCNN_COLUMNS)
+    frame, code = table[:, 0], table[:, 1]
+    bad = ~((frame >= 0) & (frame == np.round(frame)) & np.isin(code, list(POINTRCNN_TYPES)))
+    bad |= ~np.isfinite(table[:, 2:7]).all(axis=1)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise InputError(f"line {lines[i][0]}: frame must be a non-negative integer, type one of "
+                         f"{sorted(POINTRCNN_TYPES)}, box and score finite", path, _leading_int(lines[i][1]))
+    lut = np.full(max(POINTRCNN_TYPES) + 1, -1, np.int64)
+    for c, t in POINTRCNN_TYPES.items():
+        lut[c] = CLASS_INDEX[KITTI_TYPE_TO_COCO[t]]
+    cls = lut[code.astype(np.int64)]
+    # PointRCNN: x1 y1 x2 y2 score h w l x y z at columns 2..12
+    return frame.astype(np.int64), cls, table[:, 2:13]
+
+
+def _leading_int(line: str) -> int | None:
+    head = re.split(r"[,\s]", line.strip(), maxsplit=1)[0]
+    return int(head) if head.isdigit() else None
