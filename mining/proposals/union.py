@@ -1,0 +1,108 @@
+"""Combine and trim per-frame proposal sets.
+
+``union`` merges the outputs of several proposers for one frame. Two proposals of
+*different* proposers whose masks overlap by more than ``iou_threshold`` are taken to be
+the same object and only the one with the higher objectness stays (a proposer's own rows
+are never merged with each other: its NMS is its own business). Each row keeps the name of
+the proposer that made it.
+
+Fields one proposer lacks:
+
+* posterior — rows from a proposer without classes get the uniform distribution 1/81. That
+  says "no class information": averaged into a tube's posterior it leaves the argmax to the
+  observations that have classes. Putting the mass on ``UNKNOWN_CLASS`` instead would claim
+  the object is *not* one of the 80 classes, which the proposer never said.
+* position / size — NaN rows, the convention of ``Proposals`` for "not measured".
+
+``filter_by_box_area_and_count`` is the image-only part of the REFERENCE proposal filter
+(box area < 100 px² dropped, best 300 by score kept); the 3D parts need localisation.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from mining.errors import InputError
+from mining.masks import mask_iou
+from mining.proposals.config import ProposalFilterConfig
+from mining.types import N_CLASSES, Proposals
+
+
+def take(p: Proposals, idx: np.ndarray) -> Proposals:
+    """The rows ``idx`` of ``p``, in that order."""
+    idx = np.asarray(idx, np.int64).reshape(-1)
+    return Proposals(
+        frame=p.frame,
+        rles=[p.rles[i] for i in idx],
+        boxes=p.boxes[idx],
+        objectness=p.objectness[idx],
+        posterior=None if p.posterior is None else p.posterior[idx],
+        proposer=[p.proposer[i] for i in idx] if p.proposer else [],
+        position=None if p.position is None else p.position[idx],
+        size=None if p.size is None else p.size[idx],
+    )
+
+
+def union(proposals_list: Sequence[Proposals], iou_threshold: float) -> Proposals:
+    """One frame's proposals from several proposers, deduplicated by mask IoU (module doc).
+
+    Rows come out sorted by objectness, best first.
+    """
+    if not proposals_list:
+        raise ValueError("union of no proposal sets")
+    frame = proposals_list[0].frame
+    sizes = set()
+    for p in proposals_list:
+        if p.frame != frame:
+            raise InputError(f"cannot unite proposals of frame {p.frame} with frame {frame}", frame=frame)
+        if len(p.proposer) != len(p):
+            raise InputError(f"proposals of {p.proposer[:1] or 'an unnamed proposer'} name {len(p.proposer)} "
+                             f"proposers for {len(p)} rows", frame=frame)
+        sizes.update(tuple(r["size"]) for r in p.rles)
+    if len(sizes) > 1:
+        raise InputError(f"proposal masks of different frame sizes {sorted(sizes)}", frame=frame)
+
+    n = [len(p) for p in proposals_list]
+    group = np.repeat(np.arange(len(n)), n)
+    rles = [r for p in proposals_list for r in p.rles]
+    merged = Proposals(
+        frame=frame,
+        rles=rles,
+        boxes=np.concatenate([p.boxes.reshape(-1, 4) for p in proposals_list]).astype(np.float32),
+        objectness=np.concatenate([p.objectness for p in proposals_list]).astype(np.float32),
+        posterior=_stack([p.posterior for p in proposals_list], n, N_CLASSES, 1.0 / N_CLASSES),
+        proposer=[name for p in proposals_list for name in p.proposer],
+        position=_stack([p.position for p in proposals_list], n, 3, np.nan),
+        size=_stack([p.size for p in proposals_list], n, 3, np.nan),
+    )
+    order = np.argsort(-merged.objectness, kind="stable")
+    iou = mask_iou(rles, rles)  # one batched call over all pairs
+    same = iou > iou_threshold
+    same &= group[:, None] != group[None, :]
+    alive = np.ones(len(rles), bool)
+    keep = []
+    for i in order:
+        if alive[i]:
+            keep.append(i)
+            alive &= ~same[i]
+    return take(merged, np.asarray(keep, np.int64))
+
+
+def _stack(parts: list[np.ndarray | None], n: list[int], width: int, fill: float) -> np.ndarray | None:
+    """Row-stack optional per-proposer arrays; missing ones become ``fill`` rows (None if all are missing)."""
+    if all(a is None for a in parts):
+        return None
+    rows = [np.full((k, width), fill, np.float32) if a is None else np.asarray(a, np.float32).reshape(k, width)
+            for a, k in zip(parts, n)]
+    return np.concatenate(rows) if rows else np.zeros((0, width), np.float32)
+
+
+def filter_by_box_area_and_count(proposals: Proposals, cfg: ProposalFilterConfig) -> Proposals:
+    """Drop boxes smaller than ``min_box_area_px``, then keep the ``max_proposals`` best by objectness."""
+    b = proposals.boxes.reshape(-1, 4).astype(np.float64)
+    area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    big = np.flatnonzero(area >= cfg.min_box_area_px)
+    order = big[np.argsort(-proposals.objectness[big], kind="stable")]
+    return take(proposals, order[: cfg.max_proposals])
