@@ -19,8 +19,11 @@ from typing import Any
 
 from mining.errors import ConfigError
 from mining.geometry.config import GeometryConfig
+from mining.localise.config import LocaliseConfig
 from mining.proposals.config import ProposalConfig
+from mining.score.config import ScoreConfig
 from mining.select.config import SelectConfig
+from mining.tubes.config import TubeConfig
 
 
 @dataclass
@@ -36,6 +39,9 @@ class JobConfig:
     source: SourceConfig = field(default_factory=SourceConfig)
     geometry: GeometryConfig = field(default_factory=GeometryConfig)
     proposals: ProposalConfig = field(default_factory=ProposalConfig)
+    localise: LocaliseConfig = field(default_factory=LocaliseConfig)
+    tubes: TubeConfig = field(default_factory=TubeConfig)
+    score: ScoreConfig = field(default_factory=ScoreConfig)
     select: SelectConfig = field(default_factory=SelectConfig)
 
     def to_dict(self) -> dict[str, Any]:

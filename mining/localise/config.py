@@ -1,0 +1,17 @@
+"""Settings of 3D localisation and the geometric proposal filter (REFERENCE.md §5, §6)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class LocaliseConfig:
+    pixel_noise_px: float = 0.5  # REFERENCE: stereo triangulation with 0.5 px pixel noise
+    prior_var_x: float = 0.5  # REFERENCE: covariance prior, +0.5 on x (m²)
+    prior_var_z: float = 0.18  # REFERENCE: covariance prior, +0.18 on z (m²)
+    min_points: int = 10  # REFERENCE: at least 10 points for a 3D box
+    min_flow_samples: int = 4  # REFERENCE: fewer than 4 flow samples → no velocity measurement
+    max_size_m: float = 4.0  # REFERENCE: sizes ≤ 4 m
+    max_points: int = 1500  # ours: mask pixels sampled per proposal (the median needs no more)
+    size_percentiles: tuple[float, float] = (5.0, 95.0)  # ours: robust extent of the mask's points

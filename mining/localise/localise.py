@@ -1,0 +1,167 @@
+"""3D localisation of mask proposals (the paper's p, v, s per proposal; REFERENCE.md §6).
+
+Position is the median of the mask's 3D points, with the covariance of stereo
+triangulation at that point plus a prior. The footpoint is the position projected onto
+the ground plane. Velocity is a robust mean of the scene-flow motions inside the mask
+divided by the frame interval. Size is the robust 3D extent of the mask's points.
+
+In detections-only mode (no images) the detector's 3D box gives position and size and
+the footpoint is the box's bottom centre; the covariance follows the same stereo model.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mining.localise.config import LocaliseConfig
+from mining.masks import mask_pixels
+from mining.proposals.config import ProposalFilterConfig
+from mining.types import GroundPlane, Observations, Proposals, SceneFlow, StereoCalib
+
+
+def triangulation_covariance(points: np.ndarray, calib: StereoCalib, cfg: LocaliseConfig) -> np.ndarray:
+    """(N, 3, 3) covariance of stereo-triangulated points with pixel noise, plus the prior.
+
+    X = (u − cx)·Z/f, Y = (v − cy)·Z/f, Z = f·b/d: first-order propagation of independent
+    noise on u, v and the two image columns that make d.
+    """
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    n = len(p)
+    cov = np.full((n, 3, 3), np.nan)
+    ok = np.isfinite(p).all(axis=1) & (p[:, 2] > 0)
+    x, y, z = p[ok, 0], p[ok, 1], p[ok, 2]
+    f = calib.fx
+    d = f * calib.baseline_m / z
+    J = np.zeros((ok.sum(), 3, 3))
+    J[:, 0, 0] = z / f
+    J[:, 1, 1] = z / f
+    J[:, 0, 2] = -x / d
+    J[:, 1, 2] = -y / d
+    J[:, 2, 2] = -z / d
+    s2 = cfg.pixel_noise_px**2
+    S = np.diag([s2, s2, 2 * s2])  # d = u_left − u_right: two noisy columns
+    c = J @ S @ J.transpose(0, 2, 1)
+    c[:, 0, 0] += cfg.prior_var_x
+    c[:, 2, 2] += cfg.prior_var_z
+    cov[ok] = c
+    return cov
+
+
+def project_to_ground(points: np.ndarray, ground: GroundPlane) -> np.ndarray:
+    """Orthogonal projection of camera points onto the ground plane."""
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    h = p @ ground.normal + ground.d
+    return p - h[:, None] * ground.normal[None, :]
+
+
+def _flow_index(flow: SceneFlow | None, shape: tuple[int, int]) -> np.ndarray | None:
+    """Per-pixel index of the scene-flow sample there (−1: none), flattened row-major."""
+    if flow is None or len(flow) == 0:
+        return None
+    h, w = shape
+    good = np.flatnonzero(np.isfinite(flow.motion).all(axis=1))
+    u = np.clip(np.round(flow.uv[good, 0]).astype(np.int64), 0, w - 1)
+    v = np.clip(np.round(flow.uv[good, 1]).astype(np.int64), 0, h - 1)
+    index = np.full(h * w, -1, np.int64)
+    index[v * w + u] = good
+    return index
+
+
+def localise(
+    proposals: Proposals,
+    depth: np.ndarray,
+    calib: StereoCalib,
+    ground: GroundPlane,
+    flow: SceneFlow | None,
+    dt_s: float | None,
+    t_ns: int,
+    cfg: LocaliseConfig,
+) -> Observations:
+    """Localise every proposal of one frame; rows without enough depth stay NaN."""
+    n = len(proposals)
+    h, w = depth.shape
+    position = np.full((n, 3), np.nan)
+    size = np.full((n, 3), np.nan)
+    velocity = np.full((n, 3), np.nan)
+    n_points = np.zeros(n, np.int64)
+    flow_index = _flow_index(flow, (h, w)) if dt_s else None
+    lo, hi = cfg.size_percentiles
+    flat_depth = depth.ravel()
+    for i, rle in enumerate(proposals.rles):
+        rows, cols = mask_pixels(rle)
+        keys = rows * w + cols
+        if flow_index is not None:
+            samples = flow_index[keys]
+            samples = samples[samples >= 0]
+            if samples.size >= cfg.min_flow_samples:
+                velocity[i] = np.median(flow.motion[samples], axis=0) / dt_s
+        if keys.size > cfg.max_points:  # an even stride keeps the sample spread over the mask
+            pick = (np.arange(cfg.max_points) * (keys.size / cfg.max_points)).astype(np.int64)
+            rows, cols, keys = rows[pick], cols[pick], keys[pick]
+        z = flat_depth[keys]
+        ok = np.isfinite(z)
+        n_points[i] = int(ok.sum())
+        if n_points[i] < cfg.min_points:
+            velocity[i] = np.nan
+            continue
+        pts = calib.backproject(cols[ok], rows[ok], z[ok])
+        position[i] = np.median(pts, axis=0)
+        ext = np.percentile(pts, [lo, hi], axis=0)
+        size[i] = np.minimum(ext[1] - ext[0], cfg.max_size_m)
+    return _observations(proposals, t_ns, position, size, velocity, n_points, calib, ground, cfg)
+
+
+def _observations(proposals, t_ns, position, size, velocity, n_points, calib, ground, cfg) -> Observations:
+    cov = triangulation_covariance(position, calib, cfg)
+    if ground.ok:
+        foot = project_to_ground(position, ground)
+    else:
+        foot = np.full_like(position, np.nan)
+    # REFERENCE: velocity measurement noise is 2 × the ground-projected position covariance.
+    vel_cov = 2.0 * cov
+    return Observations(proposals, t_ns, position, cov, foot, velocity, vel_cov, size, n_points)
+
+
+def localise_detections(proposals: Proposals, calib: StereoCalib, t_ns: int, cfg: LocaliseConfig) -> Observations:
+    """Observations from proposals that carry a 3D box (centre ``position``, ``size`` w, h, l)."""
+    if proposals.position is None or proposals.size is None:
+        raise ValueError("detections-only localisation needs proposals with 3D position and size")
+    position = np.asarray(proposals.position, np.float64)
+    size = np.minimum(np.asarray(proposals.size, np.float64), cfg.max_size_m)
+    n = len(proposals)
+    cov = triangulation_covariance(position, calib, cfg)
+    foot = position.copy()
+    foot[:, 1] += size[:, 1] / 2.0  # y points down: the bottom centre lies half a height below
+    velocity = np.full((n, 3), np.nan)
+    return Observations(proposals, t_ns, position, cov, foot, velocity, 2.0 * cov, size,
+                        np.where(np.isfinite(position).all(axis=1), cfg.min_points, 0))
+
+
+def geometric_filter(obs: Observations, ground: GroundPlane | None, cfg: ProposalFilterConfig) -> np.ndarray:
+    """Indices of observations that pass REFERENCE.md's proposal filter, best objectness first.
+
+    Dropped: box area < 100 px²; no 3D position; footpoint |X| > 50 m or Z outside
+    (0, 60) m; height above the ground outside (0.1, 5.0) m (when a plane is known).
+    At most 300 are kept.
+    """
+    b = obs.proposals.boxes
+    area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    keep = area >= cfg.min_box_area_px
+    foot = obs.footpoint
+    keep &= np.isfinite(foot).all(axis=1)
+    with np.errstate(invalid="ignore"):
+        keep &= (np.abs(foot[:, 0]) <= cfg.max_abs_x_m) & (foot[:, 2] > cfg.z_range_m[0]) & (foot[:, 2] < cfg.z_range_m[1])
+        if ground is not None and ground.ok:
+            height = ground.height(obs.position)
+            keep &= (height > cfg.height_range_m[0]) & (height < cfg.height_range_m[1])
+    idx = np.flatnonzero(keep)
+    order = np.argsort(-obs.proposals.objectness[idx], kind="stable")
+    return idx[order][: cfg.max_proposals]
+
+
+def take(obs: Observations, idx: np.ndarray) -> Observations:
+    """The observations at ``idx``, in that order."""
+    return Observations(
+        obs.proposals.take(idx), obs.t_ns, obs.position[idx], obs.covariance[idx], obs.footpoint[idx],
+        obs.velocity[idx], obs.velocity_covariance[idx], obs.size[idx], obs.n_points[idx],
+    )

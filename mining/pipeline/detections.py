@@ -1,0 +1,63 @@
+"""Detections-only mode: tubes → score → select on 3D detections and given egoposes.
+
+No images: each detection is a box-shaped mask with a 3D box (e.g. PointRCNN on KITTI),
+and the camera poses come from a file (e.g. ORB-SLAM3). Mask prediction warps the
+box at the object's depth. Writes KITTI tracking txt.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from mining.config import JobConfig
+from mining.eval.formats import read_poses
+from mining.eval.kitti_export import write_tubes_kitti
+from mining.errors import InputError
+from mining.localise.localise import geometric_filter, localise_detections, take
+from mining.pipeline.mine import MinedTube, mine_tubes
+from mining.proposals.precomputed import KittiDetections
+from mining.sources.kitti import KittiTrackingSource
+from mining.types import GroundPlane, TrackingFrame
+
+FRAME_INTERVAL_NS = 100_000_000  # KITTI tracking is recorded at 10 Hz
+
+
+def camera2_poses(poses_cam0: np.ndarray, T_cam2_rect0: np.ndarray) -> np.ndarray:
+    """Poses of the left colour camera from poses of rectified camera 0 (same rig).
+
+    pose2_k = T · pose0_k · T⁻¹ with T = T_cam2_rect0: world = camera 2 at the first frame.
+    """
+    T_inv = np.linalg.inv(T_cam2_rect0)
+    return np.einsum("ij,njk,kl->nil", T_cam2_rect0, poses_cam0, T_inv)
+
+
+def detection_frames(kitti_root: str | Path, sequence: str, detections: str | Path, poses_path: str | Path,
+                     cfg: JobConfig) -> Iterator[TrackingFrame]:
+    source = KittiTrackingSource(str(kitti_root))
+    kcalib = source.kitti_calib(sequence)
+    calib = source.calib(sequence)
+    dets = KittiDetections(detections, sequence, kcalib, (calib.width, calib.height), cfg.proposals.kitti_detections)
+    poses0 = read_poses(poses_path)
+    if not np.isfinite(poses0).all():
+        raise InputError("egoposes contain non-finite values", poses_path)
+    poses = camera2_poses(poses0, kcalib.T_cam2_rect0)
+    no_ground = GroundPlane(None, 0.0, 0, False, "detections-only mode: no images")
+    for index, pose in enumerate(poses):
+        t_ns = index * FRAME_INTERVAL_NS
+        props = dets(index)
+        obs = localise_detections(props, calib, t_ns, cfg.localise)
+        obs = take(obs, geometric_filter(obs, no_ground, cfg.proposals.filters))
+        yield TrackingFrame(index=index, t_ns=t_ns, calib=calib, pose=pose, segment=0, observations=obs, depth=None)
+
+
+def track_detections(kitti_root: str | Path, sequence: str, detections: str | Path, poses_path: str | Path,
+                     cfg: JobConfig, out_txt: str | Path | None = None) -> list[MinedTube]:
+    mined = mine_tubes(detection_frames(kitti_root, sequence, detections, poses_path, cfg), cfg)
+    if out_txt is not None:
+        kcalib = KittiTrackingSource(str(kitti_root)).kitti_calib(sequence)
+        t = kcalib.t_cam2
+        write_tubes_kitti(out_txt, mined, rect0_from_cam2=lambda p: p - t)
+    return mined

@@ -1,0 +1,16 @@
+"""Tube scoring settings: the "4DGVT" unary of REFERENCE.md "Scoring"."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class ScoreConfig:
+    objectness_k: float = 10.0  # REFERENCE: objectness LLR ln(x) − ln(1/K), K = 10 (paper's β)
+    motion_k: float = 1000.0  # REFERENCE: motion LLR, K = 1000 (paper's 1/A_GP)
+    mask_k: float = 500.0  # REFERENCE: mask LLR, K = 500 (paper's α)
+    alpha: float = 0.5  # REFERENCE: score = β·(α·motion + (1−α)·mask) + (1−β)·objectness
+    beta: float = 0.5  # REFERENCE: as above
+    floor: float = 1e-6  # ours: a term's x is clipped here so ln(0) cannot occur
+    known_threshold: float = 0.5  # ours: a tube is known when its averaged posterior's best COCO class reaches this

@@ -1,0 +1,38 @@
+"""Known or unknown: a tube's class from its observations' averaged 81-way posterior.
+
+The paper calls a tube *unknown* when it is not confidently one of the 80 COCO classes.
+The original stored no calibrated known-ness (REFERENCE.md ⚠); we keep the averaged
+posterior, its argmax category and probability, and a ``known`` flag with an explicit
+threshold. Tubes whose proposer has no classes (e.g. the stereo proposer) get no
+posterior and are unknown.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mining.proposals.coco import COCO_CLASSES
+from mining.tubes.tube import Tube
+from mining.types import UNKNOWN_CLASS
+
+
+@dataclass
+class TubeCategory:
+    posterior: np.ndarray | None  # (81,) mean over observed frames, or None without classes
+    category: str  # COCO class name, or "unknown"
+    probability: float  # posterior mass of ``category`` (NaN without classes)
+    known: bool
+
+
+def tube_category(tube: Tube, known_threshold: float) -> TubeCategory:
+    rows = [f.posterior for f in tube.frames if f.observed and f.posterior is not None]
+    if not rows:
+        return TubeCategory(None, "unknown", float("nan"), False)
+    mean = np.mean(np.asarray(rows, np.float64), axis=0)
+    best = int(np.argmax(mean))
+    prob = float(mean[best])
+    if best == UNKNOWN_CLASS:
+        return TubeCategory(mean, "unknown", prob, False)
+    return TubeCategory(mean, COCO_CLASSES[best], prob, prob >= known_threshold)

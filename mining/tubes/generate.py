@@ -1,0 +1,376 @@
+"""Tube generation: extend, start (forward-backward enumeration), end, tube NMS.
+
+Frame by frame (REFERENCE.md "Tube generation"):
+
+1. **Extend** every live tube: Kalman prediction over the frame interval from the
+   timestamps, mask prediction by 3D warping, gating (footpoint Mahalanobis distance, box
+   IoU, 2D size similarity, mask IoU) and the association score mask IoU × Gaussian
+   density of the footpoint. Each tube takes its best gated observation; one observation
+   may feed several tubes (co-selection resolves them later).
+2. **End** tubes that leave the view, whose gap grows too long, or whose predicted mask
+   vanishes.
+3. **Start** tubes from observations no tube took: run a filter backwards up to five
+   frames, requiring an inlier in each of the first three back-steps, then re-initialise
+   at the earliest inlier and replay forwards. Duplicates of existing tubes are dropped.
+4. **Tube NMS** among tubes older than four frames.
+
+Tubes never cross a segment border (a failed egomotion): nothing relates the poses on
+either side of it.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from mining.masks import areas, box_iou, mask_iou, size_similarity
+from mining.score.config import ScoreConfig
+from mining.score.unary import score_tube
+from mining.tubes.config import TubeConfig
+from mining.tubes.kalman import POS, SIZE, VEL, TubeFilter
+from mining.tubes.tube import Tube, TubeFrame
+from mining.tubes.warp import MaskPoints, mask_points, predict_mask
+from mining.types import TrackingFrame
+
+
+@dataclass
+class WorldObservations:
+    """A frame's observations in the world (segment) frame, computed once per frame."""
+
+    frame: TrackingFrame
+    footpoint: np.ndarray  # (N, 3)
+    covariance: np.ndarray  # (N, 3, 3)
+    velocity: np.ndarray  # (N, 3), NaN rows without flow
+    velocity_covariance: np.ndarray  # (N, 3, 3)
+    usable: np.ndarray  # (N,) bool: has a footpoint
+
+    @staticmethod
+    def of(frame: TrackingFrame) -> WorldObservations:
+        o = frame.observations
+        R, t = frame.pose[:3, :3], frame.pose[:3, 3]
+        foot = o.footpoint @ R.T + t
+        cov = R @ o.covariance @ R.T
+        vel = o.velocity @ R.T
+        vcov = R @ o.velocity_covariance @ R.T
+        return WorldObservations(frame, foot, cov, vel, vcov, np.isfinite(foot).all(axis=1))
+
+    def __len__(self) -> int:
+        return len(self.footpoint)
+
+
+@dataclass
+class Prediction:
+    rle: dict
+    box: np.ndarray
+
+
+def gaussian_density(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """N(x; mean, cov) for (N, 3) points and (N, 3, 3) covariances."""
+    diff = x - mean
+    inv = np.linalg.inv(cov)
+    m2 = np.einsum("ni,nij,nj->n", diff, inv, diff)
+    norm = np.sqrt((2 * np.pi) ** 3 * np.linalg.det(cov))
+    return np.exp(-0.5 * m2) / norm
+
+
+class TubeGenerator:
+    """Feed frames in time order with ``step``; ``finish`` returns every tube made."""
+
+    def __init__(self, cfg: TubeConfig, score_cfg: ScoreConfig | None = None, first_id: int = 0):
+        self.cfg = cfg
+        self.score_cfg = score_cfg or ScoreConfig()
+        self.live: list[Tube] = []
+        self.ended: list[Tube] = []
+        self.history: deque[WorldObservations] = deque(maxlen=cfg.backward_steps)
+        self.next_id = first_id
+
+    # --- per frame -------------------------------------------------------------------
+
+    def step(self, frame: TrackingFrame) -> None:
+        world = WorldObservations.of(frame)
+        if self.history and self.history[-1].frame.segment != frame.segment:
+            self._end_all("segment")
+            self.history.clear()
+        taken = self._extend(world) if self.history else set()
+        self._start(world, taken)
+        self._tube_nms()
+        self.history.append(world)
+
+    def finish(self) -> list[Tube]:
+        self._end_all("sequence end")
+        tubes = sorted(self.ended, key=lambda t: t.tube_id)
+        self.ended = []
+        return tubes
+
+    # --- extend ---------------------------------------------------------------------
+
+    def _extend(self, world: WorldObservations) -> set[int]:
+        """Extend the live tubes; returns the observations they took."""
+        prev = self.history[-1].frame
+        dt = (world.frame.t_ns - prev.t_ns) / 1e9
+        survivors, predictions = [], []
+        for tube in self.live:
+            tube.kf.predict(dt)
+            pred = self._predict(tube, world.frame)
+            reason = self._left_view(tube, pred, world.frame)
+            if reason:
+                tube.end_reason = reason
+                self._end(tube)
+                continue
+            survivors.append(tube)
+            predictions.append(pred)
+        self.live = survivors
+        choice, terms = self._associate(self.live, predictions, world)
+        keep = []
+        for tube, pred, j, (iou, dens) in zip(self.live, predictions, choice, terms):
+            if j >= 0:
+                self._observe(tube, world, j, iou, dens)
+            else:
+                self._miss(tube, world, pred)
+                if tube.gap > self._gap_limit(tube):
+                    tube.end_reason = "gap"
+                    self._end(tube)
+                    continue
+            keep.append(tube)
+        self.live = keep
+        return set(int(j) for j in choice if j >= 0)
+
+    def _predict(self, tube: Tube, frame: TrackingFrame) -> Prediction | None:
+        shift = np.array([tube.kf.x[3], 0.0, tube.kf.x[4]]) * (frame.t_ns - tube.last_observed_t_ns) / 1e9
+        out = predict_mask(tube.points, shift, frame.pose, frame.calib, self.cfg.warp_close_px)
+        return None if out is None else Prediction(*out)
+
+    def _left_view(self, tube: Tube, pred: Prediction | None, frame: TrackingFrame) -> str:
+        if pred is None:
+            return "mask left the image"
+        if areas([pred.rle])[0] <= self.cfg.min_predicted_mask_px:
+            return "predicted mask too small"
+        R, t = frame.pose[:3, :3], frame.pose[:3, 3]
+        cam = (tube.kf.x[POS] - t) @ R
+        if cam[2] < self.cfg.min_depth_m:
+            return "behind the camera"
+        if cam[2] > self.cfg.max_depth_m:
+            return "too far"
+        u = frame.calib.fx * cam[0] / cam[2] + frame.calib.cx
+        margin = self.cfg.lateral_margin * frame.calib.width
+        if u < -margin or u > frame.calib.width + margin:
+            return "left the view laterally"
+        return ""
+
+    def _gap_limit(self, tube: Tube) -> int:
+        return min(self.cfg.max_gap_frames, max(1, round(self.cfg.gap_inlier_factor * tube.n_inliers)))
+
+    def _associate(self, tubes: list[Tube], preds: list[Prediction], world: WorldObservations):
+        """Best gated observation per tube (−1: none) and its (mask IoU, density)."""
+        T, N = len(tubes), len(world)
+        choice = np.full(T, -1, np.int64)
+        terms = [(np.nan, np.nan)] * T
+        if T == 0 or N == 0:
+            return choice, terms
+        obs = world.frame.observations
+        pboxes = np.array([p.box for p in preds])
+        gate = box_iou(pboxes, obs.proposals.boxes) > self.cfg.gate_box_iou
+        gate &= size_similarity(pboxes, obs.proposals.boxes) > self.cfg.gate_size_similarity
+        gate &= world.usable[None, :]
+        if not gate.any():
+            return choice, terms
+        rows = np.flatnonzero(gate.any(axis=1))
+        cols = np.flatnonzero(gate.any(axis=0))
+        ious = mask_iou([preds[i].rle for i in rows], [obs.proposals.rles[j] for j in cols])
+        for a, i in enumerate(rows):
+            tube = tubes[i]
+            cand = cols[gate[i, cols]]
+            iou = ious[a, np.searchsorted(cols, cand)]
+            ok = iou > self.cfg.gate_mask_iou
+            if not ok.any():
+                continue
+            cand, iou = cand[ok], iou[ok]
+            mean = tube.kf.x[POS]
+            S = tube.kf.position_innovation_cov(world.covariance[cand])
+            diff = world.footpoint[cand] - mean
+            m2 = np.einsum("ni,nij,nj->n", diff, np.linalg.inv(S), diff)
+            ok = m2 < self.cfg.gate_mahalanobis**2
+            if not ok.any():
+                continue
+            cand, iou = cand[ok], iou[ok]
+            dens = gaussian_density(world.footpoint[cand], np.broadcast_to(mean, (len(cand), 3)),
+                                    world.covariance[cand] + self.cfg.density_extra_var * np.eye(3))
+            score = iou * dens
+            best = int(np.argmax(score))
+            if score[best] > self.cfg.min_association:
+                choice[i] = cand[best]
+                terms[i] = (float(iou[best]), float(dens[best]))
+        return choice, terms
+
+    def _observe(self, tube: Tube, world: WorldObservations, j: int, iou: float, dens: float) -> None:
+        frame, obs = world.frame, world.frame.observations
+        vel = world.velocity[j] if np.isfinite(world.velocity[j]).all() else None
+        tube.kf.update(world.footpoint[j], world.covariance[j], obs.size[j], vel,
+                       world.velocity_covariance[j] if vel is not None else None)
+        pts = self._points(frame, j)
+        if pts is not None:
+            tube.points = pts
+            tube.last_observed_t_ns = frame.t_ns
+        tube.gap = 0
+        tube.frames.append(self._tube_frame(tube, frame, j, iou, dens))
+
+    def _miss(self, tube: Tube, world: WorldObservations, pred: Prediction) -> None:
+        frame = world.frame
+        R, t = frame.pose[:3, :3], frame.pose[:3, 3]
+        x = tube.kf.x
+        tube.gap += 1
+        tube.frames.append(TubeFrame(
+            frame=frame.index, t_ns=frame.t_ns, observed=False, obs_index=-1, rle=pred.rle, box=pred.box,
+            footpoint_world=x[POS].copy(), velocity_world=np.array([x[3], 0.0, x[4]]), size=x[SIZE].copy(),
+            position_cam=(x[POS] - t) @ R, objectness=np.nan, mask_iou=np.nan, motion_density=np.nan,
+        ))
+
+    def _tube_frame(self, tube: Tube, frame: TrackingFrame, j: int, iou: float, dens: float) -> TubeFrame:
+        obs = frame.observations
+        x = tube.kf.x
+        post = None if obs.proposals.posterior is None else obs.proposals.posterior[j]
+        return TubeFrame(
+            frame=frame.index, t_ns=frame.t_ns, observed=True, obs_index=int(j), rle=obs.proposals.rles[j],
+            box=np.asarray(obs.proposals.boxes[j], np.float64), footpoint_world=x[POS].copy(),
+            velocity_world=np.array([x[3], 0.0, x[4]]), size=x[SIZE].copy(), position_cam=obs.position[j].copy(),
+            objectness=float(obs.proposals.objectness[j]), mask_iou=iou, motion_density=dens, posterior=post,
+        )
+
+    def _points(self, frame: TrackingFrame, j: int) -> MaskPoints | None:
+        obs = frame.observations
+        return mask_points(obs.proposals.rles[j], frame.depth, obs.proposals.boxes[j], obs.position[j],
+                           frame.calib, frame.pose, self.cfg.warp_max_points, self.cfg.warp_outlier_mahalanobis)
+
+    # --- start ----------------------------------------------------------------------
+
+    def _new_tube(self, world: WorldObservations, j: int) -> Tube | None:
+        frame, obs = world.frame, world.frame.observations
+        pts = self._points(frame, j)
+        if pts is None:
+            return None
+        vel = world.velocity[j] if np.isfinite(world.velocity[j]).all() else None
+        kf = TubeFilter(world.footpoint[j], world.covariance[j], obs.size[j], vel,
+                        world.velocity_covariance[j] if vel is not None else None, self.cfg.kalman)
+        tube = Tube(tube_id=-1, segment=frame.segment, kf=kf, points=pts, last_observed_t_ns=frame.t_ns)
+        tube.frames.append(self._tube_frame(tube, frame, j, np.nan, np.nan))
+        return tube
+
+    def _start(self, world: WorldObservations, taken: set[int]) -> None:
+        if len(self.history) < self.cfg.backward_required:
+            return
+        new: list[Tube] = []
+        for j in np.flatnonzero(world.usable):
+            if int(j) in taken:
+                continue
+            tube = self._forward_backward(world, int(j))
+            if tube is not None and not self._duplicate(tube, self.live + new):
+                tube.tube_id = self.next_id
+                self.next_id += 1
+                new.append(tube)
+        self.live.extend(new)
+
+    def _forward_backward(self, world: WorldObservations, j: int) -> Tube | None:
+        # Backwards: from observation j at t through t−1, t−2, ... (the history, newest first).
+        probe = self._new_tube(world, j)
+        if probe is None:
+            return None
+        past = list(self.history)[::-1]
+        earliest = (world, j)
+        t_cur = world.frame.t_ns
+        for k, w in enumerate(past):
+            probe.kf.predict((w.frame.t_ns - t_cur) / 1e9)
+            t_cur = w.frame.t_ns
+            pred = self._predict(probe, w.frame)
+            choice, terms = ([-1], None) if pred is None else self._associate([probe], [pred], w)
+            if choice[0] < 0:
+                if k < self.cfg.backward_required:
+                    return None
+                continue
+            self._observe(probe, w, int(choice[0]), *terms[0])
+            earliest = (w, int(choice[0]))
+        # Forwards: re-initialise at the earliest inlier and replay up to now.
+        w0, j0 = earliest
+        tube = self._new_tube(w0, j0)
+        if tube is None:
+            return None
+        replay = [w for w in self.history if w.frame.index > w0.frame.index] + [world]
+        t_prev = w0.frame.t_ns
+        for w in replay:
+            tube.kf.predict((w.frame.t_ns - t_prev) / 1e9)
+            t_prev = w.frame.t_ns
+            pred = self._predict(tube, w.frame)
+            if pred is None:
+                return None
+            choice, terms = self._associate([tube], [pred], w)
+            if choice[0] >= 0:
+                self._observe(tube, w, int(choice[0]), *terms[0])
+            else:
+                self._miss(tube, w, pred)
+        if not tube.frames[-1].observed:
+            return None
+        return tube
+
+    def _duplicate(self, tube: Tube, others: list[Tube]) -> bool:
+        key = set(f.frame for f in tube.frames if f.observed)
+        mine = tube.frame_map()
+        for other in others:
+            frames = other.frame_map()
+            theirs = set(f for f, tf in frames.items() if tf.observed and f >= tube.first_frame)
+            if theirs != key:
+                continue
+            if all(box_iou(mine[f].box, frames[f].box)[0, 0] >= self.cfg.duplicate_box_iou for f in key):
+                return True
+        return False
+
+    # --- end and NMS -----------------------------------------------------------------
+
+    def _end(self, tube: Tube) -> None:
+        tube.trim()
+        tube.kf = None
+        tube.points = None
+        if tube.frames:
+            self.ended.append(tube)
+
+    def _end_all(self, reason: str) -> None:
+        for tube in self.live:
+            tube.end_reason = tube.end_reason or reason
+            self._end(tube)
+        self.live = []
+
+    def _tube_nms(self) -> None:
+        """Suppress the weaker of two old tubes that cover the same masks (REFERENCE.md)."""
+        old = [t for t in self.live if len(t.frames) > self.cfg.nms_min_age]
+        if len(old) < 2:
+            return
+        scores = {t.tube_id: score_tube(t, self.score_cfg).total for t in old}
+        old.sort(key=lambda t: -scores[t.tube_id])
+        suppressed: set[int] = set()
+        maps = {t.tube_id: t.frame_map() for t in old}
+        for a_i, a in enumerate(old):
+            if a.tube_id in suppressed:
+                continue
+            for b in old[a_i + 1:]:
+                if b.tube_id in suppressed:
+                    continue
+                la, lb = a.n_inliers, b.n_inliers
+                if min(la, lb) / max(la, lb) < self.cfg.nms_length_ratio:
+                    continue
+                common = sorted(set(maps[a.tube_id]) & set(maps[b.tube_id]))
+                if not common:
+                    continue
+                ma, mb = maps[a.tube_id], maps[b.tube_id]
+                boxes_a = np.array([ma[f].box for f in common])
+                boxes_b = np.array([mb[f].box for f in common])
+                if not (np.diag(box_iou(boxes_a, boxes_b)) > 0).any():
+                    continue
+                ious = [mask_iou([ma[f].rle], [mb[f].rle])[0, 0] for f in common]
+                if sum(ious) / max(la, lb) > self.cfg.nms_overlap:
+                    suppressed.add(b.tube_id)
+        if suppressed:
+            for t in self.live:
+                if t.tube_id in suppressed:
+                    t.end_reason = "suppressed"
+            # Suppressed tubes are dropped, not kept as ended candidates.
+            self.live = [t for t in self.live if t.tube_id not in suppressed]

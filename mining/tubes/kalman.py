@@ -1,0 +1,107 @@
+"""The tube's Kalman filter: constant velocity on the ground plane (REFERENCE.md).
+
+State x = [x, y, z, vx, vz, w, h, l]: the ground footpoint in world coordinates
+(metres, y down), the velocity on the ground plane and the 3D size. The filter runs in
+either direction of time (dt < 0 for the backward enumeration). filterpy does the
+algebra; this class only builds F, Q, H and R.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from filterpy.kalman import KalmanFilter
+
+from mining.tubes.config import KalmanConfig
+
+DIM_X = 8
+POS = slice(0, 3)
+VEL = slice(3, 5)
+SIZE = slice(5, 8)
+
+# Measurement matrices: footpoint + size, optionally with the ground velocity.
+H_POS_SIZE = np.zeros((6, DIM_X))
+H_POS_SIZE[0:3, 0:3] = np.eye(3)
+H_POS_SIZE[3:6, 5:8] = np.eye(3)
+H_FULL = np.eye(DIM_X)
+
+
+class TubeFilter:
+    """Kalman filter of one tube; ``x`` and ``P`` are filterpy's state and covariance."""
+
+    def __init__(self, footpoint: np.ndarray, cov: np.ndarray, size: np.ndarray,
+                 velocity: np.ndarray | None, velocity_cov: np.ndarray | None, cfg: KalmanConfig):
+        self.cfg = cfg
+        self.kf = KalmanFilter(dim_x=DIM_X, dim_z=DIM_X)
+        x = np.zeros(DIM_X)
+        x[POS] = footpoint
+        x[SIZE] = np.clip(size, 0.0, cfg.max_size_m)
+        P = np.zeros((DIM_X, DIM_X))
+        P[POS, POS] = cov
+        P[SIZE, SIZE] = np.diag(np.square(cfg.measurement_std_size))
+        if velocity is not None and np.isfinite(velocity).all():
+            x[VEL] = velocity[[0, 2]]
+            P[VEL, VEL] = velocity_cov[np.ix_([0, 2], [0, 2])]
+        else:
+            P[VEL, VEL] = np.diag(cfg.initial_var_velocity)
+        self.kf.x = x
+        self.kf.P = P
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.kf.x
+
+    @property
+    def P(self) -> np.ndarray:
+        return self.kf.P
+
+    def copy(self) -> TubeFilter:
+        other = TubeFilter.__new__(TubeFilter)
+        other.cfg = self.cfg
+        other.kf = KalmanFilter(dim_x=DIM_X, dim_z=DIM_X)
+        other.kf.x = self.kf.x.copy()
+        other.kf.P = self.kf.P.copy()
+        return other
+
+    def F(self, dt: float) -> np.ndarray:
+        F = np.eye(DIM_X)
+        F[0, 3] = dt
+        F[2, 4] = dt
+        return F
+
+    def Q(self, dt: float) -> np.ndarray:
+        # REFERENCE's noise is per 0.1 s step; a random walk's variance grows linearly in time.
+        scale = abs(dt) / self.cfg.process_dt_s
+        std = np.concatenate([self.cfg.process_std_position, self.cfg.process_std_velocity,
+                              [self.cfg.process_std_size] * 3])
+        return np.diag(np.square(std)) * scale
+
+    def predict(self, dt: float) -> None:
+        self.kf.predict(F=self.F(dt), Q=self.Q(dt))
+        self.kf.x[SIZE] = np.clip(self.kf.x[SIZE], 0.0, self.cfg.max_size_m)
+
+    def R(self, cov: np.ndarray, velocity_cov: np.ndarray | None) -> np.ndarray:
+        size_var = np.diag(np.square(self.cfg.measurement_std_size))
+        if velocity_cov is None:
+            R = np.zeros((6, 6))
+            R[0:3, 0:3] = cov
+            R[3:6, 3:6] = size_var
+            return R
+        R = np.zeros((DIM_X, DIM_X))
+        R[POS, POS] = cov
+        R[VEL, VEL] = velocity_cov[np.ix_([0, 2], [0, 2])]
+        R[SIZE, SIZE] = size_var
+        return R
+
+    def update(self, footpoint: np.ndarray, cov: np.ndarray, size: np.ndarray,
+               velocity: np.ndarray | None, velocity_cov: np.ndarray | None) -> None:
+        size = np.clip(size, 0.0, self.cfg.max_size_m)
+        if velocity is not None and np.isfinite(velocity).all():
+            z = np.concatenate([footpoint, velocity[[0, 2]], size])
+            self.kf.update(z, R=self.R(cov, velocity_cov), H=H_FULL)
+        else:
+            z = np.concatenate([footpoint, size])
+            self.kf.update(z, R=self.R(cov, None), H=H_POS_SIZE)
+
+    def position_innovation_cov(self, obs_cov: np.ndarray) -> np.ndarray:
+        """(N, 3, 3) innovation covariance of the footpoint for N observation covariances."""
+        return self.kf.P[POS, POS][None] + obs_cov

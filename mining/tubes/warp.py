@@ -1,0 +1,98 @@
+"""Mask prediction by 3D warping (paper Eq. 1; REFERENCE.md "Extend").
+
+A tube carries the 3D points of its last observed mask, in world coordinates. The
+predicted mask at a later frame moves them by the tube's filtered velocity × the time
+since that observation, brings them into the current camera (the pose carries the
+egomotion), projects them and closes holes with a 9×9 box. Without depth
+(detections-only mode) the points are the observed box's corners at the object's depth,
+and the prediction is the box around their projections.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from mining.masks import box_rle, crop_rle, mask_pixels
+from mining.types import StereoCalib
+
+
+@dataclass
+class MaskPoints:
+    """3D points of an observed mask (world frame) and how they were sampled."""
+
+    points: np.ndarray  # (N, 3) world
+    grid: int  # pixel spacing of the sample grid: each point stands for grid × grid pixels
+    boxlike: bool  # True: corners of a box (no depth), predict a box
+
+
+def mask_points(rle: dict, depth: np.ndarray | None, box: np.ndarray, position_cam: np.ndarray,
+                calib: StereoCalib, pose: np.ndarray, max_points: int, outlier_mahalanobis: float) -> MaskPoints | None:
+    """World points of an observed mask, outliers (far from the median) dropped."""
+    R, t = pose[:3, :3], pose[:3, 3]
+    if depth is None:
+        z = float(position_cam[2])
+        if not np.isfinite(z) or z <= 0:
+            return None
+        u = np.array([box[0], box[2], box[2], box[0]])
+        v = np.array([box[1], box[1], box[3], box[3]])
+        cam = calib.backproject(u, v, np.full(4, z))
+        return MaskPoints(cam @ R.T + t, 1, True)
+    rows, cols = mask_pixels(rle)
+    grid = 1
+    if rows.size > max_points:  # a regular grid keeps the warped points evenly spread
+        grid = int(np.ceil(np.sqrt(rows.size / max_points)))
+        sel = (rows % grid == 0) & (cols % grid == 0)
+        rows, cols = rows[sel], cols[sel]
+    z = depth[rows, cols]
+    ok = np.isfinite(z)
+    if ok.sum() < 3:
+        return None
+    cam = calib.backproject(cols[ok], rows[ok], z[ok])
+    med = np.median(cam, axis=0)
+    cov = np.cov(cam.T) + 1e-6 * np.eye(3)
+    diff = cam - med
+    m2 = np.einsum("ni,ij,nj->n", diff, np.linalg.inv(cov), diff)
+    cam = cam[m2 <= outlier_mahalanobis**2]
+    if len(cam) < 3:
+        return None
+    return MaskPoints(cam @ R.T + t, grid, False)
+
+
+def predict_mask(mp: MaskPoints, shift_world: np.ndarray, pose: np.ndarray, calib: StereoCalib,
+                 close_px: int, min_depth_m: float = 0.1) -> tuple[dict, np.ndarray] | None:
+    """Predicted (RLE, box) in the camera of ``pose``; None when nothing lands in the image."""
+    R, t = pose[:3, :3], pose[:3, 3]
+    cam = (mp.points + shift_world - t) @ R  # world → camera: Rᵀ(p − t)
+    cam = cam[cam[:, 2] > min_depth_m]
+    if len(cam) == 0:
+        return None
+    uv = calib.project(cam)
+    W, H = calib.width, calib.height
+    if mp.boxlike:
+        box = np.array([uv[:, 0].min(), uv[:, 1].min(), uv[:, 0].max(), uv[:, 1].max()])
+        clipped = np.array([max(box[0], 0), max(box[1], 0), min(box[2], W), min(box[3], H)])
+        if clipped[2] <= clipped[0] or clipped[3] <= clipped[1]:
+            return None
+        return box_rle(clipped, H, W), clipped
+    u = np.round(uv[:, 0]).astype(np.int64)
+    v = np.round(uv[:, 1]).astype(np.int64)
+    inside = (u >= 0) & (u < W) & (v >= 0) & (v < H)
+    if not inside.any():
+        return None
+    u, v = u[inside], v[inside]
+    pad = close_px + mp.grid
+    x0, y0 = max(0, u.min() - pad), max(0, v.min() - pad)
+    x1, y1 = min(W, u.max() + pad + 1), min(H, v.max() + pad + 1)
+    crop = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    crop[v - y0, u - x0] = 1
+    if mp.grid > 1:  # each sample stands for a grid × grid patch
+        crop = cv2.dilate(crop, np.ones((mp.grid, mp.grid), np.uint8))
+    crop = cv2.morphologyEx(crop, cv2.MORPH_CLOSE, np.ones((close_px, close_px), np.uint8))
+    ys, xs = np.nonzero(crop)
+    if ys.size == 0:
+        return None
+    box = np.array([x0 + xs.min(), y0 + ys.min(), x0 + xs.max() + 1, y0 + ys.max() + 1], np.float64)
+    return crop_rle(crop.astype(bool), x0, y0, H, W), box
