@@ -2,7 +2,7 @@
 
 Layout: ``<root>/<traversal>_sub_<NNNN>/postproc_<frame>.json``, each a JSON list of
 ``{"category": car|person|bike|bus|other, "extreme_points": [[x, y] × 4], "mask": null,
-"pos3d": [x, y, z], "track_id": int}``. Extreme points are in 1280×960 "postproc" image
+"pos3d": [x, y, z] (or three nulls), "track_id": int}``. Extreme points are in 1280×960 "postproc" image
 pixels in no fixed order; the box is their min/max (as the original evaluation takes it).
 Known = the four COCO-covered categories; "other" holds the unknown objects (signs, poles,
 cones, bins, …), the split of the original proposal-recall evaluation.
@@ -38,7 +38,7 @@ class LabelledFrame:
     known: np.ndarray  # (N,) bool
     categories: list[str]
     track_ids: np.ndarray  # (N,) int64
-    positions: np.ndarray  # (N, 3) float64 pos3d, camera metres
+    positions: np.ndarray  # (N, 3) float64 pos3d, camera metres; NaN rows where the file has nulls
 
     def __len__(self) -> int:
         return len(self.categories)
@@ -91,9 +91,12 @@ def read_oxford_label_file(path: Path, traversal: str, sub: int, frame: int) -> 
         xy = np.asarray(pts, np.float64)
         boxes[i] = [*xy.min(axis=0), *xy.max(axis=0)]
         p3 = it.get("pos3d")
-        if not (isinstance(p3, list) and len(p3) == 3 and all(_finite(v) for v in p3)):
-            raise bad("pos3d must be three finite numbers")
-        pos[i] = p3
+        if p3 == [None, None, None]:  # the label has no 3D position (31 objects in the shared files)
+            pos[i] = np.nan
+        elif isinstance(p3, list) and len(p3) == 3 and all(_finite(v) for v in p3):
+            pos[i] = p3
+        else:
+            raise bad(f"pos3d must be three finite numbers or three nulls, got {p3!r}")
         tid = it.get("track_id")
         if isinstance(tid, bool) or not isinstance(tid, int):
             raise bad(f"track_id {tid!r} is not an integer")
