@@ -217,6 +217,10 @@ def test_json_bad_input(json_root, tmp_path):
 
     assert "81" in _bad_json(json_root, tmp_path, bad_index)
 
+    (tmp_path / "000005.json").write_text("[]")  # a frame without proposals is valid
+    empty = JsonProposals(tmp_path)(5)
+    assert len(empty) == 0 and empty.boxes.shape == (0, 4) and empty.posterior.shape == (0, N_CLASSES)
+
     with pytest.raises(InputError, match="missing") as e:
         JsonProposals(json_root / "top20")(16)
     assert e.value.frame == 16
@@ -261,7 +265,7 @@ def test_pointrcnn_3d_centre_projects_into_its_box(pointrcnn, training):
         assert np.isfinite(p.position).all() and (p.size > 0).all()
         uv = stereo.project(p.position.astype(np.float64))
         b = p.boxes
-        inside += int(((uv[:, 0] >= b[:, 0]) & (uv[:, 0] <= b[:, 2]) & (uv[:, 1] >= b[:, 1]) & (uv[:, 1] <= b[:, 3])).sum())
+        inside += int(((uv >= b[:, :2]) & (uv <= b[:, 2:])).all(axis=1).sum())
         total += len(p)
         err += list(np.abs(uv[:, 1] - (b[:, 1] + b[:, 3]) / 2) / (b[:, 3] - b[:, 1]))
     assert total > 500

@@ -44,7 +44,7 @@ class JsonProposalsConfig:
 
     folder: str = ""  # ours: user-given folder of NNNNNN.json files, one per frame
     filename_digits: int = 6  # ours: zero-padded frame index in the file name (4D-GVT files: 000042.json)
-    category_ids: str = "agnostic"  # ours: without second_posterior, category_id is "agnostic" (no classes) or "coco" (ids 1..90)
+    category_ids: str = "agnostic"  # ours: category_id without second_posterior: "agnostic" (no classes) or "coco" ids
 
 
 @dataclass
@@ -60,8 +60,8 @@ class KittiDetectionsConfig:
     scores −9…18) need their own values.
     """
 
-    path: str = ""  # ours: a detections folder (PointRCNN: <path>/<Class>/<seq>.txt; results: <path>/<seq>.txt) or a file
-    score_offset: float = 2.67  # ours: raw score at objectness 0.5; logistic fit of PointRCNN vs label_02 (12 train seqs)
+    path: str = ""  # ours: a file, or a folder of <seq>.txt (results) or <Class>/<seq>.txt (PointRCNN)
+    score_offset: float = 2.67  # ours: raw score at objectness 0.5; logistic fit, PointRCNN vs label_02
     score_scale: float = 1.02  # ours: raw-score units per logit of objectness; same fit (per class 0.92–1.11)
 
 
@@ -69,7 +69,7 @@ class KittiDetectionsConfig:
 class UnionConfig:
     """Several proposers' outputs merged into one set per frame."""
 
-    mask_iou: float = 0.5  # ours: same object above it; PointRCNN box masks vs YOLO masks, 0005: same 0.56–0.86, other < 0.4
+    mask_iou: float = 0.5  # ours: same object above it; 0005 box vs YOLO masks: same 0.56–0.86, other < 0.4
 
 
 @dataclass

@@ -114,8 +114,8 @@ def read_proposal_json(path: str | Path, frame: int, category_ids: str = "agnost
         raise InputError(f"not valid JSON at line {e.lineno} column {e.colno}: {e.msg}", path, frame) from None
     if not isinstance(items, list):
         raise InputError(f"expected a JSON list of proposals, got {type(items).__name__}", path, frame)
-    if not items:
-        return empty_proposals(frame, category_ids == "coco", False, name)
+    if not items:  # an empty posterior array fits files with and without classes alike
+        return empty_proposals(frame, True, False, name)
 
     n = len(items)
     rles, boxes, scores = [], np.zeros((n, 4)), np.zeros(n)

@@ -58,8 +58,7 @@ def union(proposals_list: Sequence[Proposals], iou_threshold: float) -> Proposal
         if p.frame != frame:
             raise InputError(f"cannot unite proposals of frame {p.frame} with frame {frame}", frame=frame)
         if len(p.proposer) != len(p):
-            raise InputError(f"proposals of {p.proposer[:1] or 'an unnamed proposer'} name {len(p.proposer)} "
-                             f"proposers for {len(p)} rows", frame=frame)
+            raise InputError(f"a proposal set names {len(p.proposer)} proposers for {len(p)} rows", frame=frame)
         sizes.update(tuple(r["size"]) for r in p.rles)
     if len(sizes) > 1:
         raise InputError(f"proposal masks of different frame sizes {sorted(sizes)}", frame=frame)
