@@ -1,0 +1,158 @@
+"""The ``synthetic`` source: procedurally rendered stereo driving scenes with exact truth.
+
+Sequence names are integers ("0000", "17", ...); name and ``seed_base`` fix the world. Any
+frame renders the same bits whatever was rendered before (random access, nothing carried
+between calls except pure caches). See ``scene.py`` for the world and the object
+categories, ``render.py`` for the rasteriser, ``textures.py`` for the materials.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import OrderedDict
+
+import cv2
+import numpy as np
+
+from mining.errors import InputError
+from mining.sources.base import Source
+from mining.sources.synthetic.render import Camera, rasterize, shade
+from mining.sources.synthetic.scene import KNOWN, R_N, R_OBJ, R_TINT, Scene, frame_faces
+from mining.sources.synthetic.textures import build_atlas
+from mining.types import FrameTruth, ObjectTruth, SequencePlan, StereoCalib, StereoFrame
+
+CX_FRAC = 609.5593 / 1242  # ours: principal point as a fraction of the size, from KITTI P2
+CY_FRAC = 172.854 / 375
+AMBIENT = 0.55  # ours: sky light on every face
+DIFFUSE = 0.55  # ours: sun light, scaled by cos(normal, sun)
+NOISE_DN = 1.5  # ours: sensor noise sigma, 8-bit levels
+BLUR_SIGMA = 0.5  # ours: optics blur, pixels (also hides raster stair-steps)
+SCENES_CACHED = 2  # ours: worlds kept in memory per source
+
+
+class SyntheticSource(Source):
+    dataset = "synthetic"
+
+    def __init__(self, root: str | None = None, n_frames: int = 500, width: int = 1242, height: int = 375,
+                 fx: float = 721.5377, baseline_m: float = 0.5327, hz: float = 10.0, seed_base: int = 0,
+                 sequences: list[str] | None = None):
+        if n_frames <= 0 or width < 16 or height < 16 or hz <= 0:
+            raise InputError(f"bad synthetic options n_frames={n_frames} size={width}x{height} hz={hz}")
+        self.n_frames, self.hz, self.seed_base = int(n_frames), float(hz), int(seed_base)
+        self.calib = StereoCalib(fx, fx, width * CX_FRAC, height * CY_FRAC, baseline_m, width, height)
+        self._names = list(sequences) if sequences else [f"{i:04d}" for i in range(4)]
+        self._atlas = None
+        self._scenes: OrderedDict[str, Scene] = OrderedDict()
+        self._noise = None
+
+    def sequences(self) -> list[str]:
+        return list(self._names)
+
+    def _seed(self, sequence: str) -> int:
+        try:
+            return int(sequence)
+        except ValueError:
+            raise InputError(f"synthetic sequence names are integers, got {sequence!r}") from None
+
+    def plan(self, sequence: str) -> SequencePlan:
+        self._seed(sequence)
+        frames = tuple(range(self.n_frames))
+        t_ns = tuple(int(round(i * 1e9 / self.hz)) for i in frames)
+        return SequencePlan(self.dataset, sequence, self.calib, frames, t_ns)
+
+    def scene(self, sequence: str) -> Scene:
+        if self._atlas is None:
+            self._atlas = build_atlas(self.seed_base)
+        if sequence not in self._scenes:
+            seed = self.seed_base * 1_000_003 + self._seed(sequence)
+            self._scenes[sequence] = Scene(seed, self.n_frames / self.hz + 1.0, self._atlas)
+            while len(self._scenes) > SCENES_CACHED:
+                self._scenes.popitem(last=False)
+        return self._scenes[sequence]
+
+    def read_frame(self, plan: SequencePlan, position: int) -> StereoFrame:
+        if not 0 <= position < len(plan):
+            raise InputError(f"position {position} outside the plan of {len(plan)} frames", frame=position)
+        index = plan.frames[position]
+        t = plan.t_ns[position] / 1e9
+        sc = self.scene(plan.sequence)
+        c = self.calib
+        cam = Camera(c.fx, c.fy, c.cx, c.cy, c.width, c.height)
+        verts, rows, states = frame_faces(sc, t)
+        M = sc.camera_map(t)
+        light = (rows[:, R_TINT : R_TINT + 3] * (AMBIENT + DIFFUSE * np.clip(rows[:, R_N : R_N + 3] @ sc.sun, 0, 1))[:, None]).astype(np.float32)
+        gain = sc.exposure_at(t)
+        rng = np.random.default_rng([sc.seed, index, 99])
+        images, truth_bufs = [], None
+        for k, shift in enumerate((0.0, c.baseline_m)):
+            Rcm = M[:3, :3].T
+            tcm = -Rcm @ M[:3, 3] - np.array([shift, 0, 0])
+            ids, invz, _, _ = rasterize(cam, verts, rows, Rcm, tcm)
+            sky = self._sky(cam, Rcm)
+            img = shade(cam, self._atlas, ids, invz, rows, verts, Rcm, tcm, light, sky)
+            img = cv2.GaussianBlur(img, (0, 0), BLUR_SIGMA)
+            g = gain * (sc.right_gain if k else 1.0)
+            img = img * (255.0 * np.asarray(g, np.float32)) + self._noise_at(rng, c.height, c.width)
+            images.append(np.clip(img + 0.5, 0, 255).astype(np.uint8))
+            if k == 0:
+                truth_bufs = (ids, invz)
+        truth = self._truth(sc, t, M, truth_bufs, rows, states)
+        return StereoFrame(self.dataset, plan.sequence, index, plan.t_ns[position], images[0], images[1], c, truth)
+
+    def _sky(self, cam: Camera, Rcm: np.ndarray) -> np.ndarray:
+        """Sky gradient by ray elevation (horizon haze → blue zenith)."""
+        yn = (cam.v[:, None] - cam.cy) / cam.fy
+        xn = (cam.u[None, :] - cam.cx) / cam.fx
+        Rmc = Rcm.T
+        dy = Rmc[1, 0] * xn + Rmc[1, 1] * yn + Rmc[1, 2]
+        norm = np.sqrt(xn * xn + yn * yn + 1)
+        e = np.clip(-dy / norm * 2.5, 0, 1)[..., None]
+        horizon = np.array([0.86, 0.88, 0.90], np.float32)
+        zenith = np.array([0.50, 0.64, 0.86], np.float32)
+        return (horizon * (1 - e) + zenith * e).astype(np.float32)
+
+    def _noise_at(self, rng: np.random.Generator, h: int, w: int) -> np.ndarray:
+        """Sensor noise: a fixed bank of Gaussian noise, cut at a per-frame seeded offset."""
+        if self._noise is None or self._noise.shape[0] < h + 64:
+            self._noise = np.random.default_rng(self.seed_base + 12345).normal(0, NOISE_DN, (h + 64, w + 64, 3)).astype(np.float32)
+        oy, ox = rng.integers(0, 64, 2)
+        return self._noise[oy : oy + h, ox : ox + w]
+
+    def _truth(self, sc: Scene, t: float, M: np.ndarray, bufs, rows, states) -> FrameTruth:
+        ids, invz = bufs
+        depth = np.where(ids >= 0, 1.0 / np.maximum(invz, 1e-12), np.nan).astype(np.float32)
+        face_obj = np.concatenate([rows[:, R_OBJ].astype(np.int32), [0]])
+        objmap = face_obj[np.where(ids < 0, len(rows), ids)]
+        counts = np.bincount(objmap.ravel(), minlength=len(sc.objects) + 1)
+        Rcm, Mcm = M[:3, :3].T, np.linalg.inv(M)
+        Rwm = sc.M0_inv[:3, :3]
+        objs = []
+        for tid in np.nonzero(counts[1:])[0] + 1:
+            o, pos, yaw = states[int(tid)]
+            mask = objmap == tid
+            ys, xs = np.nonzero(mask.any(1))[0], np.nonzero(mask.any(0))[0]
+            centre_map = pos + np.array([0.0, -o.size[1] / 2, 0.0])
+            centre = Mcm[:3, :3] @ centre_map + Mcm[:3, 3]
+            p1, p0 = sc.state(o, t + 1e-3), sc.state(o, t - 1e-3)
+            vel = (p1[0] - p0[0]) / 2e-3 if p1 is not None and p0 is not None else np.zeros(3)
+            objs.append(ObjectTruth(int(tid), o.category, KNOWN[o.category], mask,
+                                    (float(xs[0]), float(ys[0]), float(xs[-1] + 1), float(ys[-1] + 1)),
+                                    centre, o.size.copy(), Rwm @ vel))
+        return FrameTruth(depth, sc.pose(t), objs)
+
+
+def bench_render(n: int = 10, sequence: str = "0000", **options) -> float:
+    """Min milliseconds per ``read_frame`` (left + right + truth) over n frames, one thread."""
+    cv2.setNumThreads(1)
+    src = SyntheticSource(**options)
+    plan = src.plan(sequence)
+    src.read_frame(plan, 0)  # builds the atlas and the world
+    best = float("inf")
+    for i in range(1, n + 1):
+        t0 = time.perf_counter()
+        src.read_frame(plan, i % len(plan))
+        best = min(best, time.perf_counter() - t0)
+    return best * 1e3
+
+
+__all__ = ["SyntheticSource", "bench_render"]

@@ -1,0 +1,156 @@
+"""Z-buffer rasteriser of textured planar faces for a rectified pinhole camera.
+
+Per face: clip against the near plane, project, fill its mask in its bounding rectangle
+(cv2.fillConvexPoly), evaluate the exact inverse depth (affine in u, v for a plane), z-test,
+write the face id. Then per pixel: texture coordinates from the ray–plane intersection
+(again affine over depth), mip level from the texel footprint, bilinear atlas lookup, and
+Lambert shading against the sun.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from mining.sources.synthetic.scene import MAXV, R_N, R_NV, R_O, R_TILE, R_TINT, R_U, R_V
+from mining.sources.synthetic.textures import NLEV, Atlas
+
+NEAR_M = 0.3  # ours: near clipping plane
+FAR_M = 400.0  # ours: faces entirely beyond are dropped
+SUB = 4  # fillConvexPoly fixed-point bits (1/16 px vertices)
+
+
+class Camera:
+    def __init__(self, fx: float, fy: float, cx: float, cy: float, width: int, height: int):
+        self.fx, self.fy, self.cx, self.cy, self.w, self.h = fx, fy, cx, cy, width, height
+        self.u = np.arange(width, dtype=np.float32)
+        self.v = np.arange(height, dtype=np.float32)
+
+
+def _clip_near(poly: np.ndarray) -> np.ndarray:
+    out = []
+    n = len(poly)
+    for i in range(n):
+        a, b = poly[i], poly[(i + 1) % n]
+        ina, inb = a[2] >= NEAR_M, b[2] >= NEAR_M
+        if ina:
+            out.append(a)
+        if ina != inb:
+            t = (NEAR_M - a[2]) / (b[2] - a[2])
+            out.append(a + t * (b - a))
+    return np.array(out)
+
+
+def rasterize(cam: Camera, verts: np.ndarray, rows: np.ndarray, R: np.ndarray, t: np.ndarray):
+    """Faces in map frame, camera from map ``Pc = R Pm + t`` → (face id (H,W) int32, -1 = sky;
+    inverse depth (H,W) float32; per-face camera-frame rows)."""
+    H, W = cam.h, cam.w
+    V = verts @ R.T + t
+    n = rows[:, R_N : R_N + 3] @ R.T
+    dp = np.einsum("ij,ij->i", n, V[:, 0])
+    z = V[:, :, 2]
+    keep = (dp < -1e-6) & (z.max(1) > NEAR_M) & (z.min(1) < FAR_M)
+    zc = np.maximum(z, NEAR_M)
+    px = cam.fx * V[:, :, 0] / zc + cam.cx
+    py = cam.fy * V[:, :, 1] / zc + cam.cy
+    allin = z.min(1) >= NEAR_M
+    keep &= ~(allin & ((px.max(1) < -1) | (px.min(1) > W) | (py.max(1) < -1) | (py.min(1) > H)))
+    ids = np.full((H, W), -1, np.int32)
+    invz = np.zeros((H, W), np.float32)
+    # inverse depth plane: 1/z = (n·r)/dp with r = ((u-cx)/fx, (v-cy)/fy, 1)
+    ia = n[:, 0] / cam.fx / dp
+    ib = n[:, 1] / cam.fy / dp
+    ic = (n[:, 2] - n[:, 0] * cam.cx / cam.fx - n[:, 1] * cam.cy / cam.fy) / dp
+    for f in np.nonzero(keep)[0]:
+        nv = int(rows[f, R_NV])
+        if allin[f]:
+            p = np.stack([px[f, :nv], py[f, :nv]], 1)
+        else:
+            poly = _clip_near(V[f, :nv])
+            if len(poly) < 3:
+                continue
+            p = np.stack([cam.fx * poly[:, 0] / poly[:, 2] + cam.cx, cam.fy * poly[:, 1] / poly[:, 2] + cam.cy], 1)
+        x0, y0 = max(0, int(np.floor(p[:, 0].min()))), max(0, int(np.floor(p[:, 1].min())))
+        x1, y1 = min(W, int(np.ceil(p[:, 0].max())) + 1), min(H, int(np.ceil(p[:, 1].max())) + 1)
+        if x1 <= x0 or y1 <= y0:
+            continue
+        mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        q = np.round((p - [x0, y0]) * (1 << SUB)).astype(np.int32)
+        cv2.fillConvexPoly(mask, q, 1, lineType=cv2.LINE_8, shift=SUB)
+        iz = (ia[f] * cam.u[x0:x1])[None, :] + (ib[f] * cam.v[y0:y1] + ic[f])[:, None]
+        zr = invz[y0:y1, x0:x1]
+        win = (mask > 0) & (iz > zr)
+        np.copyto(zr, iz.astype(np.float32), where=win)
+        np.copyto(ids[y0:y1, x0:x1], f, where=win)
+    return ids, invz, V, n
+
+
+def shade(cam: Camera, atlas: Atlas, ids: np.ndarray, invz: np.ndarray, rows: np.ndarray, Vc: np.ndarray,
+          R: np.ndarray, t: np.ndarray, light: np.ndarray, sky: np.ndarray) -> np.ndarray:
+    """RGB float32 image in [0, 1]-ish of the rasterised faces; ``light`` (F,3) per-face colour gain."""
+    H, W = cam.h, cam.w
+    F = len(rows)
+    # per-face texture-coordinate planes in camera frame: s = z·(a u + b v + c) + d
+    O = rows[:, R_O : R_O + 3] @ R.T + t
+    coef = np.zeros((F + 1, 12), np.float32)
+    for k, col in enumerate((R_U, R_V)):
+        Uc = rows[:, col : col + 3] @ R.T
+        coef[:F, 4 * k + 0] = Uc[:, 0] / cam.fx
+        coef[:F, 4 * k + 1] = Uc[:, 1] / cam.fy
+        coef[:F, 4 * k + 2] = Uc[:, 2] - Uc[:, 0] * cam.cx / cam.fx - Uc[:, 1] * cam.cy / cam.fy
+        coef[:F, 4 * k + 3] = -np.einsum("ij,ij->i", Uc, O)
+    coef[:F, 8:12] = rows[:, R_TILE : R_TILE + 4]
+    coef[F, 10:12] = 1
+    idx = np.where(ids < 0, F, ids).ravel()
+    valid = ids.ravel() >= 0
+    g = coef[idx]
+    z = np.where(valid, 1.0 / np.maximum(invz.ravel(), 1e-9), 0).astype(np.float32)
+    uu = np.broadcast_to(cam.u[None, :], (H, W)).ravel()
+    vv = np.broadcast_to(cam.v[:, None], (H, W)).ravel()
+    s = (g[:, 0] * uu + g[:, 1] * vv + g[:, 2]) * z + g[:, 3]
+    tt = (g[:, 4] * uu + g[:, 5] * vv + g[:, 6]) * z + g[:, 7]
+    # texel footprint per pixel (min of forward/backward differences, so face borders stay sharp)
+    S, T = s.reshape(H, W), tt.reshape(H, W)
+    fp = np.maximum(_footprint(S, T, 1), _footprint(S, T, 0))
+    lev = np.clip(np.log2(np.maximum(fp, 1e-6)) - 0.3, 0, NLEV - 1 - 1e-4).ravel()
+    tx = g[:, 8] + np.mod(s, g[:, 10])
+    ty = g[:, 9] + np.mod(tt, g[:, 11])
+    out = np.zeros((H * W, 3), np.float32)
+    L0 = np.floor(lev).astype(np.int8)
+    frac = (lev - L0).astype(np.float32)
+    for L in range(NLEV):
+        for which, wgt in ((L0 == L, 1 - frac), (L0 == L - 1, frac)):
+            sel = np.nonzero(which & valid)[0]
+            if len(sel) == 0:
+                continue
+            f = float(2**L)
+            mx = tx[sel] / f - 0.5
+            my = ty[sel] / f - 0.5
+            col = _remap(atlas.levels[L], mx, my)
+            out[sel] += col * wgt[sel, None]
+    light_px = np.concatenate([light, np.zeros((1, 3), np.float32)])[idx]
+    img = out * light_px
+    img[~valid] = sky.reshape(-1, 3)[~valid]
+    return img.reshape(H, W, 3)
+
+
+def _footprint(S: np.ndarray, T: np.ndarray, axis: int) -> np.ndarray:
+    dS = np.abs(np.diff(S, axis=axis)) + np.abs(np.diff(T, axis=axis))
+    pad = [(0, 0), (0, 0)]
+    pad[axis] = (1, 0)
+    a = np.pad(dS, pad, mode="edge")
+    pad[axis] = (0, 1)
+    b = np.pad(dS, pad, mode="edge")
+    return np.minimum(a, b)
+
+
+def _remap(img: np.ndarray, mx: np.ndarray, my: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of scattered points (OpenCV remap needs maps below 32767 per side)."""
+    n = len(mx)
+    cols = 1024
+    rows = -(-n // cols)
+    X = np.zeros(rows * cols, np.float32)
+    Y = np.zeros(rows * cols, np.float32)
+    X[:n], Y[:n] = mx, my
+    r = cv2.remap(img, X.reshape(rows, cols), Y.reshape(rows, cols), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return r.reshape(-1, 3)[:n].astype(np.float32) * (1.0 / 255.0)

@@ -1,0 +1,734 @@
+"""World generation of the synthetic source: road, ego trajectory, structure, objects.
+
+Everything is a pure function of the seed and the time, so any frame can be rendered in
+any order. The *map* frame has x right, y down, z forward (like the camera) with the road
+surface at y = 0; the first camera pose turns it into the world frame of ``FrameTruth``.
+
+Geometry is planar convex polygons ("faces"), each carrying a texture frame anchored to the
+surface it belongs to (the road's arc length, a building's wall, an object's own body), so
+texture moves exactly with the 3D motion.
+
+Categories. Known (a COCO class covers them): car, truck, bus, person, bicycle. Unknown:
+cone (traffic cone), bin (wheelie bin), crate, debris (a low-poly rock or lump lying on the
+road) and blob (a crawling low-poly ellipsoid the size of a large dog but with no legs,
+head or tail, so no COCO animal class describes it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mining.sources.synthetic.textures import LANE_M, PARKING_M, Atlas, Tile
+
+CAMERA_HEIGHT_M = 1.65  # ours: KITTI's camera height above the road
+SIDEWALK_M = 4.5  # ours: sidewalk width
+CURB_M = 0.12  # ours: curb height
+GROUND_DROP_M = 0.02  # ours: the terrain plane lies this far below the road (no z-fighting)
+MAX_SPEED = 15.0  # ours: ego speed limit, m/s
+VIEW_AHEAD_M = 170.0  # ours: structure and objects further along the road are not drawn
+VIEW_BEHIND_M = 25.0  # ours: ... nor further behind the camera
+MAXV = 8  # vertices per face (padded)
+KNOWN = {"car": True, "truck": True, "bus": True, "person": True, "bicycle": True,
+         "cone": False, "bin": False, "crate": False, "debris": False, "blob": False}
+DOWN = np.array([0.0, 1.0, 0.0])
+
+
+# --------------------------------------------------------------------------- faces
+
+
+class FaceList:
+    """Accumulates faces; ``arrays()`` packs them for the renderer."""
+
+    def __init__(self, atlas: Atlas):
+        self.atlas = atlas
+        self.verts: list[np.ndarray] = []
+        self.rows: list[np.ndarray] = []  # per face: normal(3) O(3) U(3) V(3) tile(4) tint(3) obj skey part
+
+    def add(self, pts, normal, origin, u_dir, v_dir, material: str, tint=(1, 1, 1), obj: int = 0,
+            skey: float = 0.0, part: int = 0, offset=(0.0, 0.0), extent=None) -> None:
+        """One face. ``u_dir``/``v_dir`` are unit texture axes; ``extent`` (u, v metres) stretches a
+        stretch material over the face, else the material's texels-per-metre apply."""
+        tile: Tile = self.atlas.tiles[material]
+        if tile.metres_w == 0:
+            ext = extent if extent is not None else (1.0, 1.0)
+            du, dv = tile.w / max(ext[0], 1e-3), tile.h / max(ext[1], 1e-3)
+        else:
+            du, dv = tile.w / tile.metres_w, tile.h / tile.metres_h
+        p = np.asarray(pts, float)
+        pad = np.repeat(p[-1:], MAXV - len(p), axis=0)
+        self.verts.append(np.concatenate([p, pad]))
+        o = np.asarray(origin, float) - offset[0] * np.asarray(u_dir) - offset[1] * np.asarray(v_dir)
+        row = np.concatenate([normal, o, np.asarray(u_dir) * du, np.asarray(v_dir) * dv,
+                              [tile.x0, tile.y0, tile.w, tile.h], tint, [obj, skey, part, len(p)]])
+        self.rows.append(row)
+
+    def quad(self, p0, p1, p3, normal, material, tint=(1, 1, 1), obj=0, skey=0.0, part=0, offset=(0.0, 0.0)):
+        """Parallelogram with corner ``p0``, u edge to ``p1``, v edge to ``p3``."""
+        p0, p1, p3 = (np.asarray(x, float) for x in (p0, p1, p3))
+        eu, ev = p1 - p0, p3 - p0
+        lu, lv = np.linalg.norm(eu), np.linalg.norm(ev)
+        self.add([p0, p1, p1 + ev, p3], normal, p0, eu / lu, ev / lv, material, tint, obj, skey, part, offset, (lu, lv))
+
+    def box(self, center, half, R, mats: dict[str, str], tint=(1, 1, 1), obj=0, skey=0.0, part=0,
+            offset=(0.0, 0.0), skip=("bottom",)):
+        """Axis-aligned (in R's frame) box; ``mats`` maps side/front/rear/top/bottom to materials."""
+        c = np.asarray(center, float)
+        ax, ay, az = (R[:, i] * half[i] for i in range(3))
+        ex, ey, ez = R[:, 0], R[:, 1], R[:, 2]
+        faces = {
+            "right": (c + ax - ay + az, c + ax - ay - az, c + ax + ay + az, ex),
+            "left": (c - ax - ay - az, c - ax - ay + az, c - ax + ay - az, -ex),
+            "front": (c - ax - ay + az, c + ax - ay + az, c - ax + ay + az, ez),
+            "rear": (c + ax - ay - az, c - ax - ay - az, c + ax + ay - az, -ez),
+            "top": (c - ax - ay - az, c + ax - ay - az, c - ax - ay + az, -ey),
+            "bottom": (c - ax + ay + az, c + ax + ay + az, c - ax + ay - az, ey),
+        }
+        for name, (p0, p1, p3, n) in faces.items():
+            if name in skip:
+                continue
+            key = "side" if name in ("right", "left") else name
+            self.quad(p0, p1, p3, n, mats.get(key, mats.get("all")), tint, obj, skey, part, offset)
+
+    def convex(self, points, material, tint=(1, 1, 1), obj=0, part=0, offset=(0.0, 0.0)):
+        """Faces of the convex hull of ``points`` (rocks, blobs), outward normals."""
+        from scipy.spatial import ConvexHull
+
+        pts = np.asarray(points, float)
+        hull = ConvexHull(pts)
+        centre = pts.mean(0)
+        for simplex, eq in zip(hull.simplices, hull.equations):
+            tri = pts[simplex]
+            n = eq[:3]
+            if np.dot(tri.mean(0) - centre, n) < 0:
+                n = -n
+            u = tri[1] - tri[0]
+            u /= np.linalg.norm(u)
+            v = np.cross(n, u)
+            self.add(tri, n, tri[0], u, v, material, tint, obj, 0.0, part, offset)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        if not self.verts:
+            return np.zeros((0, MAXV, 3)), np.zeros((0, 23))
+        return np.array(self.verts), np.array(self.rows)
+
+
+# row layout of FaceList.rows
+R_N, R_O, R_U, R_V, R_TILE, R_TINT, R_OBJ, R_SKEY, R_PART, R_NV = 0, 3, 6, 9, 12, 16, 19, 20, 21, 22
+
+
+def rot_y(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+
+
+def rot_x(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def rot_z(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+
+# --------------------------------------------------------------------------- road and ego
+
+
+class Road:
+    """Centreline as heading θ(s) integrated from a smooth random curvature profile."""
+
+    DS = 0.5  # ours: sampling step of the centreline, metres
+
+    def __init__(self, rng: np.random.Generator, s_min: float, s_max: float):
+        self.s = np.arange(s_min, s_max + self.DS, self.DS)
+        n = len(self.s)
+        kappa = np.zeros(n)
+        # gentle bends: a few random sinusoids, radius > ~400 m
+        for _ in range(3):
+            kappa += rng.uniform(-0.0012, 0.0012) * np.sin(2 * np.pi * self.s / rng.uniform(150, 600) + rng.uniform(0, 6.3))
+        # turns: raised-cosine curvature bumps of radius 25–60 m turning 40–90°
+        pos = rng.uniform(60, 160)
+        while pos < s_max:
+            radius = rng.uniform(25, 60)
+            angle = np.radians(rng.uniform(40, 90))
+            length = 2 * angle * radius  # the raised cosine averages half its peak
+            w = np.clip((self.s - pos) / length, 0, 1)
+            bump = 0.5 * (1 - np.cos(2 * np.pi * w)) * ((self.s >= pos) & (self.s <= pos + length))
+            kappa += rng.choice([-1, 1]) / radius * bump
+            pos += length + rng.uniform(120, 400)
+        self.kappa = kappa
+        i0 = np.searchsorted(self.s, 0.0)
+        theta = np.concatenate([[0.0], np.cumsum(0.5 * (kappa[1:] + kappa[:-1]) * self.DS)])
+        self.theta = theta - theta[i0]
+        x = np.concatenate([[0.0], np.cumsum(0.5 * (np.sin(self.theta[1:]) + np.sin(self.theta[:-1])) * self.DS)])
+        z = np.concatenate([[0.0], np.cumsum(0.5 * (np.cos(self.theta[1:]) + np.cos(self.theta[:-1])) * self.DS)])
+        self.x, self.z = x - x[i0], z - z[i0]
+
+    def frame(self, s):
+        """Centre point (…,3), heading θ, tangent and right normal at arc length(s) ``s``."""
+        s = np.asarray(s, float)
+        x = np.interp(s, self.s, self.x)
+        z = np.interp(s, self.s, self.z)
+        th = np.interp(s, self.s, self.theta)
+        c = np.stack([x, np.zeros_like(x), z], -1)
+        t = np.stack([np.sin(th), np.zeros_like(th), np.cos(th)], -1)
+        nrm = np.stack([np.cos(th), np.zeros_like(th), -np.sin(th)], -1)
+        return c, th, t, nrm
+
+    def point(self, s, d, y=0.0):
+        c, _, _, nrm = self.frame(s)
+        return c + np.asarray(d)[..., None] * nrm + np.asarray([0.0, 1.0, 0.0]) * np.asarray(y)[..., None]
+
+    def curvature(self, s):
+        return np.interp(s, self.s, self.kappa)
+
+
+def ego_speed_profile(rng: np.random.Generator, road: Road, duration_s: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Arc length and speed of the ego on a fine time grid: random target speeds (some stops),
+    limited by lateral acceleration in turns and by ±2.5 m/s² longitudinal."""
+    n = int(np.ceil(duration_s / dt)) + 2
+    s = np.zeros(n)
+    v = np.zeros(n)
+    v[0] = rng.choice([0.0, rng.uniform(4, 12)], p=[0.25, 0.75])
+    t_next, target = 0.0, v[0]
+    stop_until = -1.0
+    for i in range(1, n):
+        t = i * dt
+        if t >= t_next:
+            if rng.random() < 0.2 and t > 3:
+                stop_until = t + rng.uniform(2, 6)
+                target = 0.0
+            else:
+                target = rng.uniform(3, MAX_SPEED)
+            t_next = t + rng.uniform(4, 12)
+        if t < stop_until:
+            tgt = 0.0
+        else:
+            tgt = target if target > 0 else rng.uniform(5, 12) if False else 8.0
+        ahead = np.abs(road.curvature(s[i - 1] + np.arange(0, 40, 5.0))).max()
+        tgt = min(tgt, np.sqrt(2.0 / max(ahead, 1e-6)))  # ours: 2 m/s² lateral in turns
+        dv = np.clip(tgt - v[i - 1], -2.5 * dt, 2.0 * dt)
+        v[i] = max(0.0, v[i - 1] + dv)
+        s[i] = s[i - 1] + 0.5 * (v[i] + v[i - 1]) * dt
+    return s, v
+
+
+# --------------------------------------------------------------------------- objects
+
+
+@dataclass
+class Motion:
+    """How an object moves in road coordinates (arc length s, lateral offset d)."""
+
+    kind: str  # "static", "lane", "follow", "path"
+    s0: float = 0.0
+    d: float = 0.0
+    v: float = 0.0  # lane: signed speed along s
+    yaw: float = 0.0  # relative to the road heading (static, lane, follow)
+    gap: tuple[float, float, float] = (15.0, 5.0, 0.1)  # follow: mean, amplitude, rad/s
+    times: np.ndarray | None = None  # path waypoints
+    ss: np.ndarray | None = None
+    dd: np.ndarray | None = None
+
+
+@dataclass
+class Obj:
+    track_id: int
+    category: str
+    size: np.ndarray  # w, h, l
+    tint: tuple[float, float, float]
+    motion: Motion
+    seed: int
+    tint2: tuple[float, float, float] = (1, 1, 1)
+    faces: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+
+
+class Scene:
+    """The whole world of one sequence."""
+
+    def __init__(self, seed: int, duration_s: float, atlas: Atlas):
+        self.seed = seed
+        self.atlas = atlas
+        rng = np.random.default_rng([seed, 1])
+        self.lanes = int(rng.choice([1, 2], p=[0.6, 0.4]))
+        self.half = self.lanes * LANE_M + PARKING_M  # curb offset from the centreline
+        self.road_tile = "road1" if self.lanes == 1 else "road2"
+        self.duration = duration_s
+        self.road = Road(rng, -200.0, duration_s * MAX_SPEED + 600.0)
+        self.dt = 0.02
+        self.ego_s, self.ego_v = ego_speed_profile(np.random.default_rng([seed, 2]), self.road, duration_s + 1.0, self.dt)
+        self.ego_d = LANE_M / 2 + (LANE_M if self.lanes == 2 and rng.random() < 0.5 else 0.0)
+        self.wobble = rng.uniform(0, 6.3, 6)
+        sun_az, sun_el = rng.uniform(0, 2 * np.pi), np.radians(rng.uniform(25, 60))
+        self.sun = np.array([np.cos(sun_el) * np.sin(sun_az), -np.sin(sun_el), np.cos(sun_el) * np.cos(sun_az)])
+        self.exposure = (rng.uniform(0.9, 1.1), rng.uniform(0.05, 0.15), rng.uniform(20, 60), rng.uniform(0, 6.3))
+        self.right_gain = rng.uniform(0.96, 1.04, 3)
+        self.objects: list[Obj] = []
+        self._build_static(np.random.default_rng([seed, 3]))
+        self._build_objects(np.random.default_rng([seed, 4]))
+        self.M0_inv = np.linalg.inv(self.camera_map(0.0))
+
+    # ----- ego
+
+    def ego_arc(self, t: float) -> float:
+        return float(np.interp(t, np.arange(len(self.ego_s)) * self.dt, self.ego_s))
+
+    def camera_map(self, t: float) -> np.ndarray:
+        """4×4 camera-to-map transform at time t: lane centre, road heading, mild pitch/roll/yaw sway."""
+        s = self.ego_arc(t)
+        w = self.wobble
+        lat = 0.15 * np.sin(0.31 * t + w[0])
+        c, th, _, nrm = self.road.frame(s)
+        pos = c + (self.ego_d + lat) * nrm + np.array([0.0, -CAMERA_HEIGHT_M, 0.0])
+        yaw = th + 0.004 * np.sin(0.5 * t + w[1])
+        pitch = np.radians(0.4) * np.sin(1.3 * t + w[2]) + np.radians(0.2) * np.sin(3.1 * t + w[3])
+        roll = np.radians(0.3) * np.sin(0.9 * t + w[4])
+        M = np.eye(4)
+        M[:3, :3] = rot_y(yaw) @ rot_x(pitch) @ rot_z(roll)
+        M[:3, 3] = pos
+        return M
+
+    def pose(self, t: float) -> np.ndarray:
+        """Camera-to-world (world = first camera)."""
+        return self.M0_inv @ self.camera_map(t)
+
+    def exposure_at(self, t: float) -> float:
+        a, b, period, ph = self.exposure
+        return a * (1 + b * np.sin(2 * np.pi * t / period + ph))
+
+    # ----- static structure
+
+    def _build_static(self, rng: np.random.Generator) -> None:
+        fl = FaceList(self.atlas)
+        road = self.road
+        s_lo, s_hi = road.s[0] + 1, road.s[-1] - 1
+        # adaptive nodes: ≤ 8 m and ≤ 2.5° of heading per segment
+        nodes = [s_lo]
+        while nodes[-1] < s_hi:
+            k = abs(road.curvature(nodes[-1])) + abs(road.curvature(nodes[-1] + 4))
+            nodes.append(min(s_hi, nodes[-1] + float(np.clip(np.radians(2.5) / max(k / 2, 1e-9), 2.0, 8.0))))
+        nodes = np.array(nodes)
+        h, sw = self.half, SIDEWALK_M
+        up = np.array([0.0, -1.0, 0.0])
+        rw = 2 * h
+        for a, b in zip(nodes[:-1], nodes[1:]):
+            key = 0.5 * (a + b)
+            ca, _, ta, na = road.frame(a)
+            cb, _, tb, nb = road.frame(b)
+            chord = (cb - ca) / np.linalg.norm(cb - ca)
+            right = np.cross(chord, DOWN) * -1  # chord × up
+            right = np.array([chord[2], 0.0, -chord[0]])
+            # road: u along the arc (origin carries the arc length), v across
+            pts = [ca - h * na, cb - h * nb, cb + h * nb, ca + h * na]
+            o = ca - h * right
+            fl.add(pts, up, o, chord, right, self.road_tile, skey=key, offset=(a % 12.0, 0.0))
+            for side in (-1, 1):
+                y = np.array([0, -CURB_M, 0])
+                inner_a, inner_b = ca + side * h * na, cb + side * h * nb
+                outer_a, outer_b = ca + side * (h + sw) * na, cb + side * (h + sw) * nb
+                fl.add([inner_a, inner_b, inner_b + y, inner_a + y], -side * right, inner_a + y, chord, DOWN,
+                       "concrete", skey=key, offset=(a % 4.0, 0))
+                fl.add([inner_a + y, inner_b + y, outer_b + y, outer_a + y], up, inner_a + y, chord, side * right,
+                       "sidewalk", skey=key, offset=(a % 3.0, 0))
+                g = np.array([0, GROUND_DROP_M, 0])
+                fl.add([outer_a + y, outer_b + y, outer_b + g, outer_a + g], side * right, outer_a + y, chord, DOWN,
+                       "concrete", skey=key, offset=(a % 4.0, 0))
+        for side in (-1, 1):
+            self._lots(fl, rng, side, s_lo + 5, s_hi - 5)
+        self.static_verts, self.static_rows = fl.arrays()
+
+    def _lots(self, fl: FaceList, rng, side: int, s_lo: float, s_hi: float) -> None:
+        road = self.road
+        front = self.half + SIDEWALK_M
+        s = s_lo
+        facades = ["facade_brick", "facade_plaster", "facade_glass", "facade_stone"]
+        while s < s_hi:
+            k = abs(road.curvature(s))
+            length = rng.uniform(8, 28) if k < 0.01 else rng.uniform(6, 10)
+            kind = rng.choice(["building", "wall", "fence", "trees", "open"], p=[0.5, 0.12, 0.1, 0.18, 0.1])
+            mid = s + length / 2
+            c, th, t, n = road.frame(mid)
+            R = rot_y(float(th))
+            setback = rng.uniform(0.0, 1.5)
+            if kind == "building" or (kind in ("wall", "fence") and rng.random() < 0.5):
+                depth = rng.uniform(8, 14)
+                hgt = rng.uniform(5, 18)
+                back = 0 if kind == "building" else rng.uniform(3, 8)
+                dc = side * (front + setback + back + depth / 2)
+                cen = c + dc * n + np.array([0, -hgt / 2, 0])
+                tint = tuple(rng.uniform(0.75, 1.0, 3))
+                mat = str(rng.choice(facades))
+                fl.box(cen, (length / 2 - rng.uniform(0, 1), hgt / 2, depth / 2), R @ rot_y(np.pi / 2),
+                       {"all": mat}, tint, skey=mid, offset=tuple(rng.uniform(0, 3, 2)), skip=("bottom", "top"))
+            if kind in ("wall", "fence"):
+                hgt = rng.uniform(1.6, 2.6) if kind == "wall" else rng.uniform(1.0, 1.4)
+                dc = side * (front + 0.15)
+                cen = c + dc * n + np.array([0, -hgt / 2 + GROUND_DROP_M, 0])
+                mat = "concrete" if kind == "wall" else "fence"
+                fl.box(cen, (length / 2, hgt / 2, 0.15), R @ rot_y(np.pi / 2), {"all": mat},
+                       tuple(rng.uniform(0.8, 1.0, 3)), skey=mid, skip=("bottom",))
+            if kind == "trees":
+                for st in np.arange(s + 2, s + length - 1, rng.uniform(5, 9)):
+                    self._tree(fl, rng, st, side * (front + rng.uniform(1.0, 4.0)))
+            # street furniture on the sidewalk edge: poles and the odd street tree
+            if rng.random() < 0.5:
+                st = s + rng.uniform(0, length)
+                if rng.random() < 0.4:
+                    self._tree(fl, rng, st, side * (self.half + 0.6))
+                else:
+                    cp = road.point(st, side * (self.half + 0.3), -3.0)
+                    fl.box(cp, (0.08, 3.0, 0.08), rot_y(float(road.frame(st)[1])), {"all": "metal"}, skey=st)
+            s += length
+
+    def _tree(self, fl: FaceList, rng, s: float, d: float) -> None:
+        road = self.road
+        trunk_h = rng.uniform(2.0, 3.5)
+        base = road.point(s, d, 0.0)
+        R = rot_y(rng.uniform(0, np.pi))
+        fl.box(base + np.array([0, -trunk_h / 2, 0]), (0.12, trunk_h / 2, 0.12), R, {"all": "bark"}, skey=s,
+               offset=tuple(rng.uniform(0, 1, 2)))
+        r = rng.uniform(1.3, 2.2)
+        hc = rng.uniform(1.6, 2.6)
+        cen = base + np.array([0, -trunk_h - hc / 2, 0])
+        ang = np.arange(6) * np.pi / 3 + rng.uniform(0, 1)
+        ring = np.stack([np.cos(ang) * r, np.zeros(6), np.sin(ang) * r], 1) * rng.uniform(0.85, 1.15, (6, 1))
+        pts = np.concatenate([cen + ring, cen + 0.55 * ring + [0, -hc / 2, 0], cen + 0.55 * ring + [0, hc / 2, 0]])
+        tint = tuple(rng.uniform(0.8, 1.1, 3))
+        start = len(fl.rows)
+        fl.convex(pts, "foliage", tint, offset=tuple(rng.uniform(0, 2, 2)))
+        for row in fl.rows[start:]:
+            row[R_SKEY] = s
+
+    # ----- objects
+
+    def _new(self, rng, category: str, motion: Motion, size=None) -> Obj:
+        if size is None:
+            size = {
+                "car": (rng.uniform(1.65, 1.85), rng.uniform(1.4, 1.55), rng.uniform(3.9, 4.8)),
+                "truck": (2.4, rng.uniform(3.0, 3.6), rng.uniform(7, 9)),
+                "bus": (2.5, 3.1, rng.uniform(10, 12)),
+                "person": (0.5, rng.uniform(1.55, 1.9), 0.3),
+                "bicycle": (0.5, 1.05, 1.75),
+                "cone": (0.4, rng.uniform(0.5, 0.75), 0.4),
+                "bin": (0.6, 1.07, 0.72),
+                "crate": tuple([rng.uniform(0.4, 1.0)] * 2 + [rng.uniform(0.4, 1.2)]),
+                "debris": (rng.uniform(0.3, 0.9), rng.uniform(0.2, 0.5), rng.uniform(0.3, 1.0)),
+                "blob": (rng.uniform(0.6, 0.9), rng.uniform(0.5, 0.8), rng.uniform(0.9, 1.4)),
+            }[category]
+        palette = [(0.9, 0.9, 0.9), (0.15, 0.15, 0.17), (0.6, 0.62, 0.65), (0.7, 0.1, 0.1), (0.15, 0.25, 0.6),
+                   (0.85, 0.85, 0.8), (0.3, 0.35, 0.3), (0.8, 0.6, 0.2)]
+        if category in ("car", "truck", "bus"):
+            tint = palette[rng.integers(len(palette))]
+        elif category == "bin":
+            tint = [(0.2, 0.4, 0.2), (0.3, 0.3, 0.32), (0.15, 0.25, 0.55), (0.45, 0.3, 0.15)][rng.integers(4)]
+        elif category == "blob":
+            tint = tuple(rng.uniform([0.4, 0.3, 0.2], [0.8, 0.6, 0.45]))
+        else:
+            tint = tuple(rng.uniform(0.2, 0.95, 3))
+        o = Obj(len(self.objects) + 1, category, np.array(size, float), tint, motion, int(rng.integers(1 << 30)),
+                tuple(rng.uniform(0.15, 0.8, 3)))
+        self.objects.append(o)
+        return o
+
+    def _build_objects(self, rng: np.random.Generator) -> None:
+        T = self.duration
+        s_end = self.ego_s[-1]
+        lo, hi = self.road.s[0] + 20, self.road.s[-1] - 20
+        h = self.half
+        # parked cars and static clutter in the parking strips, static unknowns on the centre line
+        for side in (-1, 1):
+            s = lo
+            while s < min(hi, s_end + 250):
+                r = rng.random()
+                if r < 0.45:
+                    cat, gap = "car", rng.uniform(5.5, 8)
+                    yaw = (0 if side > 0 else np.pi) + rng.normal(0, 0.03)
+                elif r < 0.55:
+                    cat, gap, yaw = "cone", rng.uniform(1.5, 3), 0.0
+                elif r < 0.62:
+                    cat, gap, yaw = "crate", 2.0, rng.uniform(0, 3)
+                elif r < 0.68:
+                    cat, gap, yaw = "debris", 2.0, rng.uniform(0, 6)
+                else:
+                    cat, gap, yaw = None, rng.uniform(4, 20), 0.0
+                if cat:
+                    dd = side * (self.lanes * LANE_M + PARKING_M / 2 + rng.uniform(-0.1, 0.1))
+                    self._new(rng, cat, Motion("static", s0=s + gap / 2, d=dd, yaw=yaw))
+                s += gap
+            s = lo
+            while s < min(hi, s_end + 250):  # bins and crates by the buildings
+                s += rng.uniform(10, 60)
+                cat = "bin" if rng.random() < 0.7 else "crate"
+                self._new(rng, cat, Motion("static", s0=s, d=side * (h + SIDEWALK_M - 0.5), yaw=rng.uniform(-0.3, 0.3) + (0 if side > 0 else np.pi)))
+        s = lo
+        while s < min(hi, s_end + 250):
+            s += rng.uniform(30, 120)
+            cat = ["cone", "debris", "crate"][rng.integers(3)]
+            for j in range(rng.integers(1, 4) if cat == "cone" else 1):
+                self._new(rng, cat, Motion("static", s0=s + 2.5 * j, d=rng.normal(0, 0.05), yaw=rng.uniform(0, 6)))
+        # moving traffic: one train of vehicles per lane, all at the lane's speed (never colliding)
+        lanes = [(-(LANE_M / 2 + LANE_M * j), -1) for j in range(self.lanes)]
+        lanes += [(LANE_M / 2 + LANE_M * j, 1) for j in range(self.lanes) if abs(LANE_M / 2 + LANE_M * j - self.ego_d) > 0.1]
+        for d, direction in lanes:
+            v = rng.uniform(7, 14) * direction
+            s = lo - abs(v) * T if direction > 0 else lo
+            stop = hi if direction > 0 else hi + abs(v) * T
+            while s < stop:
+                cat = rng.choice(["car", "truck", "bus"], p=[0.8, 0.12, 0.08])
+                s += rng.uniform(25, 110)
+                self._new(rng, str(cat), Motion("lane", s0=s, d=d + rng.normal(0, 0.1), v=v, yaw=0 if v > 0 else np.pi))
+        if rng.random() < 0.6:  # a lead vehicle that keeps a varying gap ahead of the ego
+            self._new(rng, "car", Motion("follow", d=self.ego_d, gap=(rng.uniform(14, 25), rng.uniform(2, 6), rng.uniform(0.05, 0.2))))
+        # cyclists (bicycle + rider) and walkers in bands along the sidewalks
+        for side in (-1, 1):
+            v = rng.uniform(3.5, 6) * side
+            s = lo - abs(v) * T
+            while s < hi + abs(v) * T:
+                s += rng.uniform(60, 250)
+                d = side * (h + 1.1)
+                self._new(rng, "bicycle", Motion("lane", s0=s, d=d, v=v, yaw=0 if v > 0 else np.pi))
+                self._new(rng, "person", Motion("lane", s0=s, d=d, v=v, yaw=0 if v > 0 else np.pi)).tint2 = (-1, 0, 0)
+            for band, direction in ((2.3, 1), (3.4, -1)):
+                v = rng.uniform(1.0, 1.6) * direction
+                s = lo - abs(v) * T
+                while s < hi + abs(v) * T:
+                    s += rng.uniform(12, 60)
+                    self._new(rng, "person", Motion("lane", s0=s, d=side * (h + band), v=v, yaw=0 if v > 0 else np.pi))
+        self._crossings(rng)
+
+    def _crossings(self, rng) -> None:
+        """Pedestrians and blobs crossing the road ahead of the ego, timed to clear its lane."""
+        t = rng.uniform(0, 4)
+        t_axis = np.arange(len(self.ego_s)) * self.dt
+        h = self.half
+        while t < self.duration:
+            cat = "blob" if rng.random() < 0.3 else "person"
+            speed = rng.uniform(1.0, 1.6) if cat == "person" else rng.uniform(0.6, 1.4)
+            ahead = rng.uniform(20, 60)
+            s_c = self.ego_arc(t) + ahead
+            direction = rng.choice([-1, 1])
+            d0, d1 = -direction * (h + 2.0), direction * (h + 2.0)
+            walk_in = 8.0
+            t_cross = abs(d1 - d0) / speed
+            # the ego lane must be clear before the ego (or a lead car) gets within 12 m of s_c
+            t_reach = np.interp(s_c - 30.0, self.ego_s, t_axis) if s_c - 30 < self.ego_s[-1] else self.duration + 99
+            frac_ego = (self.ego_d + 1.5 - d0) / (d1 - d0) if direction > 0 else (d0 - (self.ego_d - 1.5)) / (d0 - d1)
+            t_start = min(t, t_reach - frac_ego * t_cross - walk_in / speed - 0.5)
+            if t_start > -walk_in / speed and self._lanes_clear(s_c, t_start + walk_in / speed, t_cross, d0, d1):
+                times = np.array([t_start, t_start + walk_in / speed, t_start + walk_in / speed + t_cross,
+                                  t_start + 2 * walk_in / speed + t_cross])
+                sign = rng.choice([-1, 1])
+                ss = np.array([s_c - sign * walk_in, s_c, s_c, s_c + sign * walk_in])
+                dd = np.array([d0, d0, d1, d1])
+                self._new(rng, cat, Motion("path", times=times, ss=ss, dd=dd))
+            t += rng.uniform(3, 9)
+
+    def _lanes_clear(self, s_c, t0, dur, d0, d1) -> bool:
+        for o in self.objects:
+            m = o.motion
+            if m.kind == "static" and abs(m.s0 - s_c) < 3.5 and min(d0, d1) < m.d < max(d0, d1):
+                return False
+            if m.kind in ("lane", "follow"):
+                for tt in np.linspace(t0, t0 + dur, 12):
+                    st = self.state(o, tt)
+                    if st is not None and abs(st[3] - s_c) < 8 + o.size[2] / 2 and min(d0, d1) <= m.d <= max(d0, d1):
+                        return False
+        return True
+
+    def state(self, o: Obj, t: float):
+        """(position (3,) map, yaw (map), distance walked, s) or None when the object is absent."""
+        m = o.motion
+        if m.kind == "static":
+            s, d, walked = m.s0, m.d, 0.0
+        elif m.kind == "lane":
+            s, d, walked = m.s0 + m.v * t, m.d, abs(m.v) * t
+        elif m.kind == "follow":
+            g = m.gap
+            s = self.ego_arc(t) + g[0] + g[1] * np.sin(g[2] * t)
+            d, walked = m.d, 0.0
+        else:
+            if t < m.times[0] or t > m.times[-1]:
+                return None
+            s = float(np.interp(t, m.times, m.ss))
+            d = float(np.interp(t, m.times, m.dd))
+            seg = min(np.searchsorted(m.times, t, side="right") - 1, len(m.times) - 2)
+            ds_, dd_ = m.ss[seg + 1] - m.ss[seg], m.dd[seg + 1] - m.dd[seg]
+            _, th, tan, nrm = self.road.frame(s)
+            vec = ds_ * tan + dd_ * nrm
+            yaw = float(np.arctan2(vec[0], vec[2]))
+            cum = np.concatenate([[0], np.cumsum(np.hypot(np.diff(m.ss), np.diff(m.dd)))])
+            walked = float(np.interp(t, m.times, cum))
+            return self.road.point(s, d), yaw, walked, s
+        if not (self.road.s[0] < s < self.road.s[-1]):
+            return None
+        _, th, _, _ = self.road.frame(s)
+        return self.road.point(s, d), float(th) + m.yaw, walked, s
+
+
+# --------------------------------------------------------------------------- object meshes
+# Local frame: origin on the ground below the centre, x right, y down, z forward.
+
+PIVOTS = {1: "hip", 2: "hip", 3: "shoulder", 4: "shoulder"}
+
+
+def person_faces(fl: FaceList, h: float, obj: int, shirt, trousers, skin, seated: bool = False) -> None:
+    I = np.eye(3)
+    lift = 0.35 if seated else 0.0
+    hip, sh = 0.48 * h + lift, 0.80 * h + lift
+    for side, part in ((-1, 1), (1, 2)):
+        fl.box([side * 0.09, -(hip / 2 + (lift / 2 if seated else 0)) , 0], (0.07, hip / 2 - (lift / 2 if seated else 0), 0.08), I,
+               {"all": "fabric"}, trousers, obj, part=part, offset=(side * 0.3, 0))
+        fl.box([side * 0.24, -(sh - 0.16 * h), 0], (0.045, 0.16 * h, 0.05), I, {"all": "fabric"}, shirt, obj,
+               part=part + 2, skip=())
+    fl.box([0, -(hip + sh) / 2, 0], (0.19, (sh - hip) / 2, 0.11), I, {"all": "fabric"}, shirt, obj, skip=())
+    fl.box([0, -(sh + 0.075 * h + 0.02), 0], (0.09, 0.075 * h, 0.1), I, {"all": "skin", "top": "fabric"}, skin, obj, skip=())
+
+
+def build_mesh(o: Obj, atlas: Atlas) -> tuple[np.ndarray, np.ndarray]:
+    fl = FaceList(atlas)
+    rng = np.random.default_rng(o.seed)
+    w, h, l = o.size
+    I = np.eye(3)
+    k = o.track_id
+    off = tuple(rng.uniform(0, 2, 2))
+    tint = o.tint
+    if o.category == "car":
+        fl.box([0, -(0.2 + 0.33), 0], (w / 2, 0.33, l / 2), I,
+               {"side": "car_side", "front": "car_front", "rear": "car_rear", "top": "paint"}, tint, k, offset=off)
+        ch = h - 0.86
+        fl.box([0, -(0.86 + ch / 2), -0.06 * l], (w / 2 - 0.08, ch / 2, 0.27 * l), I,
+               {"side": "car_windows", "front": "windshield", "rear": "windshield", "top": "paint"}, tint, k, offset=off)
+        for sx in (-1, 1):
+            for sz in (-1, 1):
+                fl.box([sx * (w / 2 - 0.1), -0.31, sz * 0.32 * l], (0.11, 0.31, 0.31), I, {"all": "tyre"}, (1, 1, 1), k)
+    elif o.category in ("truck", "bus"):
+        if o.category == "truck":
+            cab = 2.0
+            fl.box([0, -(0.4 + (h - 0.9) / 2), l / 2 - cab / 2], (w / 2 - 0.05, (h - 0.9) / 2, cab / 2), I,
+                   {"side": "car_windows", "front": "windshield", "rear": "paint", "top": "paint"}, tint, k, offset=off)
+            fl.box([0, -(0.5 + (h - 0.5) / 2), -cab / 2], (w / 2, (h - 0.5) / 2, (l - cab) / 2 - 0.1), I,
+                   {"all": "corrugated"}, o.tint2, k, offset=off)
+        else:
+            fl.box([0, -(0.3 + (h - 0.3) / 2), 0], (w / 2, (h - 0.3) / 2, l / 2), I,
+                   {"side": "bus_side", "front": "windshield", "rear": "car_rear", "top": "paint"}, tint, k, offset=off)
+        for sx in (-1, 1):
+            for zz in (0.35 * l, -0.3 * l, -0.4 * l):
+                fl.box([sx * (w / 2 - 0.15), -0.5, zz], (0.16, 0.5, 0.5), I, {"all": "tyre"}, (1, 1, 1), k)
+    elif o.category == "person":
+        skin = tuple(np.array([0.95, 0.75, 0.6]) * rng.uniform(0.45, 1.0))
+        person_faces(fl, h, k, tint, o.tint2 if o.tint2[0] >= 0 else (0.2, 0.2, 0.3), skin, seated=o.tint2[0] < 0)
+    elif o.category == "bicycle":
+        for zz in (-0.55, 0.55):
+            ang = np.arange(8) * np.pi / 4 + np.pi / 8
+            for sx in (-1, 1):
+                ring = np.stack([np.full(8, sx * 0.025), -0.33 + 0.33 * np.cos(ang), zz + 0.33 * np.sin(ang)], 1)
+                n = np.array([sx, 0.0, 0.0])
+                fl.add(ring, n, ring[0], np.array([0, 0, 1.0]), np.array([0, 1.0, 0]), "tyre", (1, 1, 1), k,
+                       offset=(-(zz - 0.33), 0), extent=(0.66, 0.66))
+        fl.box([0, -0.55, 0], (0.025, 0.03, 0.5), I, {"all": "paint"}, tint, k, skip=())
+        fl.box([0, -0.75, -0.25], (0.025, 0.2, 0.025), I, {"all": "paint"}, tint, k, skip=())
+        fl.box([0, -0.85, 0.45], (0.25, 0.02, 0.02), I, {"all": "metal"}, (0.3, 0.3, 0.3), k, skip=())
+    elif o.category == "cone":
+        ang = np.arange(8) * np.pi / 4
+        rb, rt = 0.16, 0.03
+        for i in range(8):
+            a0, a1 = ang[i], ang[(i + 1) % 8]
+            p = [[rb * np.cos(a0), -0.04, rb * np.sin(a0)], [rb * np.cos(a1), -0.04, rb * np.sin(a1)],
+                 [rt * np.cos(a1), -h, rt * np.sin(a1)], [rt * np.cos(a0), -h, rt * np.sin(a0)]]
+            p = np.array(p)
+            am = 0.5 * (a0 + a1)
+            n = np.array([np.cos(am) * h, (rb - rt), np.sin(am) * h])
+            n /= np.linalg.norm(n)
+            u = (p[1] - p[0]) / np.linalg.norm(p[1] - p[0])
+            v = (p[0] - p[3]) / np.linalg.norm(p[0] - p[3])
+            fl.add(p[[3, 2, 1, 0]], n, p[3] - u * 0.0, u, v, "cone", (1, 1, 1), k, extent=(2 * np.pi * rb / 8 * 8, h))
+        fl.box([0, -0.02, 0], (0.2, 0.02, 0.2), I, {"all": "paint"}, (0.1, 0.1, 0.1), k)
+    elif o.category == "bin":
+        fl.box([0, -(h - 0.08) / 2, 0], (w / 2 - 0.03, (h - 0.08) / 2, l / 2 - 0.03), I, {"all": "bin"}, tint, k, offset=off)
+        fl.box([0, -(h - 0.04), 0], (w / 2, 0.04, l / 2), I, {"all": "paint"}, tint, k, skip=())
+    elif o.category == "crate":
+        fl.box([0, -h / 2, 0], (w / 2, h / 2, l / 2), I, {"all": "crate"}, tuple(np.array(tint) * 0.3 + 0.7), k)
+    else:  # debris, blob: low-poly lumps
+        n = 14 if o.category == "debris" else 22
+        dirs = rng.normal(size=(n, 3))
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        rad = rng.uniform(0.8, 1.0, (n, 1)) if o.category == "debris" else rng.uniform(0.92, 1.0, (n, 1))
+        pts = dirs * rad * np.array([w / 2, h / 2, l / 2])
+        pts[:, 1] = np.minimum(pts[:, 1], 0.3 * h / 2)  # flat bottom
+        pts[:, 1] -= pts[:, 1].max()
+        fl.convex(pts, "stone" if o.category == "debris" else "mottled", tint, k, offset=off)
+    return fl.arrays()
+
+
+def transform_faces(verts: np.ndarray, rows: np.ndarray, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    v = verts @ R.T + t
+    r = rows.copy()
+    for c in (R_N, R_U, R_V):
+        r[:, c : c + 3] = rows[:, c : c + 3] @ R.T
+    r[:, R_O : R_O + 3] = rows[:, R_O : R_O + 3] @ R.T + t
+    return v, r
+
+
+def animate(o: Obj, verts, rows, walked: float):
+    """Swing legs and arms of people (and pedal for riders) by the distance travelled."""
+    if o.category != "person":
+        return verts, rows
+    h = o.size[1]
+    seated = o.tint2[0] < 0
+    stride = 1.4 if not seated else 4.0
+    phase = 2 * np.pi * walked / stride
+    amp = 0.45 if not seated else 0.5
+    lift = 0.35 if seated else 0.0
+    verts, rows = verts.copy(), rows.copy()
+    for part, sign, pivot_y in ((1, 1, 0.48 * h + lift), (2, -1, 0.48 * h + lift), (3, -1, 0.8 * h + lift), (4, 1, 0.8 * h + lift)):
+        sel = rows[:, R_PART] == part
+        a = sign * amp * np.sin(phase) * (0.6 if part > 2 else 1.0)
+        if seated and part <= 2:
+            a += -0.6
+        if seated and part > 2:
+            a = -0.9
+        R = rot_x(a)
+        p = np.array([0, -pivot_y, 0])
+        v, r = transform_faces(verts[sel] - p, rows[sel] - np.r_[np.zeros(3), p, np.zeros(len(rows[0]) - 6)], R, p)
+        verts[sel], rows[sel] = v, r
+    return verts, rows
+
+
+def frame_faces(scene: Scene, t: float):
+    """All faces near the ego at time t (map frame) and the visible-candidate objects' states."""
+    s_ego = scene.ego_arc(t)
+    key = scene.static_rows[:, R_SKEY]
+    sel = (key > s_ego - VIEW_BEHIND_M) & (key < s_ego + VIEW_AHEAD_M)
+    verts = [scene.static_verts[sel]]
+    rows = [scene.static_rows[sel]]
+    # terrain: one big square below the road, texture anchored at the map origin
+    c = scene.camera_map(t)[:3, 3]
+    g = np.array([round(c[0] / 16) * 16, GROUND_DROP_M, round(c[2] / 16) * 16])
+    r = 400.0
+    fl = FaceList(scene.atlas)
+    fl.add([g + [-r, 0, -r], g + [r, 0, -r], g + [r, 0, r], g + [-r, 0, r]], np.array([0, -1.0, 0]),
+           np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 0, 1.0]), "grass")
+    v, rw = fl.arrays()
+    verts.append(v)
+    rows.append(rw)
+    states = {}
+    for o in scene.objects:
+        m = o.motion
+        if m.kind in ("static", "lane", "path") and m.kind != "path":
+            s_guess = m.s0 + (m.v * t if m.kind == "lane" else 0.0)
+            if not (s_ego - VIEW_BEHIND_M - 20 < s_guess < s_ego + VIEW_AHEAD_M):
+                continue
+        st = scene.state(o, t)
+        if st is None or not (s_ego - VIEW_BEHIND_M - 20 < st[3] < s_ego + VIEW_AHEAD_M):
+            continue
+        if o.faces is None:
+            o.faces = build_mesh(o, scene.atlas)
+        pos, yaw, walked, _ = st
+        lv, lr = animate(o, *o.faces, walked)
+        v, rw = transform_faces(lv, lr, rot_y(yaw), pos)
+        verts.append(v)
+        rows.append(rw)
+        states[o.track_id] = (o, pos, yaw)
+    return np.concatenate(verts), np.concatenate(rows), states

@@ -1,0 +1,463 @@
+"""Procedural textures of the synthetic world, packed into one mip-mapped atlas.
+
+Every material is a small image ("tile") generated from seeded value noise and simple
+patterns (bricks, windows, slabs, lane markings). Tiles repeat (wrap) in both axes, so a
+face samples ``mod(s, w)``; each tile is stored with a wrapped border so bilinear lookups
+across the seam are right at every mip level. Levels are box-filtered per tile, so a far
+surface shows a blurred texture instead of aliasing noise (which would differ between the
+left and right views and break stereo matching the way no real image does).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+NLEV = 4  # ours: mip levels (1, 1/2, 1/4, 1/8)
+PAD_COARSE = 2  # ours: wrapped border at the coarsest level, texels
+PAD = PAD_COARSE * 2 ** (NLEV - 1)  # border at level 0, texels
+ATLAS_W = 2048  # ours: atlas width at level 0, texels
+
+
+@dataclass(frozen=True)
+class Tile:
+    """Where a material lies in the atlas (level-0 texels) and how large it is in metres."""
+
+    x0: int
+    y0: int
+    w: int
+    h: int
+    metres_w: float  # physical extent of one repeat; 0 = stretched over the whole face
+    metres_h: float
+
+
+@dataclass
+class Atlas:
+    levels: list[np.ndarray]  # uint8 (H/2^L, W/2^L, 3)
+    tiles: dict[str, Tile]
+
+
+# --------------------------------------------------------------------------- noise
+
+
+def value_noise(rng: np.random.Generator, h: int, w: int, cells: tuple[int, int]) -> np.ndarray:
+    """Periodic smooth noise in [0, 1]: a random grid of ``cells``, wrapped and resized cubically."""
+    cy, cx = max(1, cells[0]), max(1, cells[1])
+    g = rng.random((cy, cx), dtype=np.float32)
+    g = np.pad(g, 2, mode="wrap")
+    big = cv2.resize(g, ((cx + 4) * w // cx, (cy + 4) * h // cy), interpolation=cv2.INTER_CUBIC)
+    oy, ox = 2 * h // cy, 2 * w // cx
+    return big[oy : oy + h, ox : ox + w]
+
+
+def fbm(rng: np.random.Generator, h: int, w: int, cells: int, octaves: int = 5, gain: float = 0.5) -> np.ndarray:
+    """Multi-octave value noise, zero mean, roughly unit range. ``cells`` is the coarsest grid along w."""
+    out = np.zeros((h, w), np.float32)
+    amp, total = 1.0, 0.0
+    cx = cells
+    for _ in range(octaves):
+        cy = max(1, round(cx * h / w))
+        if cx > w or cy > h:
+            break
+        out += amp * (value_noise(rng, h, w, (cy, cx)) - 0.5)
+        total += amp
+        amp *= gain
+        cx *= 2
+    return out / total * 2.0
+
+
+def speckle(rng: np.random.Generator, h: int, w: int, density: float) -> np.ndarray:
+    """Sparse ±1 single-texel dots (asphalt grain, gravel), zero elsewhere."""
+    r = rng.random((h, w), dtype=np.float32)
+    s = rng.random((h, w), dtype=np.float32) * 2 - 1
+    return np.where(r < density, s, 0).astype(np.float32)
+
+
+def _rgb(grey: np.ndarray, colour: tuple[float, float, float]) -> np.ndarray:
+    return grey[..., None] * np.asarray(colour, np.float32)[None, None, :]
+
+
+# --------------------------------------------------------------------------- materials
+# Each generator returns an (h, w, 3) float32 image in [0, 1]; texture row 0 is the top of
+# a vertical face (texture v grows downwards like camera y).
+
+
+def asphalt(rng, h, w) -> np.ndarray:
+    g = 0.34 + 0.06 * fbm(rng, h, w, 4, 6) + 0.05 * fbm(rng, h, w, 64, 3) + 0.10 * speckle(rng, h, w, 0.12)
+    g -= 0.05 * np.clip(fbm(rng, h, w, 3, 3) - 0.3, 0, 1)  # patches and stains
+    return _rgb(g, (1.0, 1.0, 1.03))
+
+
+def road(rng, h, w, lanes_per_dir: int, lane_m: float, parking_m: float, period_m: float) -> np.ndarray:
+    """Asphalt with lane markings; x runs along the road (one dash period), y across it."""
+    img = asphalt(rng, h, w)
+    width_m = 2 * (lanes_per_dir * lane_m + parking_m)
+    ty = (np.arange(h) + 0.5) / h * width_m - width_m / 2  # lateral offset, metres (+ = right)
+    sx = (np.arange(w) + 0.5) / w * period_m
+    dash = sx < period_m / 3.0  # ours: dash a third of the period (German urban 3 m / 6 m)
+    paint = np.zeros((h, w), np.float32)
+
+    def line(offset_m: float, half_w: float, dashed: bool):
+        rows = np.abs(ty - offset_m) < half_w
+        paint[rows] = np.where(dash, 1.0, 0.0)[None, :] if dashed else 1.0
+
+    if lanes_per_dir == 1:
+        line(0.0, 0.06, True)
+    else:  # double solid centre line
+        line(-0.12, 0.05, False)
+        line(0.12, 0.05, False)
+    for j in range(1, lanes_per_dir):
+        line(j * lane_m, 0.06, True)
+        line(-j * lane_m, 0.06, True)
+    line(lanes_per_dir * lane_m, 0.08, False)
+    line(-lanes_per_dir * lane_m, 0.08, False)
+    wear = np.clip(0.75 + 0.5 * fbm(rng, h, w, 8, 4), 0.3, 1.0)
+    paint *= wear
+    return img * (1 - paint[..., None]) + 0.82 * paint[..., None]
+
+
+def grass(rng, h, w) -> np.ndarray:
+    g = 0.55 + 0.35 * fbm(rng, h, w, 6, 6) + 0.15 * speckle(rng, h, w, 0.3)
+    dirt = np.clip(fbm(rng, h, w, 3, 3) * 2, 0, 1)[..., None]
+    green = _rgb(g, (0.36, 0.45, 0.20))
+    brown = _rgb(g, (0.45, 0.40, 0.30))
+    return green * (1 - dirt) + brown * dirt
+
+
+def slabs(rng, h, w, n_x: int, n_y: int, colour=(0.62, 0.60, 0.57)) -> np.ndarray:
+    """Paving slabs: per-slab brightness, joints, fine grain."""
+    per = 1.0 + 0.10 * (rng.random((n_y, n_x), dtype=np.float32) - 0.5) * 2
+    g = cv2.resize(per, (w, h), interpolation=cv2.INTER_NEAREST)
+    g = g * (0.9 + 0.12 * fbm(rng, h, w, 16, 4)) + 0.08 * speckle(rng, h, w, 0.1)
+    jy = (np.arange(h) % (h // n_y)) < 2
+    jx = (np.arange(w) % (w // n_x)) < 2
+    g[jy, :] *= 0.7
+    g[:, jx] *= 0.7
+    return _rgb(g, colour)
+
+
+def concrete(rng, h, w) -> np.ndarray:
+    g = 0.68 + 0.10 * fbm(rng, h, w, 4, 6) + 0.05 * speckle(rng, h, w, 0.2)
+    stain = np.clip(fbm(rng, h, w, 3, 4), 0, 1)
+    g -= 0.15 * stain * np.linspace(0.3, 1.0, h, dtype=np.float32)[:, None]  # run-off towards the ground
+    return _rgb(g, (0.95, 0.94, 0.92))
+
+
+def bricks(rng, h, w, brick_w: int, brick_h: int, colour=(0.62, 0.33, 0.25)) -> np.ndarray:
+    ny, nx = h // brick_h, w // brick_w
+    per = 0.85 + 0.3 * rng.random((ny, nx * 2), dtype=np.float32)
+    img = np.zeros((h, w), np.float32)
+    yy, xx = np.mgrid[0:h, 0:w]
+    row = yy // brick_h
+    shift = (row % 2) * (brick_w // 2)
+    col = ((xx + shift) // brick_w) % nx
+    img = per[row % ny, col]
+    mortar = ((yy % brick_h) < 1) | (((xx + shift) % brick_w) < 1)
+    img = img * (0.92 + 0.10 * fbm(rng, h, w, 8, 4))
+    out = _rgb(img, colour)
+    out[mortar] = (0.72, 0.70, 0.66)
+    return out
+
+
+def window_bay(rng, wall: np.ndarray, win: tuple[int, int, int, int], frame_colour=(0.85, 0.85, 0.82)) -> np.ndarray:
+    """Paste one window (x, y, w, h texels) with a frame, sill, glass reflections on a wall tile."""
+    out = wall.copy()
+    x, y, ww, hh = win
+    f = max(2, ww // 16)
+    out[y - f : y + hh + f, x - f : x + ww + f] = frame_colour
+    gh, gw = hh, ww
+    glass = 0.12 + 0.18 * np.linspace(1, 0, gh, dtype=np.float32)[:, None] + 0.12 * fbm(rng, gh, gw, 2, 3)
+    glass = _rgb(np.clip(glass, 0.02, 1), (0.75, 0.85, 1.0))
+    glass[:, gw // 2 - f // 2 : gw // 2 + f // 2 + 1] = frame_colour  # mullion
+    out[y : y + hh, x : x + ww] = glass
+    out[y + hh + f : y + hh + 2 * f, x - 2 * f : x + ww + 2 * f] = (0.55, 0.55, 0.55)  # sill
+    return out
+
+
+def planks(rng, h, w, n: int, colour=(0.55, 0.40, 0.26), vertical: bool = True) -> np.ndarray:
+    base = (0.8 + 0.25 * rng.random(n, dtype=np.float32)).repeat(int(np.ceil((w if vertical else h) / n)))
+    grain = fbm(rng, h, w, 2, 4) if vertical else fbm(rng, h, w, 24, 4)
+    streak = value_noise(rng, h, w, (max(1, h // 4), max(1, w // 64))) if vertical else value_noise(rng, h, w, (max(1, h // 64), max(1, w // 4)))
+    if vertical:
+        g = base[None, :w] * (0.85 + 0.15 * grain + 0.15 * (streak - 0.5))
+        gap = (np.arange(w) % int(np.ceil(w / n))) < 2
+        g[:, gap] *= 0.35
+    else:
+        g = base[:h, None] * (0.85 + 0.15 * grain + 0.15 * (streak - 0.5))
+        gap = (np.arange(h) % int(np.ceil(h / n))) < 2
+        g[gap, :] *= 0.35
+    return _rgb(g, colour)
+
+
+def foliage(rng, h, w) -> np.ndarray:
+    g = 0.5 + 0.55 * fbm(rng, h, w, 8, 5) + 0.25 * speckle(rng, h, w, 0.35)
+    holes = fbm(rng, h, w, 16, 3) < -0.35
+    g = np.where(holes, 0.15, g)
+    return _rgb(np.clip(g, 0.05, 1.2), (0.30, 0.42, 0.17))
+
+
+def bark(rng, h, w) -> np.ndarray:
+    streak = value_noise(rng, h, w, (4, 12))
+    g = 0.45 + 0.25 * (streak - 0.5) + 0.15 * fbm(rng, h, w, 8, 4)
+    return _rgb(g, (0.45, 0.36, 0.28))
+
+
+def paint(rng, h, w) -> np.ndarray:
+    g = 0.85 + 0.06 * fbm(rng, h, w, 3, 4) + 0.04 * speckle(rng, h, w, 0.05)
+    return _rgb(g, (1, 1, 1))
+
+
+def car_side(rng, h, w) -> np.ndarray:
+    """Body side stretched over the face: door seams, handles, dark sills, wheel-arch shadow."""
+    img = paint(rng, h, w)
+    for fx in (0.32, 0.55, 0.78):
+        img[:, int(fx * w) : int(fx * w) + 2] *= 0.45
+    for fx in (0.45, 0.70):
+        img[int(0.22 * h) : int(0.32 * h), int(fx * w) : int(fx * w) + w // 28] *= 0.5
+    img[int(0.82 * h) :, :] *= 0.35
+    img[: int(0.06 * h), :] *= 1.15
+    yy, xx = np.mgrid[0:h, 0:w]
+    for cx in (0.18, 0.82):
+        arch = ((xx - cx * w) / (0.11 * w)) ** 2 + ((yy - h) / (0.62 * h)) ** 2 < 1
+        img[arch] = 0.08
+    return img
+
+
+def car_end(rng, h, w, front: bool) -> np.ndarray:
+    img = paint(rng, h, w)
+    img[int(0.8 * h) :, :] *= 0.35
+    light = (1.0, 0.95, 0.8) if front else (0.8, 0.08, 0.05)
+    for x0 in (0.05, 0.77):
+        img[int(0.2 * h) : int(0.42 * h), int(x0 * w) : int((x0 + 0.18) * w)] = light
+    if front:
+        img[int(0.42 * h) : int(0.7 * h), int(0.3 * w) : int(0.7 * w)] = (0.08 + 0.1 * (np.arange(int(0.7 * w) - int(0.3 * w)) % 6 < 2))[None, :, None]
+    else:
+        img[int(0.45 * h) : int(0.65 * h), int(0.38 * w) : int(0.62 * w)] = (0.92, 0.92, 0.9)
+        img[int(0.52 * h) : int(0.58 * h), int(0.41 * w) : int(0.59 * w)] = 0.1
+    return img
+
+
+def glass_panes(rng, h, w, n_panes: int, pillar: float = 0.08) -> np.ndarray:
+    """Window band: dark reflective panes separated by light pillars (painted, so tinted)."""
+    img = paint(rng, h, w)
+    glass = 0.10 + 0.20 * np.linspace(1, 0.2, h, dtype=np.float32)[:, None] + 0.10 * fbm(rng, h, w, 2, 3)
+    glass = _rgb(glass, (0.7, 0.8, 0.95))
+    x = (np.arange(w) + 0.5) / w * n_panes
+    inside = np.abs(x - np.floor(x) - 0.5) < 0.5 - pillar / 2
+    rows = (np.arange(h) > 0.1 * h) & (np.arange(h) < 0.9 * h)
+    m = rows[:, None] & inside[None, :]
+    img[m] = glass[m]
+    return img
+
+
+def tyre(rng, h, w) -> np.ndarray:
+    yy, xx = np.mgrid[0:h, 0:w]
+    r = np.hypot((xx + 0.5) / w - 0.5, (yy + 0.5) / h - 0.5) * 2
+    g = 0.10 + 0.05 * fbm(rng, h, w, 4, 3)
+    g = np.where(r < 0.6, 0.55 + 0.1 * np.cos(np.arctan2(yy - h / 2, xx - w / 2) * 5), g)
+    g = np.where(r < 0.15, 0.3, g)
+    return _rgb(g.astype(np.float32), (1, 1, 1))
+
+
+def corrugated(rng, h, w, period: int) -> np.ndarray:
+    g = 0.80 + 0.10 * np.sin(np.arange(w) * 2 * np.pi / period)[None, :] + 0.06 * fbm(rng, h, w, 4, 4)
+    g += 0.08 * speckle(rng, h, w, 0.02)
+    return _rgb(g.astype(np.float32), (1, 1, 1))
+
+
+def fabric(rng, h, w) -> np.ndarray:
+    g = 0.75 + 0.18 * fbm(rng, h, w, 3, 5) + 0.06 * speckle(rng, h, w, 0.3)
+    return _rgb(g, (1, 1, 1))
+
+
+def cone_bands(rng, h, w) -> np.ndarray:
+    g = 0.9 + 0.06 * fbm(rng, h, w, 2, 3)
+    img = _rgb(g, (1.0, 0.42, 0.08))
+    yy = (np.arange(h) + 0.5) / h
+    white = ((yy > 0.25) & (yy < 0.38)) | ((yy > 0.55) & (yy < 0.66))
+    img[white] = (0.93, 0.93, 0.90)
+    return img
+
+
+def stone(rng, h, w) -> np.ndarray:
+    g = 0.55 + 0.25 * fbm(rng, h, w, 4, 6) + 0.12 * speckle(rng, h, w, 0.25)
+    veins = np.abs(fbm(rng, h, w, 3, 4)) < 0.05
+    g[veins] *= 0.6
+    return _rgb(g, (1.0, 0.97, 0.92))
+
+
+def mottled(rng, h, w) -> np.ndarray:
+    spots = fbm(rng, h, w, 6, 4)
+    g = 0.65 + 0.15 * fbm(rng, h, w, 24, 3) + 0.1 * speckle(rng, h, w, 0.4)
+    g = np.where(spots > 0.2, g * 0.45, g)
+    return _rgb(g, (1, 1, 1))
+
+
+def sky_clouds(rng, h, w) -> np.ndarray:
+    """Cloud cover in [0, 1] over azimuth (x, periodic) × elevation (y, row 0 = zenith)."""
+    c = fbm(rng, h, w, 8, 6, 0.55)
+    return np.clip((c + 0.1) * 1.6, 0, 1)[..., None].repeat(3, axis=2).astype(np.float32)
+
+
+# --------------------------------------------------------------------------- the atlas
+
+# name → (texels w, texels h, metres w, metres h); metres 0 means stretched over the face.
+ROAD_PERIOD_M = 12.0  # ours: lane-marking dash period along the road
+LANE_M = 3.5  # ours: lane width
+PARKING_M = 2.2  # ours: parking strip beside the outer lane
+
+
+def road_width_m(lanes_per_dir: int) -> float:
+    return 2 * (lanes_per_dir * LANE_M + PARKING_M)
+
+
+def _tile_specs() -> dict[str, tuple[int, int, float, float]]:
+    d = 64  # ours: road and sidewalk texels per metre (≈1.5 cm, finer than a pixel beyond 8 m)
+    specs = {
+        "road1": (768, _mult8(road_width_m(1) * d), ROAD_PERIOD_M, road_width_m(1)),
+        "road2": (768, _mult8(road_width_m(2) * d), ROAD_PERIOD_M, road_width_m(2)),
+        "sidewalk": (192, 192, 3.0, 3.0),
+        "concrete": (192, 192, 4.0, 4.0),
+        "grass": (512, 512, 16.0, 16.0),
+        "facade_brick": (144, 152, 3.0, 3.2),
+        "facade_plaster": (144, 152, 3.0, 3.2),
+        "facade_glass": (144, 152, 3.0, 3.2),
+        "facade_stone": (144, 152, 3.0, 3.2),
+        "fence": (256, 64, 2.0, 1.0),
+        "bark": (64, 128, 0.5, 1.0),
+        "foliage": (192, 192, 2.0, 2.0),
+        "metal": (64, 64, 1.0, 1.0),
+        "paint": (128, 128, 2.0, 2.0),
+        "car_side": (256, 64, 0, 0),
+        "car_front": (128, 64, 0, 0),
+        "car_rear": (128, 64, 0, 0),
+        "car_windows": (256, 64, 0, 0),
+        "windshield": (128, 64, 0, 0),
+        "tyre": (64, 64, 0, 0),
+        "corrugated": (128, 128, 1.0, 1.0),
+        "bus_side": (128, 192, 2.0, 3.0),
+        "fabric": (64, 64, 0.5, 0.5),
+        "skin": (64, 64, 0.5, 0.5),
+        "cone": (64, 128, 0, 0),
+        "bin": (64, 128, 0.5, 1.0),
+        "crate": (128, 128, 0, 0),
+        "stone": (96, 96, 1.0, 1.0),
+        "mottled": (96, 96, 1.0, 1.0),
+        "clouds": (1024, 128, 0, 0),
+    }
+    return specs
+
+
+def _mult8(x: float) -> int:
+    return int(round(x / 8.0)) * 8
+
+
+def make_tile(name: str, rng: np.random.Generator, w: int, h: int) -> np.ndarray:
+    if name == "road1":
+        return road(rng, h, w, 1, LANE_M, PARKING_M, ROAD_PERIOD_M)
+    if name == "road2":
+        return road(rng, h, w, 2, LANE_M, PARKING_M, ROAD_PERIOD_M)
+    if name == "sidewalk":
+        return slabs(rng, h, w, 6, 6)
+    if name == "concrete":
+        return concrete(rng, h, w)
+    if name == "grass":
+        return grass(rng, h, w)
+    if name == "facade_brick":
+        return window_bay(rng, bricks(rng, h, w, 12, 4), (38, 30, 68, 72))
+    if name == "facade_plaster":
+        wall = _rgb(0.8 + 0.08 * fbm(rng, h, w, 4, 5) + 0.04 * speckle(rng, h, w, 0.2), (1, 1, 1))
+        return window_bay(rng, wall, (44, 36, 56, 70), (0.95, 0.95, 0.95))
+    if name == "facade_glass":
+        wall = _rgb(0.55 + 0.05 * fbm(rng, h, w, 4, 4), (0.9, 0.9, 0.92))
+        return window_bay(rng, wall, (10, 14, 124, 124), (0.5, 0.5, 0.52))
+    if name == "facade_stone":
+        return window_bay(rng, bricks(rng, h, w, 36, 18, (0.7, 0.68, 0.62)), (40, 34, 64, 76))
+    if name == "fence":
+        return planks(rng, h, w, 20)
+    if name == "bark":
+        return bark(rng, h, w)
+    if name == "foliage":
+        return foliage(rng, h, w)
+    if name == "metal":
+        return _rgb(0.6 + 0.08 * fbm(rng, h, w, 4, 4), (0.9, 0.92, 0.95))
+    if name == "paint":
+        return paint(rng, h, w)
+    if name == "car_side":
+        return car_side(rng, h, w)
+    if name == "car_front":
+        return car_end(rng, h, w, True)
+    if name == "car_rear":
+        return car_end(rng, h, w, False)
+    if name == "car_windows":
+        return glass_panes(rng, h, w, 2, 0.1)
+    if name == "windshield":
+        return glass_panes(rng, h, w, 1, 0.1)
+    if name == "tyre":
+        return tyre(rng, h, w)
+    if name == "corrugated":
+        return corrugated(rng, h, w, 16)
+    if name == "bus_side":
+        body = paint(rng, h, w)
+        band = glass_panes(rng, h // 2, w, 1, 0.12)
+        body[h // 8 : h // 8 + h // 2] = band
+        return body
+    if name == "fabric":
+        return fabric(rng, h, w)
+    if name == "skin":
+        return _rgb(0.85 + 0.05 * fbm(rng, h, w, 4, 3), (1, 1, 1))
+    if name == "cone":
+        return cone_bands(rng, h, w)
+    if name == "bin":
+        return corrugated(rng, h, w, 8)
+    if name == "crate":
+        img = planks(rng, h, w, 5, (0.72, 0.58, 0.38), vertical=False)
+        img[:, :8] *= 0.8
+        img[:, -8:] *= 0.8
+        return img
+    if name == "stone":
+        return stone(rng, h, w)
+    if name == "mottled":
+        return mottled(rng, h, w)
+    if name == "clouds":
+        return sky_clouds(rng, h, w)
+    raise KeyError(name)
+
+
+def build_atlas(seed: int) -> Atlas:
+    """Generate every material tile from ``seed`` and pack them into a mip-mapped atlas."""
+    specs = _tile_specs()
+    tiles_img: dict[str, np.ndarray] = {}
+    for i, (name, (w, h, _, _)) in enumerate(sorted(specs.items())):
+        rng = np.random.default_rng([seed, i, 7771])
+        img = make_tile(name, rng, w, h)
+        assert img.shape == (h, w, 3), (name, img.shape)
+        tiles_img[name] = np.clip(img, 0, 1).astype(np.float32)
+    # shelf packing, tallest first
+    order = sorted(specs, key=lambda n: (-specs[n][1], n))
+    x = y = shelf_h = 0
+    pos: dict[str, tuple[int, int]] = {}
+    for name in order:
+        w, h = specs[name][0] + 2 * PAD, specs[name][1] + 2 * PAD
+        if x + w > ATLAS_W:
+            x, y, shelf_h = 0, y + shelf_h, 0
+        pos[name] = (x, y)
+        x += w
+        shelf_h = max(shelf_h, h)
+    total_h = _mult8(y + shelf_h + 8)
+    levels = []
+    for lev in range(NLEV):
+        f = 2**lev
+        atlas = np.zeros((total_h // f, ATLAS_W // f, 3), np.uint8)
+        pad = PAD // f
+        for name, (sx, sy) in pos.items():
+            img = tiles_img[name]
+            if lev:
+                img = cv2.resize(img, (img.shape[1] // f, img.shape[0] // f), interpolation=cv2.INTER_AREA)
+            img = np.pad(img, ((pad, pad), (pad, pad), (0, 0)), mode="wrap")
+            atlas[sy // f : sy // f + img.shape[0], sx // f : sx // f + img.shape[1]] = np.round(img * 255)
+        levels.append(atlas)
+    tiles = {n: Tile(pos[n][0] + PAD, pos[n][1] + PAD, specs[n][0], specs[n][1], specs[n][2], specs[n][3]) for n in specs}
+    return Atlas(levels, tiles)
