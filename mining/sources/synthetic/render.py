@@ -58,29 +58,39 @@ def rasterize(cam: Camera, verts: np.ndarray, rows: np.ndarray, R: np.ndarray, t
     ids = np.full((H, W), -1, np.int32)
     invz = np.zeros((H, W), np.float32)
     # inverse depth plane: 1/z = (n·r)/dp with r = ((u-cx)/fx, (v-cy)/fy, 1)
-    ia = n[:, 0] / cam.fx / dp
-    ib = n[:, 1] / cam.fy / dp
-    ic = (n[:, 2] - n[:, 0] * cam.cx / cam.fx - n[:, 1] * cam.cy / cam.fy) / dp
-    for f in np.nonzero(keep)[0]:
-        nv = int(rows[f, R_NV])
+    ia = (n[:, 0] / cam.fx / dp).astype(np.float32)
+    ib = (n[:, 1] / cam.fy / dp).astype(np.float32)
+    ic = ((n[:, 2] - n[:, 0] * cam.cx / cam.fx - n[:, 1] * cam.cy / cam.fy) / dp).astype(np.float32)
+    bx0 = np.floor(px.min(1)).clip(0, W).astype(int)
+    by0 = np.floor(py.min(1)).clip(0, H).astype(int)
+    bx1 = (np.ceil(px.max(1)) + 1).clip(0, W).astype(int)
+    by1 = (np.ceil(py.max(1)) + 1).clip(0, H).astype(int)
+    pq = np.round(np.stack([px, py], 2).clip(-1e5, 1e5) * (1 << SUB)).astype(np.int32)
+    nvs = rows[:, R_NV].astype(int)
+    for f in np.nonzero(keep)[0].tolist():
+        nv = nvs[f]
         if allin[f]:
-            p = np.stack([px[f, :nv], py[f, :nv]], 1)
+            x0, y0, x1, y1 = bx0[f], by0[f], bx1[f], by1[f]
+            if x1 <= x0 or y1 <= y0:
+                continue
+            q = pq[f, :nv] - ((x0 << SUB), (y0 << SUB))
         else:
             poly = _clip_near(V[f, :nv])
             if len(poly) < 3:
                 continue
             p = np.stack([cam.fx * poly[:, 0] / poly[:, 2] + cam.cx, cam.fy * poly[:, 1] / poly[:, 2] + cam.cy], 1)
-        x0, y0 = max(0, int(np.floor(p[:, 0].min()))), max(0, int(np.floor(p[:, 1].min())))
-        x1, y1 = min(W, int(np.ceil(p[:, 0].max())) + 1), min(H, int(np.ceil(p[:, 1].max())) + 1)
-        if x1 <= x0 or y1 <= y0:
-            continue
+            x0, y0 = max(0, int(np.floor(p[:, 0].min()))), max(0, int(np.floor(p[:, 1].min())))
+            x1, y1 = min(W, int(np.ceil(p[:, 0].max())) + 1), min(H, int(np.ceil(p[:, 1].max())) + 1)
+            if x1 <= x0 or y1 <= y0:
+                continue
+            q = np.round((p - [x0, y0]) * (1 << SUB)).astype(np.int32)
         mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
-        q = np.round((p - [x0, y0]) * (1 << SUB)).astype(np.int32)
         cv2.fillConvexPoly(mask, q, 1, lineType=cv2.LINE_8, shift=SUB)
         iz = (ia[f] * cam.u[x0:x1])[None, :] + (ib[f] * cam.v[y0:y1] + ic[f])[:, None]
         zr = invz[y0:y1, x0:x1]
-        win = (mask > 0) & (iz > zr)
-        np.copyto(zr, iz.astype(np.float32), where=win)
+        win = iz > zr
+        win &= mask.view(bool)
+        np.copyto(zr, iz, where=win)
         np.copyto(ids[y0:y1, x0:x1], f, where=win)
     return ids, invz, V, n
 
@@ -101,37 +111,35 @@ def shade(cam: Camera, atlas: Atlas, ids: np.ndarray, invz: np.ndarray, rows: np
         coef[:F, 4 * k + 3] = -np.einsum("ij,ij->i", Uc, O)
     coef[:F, 8:12] = rows[:, R_TILE : R_TILE + 4]
     coef[F, 10:12] = 1
-    idx = np.where(ids < 0, F, ids).ravel()
-    valid = ids.ravel() >= 0
-    g = coef[idx]
-    z = np.where(valid, 1.0 / np.maximum(invz.ravel(), 1e-9), 0).astype(np.float32)
-    uu = np.broadcast_to(cam.u[None, :], (H, W)).ravel()
-    vv = np.broadcast_to(cam.v[:, None], (H, W)).ravel()
-    s = (g[:, 0] * uu + g[:, 1] * vv + g[:, 2]) * z + g[:, 3]
-    tt = (g[:, 4] * uu + g[:, 5] * vv + g[:, 6]) * z + g[:, 7]
+    idx = np.where(ids < 0, F, ids)
+    valid = ids >= 0
+    cT = np.ascontiguousarray(coef.T)
+    g = [np.take(cT[k], idx) for k in range(12)]
+    z = np.where(valid, 1.0 / np.maximum(invz, 1e-9), 0).astype(np.float32)
+    uu, vv = cam.u[None, :], cam.v[:, None]
+    S = (g[0] * uu + g[1] * vv + g[2]) * z + g[3]
+    T = (g[4] * uu + g[5] * vv + g[6]) * z + g[7]
     # texel footprint per pixel (min of forward/backward differences, so face borders stay sharp)
-    S, T = s.reshape(H, W), tt.reshape(H, W)
-    fp = np.maximum(_footprint(S, T, 1), _footprint(S, T, 0))
-    lev = np.clip(np.log2(np.maximum(fp, 1e-6)) - 0.3, 0, NLEV - 1 - 1e-4).ravel()
-    tx = g[:, 8] + np.mod(s, g[:, 10])
-    ty = g[:, 9] + np.mod(tt, g[:, 11])
-    out = np.zeros((H * W, 3), np.float32)
-    L0 = np.floor(lev).astype(np.int8)
-    frac = (lev - L0).astype(np.float32)
+    # geometric mean of the u and v footprints: a compromise for surfaces seen at grazing
+    # angles (the road), sharp across, slightly aliased along the viewing direction
+    fp = _footprint(S, T, 1) * _footprint(S, T, 0)
+    lev = np.clip(0.5 * np.log2(np.maximum(fp, 1e-12)) - 0.2, 0, NLEV - 1)
+    tx = g[8] + (S - np.floor(S / g[10]) * g[10])
+    ty = g[9] + (T - np.floor(T / g[11]) * g[11])
+    out = np.zeros((H, W, 3), np.float32)
+    top = float(lev[valid].max()) if valid.any() else 0.0
     for L in range(NLEV):
-        for which, wgt in ((L0 == L, 1 - frac), (L0 == L - 1, frac)):
-            sel = np.nonzero(which & valid)[0]
-            if len(sel) == 0:
-                continue
-            f = float(2**L)
-            mx = tx[sel] / f - 0.5
-            my = ty[sel] / f - 0.5
-            col = _remap(atlas.levels[L], mx, my)
-            out[sel] += col * wgt[sel, None]
-    light_px = np.concatenate([light, np.zeros((1, 3), np.float32)])[idx]
-    img = out * light_px
-    img[~valid] = sky.reshape(-1, 3)[~valid]
-    return img.reshape(H, W, 3)
+        if L > top + 1:
+            break
+        wgt = np.clip(1 - np.abs(lev - L), 0, 1)
+        f = float(2**L)
+        col = cv2.remap(atlas.levels[L], tx / f - 0.5, ty / f - 0.5, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        out += col * (wgt * (1.0 / 255.0))[..., None]
+    lt = np.concatenate([light, np.zeros((1, 3), np.float32)])
+    for ch in range(3):
+        out[..., ch] *= np.take(lt[:, ch], idx)
+    out[~valid] = sky[~valid]
+    return out
 
 
 def _footprint(S: np.ndarray, T: np.ndarray, axis: int) -> np.ndarray:
@@ -144,13 +152,3 @@ def _footprint(S: np.ndarray, T: np.ndarray, axis: int) -> np.ndarray:
     return np.minimum(a, b)
 
 
-def _remap(img: np.ndarray, mx: np.ndarray, my: np.ndarray) -> np.ndarray:
-    """Bilinear lookup of scattered points (OpenCV remap needs maps below 32767 per side)."""
-    n = len(mx)
-    cols = 1024
-    rows = -(-n // cols)
-    X = np.zeros(rows * cols, np.float32)
-    Y = np.zeros(rows * cols, np.float32)
-    X[:n], Y[:n] = mx, my
-    r = cv2.remap(img, X.reshape(rows, cols), Y.reshape(rows, cols), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return r.reshape(-1, 3)[:n].astype(np.float32) * (1.0 / 255.0)

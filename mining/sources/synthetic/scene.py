@@ -27,7 +27,7 @@ SIDEWALK_M = 4.5  # ours: sidewalk width
 CURB_M = 0.12  # ours: curb height
 GROUND_DROP_M = 0.02  # ours: the terrain plane lies this far below the road (no z-fighting)
 MAX_SPEED = 15.0  # ours: ego speed limit, m/s
-VIEW_AHEAD_M = 170.0  # ours: structure and objects further along the road are not drawn
+VIEW_AHEAD_M = 140.0  # ours: structure and objects further along the road are not drawn
 VIEW_BEHIND_M = 25.0  # ours: ... nor further behind the camera
 MAXV = 8  # vertices per face (padded)
 KNOWN = {"car": True, "truck": True, "bus": True, "person": True, "bicycle": True,
@@ -394,7 +394,7 @@ class Scene:
         cen = base + np.array([0, -trunk_h - hc / 2, 0])
         ang = np.arange(6) * np.pi / 3 + rng.uniform(0, 1)
         ring = np.stack([np.cos(ang) * r, np.zeros(6), np.sin(ang) * r], 1) * rng.uniform(0.85, 1.15, (6, 1))
-        pts = np.concatenate([cen + ring, cen + 0.55 * ring + [0, -hc / 2, 0], cen + 0.55 * ring + [0, hc / 2, 0]])
+        pts = np.concatenate([cen + ring, cen + [[0, -hc / 2, 0], [0, hc / 2, 0]]])  # hexagonal bipyramid
         tint = tuple(rng.uniform(0.8, 1.1, 3))
         start = len(fl.rows)
         fl.convex(pts, "foliage", tint, offset=tuple(rng.uniform(0, 2, 2)))

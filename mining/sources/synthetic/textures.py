@@ -85,7 +85,7 @@ def _rgb(grey: np.ndarray, colour: tuple[float, float, float]) -> np.ndarray:
 
 
 def asphalt(rng, h, w) -> np.ndarray:
-    g = 0.34 + 0.06 * fbm(rng, h, w, 4, 6) + 0.05 * fbm(rng, h, w, 64, 3) + 0.10 * speckle(rng, h, w, 0.12)
+    g = 0.34 + 0.07 * fbm(rng, h, w, 4, 6) + 0.08 * fbm(rng, h, w, 96, 3) + 0.16 * speckle(rng, h, w, 0.15)
     g -= 0.05 * np.clip(fbm(rng, h, w, 3, 3) - 0.3, 0, 1)  # patches and stains
     return _rgb(g, (1.0, 1.0, 1.03))
 
@@ -205,7 +205,7 @@ def bark(rng, h, w) -> np.ndarray:
 
 
 def paint(rng, h, w) -> np.ndarray:
-    g = 0.85 + 0.06 * fbm(rng, h, w, 3, 4) + 0.04 * speckle(rng, h, w, 0.05)
+    g = 0.85 + 0.08 * fbm(rng, h, w, 3, 5) + 0.06 * fbm(rng, h, w, 32, 2) + 0.08 * speckle(rng, h, w, 0.08)
     return _rgb(g, (1, 1, 1))
 
 
