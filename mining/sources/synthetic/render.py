@@ -61,6 +61,10 @@ def rasterize(cam: Camera, verts: np.ndarray, rows: np.ndarray, R: np.ndarray, t
     ia = (n[:, 0] / cam.fx / dp).astype(np.float32)
     ib = (n[:, 1] / cam.fy / dp).astype(np.float32)
     ic = ((n[:, 2] - n[:, 0] * cam.cx / cam.fx - n[:, 1] * cam.cy / cam.fy) / dp).astype(np.float32)
+    # inverse depth range of each face's (unclipped) vertices: raster edge pixels just outside
+    # an oblique face must not extrapolate its plane to a wrong depth
+    izv = 1.0 / np.maximum(zc, NEAR_M)
+    iz_lo, iz_hi = (izv.min(1) * 0.999).astype(np.float32), (izv.max(1) * 1.001).astype(np.float32)
     bx0 = np.floor(px.min(1)).clip(0, W).astype(int)
     by0 = np.floor(py.min(1)).clip(0, H).astype(int)
     bx1 = (np.ceil(px.max(1)) + 1).clip(0, W).astype(int)
@@ -87,6 +91,7 @@ def rasterize(cam: Camera, verts: np.ndarray, rows: np.ndarray, R: np.ndarray, t
         mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
         cv2.fillConvexPoly(mask, q, 1, lineType=cv2.LINE_8, shift=SUB)
         iz = (ia[f] * cam.u[x0:x1])[None, :] + (ib[f] * cam.v[y0:y1] + ic[f])[:, None]
+        np.clip(iz, iz_lo[f], iz_hi[f], out=iz)
         zr = invz[y0:y1, x0:x1]
         win = iz > zr
         win &= mask.view(bool)
