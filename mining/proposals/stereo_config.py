@@ -1,0 +1,53 @@
+"""Settings of the weight-free stereo proposer (``mining.proposals.stereo``). All ours: the
+paper and the original implementation take their proposals from a trained network."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class StereoProposerConfig:
+    """Object candidates from the stereo point cloud above the ground plane.
+
+    The bird's-eye grid is polar: one column per ``column_px`` image columns (a viewing
+    direction), and range cells ``range_cell_m`` deep near the camera that widen to
+    ``disparity_cell_px`` of disparity farther out, where stereo depth noise outgrows them.
+    """
+
+    # Point cloud
+    pixel_step: int = 2  # ours: take every 2nd pixel in each direction (1/4 of the points)
+    max_depth_m: float = 60.0  # ours: farther stereo points are too noisy to outline objects (REFERENCE's Z filter is 60 m)
+    min_height_m: float = 0.2  # ours: points lower than this above the ground are ground (REFERENCE drops < 0.1 m proposals)
+    max_height_m: float = 4.0  # ours: points higher are canopy, facades, signs (REFERENCE drops > 5.0 m proposals)
+    disparity_noise_px: float = 0.5  # ours: stereo disparity std at full resolution (SGBM at half resolution, measured on KITTI 2015)
+    height_noise_sigmas: float = 2.0  # ours: the ground cut rises by this many height stds (far ground is noisy)
+    # Polar bird's-eye grid
+    column_px: int = 6  # ours: image columns per grid column (0.17 m at 20 m on KITTI)
+    range_cell_m: float = 0.25  # ours: range cell depth near the camera
+    disparity_cell_px: float = 1.0  # ours: range cell depth in disparity where that is coarser (≈ 2 noise stds)
+    min_density_m: float = 0.15  # ours: a cell is occupied by ≥ this many metres of visible vertical surface
+    # Multi-scale clustering: each scale = (density multiplier, grid dilation rows, columns).
+    # Finer scales split touching objects, coarser ones join objects broken by holes.
+    scales: tuple[tuple[float, int, int], ...] = (
+        (1.0, 0, 0), (1.0, 1, 1), (1.0, 1, 3), (1.0, 2, 6), (3.0, 0, 0), (3.0, 1, 1),
+    )  # ours: chosen on KITTI 0005 (see tests/test_proposals_stereo.py)
+    image_jumps_px: tuple[float, ...] = (1.0, 2.0)  # ours: image regions are cut where neighbouring disparities differ by more (≈ 2 and 4 noise stds, or border_gap_m)
+    min_points: int = 12  # ours: clusters with fewer sample points are noise
+    max_extent_m: float = 10.0  # ours: footprints longer than this are structures (walls, hedges), not objects
+    # Image masks
+    mask_close_px: int = 7  # ours: closing kernel (full-resolution px) that fills stereo holes in a mask
+    # Objectness = sigmoid(bias + Σ weight·cue); every cue lies in [0, 1], higher = more object-like,
+    # and every weight is ≥ 0, so objectness never decreases when a cue increases.
+    plausible_extent_m: float = 5.0  # ours: footprints up to this long are fully plausible (cars, people, bins)
+    plausible_top_m: tuple[float, float] = (0.4, 2.5)  # ours: object tops in this height range are fully plausible
+    support_points: int = 200  # ours: clusters with this many sample points are fully supported
+    border_gap_m: float = 0.5  # ours: a border pixel this much farther than the object (or more than the noise) is background
+    bias: float = -4.0  # ours: objectness with all cues at 0
+    w_contrast: float = 3.0  # ours: the mask's border stands out in depth (free space around)
+    w_fill: float = 1.5  # ours: the mask fills its box (compact in the image)
+    w_extent: float = 1.5  # ours: plausible footprint
+    w_top: float = 1.0  # ours: plausible height
+    w_support: float = 1.0  # ours: enough stereo points
+    nms_iou: float = 0.9  # ours: box IoU at which a lower-scoring near-duplicate from another scale goes
+    max_proposals: int = 150  # ours: at most this many per frame, best objectness first
