@@ -125,20 +125,29 @@ class SyntheticSource(Source):
         depth = np.where(ids >= 0, 1.0 / np.maximum(invz, 1e-12), np.nan).astype(np.float32)
         face_obj = np.concatenate([rows[:, R_OBJ].astype(np.int32), [0]])
         objmap = face_obj[np.where(ids < 0, len(rows), ids)]
-        counts = np.bincount(objmap.ravel(), minlength=len(sc.objects) + 1)
-        Rcm, Mcm = M[:3, :3].T, np.linalg.inv(M)
+        # group object pixels by track id (one sort instead of one full-frame compare per object)
+        flat = objmap.ravel()
+        pix = np.flatnonzero(flat)
+        pix = pix[np.argsort(flat[pix], kind="stable")]
+        labels = flat[pix]
+        starts = np.flatnonzero(np.r_[True, labels[1:] != labels[:-1]]) if len(pix) else np.zeros(0, int)
+        ends = np.r_[starts[1:], len(pix)]
+        Mcm = np.linalg.inv(M)
         Rwm = sc.M0_inv[:3, :3]
         objs = []
-        for tid in np.nonzero(counts[1:])[0] + 1:
-            o, pos, yaw = states[int(tid)]
-            mask = objmap == tid
-            ys, xs = np.nonzero(mask.any(1))[0], np.nonzero(mask.any(0))[0]
+        W = objmap.shape[1]
+        for a, b in zip(starts, ends):
+            tid = int(labels[a])
+            o, pos, yaw = states[tid]
+            mask = np.zeros(objmap.shape, bool)
+            mask.ravel()[pix[a:b]] = True
+            ys, xs = np.divmod(pix[a:b], W)
             centre_map = pos + np.array([0.0, -o.size[1] / 2, 0.0])
             centre = Mcm[:3, :3] @ centre_map + Mcm[:3, 3]
             p1, p0 = sc.state(o, t + 1e-3), sc.state(o, t - 1e-3)
             vel = (p1[0] - p0[0]) / 2e-3 if p1 is not None and p0 is not None else np.zeros(3)
-            objs.append(ObjectTruth(int(tid), o.category, KNOWN[o.category], mask,
-                                    (float(xs[0]), float(ys[0]), float(xs[-1] + 1), float(ys[-1] + 1)),
+            objs.append(ObjectTruth(tid, o.category, KNOWN[o.category], mask,
+                                    (float(xs.min()), float(ys.min()), float(xs.max() + 1), float(ys.max() + 1)),
                                     centre, o.size.copy(), Rwm @ vel))
         return FrameTruth(depth, sc.pose(t), objs)
 

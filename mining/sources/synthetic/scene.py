@@ -168,6 +168,14 @@ class Road:
 
     def frame(self, s):
         """Centre point (…,3), heading θ, tangent and right normal at arc length(s) ``s``."""
+        if np.ndim(s) == 0:  # fast scalar path (objects are placed one at a time)
+            i = min(max(int((s - self.s[0]) / self.DS), 0), len(self.s) - 2)
+            f = (s - self.s[i]) / self.DS
+            x = self.x[i] + f * (self.x[i + 1] - self.x[i])
+            z = self.z[i] + f * (self.z[i + 1] - self.z[i])
+            th = self.theta[i] + f * (self.theta[i + 1] - self.theta[i])
+            c, sn = np.cos(th), np.sin(th)
+            return np.array([x, 0.0, z]), th, np.array([sn, 0.0, c]), np.array([c, 0.0, -sn])
         s = np.asarray(s, float)
         x = np.interp(s, self.s, self.x)
         z = np.interp(s, self.s, self.z)
@@ -179,6 +187,8 @@ class Road:
 
     def point(self, s, d, y=0.0):
         c, _, _, nrm = self.frame(s)
+        if np.ndim(s) == 0:
+            return c + d * nrm + np.array([0.0, y, 0.0])
         return c + np.asarray(d)[..., None] * nrm + np.asarray([0.0, 1.0, 0.0]) * np.asarray(y)[..., None]
 
     def curvature(self, s):
