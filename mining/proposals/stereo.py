@@ -165,6 +165,22 @@ class StereoProposer:
             _, labels = cv2.connectedComponents(links, connectivity=8)
             labels[occupied == 0] = 0
             _collect(labels.ravel()[cell], labels.max(), cfg.min_points, seen, clusters)
+        # Height bands: adjacent cells whose tops differ (a car before a taller bush) part.
+        if cfg.height_band_m > 0:
+            top = np.zeros(n_rows * n_cols)
+            np.maximum.at(top, cell, ph)
+            top = top.reshape(n_rows, n_cols)
+            occupied = surface >= cfg.min_density_m
+            for offset in (0.0, 0.5 * cfg.height_band_m):
+                band = np.floor((top + offset) / cfg.height_band_m).astype(np.int32)
+                labels = np.zeros((n_rows, n_cols), np.int32)
+                n_labels = 0
+                for b in np.unique(band[occupied]):
+                    n_b, lab_b = cv2.connectedComponents((occupied & (band == b)).astype(np.uint8), connectivity=8)
+                    labels[lab_b > 0] = lab_b[lab_b > 0] + n_labels
+                    n_labels += n_b - 1
+                _collect(labels.ravel()[cell], n_labels, cfg.min_points, seen, clusters)
+
         # The same in the image: regions of object-height points cut where the depth jumps.
         disparity = bf / z
         for jump_px in cfg.image_jumps_px:
