@@ -216,7 +216,7 @@ def ego_speed_profile(rng: np.random.Generator, road: Road, duration_s: float, d
         if t < stop_until:
             tgt = 0.0
         else:
-            tgt = target if target > 0 else rng.uniform(5, 12) if False else 8.0
+            tgt = target if target > 0 else 8.0  # ours: pull away after a stop
         ahead = np.abs(road.curvature(s[i - 1] + np.arange(0, 40, 5.0))).max()
         tgt = min(tgt, np.sqrt(2.0 / max(ahead, 1e-6)))  # ours: 2 m/s² lateral in turns
         dv = np.clip(tgt - v[i - 1], -2.5 * dt, 2.0 * dt)
@@ -328,7 +328,6 @@ class Scene:
             ca, _, ta, na = road.frame(a)
             cb, _, tb, nb = road.frame(b)
             chord = (cb - ca) / np.linalg.norm(cb - ca)
-            right = np.cross(chord, DOWN) * -1  # chord × up
             right = np.array([chord[2], 0.0, -chord[0]])
             # road: u along the arc (origin carries the arc length), v across
             pts = [ca - h * na, cb - h * nb, cb + h * nb, ca + h * na]
@@ -726,7 +725,7 @@ def frame_faces(scene: Scene, t: float):
     states = {}
     for o in scene.objects:
         m = o.motion
-        if m.kind in ("static", "lane", "path") and m.kind != "path":
+        if m.kind in ("static", "lane"):  # cheap range test before the exact state
             s_guess = m.s0 + (m.v * t if m.kind == "lane" else 0.0)
             if not (s_ego - VIEW_BEHIND_M - 20 < s_guess < s_ego + VIEW_AHEAD_M):
                 continue
