@@ -128,18 +128,24 @@ def shade(cam: Camera, atlas: Atlas, ids: np.ndarray, invz: np.ndarray, rows: np
     # geometric mean of the u and v footprints: a compromise for surfaces seen at grazing
     # angles (the road), sharp across, slightly aliased along the viewing direction
     fp = _footprint(S, T, 1) * _footprint(S, T, 0)
-    lev = np.clip(0.5 * np.log2(np.maximum(fp, 1e-12)) - 0.2, 0, NLEV - 1)
+    lev = np.clip(0.5 * np.log2(np.maximum(fp, 1e-12)) - 0.2, 0, NLEV - 1 - 1e-3)
     tx = g[8] + (S - np.floor(S / g[10]) * g[10])
     ty = g[9] + (T - np.floor(T / g[11]) * g[11])
-    out = np.zeros((H, W, 3), np.float32)
-    top = float(lev[valid].max()) if valid.any() else 0.0
-    for L in range(NLEV):
-        if L > top + 1:
-            break
-        wgt = np.clip(1 - np.abs(lev - L), 0, 1)
-        f = float(2**L)
-        col = cv2.remap(atlas.levels[L], tx / f - 0.5, ty / f - 0.5, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        out += col * (wgt * (1.0 / 255.0))[..., None]
+    # trilinear mip lookup in the packed atlas: two bilinear remaps (levels ⌊lev⌋ and ⌊lev⌋+1)
+    base = np.floor(lev)
+    frac = lev - base
+    scale = np.exp2(-base)
+    off = (2 * atlas.levels[0].shape[1]) * (1 - scale)
+    ax, ay = tx * scale, ty * scale
+    a = cv2.remap(atlas.packed, off + ax - 0.5, ay - 0.5, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    scale *= 0.5
+    off = (2 * atlas.levels[0].shape[1]) * (1 - scale)
+    ax *= 0.5
+    ay *= 0.5
+    b = cv2.remap(atlas.packed, off + ax - 0.5, ay - 0.5, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    out = a.astype(np.float32)
+    out += (b - out) * frac[..., None]
+    out *= 1.0 / 255.0
     lt = np.concatenate([light, np.zeros((1, 3), np.float32)])
     for ch in range(3):
         out[..., ch] *= np.take(lt[:, ch], idx)

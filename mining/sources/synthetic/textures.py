@@ -37,6 +37,7 @@ class Tile:
 class Atlas:
     levels: list[np.ndarray]  # uint8 (H/2^L, W/2^L, 3)
     tiles: dict[str, Tile]
+    packed: np.ndarray | None = None  # all levels side by side; level L starts at x = 2·ATLAS_W·(1 − 2^−L)
 
 
 # --------------------------------------------------------------------------- noise
@@ -459,5 +460,9 @@ def build_atlas(seed: int) -> Atlas:
             img = np.pad(img, ((pad, pad), (pad, pad), (0, 0)), mode="wrap")
             atlas[sy // f : sy // f + img.shape[0], sx // f : sx // f + img.shape[1]] = np.round(img * 255)
         levels.append(atlas)
+    packed = np.zeros((total_h, 2 * ATLAS_W, 3), np.uint8)
+    for lev, img in enumerate(levels):
+        x = int(2 * ATLAS_W * (1 - 2.0**-lev))
+        packed[: img.shape[0], x : x + img.shape[1]] = img
     tiles = {n: Tile(pos[n][0] + PAD, pos[n][1] + PAD, specs[n][0], specs[n][1], specs[n][2], specs[n][3]) for n in specs}
-    return Atlas(levels, tiles)
+    return Atlas(levels, tiles, packed)
