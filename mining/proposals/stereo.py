@@ -144,6 +144,8 @@ class StereoProposer:
         sigma_z = z * z * cfg.disparity_noise_px / bf
         ground_cut = cfg.min_height_m + cfg.height_noise_sigmas * np.abs(h - d0) / z * sigma_z
         low = ~(h >= ground_cut)  # ground, or no depth (NaN compares False)
+        # Masks may grow over points down to a lower cut: the feet of an object lie below ground_cut.
+        growable = (h >= cfg.grow_min_height_m + np.abs(h - d0) / z * sigma_z) & (h < cfg.max_height_m)
         keep = valid & ~low & (h < cfg.max_height_m) & (z < cfg.max_depth_m)
         pv, pu = np.nonzero(keep)
         pz, ph, px = z[pv, pu], h[pv, pu], x[pv, pu]
@@ -198,7 +200,8 @@ class StereoProposer:
         k_close = max(1, cfg.mask_close_px // s) | 1
         close_kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k_close, k_close))
         ring_kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
-        pad = k_close // 2 + 3
+        pad = k_close // 2 + 3 + cfg.grow_steps
+        grow_kernel = np.ones((1, 3), np.uint8)
         rles, boxes, cues, positions, sizes = [], [], [], [], []
         for idx in clusters:
             cz, cx_, ch = pz[idx], px[idx], ph[idx]
@@ -216,10 +219,25 @@ class StereoProposer:
             r1, c1 = min(hs, cv_.max() + pad + 1), min(ws, cu_.max() + pad + 1)
             points = np.zeros((r1 - r0, c1 - c0), np.uint8)
             points[cv_ - r0, cu_ - c0] = 1
-            mask = cv2.morphologyEx(points, cv2.MORPH_CLOSE, close_kernel)
-            # Border ring: background where there is no object-height point at the object's depth.
             zobj = np.zeros(points.shape, np.float32)
             zobj[cv_ - r0, cu_ - c0] = cz
+            # Growth downwards over points at the object's depth: its feet, below the ground cut.
+            zc = z[r0:r1, c0:c1].astype(np.float32)
+            can_grow = growable[r0:r1, c0:c1]
+            # As many steps as image rows the ground cut removed at this depth, no more.
+            cut_gap = (cfg.min_height_m - cfg.grow_min_height_m + cfg.height_noise_sigmas * d0 * zq[1] * cfg.disparity_noise_px / bf)
+            steps = min(cfg.grow_steps, math.ceil(cut_gap * calib.fy / (zq[1] * s)))
+            zn = np.zeros_like(zobj)
+            for _ in range(steps):
+                zn[1:] = cv2.dilate(zobj, grow_kernel)[:-1]  # depth of the object pixels just above
+                gap = np.maximum(cfg.border_gap_m, zn * zn * cfg.disparity_noise_px / bf)
+                new = can_grow & (points == 0) & (zn > 0) & (np.abs(zc - zn) <= gap)
+                if not new.any():
+                    break
+                points[new] = 1
+                zobj[new] = zc[new]
+            mask = cv2.morphologyEx(points, cv2.MORPH_CLOSE, close_kernel)
+            # Border ring: background where there is no object-height point at the object's depth.
             znear = cv2.dilate(zobj, ring_kernel)
             ring = (cv2.dilate(mask, ring_kernel) > 0) & (mask == 0) & (znear > 0)
             rz = z[r0:r1, c0:c1][ring]

@@ -37,6 +37,8 @@ class StereoProposerConfig:
     min_points: int = 12  # ours: clusters with fewer sample points are noise
     max_extent_m: float = 10.0  # ours: footprints longer than this are structures (walls, hedges), not objects
     # Image masks
+    grow_min_height_m: float = 0.05  # ours: masks grow over points this high (+1 height std) at the object's depth
+    grow_steps: int = 12  # ours: at most this many growth steps of one sample; fewer where the cut band is thinner in the image
     mask_close_px: int = 7  # ours: closing kernel (full-resolution px) that fills stereo holes in a mask
     # Objectness = sigmoid(bias + Σ weight·cue); every cue lies in [0, 1], higher = more object-like,
     # and every weight is ≥ 0, so objectness never decreases when a cue increases.
