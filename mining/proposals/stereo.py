@@ -202,30 +202,48 @@ class StereoProposer:
         ring_kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
         pad = k_close // 2 + 3 + cfg.grow_steps
         grow_kernel = np.ones((1, 3), np.uint8)
-        rles, boxes, cues, positions, sizes = [], [], [], [], []
+        # 4a. Cheap 3D statistics per cluster (order statistics of at most ~256 points each).
+        stats = []  # (idx, zq, xq, top, point box)
         for idx in clusters:
-            cz, cx_, ch = pz[idx], px[idx], ph[idx]
-            zq = np.percentile(cz, (5, 50, 95))
-            xq = np.percentile(cx_, (5, 95))
+            sub = idx[:: max(1, idx.size // cfg.stats_points)]
+            zs, xs_, hs_ = np.sort(pz[sub]), np.sort(px[sub]), np.sort(ph[sub])
+            q = (np.array([0.05, 0.5, 0.95]) * (sub.size - 1)).round().astype(int)
+            zq, xq = zs[q], xs_[q[[0, 2]]]
             spread = 2.0 * zq[1] ** 2 * cfg.disparity_noise_px / bf  # range spread stereo noise alone makes
             length = max(0.0, zq[2] - zq[0] - spread)
             width = xq[1] - xq[0]
-            extent = max(width, length)
-            if extent > cfg.max_extent_m:
+            if max(width, length) > cfg.max_extent_m:
                 continue
-            top = float(np.percentile(ch, 95))
             cv_, cu_ = pv[idx], pu[idx]
+            box = (cu_.min(), cv_.min(), cu_.max() + 1, cv_.max() + 1)
+            stats.append((idx, zq, xq, float(hs_[q[2]]), width, length, box))
+        if not stats:
+            self.last_timings_ms = {"points": 1e3 * (t1 - t0), "cluster": 1e3 * (t2 - t1)}
+            return empty_proposals(frame.index)
+        # 4b. Near-duplicates across scales go before their masks are built: NMS on the point
+        # boxes, ranked by the cues known so far (border contrast taken as 1/2 for all).
+        pre = np.array([(0.5, st[0].size / ((st[6][2] - st[6][0]) * (st[6][3] - st[6][1])),
+                         max(st[4], st[5]), st[3], st[0].size) for st in stats])
+        pre_keep = nms_keep(np.array([st[6] for st in stats], np.float64), objectness_from_cues(self._cues(pre), cfg),
+                            cfg.nms_iou, int(cfg.mask_budget * cfg.max_proposals))
+        t3 = time.perf_counter()
+
+        # 4c. Masks and the remaining cues of the survivors.
+        crops, boxes, cues, positions, sizes = [], [], [], [], []
+        for i in pre_keep:
+            idx, zq, xq, top, width, length, _ = stats[i]
+            cv_, cu_, cz = pv[idx], pu[idx], pz[idx]
             r0, c0 = max(0, cv_.min() - pad), max(0, cu_.min() - pad)
             r1, c1 = min(hs, cv_.max() + pad + 1), min(ws, cu_.max() + pad + 1)
             points = np.zeros((r1 - r0, c1 - c0), np.uint8)
             points[cv_ - r0, cu_ - c0] = 1
             zobj = np.zeros(points.shape, np.float32)
             zobj[cv_ - r0, cu_ - c0] = cz
-            # Growth downwards over points at the object's depth: its feet, below the ground cut.
+            # Growth downwards over points at the object's depth: its feet, below the ground cut,
+            # as many steps as image rows the ground cut removed at this depth, no more.
             zc = z[r0:r1, c0:c1].astype(np.float32)
             can_grow = growable[r0:r1, c0:c1]
-            # As many steps as image rows the ground cut removed at this depth, no more.
-            cut_gap = (cfg.min_height_m - cfg.grow_min_height_m + cfg.height_noise_sigmas * d0 * zq[1] * cfg.disparity_noise_px / bf)
+            cut_gap = cfg.min_height_m - cfg.grow_min_height_m + cfg.height_noise_sigmas * d0 * zq[1] * cfg.disparity_noise_px / bf
             steps = min(cfg.grow_steps, math.ceil(cut_gap * calib.fy / (zq[1] * s)))
             zn = np.zeros_like(zobj)
             for _ in range(steps):
@@ -240,48 +258,37 @@ class StereoProposer:
             # Border ring: background where there is no object-height point at the object's depth.
             znear = cv2.dilate(zobj, ring_kernel)
             ring = (cv2.dilate(mask, ring_kernel) > 0) & (mask == 0) & (znear > 0)
-            rz = z[r0:r1, c0:c1][ring]
+            rz = zc[ring]
             rlow = low[r0:r1, c0:c1][ring]
             zn = znear[ring].astype(np.float64)
             gap = np.maximum(cfg.border_gap_m, 3.0 * zn * zn * cfg.disparity_noise_px / bf)
             jump = ~(np.abs(rz - zn) <= gap)  # NaN depth counts as a jump
             contrast = float((rlow | jump).mean()) if rz.size else 1.0
-            rows, cols = np.nonzero(mask)
-            fill = rows.size / float((rows.max() - rows.min() + 1) * (cols.max() - cols.min() + 1))
+            rows = np.nonzero(mask.any(axis=1))[0]
+            cols = np.nonzero(mask.any(axis=0))[0]
+            mask = mask[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]
+            fill = float(np.count_nonzero(mask)) / mask.size
             # Full-resolution crop: each sample stands for an s × s block.
-            crop = np.repeat(np.repeat(mask, s, axis=0), s, axis=1)
-            y0, x0 = r0 * s, c0 * s
-            crop = crop[: H - y0, : W - x0].astype(bool)
-            ys, xs = np.nonzero(crop.any(axis=1))[0], np.nonzero(crop.any(axis=0))[0]
-            crop = crop[ys[0]:ys[-1] + 1, xs[0]:xs[-1] + 1]
-            y0, x0 = y0 + int(ys[0]), x0 + int(xs[0])
-            rles.append(crop_rle(crop, x0, y0, H, W))
+            y0, x0 = (r0 + int(rows[0])) * s, (c0 + int(cols[0])) * s
+            crop = np.repeat(np.repeat(mask.astype(bool), s, axis=0), s, axis=1)[: H - y0, : W - x0]
+            crops.append((crop, x0, y0))
             boxes.append((x0, y0, x0 + crop.shape[1], y0 + crop.shape[0]))
-            cues.append((contrast, fill, extent, top, idx.size))
-            positions.append((np.median(cx_), np.median(y[pv[idx], pu[idx]]), zq[1]))
+            cues.append((contrast, fill, max(width, length), top, idx.size))
+            positions.append((np.median(px[idx]), np.median(y[cv_, cu_]), zq[1]))
             sizes.append((width, top, length))
-        t3 = time.perf_counter()
-        if not rles:
-            self.last_timings_ms = {"points": 1e3 * (t1 - t0), "cluster": 1e3 * (t2 - t1), "masks": 1e3 * (t3 - t2)}
-            return empty_proposals(frame.index)
+        t4 = time.perf_counter()
 
-        raw = np.asarray(cues, np.float64)
-        cue = np.column_stack([
-            raw[:, 0],
-            raw[:, 1],
-            _plausible(raw[:, 2], 0.0, cfg.plausible_extent_m, cfg.max_extent_m),
-            _plausible(raw[:, 3], cfg.plausible_top_m[0], cfg.plausible_top_m[1], cfg.max_height_m),
-            np.clip(np.log(raw[:, 4]) / math.log(cfg.support_points), 0.0, 1.0),
-        ])
+        cue = self._cues(np.asarray(cues, np.float64))
         score = objectness_from_cues(cue, cfg)
         boxes_a = np.asarray(boxes, np.float32)
         keep_i = nms_keep(boxes_a, score, cfg.nms_iou, cfg.max_proposals)
+        rles = [crop_rle(crops[i][0], crops[i][1], crops[i][2], H, W) for i in keep_i]
         self.last_cues = cue[keep_i].astype(np.float32)
-        self.last_timings_ms = {"points": 1e3 * (t1 - t0), "cluster": 1e3 * (t2 - t1), "masks": 1e3 * (t3 - t2),
-                                "score": 1e3 * (time.perf_counter() - t3)}
+        self.last_timings_ms = {"points": 1e3 * (t1 - t0), "cluster": 1e3 * (t2 - t1), "stats": 1e3 * (t3 - t2),
+                                "masks": 1e3 * (t4 - t3), "encode": 1e3 * (time.perf_counter() - t4)}
         return Proposals(
             frame=frame.index,
-            rles=[rles[i] for i in keep_i],
+            rles=rles,
             boxes=boxes_a[keep_i].reshape(-1, 4),
             objectness=score[keep_i],
             posterior=None,
@@ -289,3 +296,14 @@ class StereoProposer:
             position=np.asarray(positions, np.float32)[keep_i].reshape(-1, 3),
             size=np.asarray(sizes, np.float32)[keep_i].reshape(-1, 3),
         )
+
+    def _cues(self, raw: np.ndarray) -> np.ndarray:
+        """Raw (contrast, fill, extent m, top m, points) → the five cues in [0, 1], higher = more object-like."""
+        cfg = self.cfg
+        return np.column_stack([
+            np.clip(raw[:, 0], 0.0, 1.0),
+            np.clip(raw[:, 1], 0.0, 1.0),
+            _plausible(raw[:, 2], 0.0, cfg.plausible_extent_m, cfg.max_extent_m),
+            _plausible(raw[:, 3], cfg.plausible_top_m[0], cfg.plausible_top_m[1], cfg.max_height_m),
+            np.clip(np.log(raw[:, 4]) / math.log(cfg.support_points), 0.0, 1.0),
+        ])

@@ -35,6 +35,7 @@ class StereoProposerConfig:
     height_band_m: float = 1.0  # ours: extra clusters within bands of cell top height (two offsets); 0 = off
     image_jumps_px: tuple[float, ...] = (1.0, 2.0)  # ours: image regions are cut where neighbouring disparities differ by more (≈ 2 and 4 noise stds, or border_gap_m)
     min_points: int = 12  # ours: clusters with fewer sample points are noise
+    stats_points: int = 256  # ours: a cluster's percentiles (extent, top) come from about this many of its points
     max_extent_m: float = 10.0  # ours: footprints longer than this are structures (walls, hedges), not objects
     # Image masks
     grow_min_height_m: float = 0.05  # ours: masks grow over points this high (+1 height std) at the object's depth
@@ -56,4 +57,5 @@ class StereoProposerConfig:
     w_top: float = 2.0  # ours: plausible height
     w_support: float = 4.0  # ours: enough stereo points
     nms_iou: float = 0.9  # ours: box IoU at which a lower-scoring near-duplicate from another scale goes
-    max_proposals: int = 150  # ours: at most this many per frame, best objectness first
+    max_proposals: int = 100  # ours: at most this many per frame, best objectness first
+    mask_budget: float = 1.0  # ours: masks are built for at most this × max_proposals clusters, best cheap cues first
