@@ -203,35 +203,35 @@ class StereoProposer:
         pad = k_close // 2 + 3 + cfg.grow_steps
         grow_kernel = np.ones((1, 3), np.uint8)
         # 4a. Cheap 3D statistics per cluster (order statistics of at most ~256 points each).
-        stats = []  # (idx, zq, xq, top, point box)
+        stats = []  # (idx, subsample, quantile positions, z quantiles, x quantiles, top, width, length, point box)
         for idx in clusters:
             sub = idx[:: max(1, idx.size // cfg.stats_points)]
             zs, xs_, hs_ = np.sort(pz[sub]), np.sort(px[sub]), np.sort(ph[sub])
             q = (np.array([0.05, 0.5, 0.95]) * (sub.size - 1)).round().astype(int)
-            zq, xq = zs[q], xs_[q[[0, 2]]]
+            zq, xq = zs[q], xs_[q]
             spread = 2.0 * zq[1] ** 2 * cfg.disparity_noise_px / bf  # range spread stereo noise alone makes
             length = max(0.0, zq[2] - zq[0] - spread)
-            width = xq[1] - xq[0]
+            width = xq[2] - xq[0]
             if max(width, length) > cfg.max_extent_m:
                 continue
             cv_, cu_ = pv[idx], pu[idx]
             box = (cu_.min(), cv_.min(), cu_.max() + 1, cv_.max() + 1)
-            stats.append((idx, zq, xq, float(hs_[q[2]]), width, length, box))
+            stats.append((idx, sub, q, zq, xq, float(hs_[q[2]]), width, length, box))
         if not stats:
             self.last_timings_ms = {"points": 1e3 * (t1 - t0), "cluster": 1e3 * (t2 - t1)}
             return empty_proposals(frame.index)
         # 4b. Near-duplicates across scales go before their masks are built: NMS on the point
         # boxes, ranked by the cues known so far (border contrast taken as 1/2 for all).
-        pre = np.array([(0.5, st[0].size / ((st[6][2] - st[6][0]) * (st[6][3] - st[6][1])),
-                         max(st[4], st[5]), st[3], st[0].size) for st in stats])
-        pre_keep = nms_keep(np.array([st[6] for st in stats], np.float64), objectness_from_cues(self._cues(pre), cfg),
+        pre = np.array([(0.5, st[0].size / ((st[8][2] - st[8][0]) * (st[8][3] - st[8][1])),
+                         max(st[6], st[7]), st[5], st[0].size) for st in stats])
+        pre_keep = nms_keep(np.array([st[8] for st in stats], np.float64), objectness_from_cues(self._cues(pre), cfg),
                             cfg.nms_iou, int(cfg.mask_budget * cfg.max_proposals))
         t3 = time.perf_counter()
 
         # 4c. Masks and the remaining cues of the survivors.
         crops, boxes, cues, positions, sizes = [], [], [], [], []
         for i in pre_keep:
-            idx, zq, xq, top, width, length, _ = stats[i]
+            idx, sub, q, zq, xq, top, width, length, _ = stats[i]
             cv_, cu_, cz = pv[idx], pu[idx], pz[idx]
             r0, c0 = max(0, cv_.min() - pad), max(0, cu_.min() - pad)
             r1, c1 = min(hs, cv_.max() + pad + 1), min(ws, cu_.max() + pad + 1)
@@ -246,10 +246,12 @@ class StereoProposer:
             cut_gap = cfg.min_height_m - cfg.grow_min_height_m + cfg.height_noise_sigmas * d0 * zq[1] * cfg.disparity_noise_px / bf
             steps = min(cfg.grow_steps, math.ceil(cut_gap * calib.fy / (zq[1] * s)))
             zn = np.zeros_like(zobj)
+            # Depth tolerances from the cluster's median depth (one number per cluster).
+            noise_z = zq[1] ** 2 * cfg.disparity_noise_px / bf
+            grow_gap, ring_gap = max(cfg.border_gap_m, noise_z), max(cfg.border_gap_m, 3.0 * noise_z)
             for _ in range(steps):
                 zn[1:] = cv2.dilate(zobj, grow_kernel)[:-1]  # depth of the object pixels just above
-                gap = np.maximum(cfg.border_gap_m, zn * zn * cfg.disparity_noise_px / bf)
-                new = can_grow & (points == 0) & (zn > 0) & (np.abs(zc - zn) <= gap)
+                new = can_grow & (points == 0) & (zn > 0) & (np.abs(zc - zn) <= grow_gap)
                 if not new.any():
                     break
                 points[new] = 1
@@ -260,9 +262,7 @@ class StereoProposer:
             ring = (cv2.dilate(mask, ring_kernel) > 0) & (mask == 0) & (znear > 0)
             rz = zc[ring]
             rlow = low[r0:r1, c0:c1][ring]
-            zn = znear[ring].astype(np.float64)
-            gap = np.maximum(cfg.border_gap_m, 3.0 * zn * zn * cfg.disparity_noise_px / bf)
-            jump = ~(np.abs(rz - zn) <= gap)  # NaN depth counts as a jump
+            jump = ~(np.abs(rz - znear[ring]) <= ring_gap)  # NaN depth counts as a jump
             contrast = float((rlow | jump).mean()) if rz.size else 1.0
             rows = np.nonzero(mask.any(axis=1))[0]
             cols = np.nonzero(mask.any(axis=0))[0]
@@ -274,7 +274,7 @@ class StereoProposer:
             crops.append((crop, x0, y0))
             boxes.append((x0, y0, x0 + crop.shape[1], y0 + crop.shape[0]))
             cues.append((contrast, fill, max(width, length), top, idx.size))
-            positions.append((np.median(px[idx]), np.median(y[cv_, cu_]), zq[1]))
+            positions.append((xq[1], float(np.sort(y[pv[sub], pu[sub]])[q[1]]), zq[1]))
             sizes.append((width, top, length))
         t4 = time.perf_counter()
 
