@@ -30,10 +30,10 @@ class StereoProposerConfig:
     # Multi-scale clustering: each scale = (density multiplier, grid dilation rows, columns).
     # Finer scales split touching objects, coarser ones join objects broken by holes.
     scales: tuple[tuple[float, int, int], ...] = (
-        (1.0, 0, 0), (1.0, 1, 1), (1.0, 1, 3), (1.0, 2, 6), (3.0, 0, 0), (3.0, 1, 1),
-    )  # ours: chosen on KITTI 0005 (see tests/test_proposals_stereo.py)
-    height_band_m: float = 1.0  # ours: extra clusters within bands of cell top height (two offsets); 0 = off
-    image_jumps_px: tuple[float, ...] = (1.0, 2.0)  # ours: image regions are cut where neighbouring disparities differ by more (≈ 2 and 4 noise stds, or border_gap_m)
+        (1.0, 0, 0), (1.0, 1, 1), (1.0, 2, 6), (3.0, 0, 0),
+    )  # ours: chosen on KITTI 0005 and synthetic (adding (1, 1, 3) and (3, 1, 1) changed no recall)
+    height_band_m: float = 1.0  # ours: extra clusters within bands of cell top height (two offsets); 0 = off (KITTI 0005 car R@all 0.77 → 0.33)
+    image_jumps_px: tuple[float, ...] = (1.0,)  # ours: image regions are cut where neighbouring disparities differ by more (≈ 2 noise stds, or border_gap_m); () = off
     min_points: int = 12  # ours: clusters with fewer sample points are noise
     stats_points: int = 256  # ours: a cluster's percentiles (extent, top) come from about this many of its points
     max_extent_m: float = 10.0  # ours: footprints longer than this are structures (walls, hedges), not objects
