@@ -12,10 +12,16 @@ if [ -z "$py" ]; then
 fi
 [ -n "$py" ] || { echo "setup: need Python >= 3.11 on PATH" >&2; exit 1; }
 [ -x .venv/bin/python ] || "$py" -m venv .venv
-stamp=".venv/.installed-$(cat pyproject.toml | sha256sum | cut -c1-16)-${extras//,/_}"
+stamp=".venv/.installed-$(cat pyproject.toml scripts/setup.sh | sha256sum | cut -c1-16)-${extras//,/_}"
 if [ ! -f "$stamp" ]; then
   .venv/bin/python -m pip install -q --upgrade pip >/dev/null 2>&1 || true
   .venv/bin/python -m pip install -q -e ".[${extras}]"
+  if [[ ",$extras," == *",test,"* ]]; then
+    # TrackEval (MIT, the KITTI/MOT reference evaluator) cross-checks our metrics in the
+    # tests. --no-deps: its metadata pulls opencv-python, which clashes with the headless
+    # OpenCV we use; the metrics need only numpy and scipy.
+    .venv/bin/python -m pip install -q --no-deps trackeval==1.3.0
+  fi
   touch "$stamp"
 fi
 export RAY_USAGE_STATS_ENABLED=0
