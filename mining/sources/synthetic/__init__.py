@@ -16,7 +16,7 @@ import numpy as np
 
 from mining.errors import InputError
 from mining.sources.base import Source
-from mining.sources.synthetic.render import Camera, rasterize, shade
+from mining.sources.synthetic.render import Camera, inverse_depth_planes, rasterize, shade, texture_tables, to_camera
 from mining.sources.synthetic.scene import KNOWN, R_N, R_OBJ, R_TINT, Scene, frame_faces
 from mining.sources.synthetic.textures import build_atlas
 from mining.types import FrameTruth, ObjectTruth, SequencePlan, StereoCalib, StereoFrame
@@ -80,20 +80,28 @@ class SyntheticSource(Source):
         cam = Camera(c.fx, c.fy, c.cx, c.cy, c.width, c.height)
         verts, rows, states = frame_faces(sc, t)
         M = sc.camera_map(t)
-        light = (rows[:, R_TINT : R_TINT + 3] * (AMBIENT + DIFFUSE * np.clip(rows[:, R_N : R_N + 3] @ sc.sun, 0, 1))[:, None]).astype(np.float32)
+        Rcm = M[:3, :3].T
+        lambert = AMBIENT + DIFFUSE * np.clip(rows[:, R_N : R_N + 3] @ sc.sun, 0, 1)
+        light = rows[:, R_TINT : R_TINT + 3] * lambert[:, None]
         gain = sc.exposure_at(t)
+        sky = self._sky(cam, Rcm)  # depends on the rotation only: the same for both eyes
         rng = np.random.default_rng([sc.seed, index, 99])
         images, truth_bufs = [], None
         for k, shift in enumerate((0.0, c.baseline_m)):
-            Rcm = M[:3, :3].T
             tcm = -Rcm @ M[:3, 3] - np.array([shift, 0, 0])
-            ids, invz, _, _ = rasterize(cam, verts, rows, Rcm, tcm)
-            sky = self._sky(cam, Rcm)
-            img = shade(cam, self._atlas, ids, invz, rows, verts, Rcm, tcm, light, sky)
+            V, rows_cam = to_camera(verts, rows, Rcm, tcm)
+            C, dp = inverse_depth_planes(cam, rows_cam, V)
+            ids, invz = rasterize(cam, V, rows_cam, C, dp)
+            tab = texture_tables(cam, self._atlas, V, rows_cam, C)
+            # exposure and the right camera's colour gain folded into the per-face light (the
+            # atlas is 0–255, so the image comes out in 8-bit levels)
+            g = gain * (sc.right_gain if k else np.ones(3))
+            img = shade(cam, self._atlas, ids, invz, tab, (light * g).astype(np.float32),
+                        sky * (255.0 * g).astype(np.float32))
             img = cv2.GaussianBlur(img, (0, 0), BLUR_SIGMA)
-            g = gain * (sc.right_gain if k else 1.0)
-            img = img * (255.0 * np.asarray(g, np.float32)) + self._noise_at(rng, c.height, c.width)
-            images.append(np.clip(img + 0.5, 0, 255).astype(np.uint8))
+            img += self._noise_at(rng, c.height, c.width)  # the bank carries the +0.5 of rounding
+            np.clip(img, 0, 255, out=img)
+            images.append(img.astype(np.uint8))
             if k == 0:
                 truth_bufs = (ids, invz)
         truth = self._truth(sc, t, M, truth_bufs, rows, states)
@@ -114,9 +122,10 @@ class SyntheticSource(Source):
         return cv2.resize(small, (cam.w, cam.h), interpolation=cv2.INTER_LINEAR)
 
     def _noise_at(self, rng: np.random.Generator, h: int, w: int) -> np.ndarray:
-        """Sensor noise: a fixed bank of Gaussian noise, cut at a per-frame seeded offset."""
+        """Sensor noise (+0.5 for rounding): a fixed bank of Gaussian noise, cut at a per-frame seeded offset."""
         if self._noise is None or self._noise.shape[0] < h + 64:
-            self._noise = np.random.default_rng(self.seed_base + 12345).normal(0, NOISE_DN, (h + 64, w + 64, 3)).astype(np.float32)
+            bank = np.random.default_rng(self.seed_base + 12345).normal(0, NOISE_DN, (h + 64, w + 64, 3))
+            self._noise = (bank + 0.5).astype(np.float32)
         oy, ox = rng.integers(0, 64, 2)
         return self._noise[oy : oy + h, ox : ox + w]
 

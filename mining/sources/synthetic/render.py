@@ -2,9 +2,14 @@
 
 Per face: clip against the near plane, project, fill its mask in its bounding rectangle
 (cv2.fillConvexPoly), evaluate the exact inverse depth (affine in u, v for a plane), z-test,
-write the face id. Then per pixel: texture coordinates from the ray–plane intersection
-(again affine over depth), mip level from the texel footprint, bilinear atlas lookup, and
-Lambert shading against the sun.
+write the face id. Faces go nearest first, so a face whose whole rectangle is already covered
+by nearer surfaces is skipped after one comparison.
+
+Shading. For a plane, texture coordinates are a homography of the pixel: s = (A·p)/(C·p) with
+p = (u, v, 1) and C·p the inverse depth the rasteriser already stored. So a pixel needs its
+face's A and B rows (six numbers), its tile, its light and one number for the mip level: the
+texel area per pixel is |det J| = |det H| / (C·p)³ (H = [A; B; C]), a per-face constant times
+z³. Two bilinear remaps of the packed atlas (levels ⌊lev⌋ and ⌊lev⌋+1) blend trilinearly.
 """
 
 from __future__ import annotations
@@ -12,12 +17,15 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from mining.sources.synthetic.scene import MAXV, R_N, R_NV, R_O, R_TILE, R_TINT, R_U, R_V
+from mining.sources.synthetic.scene import R_N, R_NV, R_O, R_TILE, R_U, R_V
 from mining.sources.synthetic.textures import NLEV, Atlas
 
 NEAR_M = 0.3  # ours: near clipping plane
 FAR_M = 400.0  # ours: faces entirely beyond are dropped
 SUB = 4  # fillConvexPoly fixed-point bits (1/16 px vertices)
+SKY_INVZ = 1e-6  # ours: inverse depth stored for sky pixels (1000 km; any face is nearer)
+MIP_BIAS = -0.2  # ours: level offset (slightly sharper than the texel-area level)
+STRIP = 24  # ours: rows shaded at a time (temporaries fit the L2 cache)
 
 
 class Camera:
@@ -41,13 +49,29 @@ def _clip_near(poly: np.ndarray) -> np.ndarray:
     return np.array(out)
 
 
-def rasterize(cam: Camera, verts: np.ndarray, rows: np.ndarray, R: np.ndarray, t: np.ndarray):
-    """Faces in map frame, camera from map ``Pc = R Pm + t`` → (face id (H,W) int32, -1 = sky;
-    inverse depth (H,W) float32; per-face camera-frame rows)."""
-    H, W = cam.h, cam.w
-    V = verts @ R.T + t
-    n = rows[:, R_N : R_N + 3] @ R.T
+def inverse_depth_planes(cam: Camera, rows: np.ndarray, V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per face (camera-frame vertices ``V``): C = (ia, ib, ic) with 1/z = ia·u + ib·v + ic, and n·X0.
+    From the plane n·X = dp and X = z·((u-cx)/fx, (v-cy)/fy, 1)."""
+    n = rows[:, R_N : R_N + 3]
     dp = np.einsum("ij,ij->i", n, V[:, 0])
+    safe = np.where(np.abs(dp) > 1e-12, dp, 1e-12)
+    C = np.stack([n[:, 0] / cam.fx, n[:, 1] / cam.fy, n[:, 2] - n[:, 0] * cam.cx / cam.fx - n[:, 1] * cam.cy / cam.fy], 1)
+    return C / safe[:, None], dp
+
+
+def to_camera(verts: np.ndarray, rows: np.ndarray, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and the rows' normal, origin and texture axes from map to camera frame (float64)."""
+    V = verts @ R.T + t
+    rc = rows.copy()
+    for c in (R_N, R_U, R_V):
+        rc[:, c : c + 3] = rows[:, c : c + 3] @ R.T
+    rc[:, R_O : R_O + 3] = rows[:, R_O : R_O + 3] @ R.T + t
+    return V, rc
+
+
+def rasterize(cam: Camera, V: np.ndarray, rows_cam: np.ndarray, C: np.ndarray, dp: np.ndarray):
+    """Camera-frame faces → (face id (H,W) int32, -1 = sky; inverse depth (H,W) float32, SKY_INVZ on sky)."""
+    H, W = cam.h, cam.w
     z = V[:, :, 2]
     keep = (dp < -1e-6) & (z.max(1) > NEAR_M) & (z.min(1) < FAR_M)
     zc = np.maximum(z, NEAR_M)
@@ -56,28 +80,28 @@ def rasterize(cam: Camera, verts: np.ndarray, rows: np.ndarray, R: np.ndarray, t
     allin = z.min(1) >= NEAR_M
     keep &= ~(allin & ((px.max(1) < -1) | (px.min(1) > W) | (py.max(1) < -1) | (py.min(1) > H)))
     ids = np.full((H, W), -1, np.int32)
-    invz = np.zeros((H, W), np.float32)
-    # inverse depth plane: 1/z = (n·r)/dp with r = ((u-cx)/fx, (v-cy)/fy, 1)
-    ia = (n[:, 0] / cam.fx / dp).astype(np.float32)
-    ib = (n[:, 1] / cam.fy / dp).astype(np.float32)
-    ic = ((n[:, 2] - n[:, 0] * cam.cx / cam.fx - n[:, 1] * cam.cy / cam.fy) / dp).astype(np.float32)
+    invz = np.full((H, W), SKY_INVZ, np.float32)
     # inverse depth range of each face's (unclipped) vertices: raster edge pixels just outside
     # an oblique face must not extrapolate its plane to a wrong depth
-    izv = 1.0 / np.maximum(zc, NEAR_M)
+    izv = 1.0 / zc
     iz_lo, iz_hi = (izv.min(1) * 0.999).astype(np.float32), (izv.max(1) * 1.001).astype(np.float32)
     bx0 = np.floor(px.min(1)).clip(0, W).astype(int)
     by0 = np.floor(py.min(1)).clip(0, H).astype(int)
     bx1 = (np.ceil(px.max(1)) + 1).clip(0, W).astype(int)
     by1 = (np.ceil(py.max(1)) + 1).clip(0, H).astype(int)
     pq = np.round(np.stack([px, py], 2).clip(-1e5, 1e5) * (1 << SUB)).astype(np.int32)
-    nvs = rows[:, R_NV].astype(int)
-    for f in np.nonzero(keep)[0].tolist():
+    nvs = rows_cam[:, R_NV].astype(int)
+    Cf = C.astype(np.float32)
+    # nearest first (by the nearest vertex), ties by face index: a deterministic order
+    cand = np.nonzero(keep)[0]
+    cand = cand[np.argsort(-izv[cand].max(1), kind="stable")]
+    for f in cand.tolist():
         nv = nvs[f]
         if allin[f]:
-            x0, y0, x1, y1 = bx0[f], by0[f], bx1[f], by1[f]
+            x0, y0, x1, y1 = int(bx0[f]), int(by0[f]), int(bx1[f]), int(by1[f])
             if x1 <= x0 or y1 <= y0:
                 continue
-            q = pq[f, :nv] - ((x0 << SUB), (y0 << SUB))
+            q = None
         else:
             poly = _clip_near(V[f, :nv])
             if len(poly) < 3:
@@ -88,78 +112,110 @@ def rasterize(cam: Camera, verts: np.ndarray, rows: np.ndarray, R: np.ndarray, t
             if x1 <= x0 or y1 <= y0:
                 continue
             q = np.round((p - [x0, y0]) * (1 << SUB)).astype(np.int32)
+        zr = invz[y0:y1, x0:x1]
+        hi = iz_hi[f]
+        if zr.min() > hi:  # occluded: nearer faces already cover the whole rectangle
+            continue
+        if q is None:
+            q = pq[f, :nv] - ((x0 << SUB), (y0 << SUB))
         mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
         cv2.fillConvexPoly(mask, q, 1, lineType=cv2.LINE_8, shift=SUB)
-        iz = (ia[f] * cam.u[x0:x1])[None, :] + (ib[f] * cam.v[y0:y1] + ic[f])[:, None]
-        np.clip(iz, iz_lo[f], iz_hi[f], out=iz)
-        zr = invz[y0:y1, x0:x1]
+        ia, ib, ic = Cf[f]
+        iz = (ib * cam.v[y0:y1] + ic)[:, None] + ia * cam.u[x0:x1]
+        np.minimum(iz, hi, out=iz)
+        np.maximum(iz, iz_lo[f], out=iz)
         win = iz > zr
         win &= mask.view(bool)
         np.copyto(zr, iz, where=win)
         np.copyto(ids[y0:y1, x0:x1], f, where=win)
-    return ids, invz, V, n
+    return ids, invz
 
 
-def shade(cam: Camera, atlas: Atlas, ids: np.ndarray, invz: np.ndarray, rows: np.ndarray, Vc: np.ndarray,
-          R: np.ndarray, t: np.ndarray, light: np.ndarray, sky: np.ndarray) -> np.ndarray:
-    """RGB float32 image in [0, 1]-ish of the rasterised faces; ``light`` (F,3) per-face colour gain."""
-    H, W = cam.h, cam.w
-    F = len(rows)
-    # per-face texture-coordinate planes in camera frame: s = z·(a u + b v + c) + d
-    O = rows[:, R_O : R_O + 3] @ R.T + t
-    coef = np.zeros((F + 1, 12), np.float32)
+def texture_tables(cam: Camera, atlas: Atlas, V: np.ndarray, rows_cam: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """Per face float32 columns: A/w (3), B/h (3) in tile units, tile x0 − 2·ATLAS_W, y0, w, h, mip constant;
+    one extra all-zero row last (sky, index −1)."""
+    F = len(rows_cam)
+    tile = rows_cam[:, R_TILE : R_TILE + 4]
+    O = rows_cam[:, R_O : R_O + 3]
+    K = np.array([[1 / cam.fx, 0, -cam.cx / cam.fx], [0, 1 / cam.fy, -cam.cy / cam.fy], [0, 0, 1]])
+    HM = np.zeros((F, 3, 3))
     for k, col in enumerate((R_U, R_V)):
-        Uc = rows[:, col : col + 3] @ R.T
-        coef[:F, 4 * k + 0] = Uc[:, 0] / cam.fx
-        coef[:F, 4 * k + 1] = Uc[:, 1] / cam.fy
-        coef[:F, 4 * k + 2] = Uc[:, 2] - Uc[:, 0] * cam.cx / cam.fx - Uc[:, 1] * cam.cy / cam.fy
-        coef[:F, 4 * k + 3] = -np.einsum("ij,ij->i", Uc, O)
-    coef[:F, 8:12] = rows[:, R_TILE : R_TILE + 4]
-    coef[F, 10:12] = 1
-    idx = np.where(ids < 0, F, ids)
-    valid = ids >= 0
-    cT = np.ascontiguousarray(coef.T)
-    g = [np.take(cT[k], idx) for k in range(12)]
-    z = np.where(valid, 1.0 / np.maximum(invz, 1e-9), 0).astype(np.float32)
-    uu, vv = cam.u[None, :], cam.v[:, None]
-    S = (g[0] * uu + g[1] * vv + g[2]) * z + g[3]
-    T = (g[4] * uu + g[5] * vv + g[6]) * z + g[7]
-    # texel footprint per pixel (min of forward/backward differences, so face borders stay sharp)
-    # geometric mean of the u and v footprints: a compromise for surfaces seen at grazing
-    # angles (the road), sharp across, slightly aliased along the viewing direction
-    fp = _footprint(S, T, 1) * _footprint(S, T, 0)
-    lev = np.clip(0.5 * np.log2(np.maximum(fp, 1e-12)) - 0.2, 0, NLEV - 1 - 1e-3)
-    tx = g[8] + (S - np.floor(S / g[10]) * g[10])
-    ty = g[9] + (T - np.floor(T / g[11]) * g[11])
-    # trilinear mip lookup in the packed atlas: two bilinear remaps (levels ⌊lev⌋ and ⌊lev⌋+1)
-    base = np.floor(lev)
-    frac = lev - base
-    scale = np.exp2(-base)
-    off = (2 * atlas.levels[0].shape[1]) * (1 - scale)
-    ax, ay = tx * scale, ty * scale
-    a = cv2.remap(atlas.packed, off + ax - 0.5, ay - 0.5, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    scale *= 0.5
-    off = (2 * atlas.levels[0].shape[1]) * (1 - scale)
-    ax *= 0.5
-    ay *= 0.5
-    b = cv2.remap(atlas.packed, off + ax - 0.5, ay - 0.5, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    out = a.astype(np.float32)
-    out += (b - out) * frac[..., None]
-    out *= 1.0 / 255.0
-    lt = np.concatenate([light, np.zeros((1, 3), np.float32)])
-    for ch in range(3):
-        out[..., ch] *= np.take(lt[:, ch], idx)
-    out[~valid] = sky[~valid]
+        Uc = rows_cam[:, col : col + 3]
+        g = Uc @ K  # s·(1/z) = (g·p) − (Uc·O)·(C·p), texels
+        HM[:, k] = g - np.einsum("ij,ij->i", Uc, O)[:, None] * C
+    HM[:, 2] = C
+    det = np.abs(np.linalg.det(HM))
+    tab = np.zeros((F + 1, 11))
+    tab[:F, 0:3] = HM[:, 0] / tile[:, 2:3]
+    tab[:F, 3:6] = HM[:, 1] / tile[:, 3:4]
+    # shift each face's tile coordinates by whole repeats so they stay small on the face
+    # (float32 precision far from the map origin); the wrap makes this invisible
+    for k, col, size in ((0, R_U, tile[:, 2]), (3, R_V, tile[:, 3])):
+        at_vertex = np.einsum("ij,ij->i", rows_cam[:, col : col + 3], V[:, 0] - O) / size
+        tab[:F, k : k + 3] -= np.floor(at_vertex)[:, None] * C
+    tab[:F, 6] = tile[:, 0] - 2 * atlas.levels[0].shape[1]
+    tab[:F, 7:10] = tile[:, 1:4]
+    tab[:F, 10] = 0.5 * np.log2(np.maximum(det, 1e-30)) + MIP_BIAS
+    return np.ascontiguousarray(tab.T.astype(np.float32))
+
+
+def shade(cam: Camera, atlas: Atlas, ids: np.ndarray, invz: np.ndarray, tab: np.ndarray, light: np.ndarray,
+          sky: np.ndarray) -> np.ndarray:
+    """RGB float32 image: atlas texel (0–255) × ``light`` (F, 3) per face; ``sky`` fills sky pixels.
+    Runs in bands of STRIP rows so every per-pixel temporary stays in the core's cache."""
+    out = np.empty((cam.h, cam.w, 3), np.float32)
+    lt = np.ascontiguousarray(np.concatenate([light, np.zeros((1, 3), np.float32)]).T)
+    for y0 in range(0, cam.h, STRIP):
+        y1 = min(cam.h, y0 + STRIP)
+        _shade_band(cam, atlas, ids[y0:y1], invz[y0:y1], cam.v[y0:y1, None], tab, lt, sky[y0:y1], out[y0:y1])
     return out
 
 
-def _footprint(S: np.ndarray, T: np.ndarray, axis: int) -> np.ndarray:
-    dS = np.abs(np.diff(S, axis=axis)) + np.abs(np.diff(T, axis=axis))
-    pad = [(0, 0), (0, 0)]
-    pad[axis] = (1, 0)
-    a = np.pad(dS, pad, mode="edge")
-    pad[axis] = (0, 1)
-    b = np.pad(dS, pad, mode="edge")
-    return np.minimum(a, b)
-
-
+def _shade_band(cam, atlas, ids, invz, vv, tab, lt, sky, out) -> None:
+    g = [np.take(col, ids) for col in tab]  # index −1 (sky) takes the all-zero last row
+    a0, a1, a2, b0, b1, b2, x0, y0, tw, th, kf = g
+    z = np.reciprocal(invz)
+    uu = cam.u[None, :]
+    s = a0 * uu
+    s += a1 * vv
+    s += a2
+    s *= z
+    t = b0 * uu
+    t += b1 * vv
+    t += b2
+    t *= z
+    s -= np.floor(s)
+    t -= np.floor(t)
+    s *= tw
+    s += x0  # texel x relative to 2·ATLAS_W (folds the packed-level offset in)
+    t *= th
+    t += y0
+    # mip level from the texel area per pixel: 0.5·log2|det H| + 1.5·log2 z
+    lev = np.log2(z)
+    lev *= 1.5
+    lev += kf
+    np.clip(lev, 0, NLEV - 1 - 1e-3, out=lev)
+    base = lev.astype(np.int32)
+    frac = lev - base
+    # level L of the packed atlas starts at x = 2·W·(1 − 2^−L): x_L = (x − 2W)·2^−L + 2W
+    W2 = 2.0 * atlas.levels[0].shape[1]
+    np.negative(base, out=base)
+    xa = np.ldexp(s, base)
+    xa += W2 - 0.5
+    ya = np.ldexp(t, base)
+    ya -= 0.5
+    a = cv2.remap(atlas.packed, xa, ya, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    # level L+1 from level L's sample coordinates: x_{L+1} = x_L/2 + W − 1/4, y_{L+1} = y_L/2 − 1/4
+    xa *= 0.5
+    xa += 0.5 * W2 - 0.25
+    ya *= 0.5
+    ya -= 0.25
+    b = cv2.remap(atlas.packed, xa, ya, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    np.copyto(out, a)
+    d = np.subtract(b, out)
+    for ch in range(3):
+        d[..., ch] *= frac
+        out[..., ch] += d[..., ch]
+        out[..., ch] *= np.take(lt[ch], ids)
+    skym = ids < 0
+    np.copyto(out, sky, where=skym[..., None])
