@@ -14,8 +14,11 @@ fi
 [ -x .venv/bin/python ] || "$py" -m venv .venv
 stamp=".venv/.installed-$(cat pyproject.toml scripts/setup.sh | sha256sum | cut -c1-16)-${extras//,/_}"
 if [ ! -f "$stamp" ]; then
-  .venv/bin/python -m pip install -q --upgrade pip >/dev/null 2>&1 || true
-  .venv/bin/python -m pip install -q -e ".[${extras}]"
+  echo "setup: installing tube-miner[${extras}] into .venv (log: .venv/setup.log)" >&2
+  if ! .venv/bin/python -m pip install -e ".[${extras}]" >.venv/setup.log 2>&1; then
+    tail -30 .venv/setup.log >&2
+    exit 1
+  fi
   if [[ ",$extras," == *",test,"* ]]; then
     # TrackEval (MIT, the KITTI/MOT reference evaluator) cross-checks our metrics in the
     # tests. --no-deps: its metadata pulls opencv-python, which clashes with the headless
