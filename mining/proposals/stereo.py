@@ -136,7 +136,7 @@ class StereoProposer:
         v = (np.arange(hs) * s)[:, None]
         n, d0 = geometry.ground.normal, geometry.ground.d
         valid = np.isfinite(z) & (z > 0)
-        z = np.where(valid, z, np.nan)
+        z = np.where(valid, z, np.nan).astype(np.float32)
         x = (u - calib.cx) * z / calib.fx
         y = (v - calib.cy) * z / calib.fy
         h = n[0] * x + n[1] * y + n[2] * z + d0
@@ -239,23 +239,24 @@ class StereoProposer:
             points[cv_ - r0, cu_ - c0] = 1
             zobj = np.zeros(points.shape, np.float32)
             zobj[cv_ - r0, cu_ - c0] = cz
-            # Growth downwards over points at the object's depth: its feet, below the ground cut,
-            # as many steps as image rows the ground cut removed at this depth, no more.
-            zc = z[r0:r1, c0:c1].astype(np.float32)
-            can_grow = growable[r0:r1, c0:c1]
-            cut_gap = cfg.min_height_m - cfg.grow_min_height_m + cfg.height_noise_sigmas * d0 * zq[1] * cfg.disparity_noise_px / bf
-            steps = min(cfg.grow_steps, math.ceil(cut_gap * calib.fy / (zq[1] * s)))
-            zn = np.zeros_like(zobj)
-            # Depth tolerances from the cluster's median depth (one number per cluster).
+            # Growth downwards (and diagonally) over points within the cluster's depth range: its
+            # feet, below the ground cut, as many rows as the ground cut removed at this depth.
+            zc = z[r0:r1, c0:c1]
             noise_z = zq[1] ** 2 * cfg.disparity_noise_px / bf
             grow_gap, ring_gap = max(cfg.border_gap_m, noise_z), max(cfg.border_gap_m, 3.0 * noise_z)
-            for _ in range(steps):
-                zn[1:] = cv2.dilate(zobj, grow_kernel)[:-1]  # depth of the object pixels just above
-                new = can_grow & (points == 0) & (zn > 0) & (np.abs(zc - zn) <= grow_gap)
-                if not new.any():
-                    break
-                points[new] = 1
-                zobj[new] = zc[new]
+            cut_gap = cfg.min_height_m - cfg.grow_min_height_m + cfg.height_noise_sigmas * d0 * zq[1] * cfg.disparity_noise_px / bf
+            steps = min(cfg.grow_steps, math.ceil(cut_gap * calib.fy / (zq[1] * s)))
+            if steps > 0:
+                ok = (growable[r0:r1, c0:c1] & (zc >= zq[0] - grow_gap) & (zc <= zq[2] + grow_gap)).astype(np.uint8)
+                for _ in range(steps):
+                    below = np.zeros_like(points)
+                    below[1:] = cv2.dilate(points, grow_kernel)[:-1]  # one row down, one column aside
+                    new = below & ok & (points == 0)
+                    if not new.any():
+                        break
+                    points |= new
+                grown = (points > 0) & (zobj == 0)
+                zobj[grown] = zc[grown]
             mask = cv2.morphologyEx(points, cv2.MORPH_CLOSE, close_kernel)
             # Border ring: background where there is no object-height point at the object's depth.
             znear = cv2.dilate(zobj, ring_kernel)
