@@ -15,15 +15,27 @@ Per frame:
    points in metres (each sample stands for ``step·z/fy`` metres of one image column);
    normalising this way makes a far object as dense as a near one, although it has far
    fewer points.
-3. **Multi-scale clusters.** For each scale (density threshold, dilation) the occupied
-   cells are grouped into connected components; dilation only links cells, clusters keep
-   their own cells. Fine scales split touching objects, coarse ones join objects broken
-   by stereo holes: both hypotheses are proposed (proposals live on recall; tubes and
-   co-selection sort out the duplicates). Identical point sets from different scales are
-   proposed once; footprints longer than ``max_extent_m`` (walls, hedges, facades) are
-   dropped — such structures are not objects.
-4. **Masks.** A cluster's mask is the pixels of its points, closed in the image to fill
-   stereo holes; it is run-length encoded from its crop (``mining.masks.crop_rle``).
+3. **Multi-scale clusters.** Candidate point sets come from three groupings, each at
+   several settings; fine ones split touching objects, coarse ones join objects broken by
+   stereo holes, and all hypotheses are proposed (proposals live on recall; tubes and
+   co-selection sort out the duplicates):
+   * connected components of occupied grid cells per ``scales`` entry (density threshold,
+     dilation; dilation only links cells, clusters keep their own cells);
+   * the same within bands of cell top height (``height_band_m``, two offsets): a car
+     parked before a taller hedge at the same range parts from it (on KITTI 0005 this
+     alone lifts car recall from 0.33 to 0.77);
+   * image regions of object-height pixels cut where neighbouring disparities jump
+     (``image_jumps_px``): objects before a background at another depth.
+   Identical point sets are proposed once; footprints longer than ``max_extent_m`` (walls,
+   hedges, facades) are dropped — such structures are not objects. Near-duplicates go by
+   NMS on the point boxes, and masks are built for at most ``mask_budget·max_proposals``
+   clusters, best cheap cues first.
+4. **Masks.** A cluster's mask is the pixels of its points, grown down over points within
+   its depth range that lie between ``grow_min_height_m`` and the ground cut (its feet; as
+   many rows as the cut removed at that depth), closed in the image to fill stereo holes,
+   and run-length encoded from its crop (``mining.masks.crop_rle``). ``position`` is the
+   median of the cluster's points (camera metres), ``size`` = (width across x, top height
+   above the ground, length along z less the spread stereo noise alone makes).
 5. **Objectness** = sigmoid(bias + Σ wₖ·cueₖ), every cue in [0, 1] with higher meaning
    more object-like and every weight ≥ 0, so objectness is monotone non-decreasing in
    each cue (:func:`objectness_from_cues`). Cues, in ``CUES`` order: border contrast (the
