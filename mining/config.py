@@ -35,6 +35,11 @@ class SourceConfig:
 
 
 @dataclass
+class ExportConfig:
+    observed_only: bool = True  # ours: tracking exports list observed frames only; False adds predicted boxes in gaps
+
+
+@dataclass
 class JobConfig:
     source: SourceConfig = field(default_factory=SourceConfig)
     geometry: GeometryConfig = field(default_factory=GeometryConfig)
@@ -43,6 +48,7 @@ class JobConfig:
     tubes: TubeConfig = field(default_factory=TubeConfig)
     score: ScoreConfig = field(default_factory=ScoreConfig)
     select: SelectConfig = field(default_factory=SelectConfig)
+    export: ExportConfig = field(default_factory=ExportConfig)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

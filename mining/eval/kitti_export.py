@@ -23,7 +23,8 @@ def tubes_to_kitti_rows(mined, rect0_from_cam2=None, observed_only: bool = True)
     for m in mined:
         if not m.selected:
             continue
-        kind = KITTI_TYPE.get(m.category.category, "Misc")
+        # A KITTI result names the detector's best class; known-ness is a separate question.
+        kind = KITTI_TYPE.get(m.category.best_known, "Misc")
         for f in m.tube.frames:
             if observed_only and not f.observed:
                 continue

@@ -146,7 +146,7 @@ def geometric_filter(obs: Observations, ground: GroundPlane | None, cfg: Proposa
     """
     b = obs.proposals.boxes
     area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
-    keep = area >= cfg.min_box_area_px
+    keep = (area >= cfg.min_box_area_px) & (obs.proposals.objectness >= cfg.min_objectness)
     foot = obs.footpoint
     keep &= np.isfinite(foot).all(axis=1)
     with np.errstate(invalid="ignore"):

@@ -59,5 +59,5 @@ def track_detections(kitti_root: str | Path, sequence: str, detections: str | Pa
     if out_txt is not None:
         kcalib = KittiTrackingSource(str(kitti_root)).kitti_calib(sequence)
         t = kcalib.t_cam2
-        write_tubes_kitti(out_txt, mined, rect0_from_cam2=lambda p: p - t)
+        write_tubes_kitti(out_txt, mined, rect0_from_cam2=lambda p: p - t, observed_only=cfg.export.observed_only)
     return mined

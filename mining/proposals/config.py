@@ -36,6 +36,7 @@ class ProposalFilterConfig:
     z_range_m: tuple[float, float] = (0.0, 60.0)  # REFERENCE: drop ground-projected Z outside (0, 60) m
     height_range_m: tuple[float, float] = (0.1, 5.0)  # REFERENCE: drop height above ground outside (0.1, 5.0) m
     max_proposals: int = 300  # REFERENCE: sorted by score, at most 300 kept (authors advise ≤ 500)
+    min_objectness: float = 0.0  # ours: 0 keeps every proposal (REFERENCE's 0.8 cut defeats generic proposals); detectors may want one
 
 
 @dataclass

@@ -24,15 +24,17 @@ class TubeCategory:
     category: str  # COCO class name, or "unknown"
     probability: float  # posterior mass of ``category`` (NaN without classes)
     known: bool
+    best_known: str  # the most probable of the 80 classes, even when the tube is unknown (or "unknown" without classes)
 
 
 def tube_category(tube: Tube, known_threshold: float) -> TubeCategory:
     rows = [f.posterior for f in tube.frames if f.observed and f.posterior is not None]
     if not rows:
-        return TubeCategory(None, "unknown", float("nan"), False)
+        return TubeCategory(None, "unknown", float("nan"), False, "unknown")
     mean = np.mean(np.asarray(rows, np.float64), axis=0)
     best = int(np.argmax(mean))
     prob = float(mean[best])
+    best_known = COCO_CLASSES[int(np.argmax(mean[:UNKNOWN_CLASS]))]
     if best == UNKNOWN_CLASS:
-        return TubeCategory(mean, "unknown", prob, False)
-    return TubeCategory(mean, COCO_CLASSES[best], prob, prob >= known_threshold)
+        return TubeCategory(mean, "unknown", prob, False, best_known)
+    return TubeCategory(mean, COCO_CLASSES[best], prob, prob >= known_threshold, best_known)

@@ -66,13 +66,26 @@ class Prediction:
     box: np.ndarray
 
 
+GROUND = [0, 2]  # x and z: the footpoint's coordinates on the ground plane (y is the plane's height)
+
+
 def gaussian_density(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    """N(x; mean, cov) for (N, 3) points and (N, 3, 3) covariances."""
-    diff = x - mean
-    inv = np.linalg.inv(cov)
-    m2 = np.einsum("ni,nij,nj->n", diff, inv, diff)
-    norm = np.sqrt((2 * np.pi) ** 3 * np.linalg.det(cov))
-    return np.exp(-0.5 * m2) / norm
+    """N(x; mean, cov) on the ground plane, for (N, 3) points and (N, 3, 3) covariances.
+
+    The motion LLR's null hypothesis spreads clutter uniformly over the ground area
+    (paper: 1/A_GP with A_GP ≈ 80 m × 50 m), so the density is per square metre of ground.
+    """
+    diff = (x - mean)[:, GROUND]
+    c = cov[:, GROUND][:, :, GROUND]
+    m2 = np.einsum("ni,nij,nj->n", diff, np.linalg.inv(c), diff)
+    return np.exp(-0.5 * m2) / (2 * np.pi * np.sqrt(np.linalg.det(c)))
+
+
+def mahalanobis2(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """Squared Mahalanobis distance on the ground plane."""
+    diff = (x - mean)[:, GROUND]
+    c = cov[:, GROUND][:, :, GROUND]
+    return np.einsum("ni,nij,nj->n", diff, np.linalg.inv(c), diff)
 
 
 class TubeGenerator:
@@ -189,9 +202,7 @@ class TubeGenerator:
             cand, iou = cand[ok], iou[ok]
             mean = tube.kf.x[POS]
             S = tube.kf.position_innovation_cov(world.covariance[cand])
-            diff = world.footpoint[cand] - mean
-            m2 = np.einsum("ni,nij,nj->n", diff, np.linalg.inv(S), diff)
-            ok = m2 < self.cfg.gate_mahalanobis**2
+            ok = mahalanobis2(world.footpoint[cand], mean, S) < self.cfg.gate_mahalanobis**2
             if not ok.any():
                 continue
             cand, iou = cand[ok], iou[ok]
