@@ -33,7 +33,8 @@ Per frame:
 4. **Masks.** A cluster's mask is the pixels of its points, grown down over points within
    its depth range that lie between ``grow_min_height_m`` and the ground cut (its feet; as
    many rows as the cut removed at that depth), closed in the image to fill stereo holes,
-   and run-length encoded from its crop (``mining.masks.crop_rle``). ``position`` is the
+   trimmed by ``left_trim_px`` at its left edges (left-reference stereo spreads a
+   foreground disparity over the background it occludes, to its left), and run-length encoded from its crop (``mining.masks.crop_rle``). ``position`` is the
    median of the cluster's points (camera metres), ``size`` = (width across x, top height
    above the ground, length along z less the spread stereo noise alone makes).
 5. **Objectness** = sigmoid(bias + Σ wₖ·cueₖ), every cue in [0, 1] with higher meaning
@@ -214,6 +215,7 @@ class StereoProposer:
         ring_kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
         pad = k_close // 2 + 3 + cfg.grow_steps
         grow_kernel = np.ones((1, 3), np.uint8)
+        trim = cfg.left_trim_px // s
         # 4a. Cheap 3D statistics per cluster (order statistics of at most ~256 points each).
         stats = []  # (idx, subsample, quantile positions, z quantiles, x quantiles, top, width, length, point box)
         for idx in clusters:
@@ -270,6 +272,12 @@ class StereoProposer:
                 grown = (points > 0) & (zobj == 0)
                 zobj[grown] = zc[grown]
             mask = cv2.morphologyEx(points, cv2.MORPH_CLOSE, close_kernel)
+            if trim > 0:  # left-edge fattening: keep pixels whose left neighbours are in the mask too
+                kept = mask.copy()
+                for k in range(1, trim + 1):
+                    kept[:, k:] &= mask[:, :-k]
+                    kept[:, :k] = 0
+                mask = kept if kept.any() else mask
             # Border ring: background where there is no object-height point at the object's depth.
             znear = cv2.dilate(zobj, ring_kernel)
             ring = (cv2.dilate(mask, ring_kernel) > 0) & (mask == 0) & (znear > 0)
