@@ -38,7 +38,7 @@ def labels(kitti_tracking_root):
 
 
 def test_car_recall_on_kitti(kitti_frames, labels):
-    # Measured on frames 0–7: R@20 = 0.79, R@all = 0.875 of 24 cars (box IoU ≥ 0.5); thresholds leave a margin.
+    # Measured on frames 0–7: R@20 = 0.83, R@all = 0.875 of 24 cars (box IoU ≥ 0.5); thresholds leave a margin.
     hits = {20: [], None: []}
     for f, _, p in kitti_frames:
         gt = labels.box[(labels.frame == f.index) & (labels.type != "DontCare")]
@@ -123,7 +123,7 @@ def synthetic_frames():
 
 def test_unknown_objects_are_found_on_synthetic(synthetic_frames):
     # Objects no detector knows (cones, bins, crates, debris) within 30 m. Measured on these
-    # 15 frames: box IoU ≥ 0.5 for 16 of 31 (0.52), mask IoU ≥ 0.5 for 8 (0.26): stereo at half
+    # 15 frames: box IoU ≥ 0.5 for 15 of 30 (0.50), mask IoU ≥ 0.5 for 8 (0.27): stereo at half
     # resolution fattens small objects sideways, so masks overshoot while boxes still fit.
     # Debris (≤ 0.3 m high) mostly lies under the ground cut.
     proposer = StereoProposer()
