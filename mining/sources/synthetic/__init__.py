@@ -99,9 +99,7 @@ class SyntheticSource(Source):
             img = shade(cam, self._atlas, ids, invz, tab, (light * g).astype(np.float32),
                         sky * (255.0 * g).astype(np.float32))
             img = cv2.GaussianBlur(img, (0, 0), BLUR_SIGMA)
-            img += self._noise_at(rng, c.height, c.width)  # the bank carries the +0.5 of rounding
-            np.clip(img, 0, 255, out=img)
-            images.append(img.astype(np.uint8))
+            images.append(cv2.add(img, self._noise_at(rng, c.height, c.width), dtype=cv2.CV_8U))  # rounds, saturates
             if k == 0:
                 truth_bufs = (ids, invz)
         truth = self._truth(sc, t, M, truth_bufs, rows, states)
@@ -122,10 +120,9 @@ class SyntheticSource(Source):
         return cv2.resize(small, (cam.w, cam.h), interpolation=cv2.INTER_LINEAR)
 
     def _noise_at(self, rng: np.random.Generator, h: int, w: int) -> np.ndarray:
-        """Sensor noise (+0.5 for rounding): a fixed bank of Gaussian noise, cut at a per-frame seeded offset."""
+        """Sensor noise: a fixed bank of Gaussian noise, cut at a per-frame seeded offset."""
         if self._noise is None or self._noise.shape[0] < h + 64:
-            bank = np.random.default_rng(self.seed_base + 12345).normal(0, NOISE_DN, (h + 64, w + 64, 3))
-            self._noise = (bank + 0.5).astype(np.float32)
+            self._noise = np.random.default_rng(self.seed_base + 12345).normal(0, NOISE_DN, (h + 64, w + 64, 3)).astype(np.float32)
         oy, ox = rng.integers(0, 64, 2)
         return self._noise[oy : oy + h, ox : ox + w]
 
