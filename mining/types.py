@@ -233,7 +233,8 @@ class Proposals:
     Masks are COCO compressed RLEs (``{"size": [h, w], "counts": bytes}``, as
     ``pycocotools.mask.encode`` makes them) so that no stage holds full-frame arrays per
     proposal. ``posterior`` is an (N, 81) distribution over the 80 COCO classes plus
-    unknown (rows sum to 1), or None when the proposer has no classes.
+    unknown (rows sum to 1), or None when the proposer has no classes; in a union of
+    proposers, the rows of a proposer without classes are NaN.
     """
 
     frame: int

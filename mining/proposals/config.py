@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from mining.proposals.stereo_config import StereoProposerConfig
+
 
 @dataclass
 class OnnxConfig:
@@ -75,10 +77,11 @@ class UnionConfig:
 
 @dataclass
 class ProposalConfig:
-    proposer: str = "onnx"  # ours: which proposer makes the image-level masks
+    proposer: str = "stereo"  # ours: "stereo" (weight-free default), "onnx", "json", or a union such as "onnx+stereo"
     onnx: OnnxConfig = field(default_factory=OnnxConfig)
     filters: ProposalFilterConfig = field(default_factory=ProposalFilterConfig)
     json: JsonProposalsConfig = field(default_factory=JsonProposalsConfig)
     kitti_detections: KittiDetectionsConfig = field(default_factory=KittiDetectionsConfig)
     union: UnionConfig = field(default_factory=UnionConfig)
+    stereo: StereoProposerConfig = field(default_factory=StereoProposerConfig)
 

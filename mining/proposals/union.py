@@ -8,10 +8,10 @@ the proposer that made it.
 
 Fields one proposer lacks:
 
-* posterior — rows from a proposer without classes get the uniform distribution 1/81. That
-  says "no class information": averaged into a tube's posterior it leaves the argmax to the
-  observations that have classes. Putting the mass on ``UNKNOWN_CLASS`` instead would claim
-  the object is *not* one of the 80 classes, which the proposer never said.
+* posterior — rows from a proposer without classes are NaN: "no class information". A
+  tube's posterior averages only the rows that have classes (a uniform row would still
+  vote, and its argmax is an arbitrary class). Putting the mass on ``UNKNOWN_CLASS`` instead
+  would claim the object is *not* one of the 80 classes, which the proposer never said.
 * position / size — NaN rows, the convention of ``Proposals`` for "not measured".
 
 ``filter_by_box_area_and_count`` is the image-only part of the REFERENCE proposal filter
@@ -71,12 +71,15 @@ def union(proposals_list: Sequence[Proposals], iou_threshold: float) -> Proposal
         rles=rles,
         boxes=np.concatenate([p.boxes.reshape(-1, 4) for p in proposals_list]).astype(np.float32),
         objectness=np.concatenate([p.objectness for p in proposals_list]).astype(np.float32),
-        posterior=_stack([p.posterior for p in proposals_list], n, N_CLASSES, 1.0 / N_CLASSES),
+        posterior=_stack([p.posterior for p in proposals_list], n, N_CLASSES, np.nan),
         proposer=[name for p in proposals_list for name in p.proposer],
         position=_stack([p.position for p in proposals_list], n, 3, np.nan),
         size=_stack([p.size for p in proposals_list], n, 3, np.nan),
     )
-    order = np.argsort(-merged.objectness, kind="stable")
+    # Earlier proposers win duplicates ("onnx+stereo": the learned masks and classes stand,
+    # the stereo proposer adds what the network missed); within one proposer, objectness.
+    # Objectness of different proposers is not on one scale, so it cannot decide between them.
+    order = np.lexsort((-merged.objectness, group))
     iou = mask_iou(rles, rles)  # one batched call over all pairs
     same = iou > iou_threshold
     same &= group[:, None] != group[None, :]
@@ -86,7 +89,8 @@ def union(proposals_list: Sequence[Proposals], iou_threshold: float) -> Proposal
         if alive[i]:
             keep.append(i)
             alive &= ~same[i]
-    return take(merged, np.asarray(keep, np.int64))
+    keep = np.asarray(keep, np.int64)
+    return take(merged, keep[np.argsort(-merged.objectness[keep], kind="stable")])
 
 
 def _stack(parts: list[np.ndarray | None], n: list[int], width: int, fill: float) -> np.ndarray | None:

@@ -28,7 +28,8 @@ class TubeCategory:
 
 
 def tube_category(tube: Tube, known_threshold: float) -> TubeCategory:
-    rows = [f.posterior for f in tube.frames if f.observed and f.posterior is not None]
+    rows = [f.posterior for f in tube.frames
+            if f.observed and f.posterior is not None and np.isfinite(f.posterior).all()]
     if not rows:
         return TubeCategory(None, "unknown", float("nan"), False, "unknown")
     mean = np.mean(np.asarray(rows, np.float64), axis=0)
