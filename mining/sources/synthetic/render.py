@@ -207,7 +207,7 @@ def shade(cam: Camera, atlas: Atlas, ids: np.ndarray, invz: np.ndarray, tab: np.
     """RGB float32 image: atlas texel (0–255) × ``light`` (F, 3) per face; ``sky`` fills sky pixels.
     Runs in bands of STRIP rows so every per-pixel temporary stays in the core's cache."""
     out = np.empty((cam.h, cam.w, 3), np.float32)
-    lt = np.ascontiguousarray(np.concatenate([light, np.zeros((1, 3), np.float32)]).T)
+    lt = np.concatenate([light, np.zeros((1, 3), np.float32)])
     for y0 in range(0, cam.h, STRIP):
         y1 = min(cam.h, y0 + STRIP)
         _shade_band(cam, atlas, ids[y0:y1], invz[y0:y1], cam.v[y0:y1, None], tab, lt, sky[y0:y1], out[y0:y1])
@@ -215,8 +215,8 @@ def shade(cam: Camera, atlas: Atlas, ids: np.ndarray, invz: np.ndarray, tab: np.
 
 
 def _shade_band(cam, atlas, ids, invz, vv, tab, lt, sky, out) -> None:
-    g = [np.take(col, ids) for col in tab]  # index −1 (sky) takes the all-zero last row
-    a0, a1, a2, b0, b1, b2, x0, y0, tw, th, kf = g
+    # per-face values for every pixel; index −1 (sky) wraps to the all-zero last row
+    a0, a1, a2, b0, b1, b2, x0, y0, tw, th, kf = (np.take(col, ids, mode="wrap") for col in tab)
     z = np.reciprocal(invz)
     uu = cam.u[None, :]
     s = a0 * uu
@@ -237,7 +237,8 @@ def _shade_band(cam, atlas, ids, invz, vv, tab, lt, sky, out) -> None:
     lev = np.log2(z)
     lev *= 1.5
     lev += kf
-    np.clip(lev, 0, NLEV - 1 - 1e-3, out=lev)
+    np.maximum(lev, 0, out=lev)
+    np.minimum(lev, NLEV - 1 - 1e-3, out=lev)
     base = lev.astype(np.int32)
     frac = lev - base
     # level L of the packed atlas starts at x = 2·W·(1 − 2^−L): x_L = (x − 2W)·2^−L + 2W
@@ -254,11 +255,11 @@ def _shade_band(cam, atlas, ids, invz, vv, tab, lt, sky, out) -> None:
     ya *= 0.5
     ya -= 0.25
     b = cv2.remap(atlas.packed, xa, ya, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    np.copyto(out, a)
-    d = np.subtract(b, out)
+    d = np.subtract(b, a, dtype=np.float32)
     for ch in range(3):
         d[..., ch] *= frac
-        out[..., ch] += d[..., ch]
-        out[..., ch] *= np.take(lt[ch], ids)
+    d += a
+    np.multiply(d, np.take(lt, ids, axis=0, mode="wrap"), out=out)
     skym = ids < 0
-    np.copyto(out, sky, where=skym[..., None])
+    if skym.any():
+        cv2.copyTo(sky, skym.view(np.uint8), out)
