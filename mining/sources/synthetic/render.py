@@ -175,8 +175,7 @@ def _raster_small(f, px, py, bx0, by0, bx1, by1, C, lo, hi, ids, invz) -> None:
 
 
 def texture_tables(cam: Camera, atlas: Atlas, V: np.ndarray, rows_cam: np.ndarray, C: np.ndarray) -> np.ndarray:
-    """Per face float32 columns: A/w (3), B/h (3) in tile units, tile x0 − 2·ATLAS_W, y0, w, h, mip constant;
-    one extra all-zero row last (sky, index −1)."""
+    """(11, F) float32, per face: A/w (3), B/h (3) in tile units, tile x0 − 2·ATLAS_W, y0, w, h, mip constant."""
     F = len(rows_cam)
     tile = rows_cam[:, R_TILE : R_TILE + 4]
     O = rows_cam[:, R_O : R_O + 3]
@@ -188,17 +187,17 @@ def texture_tables(cam: Camera, atlas: Atlas, V: np.ndarray, rows_cam: np.ndarra
         HM[:, k] = g - np.einsum("ij,ij->i", Uc, O)[:, None] * C
     HM[:, 2] = C
     det = np.abs(np.linalg.det(HM))
-    tab = np.zeros((F + 1, 11))
-    tab[:F, 0:3] = HM[:, 0] / tile[:, 2:3]
-    tab[:F, 3:6] = HM[:, 1] / tile[:, 3:4]
+    tab = np.zeros((F, 11))
+    tab[:, 0:3] = HM[:, 0] / tile[:, 2:3]
+    tab[:, 3:6] = HM[:, 1] / tile[:, 3:4]
     # shift each face's tile coordinates by whole repeats so they stay small on the face
     # (float32 precision far from the map origin); the wrap makes this invisible
     for k, col, size in ((0, R_U, tile[:, 2]), (3, R_V, tile[:, 3])):
         at_vertex = np.einsum("ij,ij->i", rows_cam[:, col : col + 3], V[:, 0] - O) / size
-        tab[:F, k : k + 3] -= np.floor(at_vertex)[:, None] * C
-    tab[:F, 6] = tile[:, 0] - 2 * atlas.levels[0].shape[1]
-    tab[:F, 7:10] = tile[:, 1:4]
-    tab[:F, 10] = 0.5 * np.log2(np.maximum(det, 1e-30)) + MIP_BIAS
+        tab[:, k : k + 3] -= np.floor(at_vertex)[:, None] * C
+    tab[:, 6] = tile[:, 0] - 2 * atlas.levels[0].shape[1]
+    tab[:, 7:10] = tile[:, 1:4]
+    tab[:, 10] = 0.5 * np.log2(np.maximum(det, 1e-30)) + MIP_BIAS
     return np.ascontiguousarray(tab.T.astype(np.float32))
 
 
@@ -206,17 +205,25 @@ def shade(cam: Camera, atlas: Atlas, ids: np.ndarray, invz: np.ndarray, tab: np.
           sky: np.ndarray) -> np.ndarray:
     """RGB float32 image: atlas texel (0–255) × ``light`` (F, 3) per face; ``sky`` fills sky pixels.
     Runs in bands of STRIP rows so every per-pixel temporary stays in the core's cache."""
+    if tab.shape[1] > 32767:
+        raise ValueError(f"{tab.shape[1]} faces: the per-face lookups take at most 32767")
     out = np.empty((cam.h, cam.w, 3), np.float32)
-    lt = np.concatenate([light, np.zeros((1, 3), np.float32)])
+    # per-face tables as 1-row images: a nearest-neighbour remap gathers 3–4 values per pixel
+    # in one pass (several times cheaper than np.take per value); sky (−1) reads the zero border
+    tables = [np.ascontiguousarray(tab[k : k + 4].T[None]) for k in (0, 4, 8)]
+    tables.append(np.ascontiguousarray(light[None], dtype=np.float32))
+    idmap = np.zeros((STRIP, cam.w, 2), np.int16)
     for y0 in range(0, cam.h, STRIP):
         y1 = min(cam.h, y0 + STRIP)
-        _shade_band(cam, atlas, ids[y0:y1], invz[y0:y1], cam.v[y0:y1, None], tab, lt, sky[y0:y1], out[y0:y1])
+        m = idmap[: y1 - y0]
+        m[..., 0] = ids[y0:y1]
+        g = [cv2.remap(tb, m, None, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT) for tb in tables]
+        _shade_band(cam, atlas, ids[y0:y1], invz[y0:y1], cam.v[y0:y1, None], g, sky[y0:y1], out[y0:y1])
     return out
 
 
-def _shade_band(cam, atlas, ids, invz, vv, tab, lt, sky, out) -> None:
-    # per-face values for every pixel; index −1 (sky) wraps to the all-zero last row
-    a0, a1, a2, b0, b1, b2, x0, y0, tw, th, kf = (np.take(col, ids, mode="wrap") for col in tab)
+def _shade_band(cam, atlas, ids, invz, vv, g, sky, out) -> None:
+    a0, a1, a2, b0, b1, b2, x0, y0, tw, th, kf = (g[k // 4][..., k % 4] for k in range(11))
     z = np.reciprocal(invz)
     uu = cam.u[None, :]
     s = a0 * uu
@@ -240,7 +247,7 @@ def _shade_band(cam, atlas, ids, invz, vv, tab, lt, sky, out) -> None:
     np.maximum(lev, 0, out=lev)
     np.minimum(lev, NLEV - 1 - 1e-3, out=lev)
     base = lev.astype(np.int32)
-    frac = lev - base
+    frac = np.subtract(lev, base, dtype=np.float32)
     # level L of the packed atlas starts at x = 2·W·(1 − 2^−L): x_L = (x − 2W)·2^−L + 2W
     W2 = 2.0 * atlas.levels[0].shape[1]
     np.negative(base, out=base)
@@ -255,11 +262,8 @@ def _shade_band(cam, atlas, ids, invz, vv, tab, lt, sky, out) -> None:
     ya *= 0.5
     ya -= 0.25
     b = cv2.remap(atlas.packed, xa, ya, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    d = np.subtract(b, a, dtype=np.float32)
-    for ch in range(3):
-        d[..., ch] *= frac
-    d += a
-    np.multiply(d, np.take(lt, ids, axis=0, mode="wrap"), out=out)
+    d = cv2.blendLinear(a.astype(np.float32), b.astype(np.float32), 1 - frac, frac)  # trilinear: across levels
+    np.multiply(d, g[3], out=out)
     skym = ids < 0
     if skym.any():
         cv2.copyTo(sky, skym.view(np.uint8), out)
