@@ -75,6 +75,82 @@ def cmd_bench_geometry(args: argparse.Namespace) -> int:
                               json_out=args.json)
 
 
+def cmd_track_detections(args: argparse.Namespace) -> int:
+    from mining.pipeline.detections import track_detections
+
+    cfg = _job_config(args)
+    root = Path(args.root or cfg.source.root)
+    split = root / "training" if (root / "training").is_dir() else root
+    detections = Path(args.detections) if args.detections else split / "det_pointrcnn"
+    poses = Path(args.poses) if args.poses else split / "egoposes_orbslam3"
+    out = Path(args.out)
+    for seq in args.sequences:
+        mined = track_detections(root, seq, detections, poses / f"{seq}.txt", cfg, out / f"{seq}.txt")
+        sel = [m for m in mined if m.selected]
+        print(f"{seq}: {len(mined)} tubes, {len(sel)} selected → {out / f'{seq}.txt'}")
+    return 0
+
+
+def cmd_track_images(args: argparse.Namespace) -> int:
+    from mining.eval.kitti_export import write_tubes_kitti
+    from mining.pipeline.frames import tracking_frames
+    from mining.pipeline.mine import mine_tubes
+
+    cfg = _job_config(args)
+    source = _open(cfg)
+    plan = source.plan(args.sequence)
+    start, stop = args.frames
+    stop = len(plan) if stop is None else min(stop, len(plan))
+    mined = mine_tubes((r.tracking for r in tracking_frames(source, plan, start, stop, cfg)), cfg)
+    out = Path(args.out) / f"{args.sequence}.txt"
+    to_rect0 = None
+    if cfg.source.dataset == "kitti":
+        t = source.kitti_calib(args.sequence).t_cam2
+        to_rect0 = lambda p: p - t  # noqa: E731 — KITTI's 3D fields are in rectified camera 0
+    n = write_tubes_kitti(out, mined, to_rect0, observed_only=cfg.export.observed_only)
+    sel = [m for m in mined if m.selected]
+    known = sum(m.category.known for m in sel)
+    print(f"{args.sequence} frames {start}:{stop}: {len(mined)} tubes, {len(sel)} selected "
+          f"({known} known, {len(sel) - known} unknown), {n} rows → {out}")
+    return 0
+
+
+def cmd_eval_kitti_mot(args: argparse.Namespace) -> int:
+    import tempfile
+
+    from mining.eval.kitti_mot import evaluate_kitti_mot, format_table
+
+    gt: Path | dict[str, Path] = Path(args.gt)
+    with tempfile.TemporaryDirectory() as tmp:
+        seqmap = args.seqmap
+        if args.frames is not None:  # evaluate the first N frames only
+            gt_files, lines = {}, []
+            for seq in args.sequences:
+                rows = [ln for ln in (Path(args.gt) / f"{seq}.txt").read_text().splitlines()
+                        if ln.strip() and int(ln.split()[0]) < args.frames]
+                gt_files[seq] = Path(tmp) / f"{seq}.txt"
+                gt_files[seq].write_text("\n".join(rows) + "\n")
+                lines.append(f"{seq} empty 000000 {args.frames:06d}")
+            seqmap = Path(tmp) / "seqmap"
+            seqmap.write_text("\n".join(lines) + "\n")
+            gt = gt_files
+        results = evaluate_kitti_mot(gt, args.results, args.sequences, tuple(args.classes), seqmap)
+    print(format_table(results, per_sequence=args.per_sequence))
+    return 0
+
+
+def cmd_bench_tubes(args: argparse.Namespace) -> int:
+    from mining.bench.tubes import run_tubes_bench
+
+    return run_tubes_bench(Path(args.data), _job_config(args), repeats=args.repeats)
+
+
+def cmd_bench_tracking(args: argparse.Namespace) -> int:
+    from mining.bench.tracking import run_tracking_bench
+
+    return run_tracking_bench(Path(args.data), _job_config(args), args.sequences)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mine", description="Tube Miner: mine generic object tubes from stereo video.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -97,6 +173,47 @@ def build_parser() -> argparse.ArgumentParser:
     bgeo.add_argument("--synthetic-frames", type=int, default=200, help="length of the synthetic egomotion runs")
     bgeo.add_argument("--json", help="also write the results as JSON here")
     bgeo.set_defaults(func=cmd_bench_geometry)
+
+    btub = bsub.add_parser("tubes", help="ms per frame of localise + tubes + score + select at 20/100/500 proposals")
+    _add_job_options(btub)
+    btub.add_argument("--data", default=default_data, help="the shared real-data folder (default: ../shared/data)")
+    btub.add_argument("--repeats", type=int, default=3)
+    btub.set_defaults(func=cmd_bench_tubes)
+
+    btrk = bsub.add_parser("tracking", help="detections-only tubes vs a 2D-IoU Hungarian baseline, KITTI MOT metrics")
+    _add_job_options(btrk)
+    btrk.add_argument("--data", default=default_data, help="the shared real-data folder (default: ../shared/data)")
+    btrk.add_argument("--sequences", nargs="+", default=None, help="default: the twelve training sequences")
+    btrk.set_defaults(func=cmd_bench_tracking)
+
+    track = sub.add_parser("track", help="tubes → score → select over one sequence, written as KITTI tracking txt")
+    tsub = track.add_subparsers(dest="mode", required=True)
+    tdet = tsub.add_parser("detections", help="detections-only mode: 3D detections + egoposes, no images")
+    _add_job_options(tdet)
+    tdet.add_argument("--sequences", nargs="+", required=True)
+    tdet.add_argument("--detections", help="PointRCNN folder (<Class>/<seq>.txt) or result-format folder; "
+                                           "default <root>/training/det_pointrcnn")
+    tdet.add_argument("--poses", help="folder of <seq>.txt camera-to-world poses; default <root>/training/egoposes_orbslam3")
+    tdet.add_argument("--out", required=True)
+    tdet.set_defaults(func=cmd_track_detections)
+    timg = tsub.add_parser("images", help="the full pipeline on stereo frames (geometry, proposals, tubes)")
+    _add_job_options(timg)
+    timg.add_argument("--sequence", required=True)
+    timg.add_argument("--frames", type=_frames, default=(0, None), metavar="A:B")
+    timg.add_argument("--out", required=True)
+    timg.set_defaults(func=cmd_track_images)
+
+    ev = sub.add_parser("eval", help="metrics against ground truth")
+    esub = ev.add_subparsers(dest="metric", required=True)
+    emot = esub.add_parser("kitti-mot", help="HOTA, MOTA, IDSW, IDF1 by the KITTI MOT protocol")
+    emot.add_argument("--gt", required=True, help="label_02 folder")
+    emot.add_argument("--results", required=True, help="folder of <seq>.txt results")
+    emot.add_argument("--sequences", nargs="+", required=True)
+    emot.add_argument("--seqmap", help="seqmap with frame counts (else the largest frame seen)")
+    emot.add_argument("--classes", nargs="+", default=["Car", "Pedestrian"])
+    emot.add_argument("--frames", type=int, help="evaluate only the first N frames of each sequence")
+    emot.add_argument("--per-sequence", action="store_true")
+    emot.set_defaults(func=cmd_eval_kitti_mot)
     return parser
 
 

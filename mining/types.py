@@ -289,6 +289,10 @@ class Observations:
     velocity_covariance: np.ndarray  # (N, 3, 3)
     size: np.ndarray  # (N, 3) width, height, length metres
     n_points: np.ndarray  # (N,) valid depth points inside the mask
+    # The mask's 3D points (camera frame) on a regular pixel grid, kept for mask warping so
+    # no later stage decodes the mask again; ``grid[i]`` is the grid's spacing in pixels.
+    points: list[np.ndarray] | None = None
+    grid: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.proposals)

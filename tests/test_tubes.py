@@ -113,13 +113,13 @@ def test_mask_warping_follows_egomotion():
     f0 = _frame(0, 0.0, [(2.0, 15.0)])
     f1 = _frame(1, 1.0, [(2.0, 15.0)])  # the camera drove 1 m towards the object
     o = f0.observations
-    mp = mask_points(o.proposals.rles[0], f0.depth, o.proposals.boxes[0], o.position[0], CALIB, f0.pose, 1500, 10.0)
+    mp = mask_points(o.points[0], o.grid[0], o.proposals.boxes[0], o.position[0], CALIB, f0.pose)
     rle, box = predict_mask(mp, np.zeros(3), f1.pose, CALIB, 9)
     truth = f1.observations.proposals.rles[0]
     assert mask_iou([rle], [truth])[0, 0] > 0.8
     assert mask_iou([rle], [o.proposals.rles[0]])[0, 0] < mask_iou([rle], [truth])[0, 0]
     # Without depth (detections-only) the box corners carry the same motion.
-    mp_box = mask_points(o.proposals.rles[0], None, o.proposals.boxes[0], o.position[0], CALIB, f0.pose, 1500, 10.0)
+    mp_box = mask_points(None, 1, o.proposals.boxes[0], o.position[0], CALIB, f0.pose)
     rle_b, _ = predict_mask(mp_box, np.zeros(3), f1.pose, CALIB, 9)
     assert mask_iou([rle_b], [truth])[0, 0] > 0.8
 

@@ -13,5 +13,6 @@ class LocaliseConfig:
     min_points: int = 10  # REFERENCE: at least 10 points for a 3D box
     min_flow_samples: int = 4  # REFERENCE: fewer than 4 flow samples → no velocity measurement
     max_size_m: float = 4.0  # REFERENCE: sizes ≤ 4 m
-    max_points: int = 1500  # ours: mask pixels sampled per proposal (the median needs no more)
+    max_points: int = 1000  # ours: mask pixels sampled per proposal on a regular grid (median and warping need no more)
+    point_outlier_mahalanobis: float = 10.0  # REFERENCE: mask points beyond 10 Mahalanobis units from the median are dropped before warping
     size_percentiles: tuple[float, float] = (5.0, 95.0)  # ours: robust extent of the mask's points

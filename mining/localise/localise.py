@@ -87,6 +87,8 @@ def localise(
     flow_index = _flow_index(flow, (h, w)) if dt_s else None
     lo, hi = cfg.size_percentiles
     flat_depth = depth.ravel()
+    points: list[np.ndarray] = [np.zeros((0, 3), np.float32)] * n
+    grid = np.ones(n, np.int64)
     for i, rle in enumerate(proposals.rles):
         rows, cols = mask_pixels(rle)
         keys = rows * w + cols
@@ -95,9 +97,11 @@ def localise(
             samples = samples[samples >= 0]
             if samples.size >= cfg.min_flow_samples:
                 velocity[i] = np.median(flow.motion[samples], axis=0) / dt_s
-        if keys.size > cfg.max_points:  # an even stride keeps the sample spread over the mask
-            pick = (np.arange(cfg.max_points) * (keys.size / cfg.max_points)).astype(np.int64)
-            rows, cols, keys = rows[pick], cols[pick], keys[pick]
+        if keys.size > cfg.max_points:  # a regular grid keeps the sample spread over the mask
+            g = int(np.ceil(np.sqrt(keys.size / cfg.max_points)))
+            sel = (rows % g == 0) & (cols % g == 0)
+            rows, cols, keys = rows[sel], cols[sel], keys[sel]
+            grid[i] = g
         z = flat_depth[keys]
         ok = np.isfinite(z)
         n_points[i] = int(ok.sum())
@@ -105,10 +109,25 @@ def localise(
             velocity[i] = np.nan
             continue
         pts = calib.backproject(cols[ok], rows[ok], z[ok])
-        position[i] = np.median(pts, axis=0)
-        ext = np.percentile(pts, [lo, hi], axis=0)
-        size[i] = np.minimum(ext[1] - ext[0], cfg.max_size_m)
-    return _observations(proposals, t_ns, position, size, velocity, n_points, calib, ground, cfg)
+        # One sort gives the median and the robust extent (nearest-rank percentiles).
+        srt = np.sort(pts, axis=0)
+        m = len(srt) - 1
+        position[i] = 0.5 * (srt[m // 2] + srt[(m + 1) // 2])
+        size[i] = np.minimum(srt[int(round(hi / 100 * m))] - srt[int(round(lo / 100 * m))], cfg.max_size_m)
+        points[i] = drop_outliers(pts, position[i], cfg.point_outlier_mahalanobis).astype(np.float32)
+    obs = _observations(proposals, t_ns, position, size, velocity, n_points, calib, ground, cfg)
+    obs.points, obs.grid = points, grid
+    return obs
+
+
+def drop_outliers(points: np.ndarray, median: np.ndarray, max_mahalanobis: float) -> np.ndarray:
+    """Points within ``max_mahalanobis`` of the median under the points' own covariance."""
+    if len(points) < 4:
+        return points
+    diff = points - median
+    cov = diff.T @ diff / len(points) + 1e-6 * np.eye(3)
+    m2 = np.einsum("ni,ij,nj->n", diff, np.linalg.inv(cov), diff)
+    return points[m2 <= max_mahalanobis**2]
 
 
 def _observations(proposals, t_ns, position, size, velocity, n_points, calib, ground, cfg) -> Observations:
@@ -161,7 +180,10 @@ def geometric_filter(obs: Observations, ground: GroundPlane | None, cfg: Proposa
 
 def take(obs: Observations, idx: np.ndarray) -> Observations:
     """The observations at ``idx``, in that order."""
+    idx = np.asarray(idx, np.int64)
     return Observations(
         obs.proposals.take(idx), obs.t_ns, obs.position[idx], obs.covariance[idx], obs.footpoint[idx],
         obs.velocity[idx], obs.velocity_covariance[idx], obs.size[idx], obs.n_points[idx],
+        None if obs.points is None else [obs.points[i] for i in idx],
+        None if obs.grid is None else obs.grid[idx],
     )

@@ -31,10 +31,8 @@ class TubeConfig:
     density_extra_var: float = 0.2  # REFERENCE: Gaussian density with observation covariance + 0.2·I
     min_association: float = 0.02  # REFERENCE: a tube takes its best gated observation if score > 0.02
     # Mask prediction by 3D warping.
-    warp_outlier_mahalanobis: float = 10.0  # REFERENCE: points beyond 10 Mahalanobis units from the median dropped
     warp_close_px: int = 9  # REFERENCE: holes closed with a 9×9 box
     min_predicted_mask_px: int = 100  # REFERENCE: a predicted mask ≤ 100 px ends the tube
-    warp_max_points: int = 1500  # ours: mask points carried per tube for warping
     # Start (forward-backward enumeration).
     backward_steps: int = 5  # REFERENCE: run the filter backwards up to 5 frames
     backward_required: int = 3  # REFERENCE: require an inlier in each of the first 3 back-steps

@@ -251,8 +251,9 @@ class TubeGenerator:
 
     def _points(self, frame: TrackingFrame, j: int) -> MaskPoints | None:
         obs = frame.observations
-        return mask_points(obs.proposals.rles[j], frame.depth, obs.proposals.boxes[j], obs.position[j],
-                           frame.calib, frame.pose, self.cfg.warp_max_points, self.cfg.warp_outlier_mahalanobis)
+        pts = None if obs.points is None else obs.points[j]
+        grid = 1 if obs.grid is None else obs.grid[j]
+        return mask_points(pts, grid, obs.proposals.boxes[j], obs.position[j], frame.calib, frame.pose)
 
     # --- start ----------------------------------------------------------------------
 
@@ -284,10 +285,12 @@ class TubeGenerator:
 
     def _forward_backward(self, world: WorldObservations, j: int) -> Tube | None:
         # Backwards: from observation j at t through t−1, t−2, ... (the history, newest first).
+        past = list(self.history)[::-1]
+        if not self._may_step_back(world, j, past[0]):
+            return None  # nothing at t−1 passes the footpoint gate: the start would fail there
         probe = self._new_tube(world, j)
         if probe is None:
             return None
-        past = list(self.history)[::-1]
         earliest = (world, j)
         t_cur = world.frame.t_ns
         for k, w in enumerate(past):
@@ -322,6 +325,24 @@ class TubeGenerator:
         if not tube.frames[-1].observed:
             return None
         return tube
+
+    def _may_step_back(self, world: WorldObservations, j: int, prev: WorldObservations) -> bool:
+        """Cheap exact pre-check: does any observation at t−1 pass the Mahalanobis gate?
+
+        The gate needs only the filter's predicted footpoint, so most hopeless starts are
+        dropped before their mask is warped.
+        """
+        if len(prev) == 0:
+            return False
+        vel = world.velocity[j] if np.isfinite(world.velocity[j]).all() else None
+        kf = TubeFilter(world.footpoint[j], world.covariance[j], world.frame.observations.size[j], vel,
+                        world.velocity_covariance[j] if vel is not None else None, self.cfg.kalman)
+        kf.predict((prev.frame.t_ns - world.frame.t_ns) / 1e9)
+        usable = np.flatnonzero(prev.usable)
+        if usable.size == 0:
+            return False
+        S = kf.position_innovation_cov(prev.covariance[usable])
+        return bool((mahalanobis2(prev.footpoint[usable], kf.x[POS], S) < self.cfg.gate_mahalanobis**2).any())
 
     def _duplicate(self, tube: Tube, others: list[Tube]) -> bool:
         key = set(f.frame for f in tube.frames if f.observed)

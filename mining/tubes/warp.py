@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from mining.masks import box_rle, crop_rle, mask_pixels
+from mining.masks import box_rle, crop_rle
 from mining.types import StereoCalib
 
 
@@ -28,11 +28,15 @@ class MaskPoints:
     boxlike: bool  # True: corners of a box (no depth), predict a box
 
 
-def mask_points(rle: dict, depth: np.ndarray | None, box: np.ndarray, position_cam: np.ndarray,
-                calib: StereoCalib, pose: np.ndarray, max_points: int, outlier_mahalanobis: float) -> MaskPoints | None:
-    """World points of an observed mask, outliers (far from the median) dropped."""
+def mask_points(points_cam: np.ndarray | None, grid: int, box: np.ndarray, position_cam: np.ndarray,
+                calib: StereoCalib, pose: np.ndarray) -> MaskPoints | None:
+    """World points of an observed mask from its localised 3D points (``points_cam``).
+
+    Without points (no depth: detections-only mode) the box's corners at the object's
+    depth stand for the mask.
+    """
     R, t = pose[:3, :3], pose[:3, 3]
-    if depth is None:
+    if points_cam is None:
         z = float(position_cam[2])
         if not np.isfinite(z) or z <= 0:
             return None
@@ -40,25 +44,9 @@ def mask_points(rle: dict, depth: np.ndarray | None, box: np.ndarray, position_c
         v = np.array([box[1], box[1], box[3], box[3]])
         cam = calib.backproject(u, v, np.full(4, z))
         return MaskPoints(cam @ R.T + t, 1, True)
-    rows, cols = mask_pixels(rle)
-    grid = 1
-    if rows.size > max_points:  # a regular grid keeps the warped points evenly spread
-        grid = int(np.ceil(np.sqrt(rows.size / max_points)))
-        sel = (rows % grid == 0) & (cols % grid == 0)
-        rows, cols = rows[sel], cols[sel]
-    z = depth[rows, cols]
-    ok = np.isfinite(z)
-    if ok.sum() < 3:
+    if len(points_cam) < 3:
         return None
-    cam = calib.backproject(cols[ok], rows[ok], z[ok])
-    med = np.median(cam, axis=0)
-    cov = np.cov(cam.T) + 1e-6 * np.eye(3)
-    diff = cam - med
-    m2 = np.einsum("ni,ij,nj->n", diff, np.linalg.inv(cov), diff)
-    cam = cam[m2 <= outlier_mahalanobis**2]
-    if len(cam) < 3:
-        return None
-    return MaskPoints(cam @ R.T + t, grid, False)
+    return MaskPoints(points_cam.astype(np.float64) @ R.T + t, int(grid), False)
 
 
 def predict_mask(mp: MaskPoints, shift_world: np.ndarray, pose: np.ndarray, calib: StereoCalib,
