@@ -128,9 +128,11 @@ class SyntheticSource(Source):
 
     def _truth(self, sc: Scene, t: float, M: np.ndarray, bufs, rows, states) -> FrameTruth:
         ids, invz = bufs
-        depth = np.where(ids >= 0, 1.0 / np.maximum(invz, 1e-12), np.nan).astype(np.float32)
+        sky = ids < 0
+        depth = np.reciprocal(invz)
+        depth[sky] = np.nan
         face_obj = np.concatenate([rows[:, R_OBJ].astype(np.int32), [0]])
-        objmap = face_obj[np.where(ids < 0, len(rows), ids)]
+        objmap = np.take(face_obj, ids, mode="wrap")  # sky (−1) wraps to the trailing 0
         # group object pixels by track id (one sort instead of one full-frame compare per object)
         flat = objmap.ravel()
         pix = np.flatnonzero(flat)

@@ -672,37 +672,40 @@ def build_mesh(o: Obj, atlas: Atlas) -> tuple[np.ndarray, np.ndarray]:
 
 
 def transform_faces(verts: np.ndarray, rows: np.ndarray, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    v = verts @ R.T + t
+    """Faces moved by x → R_f x + t_f; ``R`` (3,3) or one per face (F,3,3), ``t`` (3,) or (F,3)."""
+    R = np.broadcast_to(R, (len(verts), 3, 3))
+    t = np.broadcast_to(t, (len(verts), 3))
+    v = np.einsum("fij,fkj->fki", R, verts) + t[:, None, :]
     r = rows.copy()
     for c in (R_N, R_U, R_V):
-        r[:, c : c + 3] = rows[:, c : c + 3] @ R.T
-    r[:, R_O : R_O + 3] = rows[:, R_O : R_O + 3] @ R.T + t
+        r[:, c : c + 3] = np.einsum("fij,fj->fi", R, rows[:, c : c + 3])
+    r[:, R_O : R_O + 3] = np.einsum("fij,fj->fi", R, rows[:, R_O : R_O + 3]) + t
     return v, r
 
 
-def animate(o: Obj, verts, rows, walked: float):
-    """Swing legs and arms of people (and pedal for riders) by the distance travelled."""
+def part_poses(o: Obj, walked: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rigid motion (R (5,3,3), t (5,3)) of each body part (row R_PART: 0 body, 1–2 legs, 3–4 arms)
+    in the object's frame: people swing legs and arms by the distance travelled (riders pedal)."""
+    R = np.repeat(np.eye(3)[None], 5, 0)
+    t = np.zeros((5, 3))
     if o.category != "person":
-        return verts, rows
+        return R, t
     h = o.size[1]
     seated = o.tint2[0] < 0
     stride = 1.4 if not seated else 4.0
     phase = 2 * np.pi * walked / stride
     amp = 0.45 if not seated else 0.5
     lift = 0.35 if seated else 0.0
-    verts, rows = verts.copy(), rows.copy()
     for part, sign, pivot_y in ((1, 1, 0.48 * h + lift), (2, -1, 0.48 * h + lift), (3, -1, 0.8 * h + lift), (4, 1, 0.8 * h + lift)):
-        sel = rows[:, R_PART] == part
         a = sign * amp * np.sin(phase) * (0.6 if part > 2 else 1.0)
         if seated and part <= 2:
             a += -0.6
         if seated and part > 2:
             a = -0.9
-        R = rot_x(a)
         p = np.array([0, -pivot_y, 0])
-        v, r = transform_faces(verts[sel] - p, rows[sel] - np.r_[np.zeros(3), p, np.zeros(len(rows[0]) - 6)], R, p)
-        verts[sel], rows[sel] = v, r
-    return verts, rows
+        R[part] = rot_x(a)
+        t[part] = p - R[part] @ p  # rotation about the hip or shoulder
+    return R, t
 
 
 def frame_faces(scene: Scene, t: float):
@@ -723,6 +726,8 @@ def frame_faces(scene: Scene, t: float):
     verts.append(v)
     rows.append(rw)
     states = {}
+    # objects: local faces and, per face, which rigid motion (object pose ∘ body-part pose) moves it
+    local_v, local_r, motion_of_face, Rs, ts = [], [], [], [], []
     for o in scene.objects:
         m = o.motion
         if m.kind in ("static", "lane"):  # cheap range test before the exact state
@@ -735,9 +740,24 @@ def frame_faces(scene: Scene, t: float):
         if o.faces is None:
             o.faces = build_mesh(o, scene.atlas)
         pos, yaw, walked, _ = st
-        lv, lr = animate(o, *o.faces, walked)
-        v, rw = transform_faces(lv, lr, rot_y(yaw), pos)
+        Ro = rot_y(yaw)
+        lv, lr = o.faces
+        if o.category == "person":
+            Rp, tp = part_poses(o, walked)
+            Rs.append(Ro @ Rp)
+            ts.append(tp @ Ro.T + pos)
+            motion_of_face.append(lr[:, R_PART].astype(int))
+        else:
+            Rs.append(Ro[None])
+            ts.append(pos[None])
+            motion_of_face.append(np.zeros(len(lr), int))
+        local_v.append(lv)
+        local_r.append(lr)
+        states[o.track_id] = (o, pos, yaw)
+    if local_v:
+        first = np.cumsum([0] + [len(x) for x in Rs[:-1]])  # each object's first motion
+        idx = np.concatenate([mf + k0 for mf, k0 in zip(motion_of_face, first)])
+        v, rw = transform_faces(np.concatenate(local_v), np.concatenate(local_r), np.concatenate(Rs)[idx], np.concatenate(ts)[idx])
         verts.append(v)
         rows.append(rw)
-        states[o.track_id] = (o, pos, yaw)
     return np.concatenate(verts), np.concatenate(rows), states
