@@ -107,7 +107,8 @@ def cmd_track_images(args: argparse.Namespace) -> int:
     if cfg.source.dataset == "kitti":
         t = source.kitti_calib(args.sequence).t_cam2
         to_rect0 = lambda p: p - t  # noqa: E731 — KITTI's 3D fields are in rectified camera 0
-    n = write_tubes_kitti(out, mined, to_rect0, observed_only=cfg.export.observed_only)
+    n = write_tubes_kitti(out, mined, to_rect0, observed_only=cfg.export.observed_only,
+                          unclassified_as=cfg.export.unclassified_as)
     sel = [m for m in mined if m.selected]
     known = sum(m.category.known for m in sel)
     print(f"{args.sequence} frames {start}:{stop}: {len(mined)} tubes, {len(sel)} selected "

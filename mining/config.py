@@ -37,6 +37,7 @@ class SourceConfig:
 @dataclass
 class ExportConfig:
     observed_only: bool = True  # ours: tracking exports list observed frames only; False adds predicted boxes in gaps
+    unclassified_as: str = "Misc"  # ours: KITTI type of tubes without class information (e.g. stereo proposals); "Car" scores them class-agnostically
 
 
 @dataclass

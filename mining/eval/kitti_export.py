@@ -13,7 +13,8 @@ KITTI_TYPE = {"car": "Car", "person": "Pedestrian", "bicycle": "Cyclist", "motor
               "truck": "Truck", "bus": "Truck", "train": "Tram"}
 
 
-def tubes_to_kitti_rows(mined, rect0_from_cam2=None, observed_only: bool = True) -> KittiTrackingRows:
+def tubes_to_kitti_rows(mined, rect0_from_cam2=None, observed_only: bool = True,
+                        unclassified_as: str = "Misc") -> KittiTrackingRows:
     """One row per frame of each selected tube; the score column is the tube's score.
 
     ``rect0_from_cam2`` maps image_02 camera points to KITTI's rectified camera 0 (the
@@ -24,7 +25,7 @@ def tubes_to_kitti_rows(mined, rect0_from_cam2=None, observed_only: bool = True)
         if not m.selected:
             continue
         # A KITTI result names the detector's best class; known-ness is a separate question.
-        kind = KITTI_TYPE.get(m.category.best_known, "Misc")
+        kind = KITTI_TYPE.get(m.category.best_known, "Misc") if m.category.posterior is not None else unclassified_as
         for f in m.tube.frames:
             if observed_only and not f.observed:
                 continue
@@ -54,8 +55,9 @@ def tubes_to_kitti_rows(mined, rect0_from_cam2=None, observed_only: bool = True)
     )
 
 
-def write_tubes_kitti(path: str | Path, mined, rect0_from_cam2=None, observed_only: bool = True) -> int:
-    rows = tubes_to_kitti_rows(mined, rect0_from_cam2, observed_only)
+def write_tubes_kitti(path: str | Path, mined, rect0_from_cam2=None, observed_only: bool = True,
+                      unclassified_as: str = "Misc") -> int:
+    rows = tubes_to_kitti_rows(mined, rect0_from_cam2, observed_only, unclassified_as)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     write_kitti_tracking(path, rows, with_score=True)
     return len(rows)
