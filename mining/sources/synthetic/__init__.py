@@ -44,6 +44,7 @@ class SyntheticSource(Source):
         self._atlas = None
         self._scenes: OrderedDict[str, Scene] = OrderedDict()
         self._noise = None
+        self._cam: Camera | None = None
 
     def sequences(self) -> list[str]:
         return list(self._names)
@@ -77,7 +78,9 @@ class SyntheticSource(Source):
         t = plan.t_ns[position] / 1e9
         sc = self.scene(plan.sequence)
         c = self.calib
-        cam = Camera(c.fx, c.fy, c.cx, c.cy, c.width, c.height)
+        if self._cam is None:
+            self._cam = Camera(c.fx, c.fy, c.cx, c.cy, c.width, c.height)
+        cam = self._cam
         verts, rows, states = frame_faces(sc, t)
         M = sc.camera_map(t)
         Rcm = M[:3, :3].T

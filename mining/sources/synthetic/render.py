@@ -35,6 +35,8 @@ class Camera:
         self.fx, self.fy, self.cx, self.cy, self.w, self.h = fx, fy, cx, cy, width, height
         self.u = np.arange(width, dtype=np.float32)
         self.v = np.arange(height, dtype=np.float32)
+        self.ugrid = np.repeat(self.u[None, :], height, 0)
+        self.vgrid = np.repeat(self.v[:, None], width, 1)
 
 
 def _clip_near(poly: np.ndarray) -> np.ndarray:
@@ -101,7 +103,6 @@ def rasterize(cam: Camera, V: np.ndarray, rows_cam: np.ndarray, C: np.ndarray, d
     per_face = zip(cand.tolist(), allin[cand].tolist(), rows_cam[cand, R_NV].astype(int).tolist(),
                    bx0[cand].tolist(), by0[cand].tolist(), bx1[cand].tolist(), by1[cand].tolist(),
                    iz_lo[cand].tolist(), iz_hi[cand].tolist(), *C[cand].astype(np.float32).T.tolist())
-    u, v = cam.u, cam.v
     for f, inside, nv, x0, y0, x1, y1, lo, hi, ia, ib, ic in per_face:
         if inside:
             if x1 <= x0 or y1 <= y0:
@@ -123,13 +124,14 @@ def rasterize(cam: Camera, V: np.ndarray, rows_cam: np.ndarray, C: np.ndarray, d
             zr = invz[y0:y1, x0:x1]
         mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
         cv2.fillConvexPoly(mask, q, 1, lineType=cv2.LINE_8, shift=SUB)
-        iz = (ib * v[y0:y1] + ic)[:, None] + ia * u[x0:x1]
-        np.minimum(iz, hi, out=iz)
-        np.maximum(iz, lo, out=iz)
-        win = iz > zr
-        win &= mask.view(bool)
-        np.copyto(zr, iz, where=win)
-        np.copyto(ids[y0:y1, x0:x1], f, where=win)
+        # (OpenCV calls: a few microseconds less per face than the numpy equivalents)
+        iz = cv2.addWeighted(cam.ugrid[y0:y1, x0:x1], ia, cam.vgrid[y0:y1, x0:x1], ib, ic)
+        cv2.min(iz, hi, dst=iz)
+        cv2.max(iz, lo, dst=iz)
+        win = cv2.compare(iz, zr, cv2.CMP_GT)  # 0 / 255
+        cv2.bitwise_and(win, mask, dst=win)  # 0 / 1
+        cv2.copyTo(iz, win, zr)
+        np.copyto(ids[y0:y1, x0:x1], f, where=win.view(bool))
     sel = np.nonzero(small)[0]
     _raster_small(sel, px[sel], py[sel], bx0[sel], by0[sel], bx1[sel], by1[sel], C[sel].astype(np.float32),
                   iz_lo[sel], iz_hi[sel], ids, invz)
