@@ -46,7 +46,6 @@ from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from pycocotools import mask as mask_utils
 from scipy.optimize import linear_sum_assignment
 
 from mining.config import JobConfig, load_config
@@ -54,7 +53,7 @@ from mining.errors import InputError
 from mining.eval.clear import clear_metrics, clear_sums
 from mining.eval.hota import hota_metrics, hota_sums
 from mining.eval.identity import identity_metrics, identity_sums
-from mining.masks import areas, box_iou, mask_iou
+from mining.masks import areas, box_iou, crop_rle, mask_iou
 from mining.pipeline.frames import tracking_frames
 from mining.pipeline.mine import MinedTube, mine_tubes
 from mining.sources import open_source
@@ -91,24 +90,24 @@ class GtFrame:
 
 
 def gt_frame(truth: FrameTruth | GtFrame) -> GtFrame:
-    """Encode a FrameTruth's masks as RLEs (one pycocotools call); a GtFrame passes through."""
+    """Encode a FrameTruth's masks as RLEs; a GtFrame passes through."""
     if isinstance(truth, GtFrame):
         return truth
     objs = truth.objects
     h, w = truth.depth.shape
-    if objs:
-        stack = np.asfortranarray(np.stack([o.mask for o in objs], axis=-1).astype(np.uint8))
-        if stack.shape[:2] != (h, w):
-            raise InputError(f"ground-truth masks are {stack.shape[:2]}, the frame is {(h, w)}")
-        rles = mask_utils.encode(stack)
-    else:
-        rles = []
+    rles = []
+    for o in objs:
+        if o.mask.shape != (h, w):
+            raise InputError(f"ground-truth mask of track {o.track_id} is {o.mask.shape}, the frame is {(h, w)}")
+        # encode only the box: a full-frame encode per object costs ~25 ms
+        x0, y0, x1, y1 = (int(v) for v in o.box)
+        rles.append(crop_rle(o.mask[y0:y1, x0:x1], x0, y0, h, w))
     return GtFrame(
         track_ids=np.array([o.track_id for o in objs], np.int64),
         known=np.array([o.known for o in objs], bool),
         categories=[o.category for o in objs],
-        rles=list(rles),
-        areas=areas(list(rles)),
+        rles=rles,
+        areas=areas(rles),
         boxes=np.array([o.box for o in objs], np.float64).reshape(-1, 4),
         depth=np.array([o.center_cam[2] for o in objs], np.float64),
         size=(h, w),
