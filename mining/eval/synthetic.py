@@ -16,7 +16,8 @@ a tube may match any ground-truth object. The protocol, per frame:
    every evaluation (neither TP nor FP), as KITTI does with DontCare and truncated objects.
 4. **A tube's split.** Each tube belongs to the split (known / unknown) of the ground truth
    it was matched to in step 3, weighted by IoU over its frames (ties go to known). A tube
-   never matched to evaluated ground truth is *clutter*.
+   never matched to evaluated ground truth is *clutter* (background, and duplicates that
+   always lost the one-to-one matching to another tube).
 5. **Three evaluations.** ``all``: every evaluated object, every detection left after step 3
    (clutter's detections are FPs here, and only here). ``known`` (``unknown``): the objects of
    that split, the detections of the split's tubes, except those matched in step 3 to an
@@ -28,11 +29,12 @@ Each evaluation is scored by ``hota.py`` (HOTA, DetA, AssA over α = 0.05 … 0.
 matching), ``clear.py`` (MOTA, IDSW, …; a match needs IoU ≥ ``iou_threshold``) and
 ``identity.py`` (IDF1), with ground-truth ``track_id`` and tube id as the identities.
 
-**Tube recall** (per split): the share of ground-truth tracks, counting only their evaluated
-frames, that one single tube covers with IoU ≥ ``iou_threshold`` in at least
+**Tube recall** (per evaluation): the share of ground-truth tracks, counting only their
+evaluated frames, that one single tube covers with IoU ≥ ``iou_threshold`` in at least
 ``track_cover`` of those frames. **Frame recall**: the share of evaluated ground-truth
-detections that some tube detection overlaps with IoU ≥ ``iou_threshold``. Both ignore the
-one-to-one matching (they ask "was this object mined?", not "how well was it tracked?").
+detections that some tube detection overlaps with IoU ≥ ``iou_threshold``. Both use that
+evaluation's detections (step 5) but not the one-to-one matching: they ask "was this object
+mined?", not "how well was it tracked?".
 
 Run it: ``python -m mining.eval.synthetic --sequence 0000 --n-frames 500 [--set KEY=VALUE ...]``.
 """
