@@ -287,6 +287,10 @@ def evaluate_synthetic(mined: Sequence[MinedTube], truths: Mapping[int, FrameTru
         "known": sum(1 for s in tube_split.values() if s == "known"),
         "unknown": sum(1 for s in tube_split.values() if s == "unknown"),
         "clutter": len({m.tube.tube_id for m in tubes} - set(tube_split)),
+        # how the miner's own known/unknown call (TubeCategory.known) agrees with the split
+        "known_called_known": sum(1 for m in tubes if tube_split.get(m.tube.tube_id) == "known" and m.category.known),
+        "unknown_called_unknown": sum(1 for m in tubes
+                                      if tube_split.get(m.tube.tube_id) == "unknown" and not m.category.known),
         "ignored_dets": ignored,
     }
     return results
@@ -339,8 +343,10 @@ def format_synthetic(results: dict) -> str:
     widths = [max(len(row[i]) for row in rows) for i in range(len(head))]
     lines = ["  ".join(x.rjust(w) for x, w in zip(row, widths)) for row in rows]
     t = results.get("tubes", {})
-    lines.append(f"{results['frames']} frames; tubes: {t.get('evaluated')} evaluated, {t.get('known')} known, "
-                 f"{t.get('unknown')} unknown, {t.get('clutter')} clutter; {t.get('ignored_dets')} detections on ignored objects")
+    lines.append(f"{results['frames']} frames; tubes: {t.get('evaluated')} evaluated, {t.get('known')} on known objects "
+                 f"({t.get('known_called_known')} called known), {t.get('unknown')} on unknown objects "
+                 f"({t.get('unknown_called_unknown')} called unknown), {t.get('clutter')} clutter; "
+                 f"{t.get('ignored_dets')} detections on ignored objects")
     return "\n".join(lines)
 
 
