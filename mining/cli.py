@@ -140,6 +140,51 @@ def cmd_eval_kitti_mot(args: argparse.Namespace) -> int:
     return 0
 
 
+def _format_recall(r: dict) -> str:
+    ns = sorted(r["all"])
+    lines = [f"  {'objects':<8} {'count':>6} " + " ".join(f"{'@' + str(n):>6}" for n in ns)]
+    for name in ("known", "unknown", "all"):
+        lines.append(f"  {name:<8} {r['n_' + name]:>6} " + " ".join(f"{r[name][n]:6.3f}" for n in ns))
+    return "\n".join(lines)
+
+
+def cmd_eval_recall(args: argparse.Namespace) -> int:
+    from mining.eval.recall import kitti_ground_truth, recall_at_n
+
+    if args.oxford_labels:
+        from mining.eval.oxford_labels import read_oxford_labels
+        from mining.proposals.precomputed import read_proposal_json
+
+        labels = read_oxford_labels(args.oxford_labels)
+        props, boxes, known = [], [], []
+        for lf in labels:
+            rel = lf.path.relative_to(lf.path.parents[1])
+            props.append(read_proposal_json(Path(args.proposals_json) / rel, lf.frame))
+            boxes.append(lf.boxes)
+            known.append(lf.known)
+        print(f"Proposal recall (box IoU > 0.5) on {len(labels)} labelled RobotCar frames")
+        print(_format_recall(recall_at_n(props, boxes, known)))
+        return 0
+    from mining.eval.kitti_labels import read_kitti_tracking
+    from mining.pipeline.frames import tracking_frames
+
+    cfg = _job_config(args)
+    source = _open(cfg)
+    plan = source.plan(args.sequence)
+    start, stop = args.frames
+    stop = len(plan) if stop is None else min(stop, len(plan))
+    labels = Path(args.labels) if args.labels else Path(cfg.source.root) / "training" / "label_02" / f"{args.sequence}.txt"
+    rows = read_kitti_tracking(labels)
+    props, frames = [], []
+    for rec in tracking_frames(source, plan, start, stop, cfg):
+        props.append(rec.proposals)
+        frames.append(rec.frame.index)
+    boxes, known = kitti_ground_truth(rows, frames)
+    print(f"Proposal recall (box IoU > 0.5), {cfg.proposals.proposer} proposer, {args.sequence} frames {start}:{stop}")
+    print(_format_recall(recall_at_n(props, boxes, known)))
+    return 0
+
+
 def cmd_bench_tubes(args: argparse.Namespace) -> int:
     from mining.bench.tubes import run_tubes_bench
 
@@ -215,6 +260,14 @@ def build_parser() -> argparse.ArgumentParser:
     emot.add_argument("--frames", type=int, help="evaluate only the first N frames of each sequence")
     emot.add_argument("--per-sequence", action="store_true")
     emot.set_defaults(func=cmd_eval_kitti_mot)
+    erec = esub.add_parser("recall", help="proposal recall@N (box IoU > 0.5) for known and unknown objects")
+    _add_job_options(erec)
+    erec.add_argument("--sequence", help="KITTI: run the configured proposer on this sequence")
+    erec.add_argument("--frames", type=_frames, default=(0, None), metavar="A:B")
+    erec.add_argument("--labels", help="KITTI label_02 file (default: <root>/training/label_02/<sequence>.txt)")
+    erec.add_argument("--oxford-labels", help="RobotCar: the 4D-GVT labels_4dgvt folder")
+    erec.add_argument("--proposals-json", help="RobotCar: proposal JSON files laid out like the label files")
+    erec.set_defaults(func=cmd_eval_recall)
     return parser
 
 
