@@ -273,9 +273,9 @@ class TubeGenerator:
         if len(self.history) < self.cfg.backward_required:
             return
         new: list[Tube] = []
-        for j in np.flatnonzero(world.usable):
-            if int(j) in taken:
-                continue
+        cands = np.array([j for j in np.flatnonzero(world.usable) if int(j) not in taken], np.int64)
+        # Starts that would fail their first backward step's footpoint gate end here.
+        for j in cands[self._may_step_back(world, cands, self.history[-1])]:
             tube = self._forward_backward(world, int(j))
             if tube is not None and not self._duplicate(tube, self.live + new):
                 tube.tube_id = self.next_id
@@ -286,8 +286,6 @@ class TubeGenerator:
     def _forward_backward(self, world: WorldObservations, j: int) -> Tube | None:
         # Backwards: from observation j at t through t−1, t−2, ... (the history, newest first).
         past = list(self.history)[::-1]
-        if not self._may_step_back(world, j, past[0]):
-            return None  # nothing at t−1 passes the footpoint gate: the start would fail there
         probe = self._new_tube(world, j)
         if probe is None:
             return None
@@ -326,23 +324,34 @@ class TubeGenerator:
             return None
         return tube
 
-    def _may_step_back(self, world: WorldObservations, j: int, prev: WorldObservations) -> bool:
-        """Cheap exact pre-check: does any observation at t−1 pass the Mahalanobis gate?
+    def _may_step_back(self, world: WorldObservations, cands: np.ndarray, prev: WorldObservations) -> np.ndarray:
+        """Cheap exact pre-check for many starts at once: which observations ``cands`` have
+        any observation at t−1 within the footpoint gate of their first backward prediction?
 
-        The gate needs only the filter's predicted footpoint, so most hopeless starts are
-        dropped before their mask is warped.
+        A fresh filter's predicted footpoint and covariance have a closed form, so the gate
+        runs on arrays and most hopeless starts end before any mask is warped.
         """
-        if len(prev) == 0:
-            return False
-        vel = world.velocity[j] if np.isfinite(world.velocity[j]).all() else None
-        kf = TubeFilter(world.footpoint[j], world.covariance[j], world.frame.observations.size[j], vel,
-                        world.velocity_covariance[j] if vel is not None else None, self.cfg.kalman)
-        kf.predict((prev.frame.t_ns - world.frame.t_ns) / 1e9)
         usable = np.flatnonzero(prev.usable)
-        if usable.size == 0:
-            return False
-        S = kf.position_innovation_cov(prev.covariance[usable])
-        return bool((mahalanobis2(prev.footpoint[usable], kf.x[POS], S) < self.cfg.gate_mahalanobis**2).any())
+        if usable.size == 0 or cands.size == 0:
+            return np.zeros(cands.size, bool)
+        kc = self.cfg.kalman
+        dt = (prev.frame.t_ns - world.frame.t_ns) / 1e9
+        vel = world.velocity[cands][:, GROUND]
+        has_vel = np.isfinite(vel).all(axis=1)
+        mean = world.footpoint[cands][:, GROUND] + np.where(has_vel[:, None], vel, 0.0) * dt
+        vcov = world.velocity_covariance[cands]
+        var_v = np.where(has_vel[:, None], np.stack([vcov[:, 0, 0], vcov[:, 2, 2]], axis=1),
+                         np.asarray(kc.initial_var_velocity)[None, :])
+        q = np.square(np.asarray(kc.process_std_position)[GROUND]) * abs(dt) / kc.process_dt_s
+        P = world.covariance[cands][:, GROUND][:, :, GROUND].copy()
+        P[:, 0, 0] += var_v[:, 0] * dt * dt + q[0]
+        P[:, 1, 1] += var_v[:, 1] * dt * dt + q[1]
+        S = P[:, None] + prev.covariance[usable][:, GROUND][:, :, GROUND][None]  # (U, M, 2, 2)
+        d = prev.footpoint[usable][:, GROUND][None] - mean[:, None]  # (U, M, 2)
+        det = S[..., 0, 0] * S[..., 1, 1] - S[..., 0, 1] * S[..., 1, 0]
+        m2 = (S[..., 1, 1] * d[..., 0] ** 2 - (S[..., 0, 1] + S[..., 1, 0]) * d[..., 0] * d[..., 1]
+              + S[..., 0, 0] * d[..., 1] ** 2) / det
+        return (m2 < self.cfg.gate_mahalanobis**2).any(axis=1)
 
     def _duplicate(self, tube: Tube, others: list[Tube]) -> bool:
         key = set(f.frame for f in tube.frames if f.observed)
