@@ -165,3 +165,82 @@ def test_known_and_unknown_objects_come_and_go():
 
 def test_bench_render_runs():
     assert bench_render(1, width=160, height=64, fx=90.0, n_frames=5) > 0
+
+
+def _camera_faces(src: SyntheticSource, sequence: str, position: int):
+    """The renderer's inputs for the left camera of one frame (real scene, no shortcuts)."""
+    from mining.sources.synthetic import render
+    from mining.sources.synthetic.scene import frame_faces
+
+    plan = src.plan(sequence)
+    sc = src.scene(sequence)
+    t = plan.t_ns[position] / 1e9
+    c = src.calib
+    cam = render.Camera(c.fx, c.fy, c.cx, c.cy, c.width, c.height)
+    verts, rows, _ = frame_faces(sc, t)
+    M = sc.camera_map(t)
+    R = M[:3, :3].T
+    V, rows_cam = render.to_camera(verts, rows, R, -R @ M[:3, 3])
+    C, dp = render.inverse_depth_planes(cam, rows_cam, V)
+    return cam, V, rows_cam, C, dp, rows, M
+
+
+def test_vectorised_small_faces_agree_with_the_per_face_raster(src):
+    """The one-pass raster of small faces and the per-face loop give the same image up to edge pixels."""
+    from mining.sources.synthetic import render
+
+    from mining.sources.synthetic.scene import R_OBJ
+
+    cam, V, rows_cam, C, dp, rows, _ = _camera_faces(src, "0002", 30)
+    ids_fast, invz_fast = render.rasterize(cam, V, rows_cam, C, dp)
+    ids_loop, invz_loop = render.rasterize(cam, V, rows_cam, C, dp, small_px=0)
+    same = ids_fast == ids_loop
+    assert same.mean() > 0.999, same.mean()
+    assert np.allclose(invz_fast[same], invz_loop[same], rtol=1e-5)
+    faces_fast, faces_loop = set(np.unique(ids_fast).tolist()), set(np.unique(ids_loop).tolist())
+    assert len(faces_loop - faces_fast) < 0.05 * len(faces_loop)  # only edge-on slivers may go
+    # distant objects (made of small faces) keep their size
+    obj = np.r_[rows[:, R_OBJ].astype(int), 0]
+    o_fast, o_loop = obj[ids_fast], obj[ids_loop]
+    counts = [((o_loop == o).sum(), (o_fast == o).sum()) for o in np.unique(o_loop[o_loop > 0])]
+    small_objects = [(a, b) for a, b in counts if 10 <= a < 400]
+    assert len(small_objects) >= 5
+    for a, b in small_objects:
+        assert 0.8 < b / a < 1.25, (a, b)
+
+
+def test_texture_coordinates_follow_the_surface(src):
+    """Per-face homographies give the texture coordinate of the 3D point each pixel sees."""
+    from mining.sources.synthetic import render
+    from mining.sources.synthetic.scene import R_O, R_TILE, R_U
+
+    cam, V, rows_cam, C, dp, rows, M = _camera_faces(src, "0002", 30)
+    ids, invz = render.rasterize(cam, V, rows_cam, C, dp)
+    tab = render.texture_tables(cam, src.scene("0002").atlas, V, rows_cam, C)
+    ys, xs = np.nonzero(ids >= 0)
+    pick = np.random.default_rng(2).choice(len(ys), 2000, replace=False)
+    v, u, f = ys[pick], xs[pick], ids[ys[pick], xs[pick]]
+    z = 1.0 / invz[v, u].astype(np.float64)
+    X = np.stack([(u - cam.cx) / cam.fx * z, (v - cam.cy) / cam.fy * z, z], 1)  # camera frame
+    s_true = np.einsum("ij,ij->i", rows_cam[f, R_U : R_U + 3], X - rows_cam[f, R_O : R_O + 3]) / rows_cam[f, R_TILE + 2]
+    s_hom = (tab[0, f] * u + tab[1, f] * v + tab[2, f]) / invz[v, u]
+    wrap = (s_hom - s_true) - np.round(s_hom - s_true)  # the tables may shift by whole repeats
+    texels = np.abs(wrap) * rows_cam[f, R_TILE + 2]
+    assert np.percentile(texels, 99) < 0.05, np.percentile(texels, 99)
+    assert np.allclose(np.round(s_hom - s_true), np.round(s_hom - s_true).astype(int))
+
+
+def test_shading_band_height_changes_no_bit(src):
+    from mining.sources.synthetic import render
+    from mining.sources.synthetic.scene import R_TINT
+
+    cam, V, rows_cam, C, dp, rows, M = _camera_faces(src, "0000", 40)
+    ids, invz = render.rasterize(cam, V, rows_cam, C, dp)
+    atlas = src.scene("0000").atlas
+    tab = render.texture_tables(cam, atlas, V, rows_cam, C)
+    light = rows[:, R_TINT : R_TINT + 3].astype(np.float32)
+    sky = np.full((cam.h, cam.w, 3), 200.0, np.float32)
+    a = render.shade(cam, atlas, ids, invz, tab, light, sky, strip=7)
+    b = render.shade(cam, atlas, ids, invz, tab, light, sky, strip=cam.h)
+    assert np.array_equal(a, b)
+    assert np.array_equal(a[ids < 0], sky[ids < 0]) and a[ids >= 0].std() > 10

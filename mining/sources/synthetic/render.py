@@ -3,13 +3,17 @@
 Per face: clip against the near plane, project, fill its mask in its bounding rectangle
 (cv2.fillConvexPoly), evaluate the exact inverse depth (affine in u, v for a plane), z-test,
 write the face id. Faces go nearest first, so a face whose whole rectangle is already covered
-by nearer surfaces is skipped after one comparison.
+by nearer surfaces is skipped after one comparison. Small faces (most faces: distant structure
+and objects) skip the per-face Python loop: one vectorised pass tests their few candidate
+pixels against the edge lines and resolves the z-test by sorting.
 
 Shading. For a plane, texture coordinates are a homography of the pixel: s = (A·p)/(C·p) with
 p = (u, v, 1) and C·p the inverse depth the rasteriser already stored. So a pixel needs its
 face's A and B rows (six numbers), its tile, its light and one number for the mip level: the
 texel area per pixel is |det J| = |det H| / (C·p)³ (H = [A; B; C]), a per-face constant times
 z³. Two bilinear remaps of the packed atlas (levels ⌊lev⌋ and ⌊lev⌋+1) blend trilinearly.
+Shading runs in bands of rows so its temporaries stay in cache; every pixel depends only on
+its own face id and inverse depth, so the band height changes no bit.
 """
 
 from __future__ import annotations
@@ -73,8 +77,9 @@ def to_camera(verts: np.ndarray, rows: np.ndarray, R: np.ndarray, t: np.ndarray)
     return V, rc
 
 
-def rasterize(cam: Camera, V: np.ndarray, rows_cam: np.ndarray, C: np.ndarray, dp: np.ndarray):
-    """Camera-frame faces → (face id (H,W) int32, -1 = sky; inverse depth (H,W) float32, SKY_INVZ on sky)."""
+def rasterize(cam: Camera, V: np.ndarray, rows_cam: np.ndarray, C: np.ndarray, dp: np.ndarray, small_px: int = SMALL_PX):
+    """Camera-frame faces → (face id (H,W) int32, -1 = sky; inverse depth (H,W) float32, SKY_INVZ on sky).
+    Faces within a ``small_px`` square go through the vectorised pass (0: none)."""
     H, W = cam.h, cam.w
     z = V[:, :, 2]
     keep = (dp < -1e-6) & (z.max(1) > NEAR_M) & (z.min(1) < FAR_M)
@@ -97,7 +102,7 @@ def rasterize(cam: Camera, V: np.ndarray, rows_cam: np.ndarray, C: np.ndarray, d
     pq -= np.stack([bx0, by0], 1)[:, None, :].astype(np.int32) << SUB  # relative to the rectangle
     # small faces (most of them: distant structure and objects) in one vectorised pass after
     # the loop; the rest nearest first (by the nearest vertex), ties by face index
-    small = keep & allin & (bx1 - bx0 <= SMALL_PX) & (by1 - by0 <= SMALL_PX)
+    small = keep & allin & (bx1 - bx0 <= small_px) & (by1 - by0 <= small_px)
     cand = np.nonzero(keep & ~small)[0]
     cand = cand[np.argsort(-izv[cand].max(1), kind="stable")]
     per_face = zip(cand.tolist(), allin[cand].tolist(), rows_cam[cand, R_NV].astype(int).tolist(),
@@ -133,19 +138,19 @@ def rasterize(cam: Camera, V: np.ndarray, rows_cam: np.ndarray, C: np.ndarray, d
         cv2.copyTo(iz, win, zr)
         np.copyto(ids[y0:y1, x0:x1], f, where=win.view(bool))
     sel = np.nonzero(small)[0]
-    _raster_small(sel, px[sel], py[sel], bx0[sel], by0[sel], bx1[sel], by1[sel], C[sel].astype(np.float32),
+    _raster_small(small_px, sel, px[sel], py[sel], bx0[sel], by0[sel], bx1[sel], by1[sel], C[sel].astype(np.float32),
                   iz_lo[sel], iz_hi[sel], ids, invz)
     return ids, invz
 
 
-def _raster_small(f, px, py, bx0, by0, bx1, by1, C, lo, hi, ids, invz) -> None:
-    """Faces whose rectangle is at most SMALL_PX square, all at once: a pixel is in a face when its
+def _raster_small(side, f, px, py, bx0, by0, bx1, by1, C, lo, hi, ids, invz) -> None:
+    """Faces whose rectangle fits a ``side`` square, all at once: a pixel is in a face when its
     centre lies inside every edge line moved EDGE_MARGIN_PX outwards; z-test against the buffer,
     then the nearest candidate per pixel wins (ties: the lower face index)."""
     if len(f) == 0:
         return
     H, W = ids.shape
-    o = np.arange(SMALL_PX, dtype=np.float32)
+    o = np.arange(side, dtype=np.float32)
     X = (bx0[:, None, None] + o[None, None, :]).astype(np.float32)  # (n, 1, S) pixel centres
     Y = (by0[:, None, None] + o[None, :, None]).astype(np.float32)  # (n, S, 1)
     valid = (X < bx1[:, None, None]) & (Y < by1[:, None, None])
@@ -160,7 +165,7 @@ def _raster_small(f, px, py, bx0, by0, bx1, by1, C, lo, hi, ids, invz) -> None:
     inside = valid
     for k in range(qx.shape[1]):
         e = (Y - qy[:, k, None, None]) * dx[:, k, None, None] - (X - qx[:, k, None, None]) * dy[:, k, None, None]
-        inside = inside & (e <= margin[:, k, None, None])
+        inside = inside & (e >= -margin[:, k, None, None])  # e > 0: the polygon's side of edge k
     iz = C[:, 0, None, None] * X + C[:, 1, None, None] * Y + C[:, 2, None, None]
     iz = np.clip(iz, lo[:, None, None], hi[:, None, None])
     Xi, Yi = np.broadcast_to(X, inside.shape).astype(np.int32), np.broadcast_to(Y, inside.shape).astype(np.int32)
@@ -169,6 +174,8 @@ def _raster_small(f, px, py, bx0, by0, bx1, by1, C, lo, hi, ids, invz) -> None:
     face = np.broadcast_to(f[:, None, None], inside.shape)[inside]
     nearer = iz > invz.ravel()[pix]
     pix, iz, face = pix[nearer], iz[nearer], face[nearer]
+    if len(pix) == 0:
+        return
     order = np.lexsort((face, -iz, pix))
     pix, iz, face = pix[order], iz[order], face[order]
     first = np.r_[True, pix[1:] != pix[:-1]]
@@ -204,9 +211,9 @@ def texture_tables(cam: Camera, atlas: Atlas, V: np.ndarray, rows_cam: np.ndarra
 
 
 def shade(cam: Camera, atlas: Atlas, ids: np.ndarray, invz: np.ndarray, tab: np.ndarray, light: np.ndarray,
-          sky: np.ndarray) -> np.ndarray:
+          sky: np.ndarray, strip: int = STRIP) -> np.ndarray:
     """RGB float32 image: atlas texel (0–255) × ``light`` (F, 3) per face; ``sky`` fills sky pixels.
-    Runs in bands of STRIP rows so every per-pixel temporary stays in the core's cache."""
+    Runs in bands of ``strip`` rows so every per-pixel temporary stays in the core's cache."""
     if tab.shape[1] > 32767:
         raise ValueError(f"{tab.shape[1]} faces: the per-face lookups take at most 32767")
     out = np.empty((cam.h, cam.w, 3), np.float32)
@@ -214,9 +221,9 @@ def shade(cam: Camera, atlas: Atlas, ids: np.ndarray, invz: np.ndarray, tab: np.
     # in one pass (several times cheaper than np.take per value); sky (−1) reads the zero border
     tables = [np.ascontiguousarray(tab[k : k + 4].T[None]) for k in (0, 4, 8)]
     tables.append(np.ascontiguousarray(light[None], dtype=np.float32))
-    idmap = np.zeros((STRIP, cam.w, 2), np.int16)
-    for y0 in range(0, cam.h, STRIP):
-        y1 = min(cam.h, y0 + STRIP)
+    idmap = np.zeros((strip, cam.w, 2), np.int16)
+    for y0 in range(0, cam.h, strip):
+        y1 = min(cam.h, y0 + strip)
         m = idmap[: y1 - y0]
         m[..., 0] = ids[y0:y1]
         g = [cv2.remap(tb, m, None, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT) for tb in tables]
