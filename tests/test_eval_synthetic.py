@@ -157,6 +157,8 @@ def test_bad_input_raises():
         evaluate_synthetic([], {0: None})
     with pytest.raises(InputError):  # a tube mask of another image size
         evaluate_synthetic([mined(1, [(0, rect(0, 0, 5, 5, 30, 30))])], truths)
+    with pytest.raises(InputError):  # two tubes with one id
+        evaluate_synthetic([mined(1, [(0, CAR)]), mined(1, [(1, CAR)])], truths)
     with pytest.raises(InputError):  # two entries of one tube in one frame
         evaluate_synthetic([mined(1, [(0, CAR), (0, CAR)])], truths)
 

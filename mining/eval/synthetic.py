@@ -274,6 +274,9 @@ def evaluate_synthetic(mined: Sequence[MinedTube], truths: Mapping[int, FrameTru
         raise InputError("frame has no ground truth (not a synthetic source?)", frame=missing[0])
     p = SyntheticEvalProtocol(min_visible_px, iou_threshold, similarity, max_depth_m, predicted, track_cover)
     tubes = [m for m in mined if m.selected or not selected_only]
+    ids = [m.tube.tube_id for m in tubes]
+    if len(set(ids)) != len(ids):
+        raise InputError("tube ids must be unique: they are the tracker identities")
     frames = _prepare(tubes, truths, p)
     tube_split = _tube_splits(frames)
     results: dict = {"frames": len(frames), "protocol": asdict(p) | {"selected_only": selected_only}}
