@@ -87,7 +87,7 @@ class SyntheticSource(Source):
         lambert = AMBIENT + DIFFUSE * np.clip(rows[:, R_N : R_N + 3] @ sc.sun, 0, 1)
         light = rows[:, R_TINT : R_TINT + 3] * lambert[:, None]
         gain = sc.exposure_at(t)
-        sky = self._sky(cam, Rcm)  # depends on the rotation only: the same for both eyes
+        sky = self._sky(cam, Rcm)  # coarse; depends on the rotation only: the same for both eyes
         rng = np.random.default_rng([sc.seed, index, 99])
         images, truth_bufs = [], None
         for k, shift in enumerate((0.0, c.baseline_m)):
@@ -99,8 +99,8 @@ class SyntheticSource(Source):
             # exposure and the right camera's colour gain folded into the per-face light (the
             # atlas is 0–255, so the image comes out in 8-bit levels)
             g = gain * (sc.right_gain if k else np.ones(3))
-            img = shade(cam, self._atlas, ids, invz, tab, (light * g).astype(np.float32),
-                        sky * (255.0 * g).astype(np.float32))
+            sky_img = cv2.resize(sky * (255.0 * g).astype(np.float32), (cam.w, cam.h), interpolation=cv2.INTER_LINEAR)
+            img = shade(cam, self._atlas, ids, invz, tab, (light * g).astype(np.float32), sky_img)
             img = cv2.GaussianBlur(img, (3, 3), BLUR_SIGMA)  # the ±2 taps of sigma 0.5 weigh 3e-4: left out
             images.append(cv2.add(img, self._noise_at(rng, c.height, c.width), dtype=cv2.CV_8U))  # rounds, saturates
             if k == 0:
@@ -109,8 +109,8 @@ class SyntheticSource(Source):
         return StereoFrame(self.dataset, plan.sequence, index, plan.t_ns[position], images[0], images[1], c, truth)
 
     def _sky(self, cam: Camera, Rcm: np.ndarray) -> np.ndarray:
-        """Sky gradient by ray elevation (horizon haze → blue zenith)."""
-        # the gradient is smooth: evaluate it on an 8× coarser grid and resize
+        """Sky gradient by ray elevation (horizon haze → blue zenith) on an 8× coarser grid
+        (it is smooth: the caller resizes it to the image)."""
         yn = ((cam.v[::8, None] - cam.cy) / cam.fy).astype(np.float64)
         xn = (cam.u[None, ::8] - cam.cx) / cam.fx
         Rmc = Rcm.T
@@ -119,8 +119,7 @@ class SyntheticSource(Source):
         e = np.clip(-dy / norm * 2.5, 0, 1).astype(np.float32)[..., None]
         horizon = np.array([0.86, 0.88, 0.90], np.float32)
         zenith = np.array([0.50, 0.64, 0.86], np.float32)
-        small = horizon * (1 - e) + zenith * e
-        return cv2.resize(small, (cam.w, cam.h), interpolation=cv2.INTER_LINEAR)
+        return horizon * (1 - e) + zenith * e
 
     def _noise_at(self, rng: np.random.Generator, h: int, w: int) -> np.ndarray:
         """Sensor noise: a fixed bank of Gaussian noise, cut at a per-frame seeded offset."""
@@ -152,13 +151,14 @@ class SyntheticSource(Source):
             o, pos, yaw = states[tid]
             mask = np.zeros(objmap.shape, bool)
             mask.ravel()[pix[a:b]] = True
-            ys, xs = np.divmod(pix[a:b], W)
+            xs = pix[a:b] % W  # rows: the group is in ascending pixel order, first and last suffice
+            y_top, y_bottom = int(pix[a]) // W, int(pix[b - 1]) // W
             centre_map = pos + np.array([0.0, -o.size[1] / 2, 0.0])
             centre = Mcm[:3, :3] @ centre_map + Mcm[:3, 3]
             p1, p0 = sc.state(o, t + 1e-3), sc.state(o, t - 1e-3)
             vel = (p1[0] - p0[0]) / 2e-3 if p1 is not None and p0 is not None else np.zeros(3)
             objs.append(ObjectTruth(tid, o.category, KNOWN[o.category], mask,
-                                    (float(xs.min()), float(ys.min()), float(xs.max() + 1), float(ys.max() + 1)),
+                                    (float(xs.min()), float(y_top), float(xs.max() + 1), float(y_bottom + 1)),
                                     centre, o.size.copy(), Rwm @ vel))
         return FrameTruth(depth, sc.pose(t), objs)
 
