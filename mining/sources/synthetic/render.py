@@ -195,7 +195,7 @@ def texture_tables(cam: Camera, atlas: Atlas, V: np.ndarray, rows_cam: np.ndarra
         g = Uc @ K  # s·(1/z) = (g·p) − (Uc·O)·(C·p), texels
         HM[:, k] = g - np.einsum("ij,ij->i", Uc, O)[:, None] * C
     HM[:, 2] = C
-    det = np.abs(np.linalg.det(HM))
+    det = np.abs(np.einsum("fi,fi->f", HM[:, 0], np.cross(HM[:, 1], HM[:, 2])))  # 3×3 determinants (triple product)
     tab = np.zeros((F, 11))
     tab[:, 0:3] = HM[:, 0] / tile[:, 2:3]
     tab[:, 3:6] = HM[:, 1] / tile[:, 3:4]
