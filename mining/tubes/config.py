@@ -36,6 +36,7 @@ class TubeConfig:
     # Start (forward-backward enumeration).
     backward_steps: int = 5  # REFERENCE: run the filter backwards up to 5 frames
     backward_required: int = 3  # REFERENCE: require an inlier in each of the first 3 back-steps
+    probe_with_boxes: bool = True  # ours: the backward probe gates on warped boxes (box IoU for mask IoU); the forward replay uses masks
     duplicate_box_iou: float = 0.9  # REFERENCE: new tubes with the same inliers and box IoU ≥ 0.9 throughout are dropped
     # End.
     min_depth_m: float = 1.3  # REFERENCE: leaves the view behind 1.3 m

@@ -25,13 +25,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mining.masks import areas, box_iou, mask_iou, size_similarity
+from mining.masks import areas, box_iou, mask_iou
 from mining.score.config import ScoreConfig
 from mining.score.unary import score_tube
 from mining.tubes.config import TubeConfig
 from mining.tubes.kalman import POS, SIZE, VEL, TubeFilter
 from mining.tubes.tube import Tube, TubeFrame
-from mining.tubes.warp import MaskPoints, mask_points, predict_mask
+from mining.tubes.warp import MaskPoints, mask_points, predict_box, predict_mask
 from mining.types import TrackingFrame
 
 
@@ -45,6 +45,7 @@ class WorldObservations:
     velocity: np.ndarray  # (N, 3), NaN rows without flow
     velocity_covariance: np.ndarray  # (N, 3, 3)
     usable: np.ndarray  # (N,) bool: has a footpoint
+    boxes: np.ndarray  # (N, 4) float64
 
     @staticmethod
     def of(frame: TrackingFrame) -> WorldObservations:
@@ -54,7 +55,8 @@ class WorldObservations:
         cov = R @ o.covariance @ R.T
         vel = o.velocity @ R.T
         vcov = R @ o.velocity_covariance @ R.T
-        return WorldObservations(frame, foot, cov, vel, vcov, np.isfinite(foot).all(axis=1))
+        return WorldObservations(frame, foot, cov, vel, vcov, np.isfinite(foot).all(axis=1),
+                                 np.asarray(o.proposals.boxes, np.float64).reshape(-1, 4))
 
     def __len__(self) -> int:
         return len(self.footpoint)
@@ -62,11 +64,19 @@ class WorldObservations:
 
 @dataclass
 class Prediction:
-    rle: dict
+    rle: dict | None  # None: a box-only prediction
     box: np.ndarray
 
 
 GROUND = [0, 2]  # x and z: the footpoint's coordinates on the ground plane (y is the plane's height)
+
+
+def _inv_quad_2x2(d: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """dᵀ c⁻¹ d and det(c) for (N, 2) vectors and (N, 2, 2) matrices, in closed form."""
+    a, b, cc, e = c[:, 0, 0], c[:, 0, 1], c[:, 1, 0], c[:, 1, 1]
+    det = a * e - b * cc
+    m2 = (e * d[:, 0] ** 2 - (b + cc) * d[:, 0] * d[:, 1] + a * d[:, 1] ** 2) / det
+    return m2, det
 
 
 def gaussian_density(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
@@ -75,17 +85,28 @@ def gaussian_density(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.nda
     The motion LLR's null hypothesis spreads clutter uniformly over the ground area
     (paper: 1/A_GP with A_GP ≈ 80 m × 50 m), so the density is per square metre of ground.
     """
-    diff = (x - mean)[:, GROUND]
-    c = cov[:, GROUND][:, :, GROUND]
-    m2 = np.einsum("ni,nij,nj->n", diff, np.linalg.inv(c), diff)
-    return np.exp(-0.5 * m2) / (2 * np.pi * np.sqrt(np.linalg.det(c)))
+    m2, det = _inv_quad_2x2((x - mean)[:, GROUND], cov[:, GROUND][:, :, GROUND])
+    return np.exp(-0.5 * m2) / (2 * np.pi * np.sqrt(det))
 
 
 def mahalanobis2(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """Squared Mahalanobis distance on the ground plane."""
-    diff = (x - mean)[:, GROUND]
-    c = cov[:, GROUND][:, :, GROUND]
-    return np.einsum("ni,nij,nj->n", diff, np.linalg.inv(c), diff)
+    return _inv_quad_2x2((x - mean)[:, GROUND], cov[:, GROUND][:, :, GROUND])[0]
+
+
+def box_gates(pred: np.ndarray, obs: np.ndarray, min_iou: float, min_similarity: float) -> np.ndarray:
+    """(T, N) bool: box IoU > min_iou and 2D size similarity > min_similarity, in one pass."""
+    pw, ph = pred[:, 2] - pred[:, 0], pred[:, 3] - pred[:, 1]
+    ow, oh = obs[:, 2] - obs[:, 0], obs[:, 3] - obs[:, 1]
+    iw = np.minimum(pred[:, None, 2], obs[None, :, 2]) - np.maximum(pred[:, None, 0], obs[None, :, 0])
+    ih = np.minimum(pred[:, None, 3], obs[None, :, 3]) - np.maximum(pred[:, None, 1], obs[None, :, 1])
+    inter = np.clip(iw, 0, None) * np.clip(ih, 0, None)
+    union = (pw * ph)[:, None] + (ow * oh)[None, :] - inter
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ok = inter > min_iou * union
+        sim = (np.minimum(pw[:, None], ow[None]) / np.maximum(pw[:, None], ow[None])
+               * np.minimum(ph[:, None], oh[None]) / np.maximum(ph[:, None], oh[None]))
+    return ok & (sim > min_similarity)
 
 
 class TubeGenerator:
@@ -150,8 +171,11 @@ class TubeGenerator:
         self.live = keep
         return set(int(j) for j in choice if j >= 0)
 
-    def _predict(self, tube: Tube, frame: TrackingFrame) -> Prediction | None:
+    def _predict(self, tube: Tube, frame: TrackingFrame, box_only: bool = False) -> Prediction | None:
         shift = np.array([tube.kf.x[3], 0.0, tube.kf.x[4]]) * (frame.t_ns - tube.last_observed_t_ns) / 1e9
+        if box_only:
+            box = predict_box(tube.points, shift, frame.pose, frame.calib)
+            return None if box is None else Prediction(None, box)
         out = predict_mask(tube.points, shift, frame.pose, frame.calib, self.cfg.warp_close_px)
         return None if out is None else Prediction(*out)
 
@@ -183,15 +207,17 @@ class TubeGenerator:
         if T == 0 or N == 0:
             return choice, terms
         obs = world.frame.observations
-        pboxes = np.array([p.box for p in preds])
-        gate = box_iou(pboxes, obs.proposals.boxes) > self.cfg.gate_box_iou
-        gate &= size_similarity(pboxes, obs.proposals.boxes) > self.cfg.gate_size_similarity
+        pboxes = np.array([p.box for p in preds], np.float64)
+        gate = box_gates(pboxes, world.boxes, self.cfg.gate_box_iou, self.cfg.gate_size_similarity)
         gate &= world.usable[None, :]
         if not gate.any():
             return choice, terms
         rows = np.flatnonzero(gate.any(axis=1))
         cols = np.flatnonzero(gate.any(axis=0))
-        ious = mask_iou([preds[i].rle for i in rows], [obs.proposals.rles[j] for j in cols])
+        if all(preds[i].rle is not None for i in rows):
+            ious = mask_iou([preds[i].rle for i in rows], [obs.proposals.rles[j] for j in cols])
+        else:  # a box-only prediction (the backward probe) is compared by box IoU
+            ious = box_iou(pboxes[rows], obs.proposals.boxes[cols])
         for a, i in enumerate(rows):
             tube = tubes[i]
             cand = cols[gate[i, cols]]
@@ -294,7 +320,9 @@ class TubeGenerator:
         for k, w in enumerate(past):
             probe.kf.predict((w.frame.t_ns - t_cur) / 1e9)
             t_cur = w.frame.t_ns
-            pred = self._predict(probe, w.frame)
+            # The backward probe only proposes where to start: it compares warped boxes, and
+            # the forward replay below re-associates with full mask prediction.
+            pred = self._predict(probe, w.frame, box_only=self.cfg.probe_with_boxes)
             choice, terms = ([-1], None) if pred is None else self._associate([probe], [pred], w)
             if choice[0] < 0:
                 if k < self.cfg.backward_required:
@@ -361,7 +389,9 @@ class TubeGenerator:
             theirs = set(f for f, tf in frames.items() if tf.observed and f >= tube.first_frame)
             if theirs != key:
                 continue
-            if all(box_iou(mine[f].box, frames[f].box)[0, 0] >= self.cfg.duplicate_box_iou for f in key):
+            common = sorted(key)
+            ious = np.diag(box_iou(np.array([mine[f].box for f in common]), np.array([frames[f].box for f in common])))
+            if (ious >= self.cfg.duplicate_box_iou).all():
                 return True
         return False
 

@@ -49,6 +49,21 @@ def mask_points(points_cam: np.ndarray | None, grid: int, box: np.ndarray, posit
     return MaskPoints(points_cam.astype(np.float64) @ R.T + t, int(grid), False)
 
 
+def predict_box(mp: MaskPoints, shift_world: np.ndarray, pose: np.ndarray, calib: StereoCalib,
+                min_depth_m: float = 0.1) -> np.ndarray | None:
+    """Box around the warped points, clipped to the image (no mask is drawn)."""
+    R, t = pose[:3, :3], pose[:3, 3]
+    cam = (mp.points + shift_world - t) @ R
+    cam = cam[cam[:, 2] > min_depth_m]
+    if len(cam) == 0:
+        return None
+    uv = calib.project(cam)
+    pad = 0 if mp.boxlike else mp.grid / 2
+    box = np.array([max(uv[:, 0].min() - pad, 0), max(uv[:, 1].min() - pad, 0),
+                    min(uv[:, 0].max() + pad + 1, calib.width), min(uv[:, 1].max() + pad + 1, calib.height)])
+    return box if box[2] > box[0] and box[3] > box[1] else None
+
+
 def predict_mask(mp: MaskPoints, shift_world: np.ndarray, pose: np.ndarray, calib: StereoCalib,
                  close_px: int, min_depth_m: float = 0.1) -> tuple[dict, np.ndarray] | None:
     """Predicted (RLE, box) in the camera of ``pose``; None when nothing lands in the image."""
