@@ -16,6 +16,7 @@ head or tail, so no COCO animal class describes it).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -165,16 +166,21 @@ class Road:
         x = np.concatenate([[0.0], np.cumsum(0.5 * (np.sin(self.theta[1:]) + np.sin(self.theta[:-1])) * self.DS)])
         z = np.concatenate([[0.0], np.cumsum(0.5 * (np.cos(self.theta[1:]) + np.cos(self.theta[:-1])) * self.DS)])
         self.x, self.z = x - x[i0], z - z[i0]
+        # plain-float copies for the scalar path (objects are placed one at a time, hundreds per frame)
+        self._lists = (self.s.tolist(), self.x.tolist(), self.z.tolist(), self.theta.tolist())
+
+    def _scalar(self, s: float) -> tuple[float, float, float]:
+        """Centre x, z and heading θ at one arc length, interpolated linearly."""
+        ss, xs, zs, ths = self._lists
+        i = min(max(int((s - ss[0]) / self.DS), 0), len(ss) - 2)
+        f = (s - ss[i]) / self.DS
+        return xs[i] + f * (xs[i + 1] - xs[i]), zs[i] + f * (zs[i + 1] - zs[i]), ths[i] + f * (ths[i + 1] - ths[i])
 
     def frame(self, s):
         """Centre point (…,3), heading θ, tangent and right normal at arc length(s) ``s``."""
-        if np.ndim(s) == 0:  # fast scalar path (objects are placed one at a time)
-            i = min(max(int((s - self.s[0]) / self.DS), 0), len(self.s) - 2)
-            f = (s - self.s[i]) / self.DS
-            x = self.x[i] + f * (self.x[i + 1] - self.x[i])
-            z = self.z[i] + f * (self.z[i + 1] - self.z[i])
-            th = self.theta[i] + f * (self.theta[i + 1] - self.theta[i])
-            c, sn = np.cos(th), np.sin(th)
+        if np.ndim(s) == 0:
+            x, z, th = self._scalar(float(s))
+            c, sn = math.cos(th), math.sin(th)
             return np.array([x, 0.0, z]), th, np.array([sn, 0.0, c]), np.array([c, 0.0, -sn])
         s = np.asarray(s, float)
         x = np.interp(s, self.s, self.x)
@@ -186,6 +192,9 @@ class Road:
         return c, th, t, nrm
 
     def point(self, s, d, y=0.0):
+        if np.ndim(s) == 0 and np.ndim(d) == 0 and np.ndim(y) == 0:
+            x, z, th = self._scalar(float(s))
+            return np.array([x + d * math.cos(th), y, z - d * math.sin(th)])  # centre + d · right normal
         c, _, _, nrm = self.frame(s)
         if np.ndim(s) == 0:
             return c + d * nrm + np.array([0.0, y, 0.0])
