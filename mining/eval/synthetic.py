@@ -375,4 +375,7 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    # run the imported module's main, so that pickled GtFrames name mining.eval.synthetic, not __main__
+    from mining.eval.synthetic import main as _main
+
+    _main()
