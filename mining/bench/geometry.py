@@ -178,6 +178,15 @@ def run_geometry_bench(data: Path, cfg: GeometryConfig, synthetic_frames: int = 
     print(f"  {'total':<12} {total:8.1f}")
     checks.append(("geometry step ≤ 150 ms per frame", total <= 150.0))
 
+    from mining.sources.synthetic import bench_render
+
+    render_ms = {seq: bench_render(20, seq) for seq in ("0000", "0002")}
+    results["synthetic_render_ms"] = render_ms
+    print("\nSynthetic source, ms per frame (left + right + truth, 1242×375, one core, best of 20)")
+    for seq, ms in render_ms.items():
+        print(f"  sequence {seq}: {ms:6.1f}  ({1000 / ms:.1f} frames/s)")
+    checks.append(("synthetic rendering ≥ 5 frames/s", max(render_ms.values()) <= 200.0))
+
     print("\nTargets")
     for name, ok in checks:
         print(f"  [{'ok' if ok else 'MISS'}] {name}")
