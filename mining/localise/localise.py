@@ -54,17 +54,17 @@ def project_to_ground(points: np.ndarray, ground: GroundPlane) -> np.ndarray:
     return p - h[:, None] * ground.normal[None, :]
 
 
-def _flow_index(flow: SceneFlow | None, shape: tuple[int, int]) -> np.ndarray | None:
-    """Per-pixel index of the scene-flow sample there (−1: none), flattened row-major."""
+def _flow_keys(flow: SceneFlow | None, width: int, height: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Scene-flow samples by column-major pixel index (column · height + row, the order of
+    COCO RLE runs), sorted, with the sample's row in ``flow``."""
     if flow is None or len(flow) == 0:
         return None
-    h, w = shape
     good = np.flatnonzero(np.isfinite(flow.motion).all(axis=1))
-    u = np.clip(np.round(flow.uv[good, 0]).astype(np.int64), 0, w - 1)
-    v = np.clip(np.round(flow.uv[good, 1]).astype(np.int64), 0, h - 1)
-    index = np.full(h * w, -1, np.int64)
-    index[v * w + u] = good
-    return index
+    u = np.clip(np.round(flow.uv[good, 0]).astype(np.int64), 0, width - 1)
+    v = np.clip(np.round(flow.uv[good, 1]).astype(np.int64), 0, height - 1)
+    keys = u * height + v
+    order = np.argsort(keys, kind="stable")
+    return keys[order], good[order]
 
 
 def localise(
@@ -84,7 +84,7 @@ def localise(
     size = np.full((n, 3), np.nan)
     velocity = np.full((n, 3), np.nan)
     n_points = np.zeros(n, np.int64)
-    flow_index = _flow_index(flow, (h, w)) if dt_s else None
+    flow_keys = _flow_keys(flow, w, h) if dt_s else None
     lo, hi = cfg.size_percentiles
     flat_depth = depth.ravel()
     points: list[np.ndarray] = [np.zeros((0, 3), np.float32)] * n
@@ -92,9 +92,14 @@ def localise(
     for i, rle in enumerate(proposals.rles):
         rows, cols = mask_pixels(rle)
         keys = rows * w + cols
-        if flow_index is not None:
-            samples = flow_index[keys]
-            samples = samples[samples >= 0]
+        if flow_keys is not None:
+            # Mask pixels come in column-major order, sorted: look each flow sample up in them.
+            flow_at, rows_of = flow_keys
+            pix = cols * h + rows
+            first, last = np.searchsorted(flow_at, [pix[0], pix[-1] + 1]) if pix.size else (0, 0)
+            cand = flow_at[first:last]
+            pos = np.minimum(np.searchsorted(pix, cand), pix.size - 1)
+            samples = rows_of[first:last][pix[pos] == cand]
             if samples.size >= cfg.min_flow_samples:
                 velocity[i] = np.median(flow.motion[samples], axis=0) / dt_s
         if keys.size > cfg.max_points:  # a regular grid keeps the sample spread over the mask
@@ -126,7 +131,7 @@ def drop_outliers(points: np.ndarray, median: np.ndarray, max_mahalanobis: float
         return points
     diff = points - median
     cov = diff.T @ diff / len(points) + 1e-6 * np.eye(3)
-    m2 = np.einsum("ni,ij,nj->n", diff, np.linalg.inv(cov), diff)
+    m2 = ((diff @ np.linalg.inv(cov)) * diff).sum(axis=1)
     return points[m2 <= max_mahalanobis**2]
 
 
