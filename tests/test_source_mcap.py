@@ -12,6 +12,8 @@ from mining.errors import InputError
 from mining.sources import open_source
 from mining.sources.fixtures import write_stereo_mcap
 from mining.sources.mcap import McapSource, header_stamp_ns
+from mining.sources.kitti import read_rgb
+from mining.sources.kitti_calib import read_tracking_calib
 from mining.types import StereoCalib
 
 N_FRAMES = 4
@@ -21,14 +23,11 @@ PERIOD = 100_000_000
 
 
 def _rgb(path: Path) -> np.ndarray:
-    return cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)
+    return read_rgb(path, 0)
 
 
 def _kitti_calib(calib_file: Path, width: int, height: int) -> StereoCalib:
-    rows = {ln.split()[0].rstrip(":"): ln.split()[1:] for ln in calib_file.read_text().splitlines() if ln.strip()}
-    P2 = np.array(rows["P2"], float).reshape(3, 4)
-    P3 = np.array(rows["P3"], float).reshape(3, 4)
-    return StereoCalib(P2[0, 0], P2[1, 1], P2[0, 2], P2[1, 2], (P2[0, 3] - P3[0, 3]) / P2[0, 0], width, height)
+    return read_tracking_calib(calib_file).stereo(width, height)
 
 
 @pytest.fixture(scope="module")

@@ -19,6 +19,8 @@ from mining.sources.oxford import (
     load_lut,
     stereo_calib,
 )
+from mining.sources.kitti import read_rgb
+from mining.sources.kitti_calib import read_tracking_calib
 from mining.types import StereoCalib
 
 N_FRAMES = 6
@@ -26,14 +28,11 @@ MARGIN = 20  # px left out at the borders, where interpolation sees the black ou
 
 
 def _rgb(path: Path) -> np.ndarray:
-    return cv2.cvtColor(cv2.imread(str(path)), cv2.COLOR_BGR2RGB)
+    return read_rgb(path, 0)
 
 
 def _kitti_calib(calib_file: Path, width: int, height: int) -> StereoCalib:
-    rows = {ln.split()[0].rstrip(":"): ln.split()[1:] for ln in calib_file.read_text().splitlines() if ln.strip()}
-    P2 = np.array(rows["P2"], float).reshape(3, 4)
-    P3 = np.array(rows["P3"], float).reshape(3, 4)
-    return StereoCalib(P2[0, 0], P2[1, 1], P2[0, 2], P2[1, 2], (P2[0, 3] - P3[0, 3]) / P2[0, 0], width, height)
+    return read_tracking_calib(calib_file).stereo(width, height)
 
 
 def _psnr(a: np.ndarray, b: np.ndarray) -> float:
