@@ -23,7 +23,7 @@ if [ ! -f "$stamp" ]; then
     # TrackEval (MIT, the KITTI/MOT reference evaluator) cross-checks our metrics in the
     # tests. --no-deps: its metadata pulls opencv-python, which clashes with the headless
     # OpenCV we use; the metrics need only numpy and scipy.
-    .venv/bin/python -m pip install -q --no-deps trackeval==1.3.0
+    .venv/bin/python -m pip install -q --no-deps trackeval==1.3.0 >>.venv/setup.log 2>&1 || { tail -30 .venv/setup.log >&2; exit 1; }
   fi
   touch "$stamp"
 fi
