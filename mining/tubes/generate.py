@@ -384,7 +384,12 @@ class TubeGenerator:
     def _duplicate(self, tube: Tube, others: list[Tube]) -> bool:
         key = set(f.frame for f in tube.frames if f.observed)
         mine = tube.frame_map()
+        last = tube.frames[-1]
         for other in others:
+            # Same inliers means the same last frame and observation: a cheap first test.
+            end = other.frames[-1]
+            if end.frame != last.frame or not end.observed:
+                continue
             frames = other.frame_map()
             theirs = set(f for f, tf in frames.items() if tf.observed and f >= tube.first_frame)
             if theirs != key:
