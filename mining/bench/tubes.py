@@ -78,7 +78,6 @@ def bench_setting(geoms, proposals: JsonProposals, limit: int | None, cfg: JobCo
           "select": 1e3 * (t2 - t1) / n}
     ms["total"] = sum(ms.values())
     ms["proposals_per_frame"] = float(np.mean(counts))
-    ms["tubes"] = ms["tubes"]
     ms["n_tubes"] = float(len(tubes))
     ms["n_selected"] = float(selected.sum())
     return ms

@@ -353,11 +353,13 @@ class TubeGenerator:
         return tube
 
     def _may_step_back(self, world: WorldObservations, cands: np.ndarray, prev: WorldObservations) -> np.ndarray:
-        """Cheap exact pre-check for many starts at once: which observations ``cands`` have
+        """Cheap pre-check for many starts at once: which observations ``cands`` have
         any observation at t−1 within the footpoint gate of their first backward prediction?
 
         A fresh filter's predicted footpoint and covariance have a closed form, so the gate
-        runs on arrays and most hopeless starts end before any mask is warped.
+        runs on arrays and most hopeless starts end before any mask is warped. It leaves
+        out the velocity covariance's off-diagonal term, so it is a pre-filter: the full
+        gate still runs on the starts it keeps.
         """
         usable = np.flatnonzero(prev.usable)
         if usable.size == 0 or cands.size == 0:
