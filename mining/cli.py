@@ -185,6 +185,13 @@ def cmd_eval_recall(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_eval_synthetic(args: argparse.Namespace) -> int:
+    from mining.eval.synthetic import main as synthetic_main
+
+    synthetic_main([a for a in args.rest if a != "--"])
+    return 0
+
+
 def cmd_bench_tubes(args: argparse.Namespace) -> int:
     from mining.bench.tubes import run_tubes_bench
 
@@ -268,11 +275,19 @@ def build_parser() -> argparse.ArgumentParser:
     erec.add_argument("--oxford-labels", help="RobotCar: the 4D-GVT labels_4dgvt folder")
     erec.add_argument("--proposals-json", help="RobotCar: proposal JSON files laid out like the label files")
     erec.set_defaults(func=cmd_eval_recall)
+    esyn = esub.add_parser("synthetic", add_help=False,
+                           help="mine a synthetic sequence and score known and unknown objects against its exact truth "
+                                "(options: see `mine eval synthetic --help`)")
+    esyn.add_argument("rest", nargs=argparse.REMAINDER)
+    esyn.set_defaults(func=cmd_eval_synthetic)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:2] == ["eval", "synthetic"]:  # its own option parser takes everything after
+        argv = ["eval", "synthetic", "--", *argv[2:]]
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
