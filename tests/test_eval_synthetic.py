@@ -196,9 +196,9 @@ def test_rendered_truth_with_tubes_made_from_it(rendered):
 
 
 def test_real_pipeline_on_a_short_synthetic_sequence():
-    # Stereo proposer (no weights), 20 frames of sequence 0000 (~25 s of CPU). Measured at
-    # commit time: all HOTA 0.26; known MOTA 0.13 (47 TP, 3 FP, 301 FN), 2 of 26 tracks;
-    # unknown 10 TP, 10 FP, 42 FN, 1 of 4 tracks mined.
+    # Stereo proposer (no weights), 20 frames of sequence 0000 (10–45 s, by load). Measured
+    # on two renderer versions: all HOTA 0.26; known MOTA 0.12–0.13 (45–47 TP, 3–4 FP,
+    # ~300 FN), 2 of 26 tracks; unknown 10–13 TP, 10–16 FP, ~42 FN, 1 of 4 tracks mined.
     cv2.setNumThreads(1)
     cfg = load_config()
     mined_tubes, r = run_synthetic("0000", 20, cfg)
