@@ -69,10 +69,10 @@ _EPS = np.finfo(float).eps
 class SyntheticEvalProtocol:
     """The constants of the synthetic evaluation (see the module docstring)."""
 
-    min_visible_px: int = 100  # ours, after REFERENCE: proposals with box area < 100 px² are dropped, so smaller objects are ignored
+    min_visible_px: int = 100  # ours, after REFERENCE: proposals under 100 px² are dropped, so smaller objects are ignored
     iou_threshold: float = 0.5  # REFERENCE (KITTI MOT): a match needs IoU ≥ 0.5
     similarity: str = "mask"  # ours: "mask" IoU (the tubes are masks) or "box" IoU
-    max_depth_m: float | None = None  # ours: ignore objects whose centre lies deeper (None: keep all); REFERENCE keeps proposals with Z < 60 m
+    max_depth_m: float | None = None  # ours: ignore objects centred deeper (None: keep all); REFERENCE: proposals need Z < 60 m
     predicted: bool = False  # ours: observed tube frames only, as the tracking export (ExportConfig.observed_only)
     track_cover: float = 0.5  # ours: a track is recalled when one tube covers at least half its evaluated frames
 
@@ -333,16 +333,13 @@ def run_synthetic(sequence: str, n_frames: int, cfg: JobConfig, start: int = 0, 
 
 
 def format_synthetic(results: dict) -> str:
-    """A small text table: one row per split."""
-    cols = [("HOTA", "{:.3f}"), ("DetA", "{:.3f}"), ("AssA", "{:.3f}"), ("MOTA", "{:.3f}"), ("IDSW", "{:d}"),
-            ("IDF1", "{:.3f}"), ("TP", "{:d}"), ("FP", "{:d}"), ("FN", "{:d}"), ("frame_recall", "{:.3f}"),
-            ("tube_recall", "{:.3f}"), ("tracks", "{:d}")]
-    head = ["split"] + [c if c != "frame_recall" else "frameR" for c, _ in cols]
-    head[head.index("tube_recall")] = "tubeR"
-    rows = [head]
-    for split in SPLITS:
-        r = results[split]
-        rows.append([split] + [fmt.format(r[c]) for c, fmt in cols])
+    """A small text table: one row per evaluation, then the tube counts."""
+    cols = [("HOTA", "HOTA", "{:.3f}"), ("DetA", "DetA", "{:.3f}"), ("AssA", "AssA", "{:.3f}"),
+            ("MOTA", "MOTA", "{:.3f}"), ("IDSW", "IDSW", "{:d}"), ("IDF1", "IDF1", "{:.3f}"), ("TP", "TP", "{:d}"),
+            ("FP", "FP", "{:d}"), ("FN", "FN", "{:d}"), ("frame_recall", "frameR", "{:.3f}"),
+            ("tube_recall", "tubeR", "{:.3f}"), ("tracks", "tracks", "{:d}")]
+    head = ["split"] + [label for _, label, _ in cols]
+    rows = [head] + [[split] + [fmt.format(results[split][key]) for key, _, fmt in cols] for split in SPLITS]
     widths = [max(len(row[i]) for row in rows) for i in range(len(head))]
     lines = ["  ".join(x.rjust(w) for x, w in zip(row, widths)) for row in rows]
     t = results.get("tubes", {})
