@@ -204,3 +204,19 @@ def test_detections_only_kitti_0005(kitti_tracking_root, tmp_path):
     r = evaluate_kitti_mot(train / "label_02", out, ["0005"], seqmap=train / "seqmaps" / "train.seqmap")
     assert r["Car"]["HOTA"] > 0.65 and r["Car"]["MOTA"] > 0.6
     assert r["Car"]["IDSW"] <= 5
+
+
+def test_tubes_never_cross_a_segment_border():
+    """A failed egomotion starts a new pose segment; no tube may link the two sides."""
+    gen = TubeGenerator(TubeConfig(), ScoreConfig())
+    for k in range(12):
+        f = _frame(k, 1.0 * k, [(3.0, 25.0)])
+        if k >= 6:  # egomotion failed between frames 5 and 6: new segment, new world frame
+            f = TrackingFrame(f.index, f.t_ns, f.calib, _pose(1.0 * (k - 6)), 1, f.observations, f.depth)
+        gen.step(f)
+    tubes = gen.finish()
+    assert tubes, "the parked car is tracked on both sides"
+    for t in tubes:
+        frames = [fr.frame for fr in t.frames]
+        assert max(frames) < 6 or min(frames) >= 6
+    assert {t.segment for t in tubes} == {0, 1}
