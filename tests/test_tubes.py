@@ -220,3 +220,16 @@ def test_tubes_never_cross_a_segment_border():
         frames = [fr.frame for fr in t.frames]
         assert max(frames) < 6 or min(frames) >= 6
     assert {t.segment for t in tubes} == {0, 1}
+
+
+def test_same_input_same_tubes(kitti_tracking_root, tmp_path):
+    from mining.pipeline.detections import track_detections
+
+    train = kitti_tracking_root / "training"
+    cfg = load_config()
+    outs = []
+    for k in range(2):
+        track_detections(kitti_tracking_root, "0012", train / "det_pointrcnn", train / "egoposes_orbslam3" / "0012.txt",
+                         cfg, tmp_path / f"{k}.txt")
+        outs.append((tmp_path / f"{k}.txt").read_text())
+    assert outs[0] == outs[1] and outs[0].count("\n") > 50
