@@ -54,6 +54,61 @@ def mask_pixels(rle: dict) -> tuple[np.ndarray, np.ndarray]:
     return idx % h, idx // h
 
 
+def batch_mask_pixels(rles: list[dict]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pixels of many masks at once: (mask index, row, column), each mask's pixels in
+    column-major order. One vectorised pass over all compressed strings, for speed when a
+    frame has hundreds of proposals; same result as ``mask_pixels`` per mask."""
+    empty = (np.zeros(0, np.int64),) * 3
+    if not rles:
+        return empty
+    chunks = [r["counts"].encode() if isinstance(r["counts"], str) else r["counts"] for r in rles]
+    if any(isinstance(c, list) for c in chunks):  # uncompressed RLEs: decode one by one
+        parts = [mask_pixels(r) for r in rles]
+        seg = np.repeat(np.arange(len(parts)), [p[0].size for p in parts])
+        return seg, np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+    lengths = np.array([len(c) for c in chunks])
+    raw = np.frombuffer(b"".join(chunks), np.uint8).astype(np.int64) - 48
+    if raw.size == 0:
+        return empty
+    char_seg = np.repeat(np.arange(len(chunks)), lengths)
+    last = (raw & 0x20) == 0
+    ends = np.nonzero(last)[0]
+    starts = np.concatenate([[0], ends[:-1] + 1])
+    number = np.cumsum(np.concatenate([[0], last[:-1]]))
+    shift = 5 * (np.arange(raw.size) - starts[number])
+    values = np.add.reduceat((raw & 0x1F) << shift, starts)
+    negative = (raw[ends] & 0x10) != 0
+    values[negative] -= 1 << (5 * (ends[negative] - starts[negative] + 1))
+    seg = char_seg[ends]  # mask of each number
+    first = np.searchsorted(seg, np.arange(len(chunks)))  # index of each mask's first number
+    m = np.arange(values.size) - first[seg]  # position of each number within its mask
+    # From the fourth run on, runs are stored relative to the run two places before:
+    # a running sum per mask and parity, started from that mask's run 1 (odd) or 2 (even).
+    for parity, base_pos in ((1, 1), (0, 2)):
+        sel = (m >= 3) & (m % 2 == parity)
+        if not sel.any():
+            continue
+        csum = np.cumsum(np.where(sel, values, 0))
+        # cumulative sum restarted at each mask: subtract the sum reached before the mask
+        start_sum = np.concatenate([[0], csum])[first][seg]
+        base = values[np.minimum(first[seg] + base_pos, values.size - 1)]
+        values = np.where(sel, csum - start_sum + base, values)
+    # Runs → pixel indices: ones are the odd runs; their start is the within-mask cumsum.
+    csum = np.cumsum(values)
+    start_sum = np.concatenate([[0], csum])[first][seg]
+    end_pos = csum - start_sum  # end of each run within its mask
+    odd = (m % 2 == 1) & (values > 0)
+    run_len = values[odd]
+    run_start = end_pos[odd] - run_len
+    run_seg = seg[odd]
+    total = int(run_len.sum())
+    offsets = np.arange(total) - np.repeat(np.cumsum(run_len) - run_len, run_len)
+    idx = np.repeat(run_start, run_len) + offsets
+    pix_seg = np.repeat(run_seg, run_len)
+    heights = np.array([int(r["size"][0]) for r in rles])[pix_seg]
+    return pix_seg, idx % heights, idx // heights
+
+
 def crop_rle(crop: np.ndarray, x0: int, y0: int, height: int, width: int) -> dict:
     """COCO compressed RLE of a full ``height × width`` mask that is zero outside ``crop``.
 

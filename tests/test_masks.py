@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from pycocotools import mask as mask_utils
 
-from mining.masks import areas, box_iou, box_rle, crop_rle, mask_iou, mask_pixels, rle_box, rle_counts, size_similarity
+from mining.masks import (areas, batch_mask_pixels, box_iou, box_rle, crop_rle, mask_iou, mask_pixels, rle_box,
+                          rle_counts, size_similarity)
 
 
 def _random_masks(rng, n, h=60, w=80):
@@ -67,3 +68,15 @@ def test_batched_iou_and_chunked_area():
             a, b = ms[i], ms[5 + j]
             union = (a | b).sum()
             assert iou[i, j] == pytest.approx((a & b).sum() / union if union else 0.0)
+
+
+def test_batch_decoding_matches_per_mask():
+    rng = np.random.default_rng(3)
+    ms = _random_masks(rng, 120)
+    rles = [mask_utils.encode(np.asfortranarray(m.astype(np.uint8))) for m in ms]
+    seg, rows, cols = batch_mask_pixels(rles)
+    for i, rle in enumerate(rles):
+        r, c = mask_pixels(rle)
+        np.testing.assert_array_equal(rows[seg == i], r)
+        np.testing.assert_array_equal(cols[seg == i], c)
+    assert batch_mask_pixels([])[0].size == 0

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from mining.localise.config import LocaliseConfig
-from mining.masks import mask_pixels
+from mining.masks import batch_mask_pixels
 from mining.proposals.config import ProposalFilterConfig
 from mining.types import GroundPlane, Observations, Proposals, SceneFlow, StereoCalib
 
@@ -89,8 +89,10 @@ def localise(
     flat_depth = depth.ravel()
     points: list[np.ndarray] = [np.zeros((0, 3), np.float32)] * n
     grid = np.ones(n, np.int64)
-    for i, rle in enumerate(proposals.rles):
-        rows, cols = mask_pixels(rle)
+    seg, all_rows, all_cols = batch_mask_pixels(proposals.rles)
+    bounds = np.searchsorted(seg, np.arange(n + 1))
+    for i in range(n):
+        rows, cols = all_rows[bounds[i]:bounds[i + 1]], all_cols[bounds[i]:bounds[i + 1]]
         keys = rows * w + cols
         if flow_keys is not None:
             # Mask pixels come in column-major order, sorted: look each flow sample up in them.
