@@ -6,7 +6,6 @@ import argparse
 import os
 import sys
 from pathlib import Path
-from typing import Any
 
 from mining.config import JobConfig, load_config, parse_override
 from mining.errors import ConfigError, MiningError

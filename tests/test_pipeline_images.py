@@ -3,7 +3,6 @@ KITTI 0005 frames, through the `mine` command line, scored by the KITTI MOT prot
 
 from __future__ import annotations
 
-import pytest
 
 from mining.cli import main
 from conftest import MODELS

@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from pycocotools import mask as mask_utils
 
 from mining.config import load_config
 from mining.localise.config import LocaliseConfig
 from mining.localise.localise import localise, triangulation_covariance
-from mining.masks import box_rle, crop_rle, mask_iou
+from mining.masks import box_rle, mask_iou
 from mining.score.config import ScoreConfig
 from mining.score.unary import score_tube
 from mining.select.config import SelectConfig
@@ -20,7 +19,7 @@ from mining.tubes.generate import TubeGenerator
 from mining.tubes.kalman import TubeFilter
 from mining.tubes.tube import Tube, TubeFrame
 from mining.tubes.warp import mask_points, predict_mask
-from mining.types import GroundPlane, Observations, Proposals, StereoCalib, TrackingFrame, UNKNOWN_CLASS
+from mining.types import GroundPlane, Proposals, StereoCalib, TrackingFrame, UNKNOWN_CLASS
 
 CALIB = StereoCalib(700.0, 700.0, 320.0, 120.0, 0.5, 640, 240)
 GROUND = GroundPlane(np.array([0.0, -1.0, 0.0]), 1.65, 5000, True)

@@ -29,7 +29,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from pycocotools import mask as mask_utils
 
 from mining.errors import ConfigError, InputError
 from mining.proposals.config import OnnxConfig

@@ -29,7 +29,7 @@ from mining.masks import areas, box_iou, mask_iou
 from mining.score.config import ScoreConfig
 from mining.score.unary import score_tube
 from mining.tubes.config import TubeConfig
-from mining.tubes.kalman import POS, SIZE, VEL, TubeFilter
+from mining.tubes.kalman import POS, SIZE, TubeFilter
 from mining.tubes.tube import Tube, TubeFrame
 from mining.tubes.warp import MaskPoints, mask_points, predict_box, predict_mask
 from mining.types import TrackingFrame

@@ -331,7 +331,6 @@ class Scene:
         nodes = np.array(nodes)
         h, sw = self.half, SIDEWALK_M
         up = np.array([0.0, -1.0, 0.0])
-        rw = 2 * h
         for a, b in zip(nodes[:-1], nodes[1:]):
             key = 0.5 * (a + b)
             ca, _, ta, na = road.frame(a)
