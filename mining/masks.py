@@ -12,14 +12,9 @@ import numpy as np
 from pycocotools import mask as mask_utils
 
 
-def rle_counts(rle: dict) -> np.ndarray:
-    """Run lengths of a COCO RLE (compressed string or plain list), vectorised."""
-    counts = rle["counts"]
-    if isinstance(counts, list):
-        return np.asarray(counts, np.int64)
-    raw = np.frombuffer(counts.encode() if isinstance(counts, str) else counts, np.uint8).astype(np.int64) - 48
-    if raw.size == 0:
-        return np.zeros(0, np.int64)
+def _numbers(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The signed numbers of a compressed counts string (characters − 48), before the
+    delta coding is undone; and the index of each number's last character."""
     last = (raw & 0x20) == 0  # the character that ends a number
     ends = np.nonzero(last)[0]
     starts = np.concatenate([[0], ends[:-1] + 1])
@@ -29,6 +24,18 @@ def rle_counts(rle: dict) -> np.ndarray:
     values = np.add.reduceat((raw & 0x1F) << shift, starts)
     negative = (raw[ends] & 0x10) != 0
     values[negative] -= 1 << (5 * (ends[negative] - starts[negative] + 1))
+    return values, ends
+
+
+def rle_counts(rle: dict) -> np.ndarray:
+    """Run lengths of a COCO RLE (compressed string or plain list), vectorised."""
+    counts = rle["counts"]
+    if isinstance(counts, list):
+        return np.asarray(counts, np.int64)
+    raw = np.frombuffer(counts.encode() if isinstance(counts, str) else counts, np.uint8).astype(np.int64) - 48
+    if raw.size == 0:
+        return np.zeros(0, np.int64)
+    values, _ = _numbers(raw)
     # Runs from the fourth on are stored relative to the run two places before.
     if values.size > 3:
         values[3::2] = np.cumsum(values[3::2]) + values[1]
@@ -71,14 +78,7 @@ def batch_mask_pixels(rles: list[dict]) -> tuple[np.ndarray, np.ndarray, np.ndar
     if raw.size == 0:
         return empty
     char_seg = np.repeat(np.arange(len(chunks)), lengths)
-    last = (raw & 0x20) == 0
-    ends = np.nonzero(last)[0]
-    starts = np.concatenate([[0], ends[:-1] + 1])
-    number = np.cumsum(np.concatenate([[0], last[:-1]]))
-    shift = 5 * (np.arange(raw.size) - starts[number])
-    values = np.add.reduceat((raw & 0x1F) << shift, starts)
-    negative = (raw[ends] & 0x10) != 0
-    values[negative] -= 1 << (5 * (ends[negative] - starts[negative] + 1))
+    values, ends = _numbers(raw)
     seg = char_seg[ends]  # mask of each number
     first = np.searchsorted(seg, np.arange(len(chunks)))  # index of each mask's first number
     m = np.arange(values.size) - first[seg]  # position of each number within its mask

@@ -47,3 +47,17 @@ def stereo_gt_root() -> Path:
 @pytest.fixture(scope="session")
 def oxford_data() -> Path:
     return _require(DATA / "oxford")
+
+
+def kitti_rgb(path: Path):
+    """A real KITTI frame as RGB, through the project's reader."""
+    from mining.sources.kitti import read_rgb
+
+    return read_rgb(path, 0)
+
+
+def kitti_stereo_calib(calib_file: Path, width: int, height: int):
+    """StereoCalib of image_02/03 from a KITTI tracking calibration file."""
+    from mining.sources.kitti_calib import read_tracking_calib
+
+    return read_tracking_calib(calib_file).stereo(width, height)

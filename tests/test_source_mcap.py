@@ -8,26 +8,17 @@ import cv2
 import numpy as np
 import pytest
 
+from conftest import kitti_rgb as _rgb
+from conftest import kitti_stereo_calib as _kitti_calib
 from mining.errors import InputError
 from mining.sources import open_source
 from mining.sources.fixtures import write_stereo_mcap
 from mining.sources.mcap import McapSource, header_stamp_ns
-from mining.sources.kitti import read_rgb
-from mining.sources.kitti_calib import read_tracking_calib
-from mining.types import StereoCalib
 
 N_FRAMES = 4
 T0 = 1_700_000_000_123_456_789
 HZ = 10.0
 PERIOD = 100_000_000
-
-
-def _rgb(path: Path) -> np.ndarray:
-    return read_rgb(path, 0)
-
-
-def _kitti_calib(calib_file: Path, width: int, height: int) -> StereoCalib:
-    return read_tracking_calib(calib_file).stereo(width, height)
 
 
 @pytest.fixture(scope="module")

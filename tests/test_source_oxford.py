@@ -9,6 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
+from conftest import kitti_rgb as _rgb
+from conftest import kitti_stereo_calib as _kitti_calib
 from mining.errors import InputError
 from mining.sources import open_source
 from mining.sources.fixtures import bayer_mosaic, write_robotcar_fixture
@@ -19,20 +21,9 @@ from mining.sources.oxford import (
     load_lut,
     stereo_calib,
 )
-from mining.sources.kitti import read_rgb
-from mining.sources.kitti_calib import read_tracking_calib
-from mining.types import StereoCalib
 
 N_FRAMES = 6
 MARGIN = 20  # px left out at the borders, where interpolation sees the black outside
-
-
-def _rgb(path: Path) -> np.ndarray:
-    return read_rgb(path, 0)
-
-
-def _kitti_calib(calib_file: Path, width: int, height: int) -> StereoCalib:
-    return read_tracking_calib(calib_file).stereo(width, height)
 
 
 def _psnr(a: np.ndarray, b: np.ndarray) -> float:
