@@ -49,15 +49,14 @@ def oxford_data() -> Path:
     return _require(DATA / "oxford")
 
 
-def kitti_rgb(path: Path):
-    """A real KITTI frame as RGB, through the project's reader."""
+def kitti_0005_stereo(kitti_tracking_root: Path, n_frames: int):
+    """The first ``n_frames`` real KITTI 0005 stereo pairs (RGB) and their StereoCalib,
+    read through the project's own KITTI readers."""
     from mining.sources.kitti import read_rgb
-
-    return read_rgb(path, 0)
-
-
-def kitti_stereo_calib(calib_file: Path, width: int, height: int):
-    """StereoCalib of image_02/03 from a KITTI tracking calibration file."""
     from mining.sources.kitti_calib import read_tracking_calib
 
-    return read_tracking_calib(calib_file).stereo(width, height)
+    seq = kitti_tracking_root / "training"
+    left = [read_rgb(seq / "image_02" / "0005" / f"{i:06d}.png", i) for i in range(n_frames)]
+    right = [read_rgb(seq / "image_03" / "0005" / f"{i:06d}.png", i) for i in range(n_frames)]
+    h, w = left[0].shape[:2]
+    return left, right, read_tracking_calib(seq / "calib" / "0005.txt").stereo(w, h)

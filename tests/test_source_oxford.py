@@ -9,8 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from conftest import kitti_rgb as _rgb
-from conftest import kitti_stereo_calib as _kitti_calib
+from conftest import kitti_0005_stereo
 from mining.errors import InputError
 from mining.sources import open_source
 from mining.sources.fixtures import bayer_mosaic, write_robotcar_fixture
@@ -34,11 +33,7 @@ def _psnr(a: np.ndarray, b: np.ndarray) -> float:
 
 @pytest.fixture(scope="module")
 def kitti(kitti_tracking_root: Path):
-    seq = kitti_tracking_root / "training"
-    left = [_rgb(seq / "image_02" / "0005" / f"{i:06d}.png") for i in range(N_FRAMES)]
-    right = [_rgb(seq / "image_03" / "0005" / f"{i:06d}.png") for i in range(N_FRAMES)]
-    h, w = left[0].shape[:2]
-    return left, right, _kitti_calib(seq / "calib" / "0005.txt", w, h)
+    return kitti_0005_stereo(kitti_tracking_root, N_FRAMES)
 
 
 @pytest.fixture(scope="module")

@@ -46,17 +46,8 @@ def iou_track(dets: KittiDetections, n_frames: int, min_objectness: float = 0.5,
         for b, i, c, s in zip(boxes, ids, cls, score):
             out.append((frame, i, KITTI_TYPE_OF_CLASS.get(int(c), "Misc"), b, s))
         prev_boxes, prev_ids, prev_cls = boxes, ids, cls
-    n = len(out)
-    return KittiTrackingRows(
-        path=Path("<iou-tracker>"),
-        frame=np.array([o[0] for o in out], np.int64),
-        track_id=np.array([o[1] for o in out], np.int64),
-        type=np.array([o[2] for o in out], dtype=object),
-        truncated=np.full(n, -1.0), occluded=np.full(n, -1.0), alpha=np.full(n, -10.0),
-        box=np.array([o[3] for o in out], np.float64).reshape(n, 4),
-        dimensions=np.full((n, 3), -1.0), location=np.full((n, 3), -1000.0), rotation_y=np.full(n, -10.0),
-        score=np.array([o[4] for o in out], np.float64),
-    )
+    return KittiTrackingRows.results("<iou-tracker>", [o[0] for o in out], [o[1] for o in out],
+                                     [o[2] for o in out], [o[3] for o in out], [o[4] for o in out])
 
 
 def write_iou_tracks(path: str | Path, rows: KittiTrackingRows) -> None:

@@ -38,21 +38,9 @@ def tubes_to_kitti_rows(mined, rect0_from_cam2=None, observed_only: bool = True,
                 loc, dims = (-1000.0, -1000.0, -1000.0), (-1.0, -1.0, -1.0)
             rows.append((f.frame, m.tube.tube_id, kind, f.box, dims, loc, m.score.total))
     rows.sort(key=lambda r: (r[0], r[1]))
-    n = len(rows)
-    return KittiTrackingRows(
-        path=Path("<tubes>"),
-        frame=np.array([r[0] for r in rows], np.int64),
-        track_id=np.array([r[1] for r in rows], np.int64),
-        type=np.array([r[2] for r in rows], dtype=object),
-        truncated=np.full(n, -1.0),
-        occluded=np.full(n, -1.0),
-        alpha=np.full(n, -10.0),
-        box=np.array([r[3] for r in rows], np.float64).reshape(n, 4),
-        dimensions=np.array([r[4] for r in rows], np.float64).reshape(n, 3),
-        location=np.array([r[5] for r in rows], np.float64).reshape(n, 3),
-        rotation_y=np.full(n, -10.0),
-        score=np.array([r[6] for r in rows], np.float64),
-    )
+    return KittiTrackingRows.results("<tubes>", [r[0] for r in rows], [r[1] for r in rows], [r[2] for r in rows],
+                                     [r[3] for r in rows], [r[6] for r in rows],
+                                     dimensions=[r[4] for r in rows], location=[r[5] for r in rows])
 
 
 def write_tubes_kitti(path: str | Path, mined, rect0_from_cam2=None, observed_only: bool = True,

@@ -43,6 +43,26 @@ class KittiTrackingRows:
     def __len__(self) -> int:
         return int(self.frame.shape[0])
 
+    @staticmethod
+    def results(path: Path, frame, track_id, types, box, score, dimensions=None, location=None) -> KittiTrackingRows:
+        """Tracker output rows: the fields a tracker fills, placeholders in the rest
+        (−1 truncation/occlusion, −10 angles, and the devkit's −1 / −1000 for missing 3D)."""
+        n = len(frame)
+        return KittiTrackingRows(
+            path=Path(path),
+            frame=np.asarray(frame, np.int64).reshape(n),
+            track_id=np.asarray(track_id, np.int64).reshape(n),
+            type=np.asarray(types, dtype=object).reshape(n),
+            truncated=np.full(n, -1.0),
+            occluded=np.full(n, -1.0),
+            alpha=np.full(n, -10.0),
+            box=np.asarray(box, np.float64).reshape(n, 4),
+            dimensions=np.full((n, 3), -1.0) if dimensions is None else np.asarray(dimensions, np.float64).reshape(n, 3),
+            location=np.full((n, 3), -1000.0) if location is None else np.asarray(location, np.float64).reshape(n, 3),
+            rotation_y=np.full(n, -10.0),
+            score=np.asarray(score, np.float64).reshape(n),
+        )
+
     @property
     def has_score(self) -> bool:
         return len(self) > 0 and not np.isnan(self.score).all()
