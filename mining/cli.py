@@ -203,9 +203,63 @@ def cmd_bench_tracking(args: argparse.Namespace) -> int:
     return run_tracking_bench(Path(args.data), _job_config(args), args.sequences)
 
 
+def cmd_submit(args: argparse.Namespace) -> int:
+    from mining.pipeline.submit import submit_from_args
+
+    return submit_from_args(args, _job_config(args))
+
+
+def cmd_status(args: argparse.Namespace) -> int:
+    from mining.pipeline.status import print_status
+
+    return print_status(args.out)
+
+
+def cmd_query(args: argparse.Namespace) -> int:
+    from mining.catalog.query import run_query
+
+    return run_query(args.sql, args.out, args.format, args.output)
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from mining.catalog.export import run_export
+
+    return run_export(args.out, args.where, args.format, args.dest)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mine", description="Tube Miner: mine generic object tubes from stereo video.")
     sub = parser.add_subparsers(dest="command", required=True)
+
+    smt = sub.add_parser("submit", help="plan windows and mine them on Ray (local, or a cluster with --address)")
+    _add_job_options(smt)
+    smt.add_argument("--sequences", nargs="+", help="default: the config's, else every sequence the source finds")
+    smt.add_argument("--frames", type=_frames, default=(0, None), metavar="A:B",
+                     help="plan positions [A, B) of every sequence (default: all)")
+    smt.add_argument("--out", default="out/catalog", help="catalogue folder or pyarrow filesystem URI")
+    smt.add_argument("--address", help="Ray cluster address (ray://host:10001 or http://host:8265); "
+                                       "default: start a local Ray on this machine")
+    smt.add_argument("--workers", type=int, help="local Ray only: CPUs to use (default: all)")
+    smt.add_argument("--no-progress", action="store_true", help="no progress bar (logs and CI)")
+    smt.set_defaults(func=cmd_submit)
+
+    sts = sub.add_parser("status", help="windows done, failed (with the error) and pending")
+    sts.add_argument("--out", default="out/catalog", help="catalogue folder or URI")
+    sts.set_defaults(func=cmd_status)
+
+    qry = sub.add_parser("query", help="read-only SQL (DuckDB) over the catalogue's tables and views")
+    qry.add_argument("sql")
+    qry.add_argument("--out", default="out/catalog", help="catalogue folder or URI")
+    qry.add_argument("--format", choices=["table", "csv", "json", "parquet"], default="table")
+    qry.add_argument("--output", help="write here instead of standard output (required for parquet)")
+    qry.set_defaults(func=cmd_query)
+
+    exp = sub.add_parser("export", help="tubes matching a SQL predicate, for other tools")
+    exp.add_argument("dest", help="output folder")
+    exp.add_argument("--where", default="selected", help="SQL predicate over the tubes table (default: selected)")
+    exp.add_argument("--format", choices=["kitti", "kitti-mots", "crops"], required=True)
+    exp.add_argument("--out", default="out/catalog", help="catalogue folder or URI")
+    exp.set_defaults(func=cmd_export)
 
     inspect = sub.add_parser("inspect", help="run one stage on a frame range and write its raw outputs")
     isub = inspect.add_subparsers(dest="stage", required=True)

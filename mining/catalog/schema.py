@@ -1,0 +1,134 @@
+"""Catalogue schema v1: the Arrow schemas of the four tables (DESIGN.md "Catalogue").
+
+The catalogue is Parquet, hive-partitioned by ``dataset`` and ``sequence``; those two
+columns live in the folder names, not in the files, so the file schemas below leave
+them out and readers add them back (``FILE_SCHEMAS`` vs ``SCHEMAS``). ``schemas/v1/``
+holds the same schemas as JSON and the DuckDB views over them.
+
+Per-window *parts* (written by each window before stitching) use the same tables plus
+the columns in ``PART_EXTRA``: the stitcher needs each tube piece's frames in the
+window's context, and each observation's class posterior to re-average it.
+"""
+
+from __future__ import annotations
+
+import pyarrow as pa
+
+SCHEMA_VERSION = 1
+PARTITION = ("dataset", "sequence")
+
+vec3 = pa.list_(pa.float32(), 3)
+box4 = pa.list_(pa.float32(), 4)
+
+TUBES = pa.schema([
+    pa.field("tube_id", pa.string(), False),  # stable: "<dataset>/<sequence>/<first frame>.<observation>"
+    pa.field("dataset", pa.string(), False),
+    pa.field("sequence", pa.string(), False),
+    pa.field("t_start", pa.int64(), False),  # ns, first frame
+    pa.field("t_end", pa.int64(), False),  # ns, last frame
+    pa.field("frame_start", pa.int32(), False),  # plan position of the first frame
+    pa.field("frame_end", pa.int32(), False),  # plan position of the last frame (inclusive)
+    pa.field("n_frames", pa.int32(), False),
+    pa.field("n_observed", pa.int32(), False),
+    pa.field("score", pa.float64(), False),  # the weighted total (score.beta, score.alpha)
+    pa.field("score_motion", pa.float64(), False),
+    pa.field("score_mask", pa.float64(), False),
+    pa.field("score_objectness", pa.float64(), False),
+    pa.field("selected", pa.bool_(), False),  # chosen by co-selection
+    pa.field("known", pa.bool_(), False),
+    pa.field("category", pa.string(), False),  # COCO class or "unknown"
+    pa.field("category_prob", pa.float32()),  # null without classes
+    pa.field("best_known", pa.string(), False),  # most probable of the 80 classes, even when unknown
+    pa.field("class_posterior", pa.list_(pa.float32())),  # 81 floats (80 COCO + unknown), null without classes
+    pa.field("segment", pa.int32(), False),  # egomotion segment: world coordinates are per segment
+    pa.field("mean_position", vec3, False),  # world metres, mean footpoint
+    pa.field("size", vec3, False),  # metres (width, height, length), median over observed frames
+    pa.field("path_length", pa.float32(), False),  # metres travelled in the world frame
+    pa.field("speed", pa.float32(), False),  # m/s, mean filtered ground speed
+    pa.field("n_windows", pa.int16(), False),  # how many window pieces were stitched into it
+    pa.field("run_id", pa.string(), False),
+    pa.field("params_hash", pa.string(), False),
+    pa.field("schema_version", pa.int16(), False),
+])
+
+TUBE_FRAMES = pa.schema([
+    pa.field("tube_id", pa.string(), False),
+    pa.field("dataset", pa.string(), False),
+    pa.field("sequence", pa.string(), False),
+    pa.field("frame", pa.int32(), False),  # plan position
+    pa.field("t_ns", pa.int64(), False),
+    pa.field("bbox", box4, False),  # x1, y1, x2, y2 pixels
+    pa.field("rle_counts", pa.string(), False),  # COCO compressed RLE
+    pa.field("rle_h", pa.int32(), False),
+    pa.field("rle_w", pa.int32(), False),
+    pa.field("observed", pa.bool_(), False),  # an observation, or the tube's prediction in a gap
+    pa.field("obs_index", pa.int32(), False),  # row in the frame's proposals; -1 when predicted
+    pa.field("objectness", pa.float32()),  # null when predicted
+    pa.field("position_cam", vec3, False),  # camera metres (x right, y down, z forward)
+    pa.field("position_world", vec3, False),  # filtered footpoint, world metres of the tube's segment
+    pa.field("velocity_world", vec3, False),  # m/s, world frame
+    pa.field("size", vec3, False),  # filtered width, height, length
+    pa.field("mask_iou", pa.float32()),  # IoU(predicted mask, observed mask); null for the first inlier and gaps
+    pa.field("motion_density", pa.float32()),  # density of the observed footpoint under the prediction
+])
+
+FRAMES = pa.schema([
+    pa.field("dataset", pa.string(), False),
+    pa.field("sequence", pa.string(), False),
+    pa.field("frame", pa.int32(), False),
+    pa.field("t_ns", pa.int64(), False),
+    pa.field("segment", pa.int32(), False),  # increments after every failed egomotion
+    pa.field("pose", pa.list_(pa.float64(), 16), False),  # camera-to-world of the segment, row-major 4×4
+    pa.field("egomotion_ok", pa.bool_()),  # null for a sequence's first frame (no previous frame)
+    pa.field("egomotion_inliers", pa.int32(), False),
+    pa.field("egomotion_rmse_px", pa.float32()),
+    pa.field("ground_ok", pa.bool_(), False),  # measured in this frame
+    pa.field("ground_age", pa.int32()),  # frames since the plane used was measured; null: none
+    pa.field("n_proposals", pa.int32(), False),
+    pa.field("n_observations", pa.int32(), False),  # after localisation and the geometric filter
+])
+
+WINDOWS = pa.schema([
+    pa.field("run_id", pa.string(), False),
+    pa.field("dataset", pa.string(), False),
+    pa.field("sequence", pa.string(), False),
+    pa.field("window", pa.string(), False),  # Window.name
+    pa.field("core_start", pa.int32(), False),
+    pa.field("core_end", pa.int32(), False),
+    pa.field("context_start", pa.int32(), False),
+    pa.field("context_end", pa.int32(), False),
+    pa.field("status", pa.string(), False),  # done | failed
+    pa.field("attempts", pa.int32(), False),
+    pa.field("started", pa.timestamp("ms", tz="UTC")),
+    pa.field("finished", pa.timestamp("ms", tz="UTC")),
+    pa.field("seconds_observe", pa.float32()),  # geometry + proposals + localise
+    pa.field("seconds_tubes", pa.float32()),  # tubes + score + select
+    pa.field("n_pieces", pa.int32()),  # tube pieces the window wrote
+    pa.field("error", pa.string()),  # the InputError text for a failed window
+    pa.field("params_hash", pa.string(), False),
+])
+
+SCHEMAS = {"tubes": TUBES, "tube_frames": TUBE_FRAMES, "frames": FRAMES, "windows": WINDOWS}
+
+# Columns only the per-window parts carry (dropped when a sequence is stitched).
+PART_EXTRA = {
+    "tubes": [pa.field("window", pa.string(), False)],
+    "tube_frames": [
+        pa.field("window", pa.string(), False),
+        pa.field("core", pa.bool_(), False),  # the frame is in the window's core (the window owns it)
+        pa.field("posterior", pa.list_(pa.float32())),  # the observation's 81-way posterior
+    ],
+    "frames": [],
+    "windows": [],
+}
+
+
+def file_schema(table: str) -> pa.Schema:
+    """The schema of a catalogue Parquet file: the table without its partition columns."""
+    s = SCHEMAS[table]
+    return pa.schema([f for f in s if f.name not in PARTITION])
+
+
+def part_schema(table: str) -> pa.Schema:
+    """The schema of a per-window part (partition columns left out, part-only columns added)."""
+    return pa.schema(list(file_schema(table)) + PART_EXTRA[table])
