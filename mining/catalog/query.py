@@ -1,0 +1,120 @@
+"""`mine query`: read-only SQL over the catalogue, as a table, CSV, JSON or Parquet."""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import sys
+from pathlib import Path
+
+import duckdb
+import pyarrow as pa
+import pyarrow.csv as pacsv
+import pyarrow.parquet as pq
+
+from mining.catalog.views import connect, execute_read_only
+from mining.errors import MiningError
+
+FORMATS = ("table", "csv", "json", "parquet")
+MAX_CELL = 60  # ours: longer cells (RLE strings, posteriors) are cut in table output
+
+
+def query_table(sql: str, out: str | Path) -> pa.Table:
+    """The result of a read-only query as an Arrow table."""
+    con = connect(out)
+    try:
+        rel = execute_read_only(con, sql)
+        return rel.to_arrow_table() if rel is not None else pa.table({})
+    finally:
+        con.close()
+
+
+def _cell(v) -> str:
+    if v is None:
+        return "NULL"
+    if isinstance(v, float):
+        return "NaN" if math.isnan(v) else f"{v:.6g}"
+    if isinstance(v, list):
+        s = "[" + ", ".join(_cell(x) for x in v) + "]"
+    else:
+        s = str(v)
+    return s if len(s) <= MAX_CELL else s[: MAX_CELL - 1] + "…"
+
+
+def format_table(t: pa.Table) -> str:
+    """Aligned text: a header, a rule, one line per row (numbers right-aligned)."""
+    rows = [[_cell(v) for v in row.values()] for row in t.to_pylist()]
+    names = t.column_names
+    widths = [max([len(n)] + [len(r[i]) for r in rows]) for i, n in enumerate(names)]
+    numeric = [pa.types.is_integer(f.type) or pa.types.is_floating(f.type) for f in t.schema]
+
+    def line(cells):
+        return "  ".join(c.rjust(w) if num else c.ljust(w) for c, w, num in zip(cells, widths, numeric)).rstrip()
+
+    out = [line(names), line(["-" * w for w in widths])] + [line(r) for r in rows]
+    out.append(f"({t.num_rows} row{'s' if t.num_rows != 1 else ''})")
+    return "\n".join(out) + "\n"
+
+
+def _json_value(v):
+    if isinstance(v, float) and not math.isfinite(v):
+        return None  # JSON has no NaN / Infinity
+    if isinstance(v, list):
+        return [_json_value(x) for x in v]
+    if isinstance(v, dict):
+        return {k: _json_value(x) for k, x in v.items()}
+    if isinstance(v, bytes):
+        return v.decode("utf-8", "replace")
+    if hasattr(v, "isoformat"):
+        return v.isoformat()
+    return v
+
+
+def format_json(t: pa.Table) -> str:
+    """A JSON list of records, one object per row."""
+    return json.dumps([{k: _json_value(v) for k, v in r.items()} for r in t.to_pylist()], indent=1) + "\n"
+
+
+def format_csv(t: pa.Table) -> str:
+    # CSV has no lists: nested values are written as JSON text.
+    cols = []
+    for name, col in zip(t.column_names, t.columns):
+        if pa.types.is_nested(col.type):
+            col = pa.array([None if v is None else json.dumps(_json_value(v)) for v in col.to_pylist()], pa.string())
+        cols.append(col)
+    buf = io.BytesIO()
+    pacsv.write_csv(pa.table(cols, names=t.column_names), buf)
+    return buf.getvalue().decode()
+
+
+def write_result(t: pa.Table, fmt: str, output: str | Path | None) -> None:
+    if fmt == "parquet":
+        pq.write_table(t, str(output), compression="zstd")
+        return
+    text = {"table": format_table, "csv": format_csv, "json": format_json}[fmt](t)
+    if output is None:
+        sys.stdout.write(text)
+    else:
+        Path(output).write_text(text)
+
+
+def run_query(sql: str, out: str | Path, fmt: str = "table", output: str | Path | None = None) -> int:
+    """`mine query`: 0 on success; 2 with a message on standard error for bad SQL, a
+    missing catalogue or a statement that would write."""
+    if fmt not in FORMATS:
+        print(f"mine query: unknown format {fmt!r}; one of {', '.join(FORMATS)}", file=sys.stderr)
+        return 2
+    if fmt == "parquet" and not output:
+        print("mine query: --format parquet needs --output FILE", file=sys.stderr)
+        return 2
+    try:
+        t = query_table(sql, out)
+        write_result(t, fmt, output)
+    except (MiningError, duckdb.Error) as e:
+        print(f"mine query: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:
+        print(f"mine query: cannot write {output}: {e}", file=sys.stderr)
+        return 2
+    return 0

@@ -1,0 +1,122 @@
+"""A read-only DuckDB over a catalogue: the four tables and the views of schemas/v1.
+
+Tables (all columns of ``schema.SCHEMAS``, partition columns ``dataset`` / ``sequence``
+read back from the hive folder names, as VARCHAR so "0005" stays "0005"):
+
+* ``tubes``, ``tube_frames``, ``frames`` — ``OUT/catalog/<table>/dataset=D/sequence=S/*.parquet``
+* ``windows`` — the manifest, ``OUT/manifest/dataset=D/sequence=S/*.parquet``
+
+A table without files is an empty view with the right columns, so queries work on a
+fresh catalogue. A local catalogue is read by DuckDB's own Parquet reader (projection
+and row-group pushdown); any other pyarrow filesystem through registered pyarrow datasets.
+
+Read-only, in two layers: the connection may touch no file outside the catalogue folder
+(``enable_external_access`` off, the folder allowed, configuration locked), and
+``check_read_only`` admits only statements that read (SELECT, and the DESCRIBE / SHOW /
+SUMMARIZE / FROM forms DuckDB parses as SELECT; EXPLAIN without ANALYZE).
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import duckdb
+import pyarrow as pa
+import pyarrow.dataset as ds
+
+from mining.catalog.schema import PARTITION, SCHEMAS, file_schema
+from mining.catalog.store import Store
+from mining.errors import InputError
+
+VIEWS_SQL = Path(__file__).resolve().parents[2] / "schemas" / "v1" / "views.sql"
+TABLE_DIRS = {"tubes": "catalog/tubes", "tube_frames": "catalog/tube_frames", "frames": "catalog/frames",
+              "windows": "manifest"}
+READ_STATEMENTS = {duckdb.StatementType.SELECT}
+
+
+class ReadOnlyError(InputError):
+    """A statement that would change something, given to the read-only catalogue."""
+
+
+def _sql_string(s: str) -> str:
+    return "'" + s.replace("'", "''") + "'"
+
+
+def _base_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, native: bool) -> None:
+    cols = ", ".join(f'"{n}"' for n in SCHEMAS[table].names)
+    folder = TABLE_DIRS[table]
+    if not store.list(folder):
+        # No files yet: an empty table with the schema's columns and types.
+        con.register(f"_empty_{table}", SCHEMAS[table].empty_table())
+        con.execute(f"CREATE VIEW {table} AS SELECT {cols} FROM _empty_{table}")
+        return
+    if native:
+        glob = _sql_string(f"{store.full(folder)}/*/*/*.parquet")
+        con.execute(f"CREATE VIEW {table} AS SELECT {cols} FROM read_parquet({glob}, hive_partitioning = true, "
+                    "hive_types = {'dataset': 'VARCHAR', 'sequence': 'VARCHAR'})")
+        return
+    part = pa.schema([pa.field(n, pa.string()) for n in PARTITION])
+    dset = ds.dataset(store.full(folder), filesystem=store.fs, format="parquet",
+                      partitioning=ds.partitioning(part, flavor="hive"),
+                      schema=pa.schema(list(file_schema(table)) + list(part)))
+    con.register(f"_arrow_{table}", dset)
+    con.execute(f"CREATE VIEW {table} AS SELECT {cols} FROM _arrow_{table}")
+
+
+def connect(out: str | Path, native: bool | None = None) -> duckdb.DuckDBPyConnection:
+    """An in-memory DuckDB with the catalogue's tables and views (see module docstring).
+
+    ``native`` chooses DuckDB's Parquet reader (default for a local catalogue) over
+    pyarrow datasets (default for other filesystems). Raises InputError when ``out`` is
+    not a catalogue folder.
+    """
+    store = Store(out)
+    if not store.root_exists():
+        raise InputError("catalogue folder not found", out)
+    if not VIEWS_SQL.is_file():
+        raise InputError("the catalogue views are missing (schemas/v1/views.sql ships with the source tree)", VIEWS_SQL)
+    native = store.local if native is None else native
+    if native and not store.local:
+        raise InputError("DuckDB's own reader needs a local catalogue; use pyarrow datasets", out)
+    con = duckdb.connect(":memory:")
+    for table in SCHEMAS:
+        _base_view(con, store, table, native)
+    con.execute(VIEWS_SQL.read_text())
+    # From here on: no file access outside the catalogue, and no way to turn that back on.
+    allowed = [store.root + "/"] if native else []
+    con.execute(f"SET allowed_directories = [{', '.join(_sql_string(a) for a in allowed)}]")
+    con.execute("SET enable_external_access = false")
+    con.execute("SET autoinstall_known_extensions = false")
+    con.execute("SET autoload_known_extensions = false")
+    con.execute("SET lock_configuration = true")
+    return con
+
+
+def check_read_only(sql: str) -> None:
+    """Raise ReadOnlyError unless every statement in ``sql`` only reads."""
+    try:
+        statements = duckdb.extract_statements(sql)
+    except duckdb.Error as e:
+        raise InputError(f"SQL does not parse: {e}") from None
+    if not statements:
+        raise InputError("no SQL statement given")
+    for st in statements:
+        if st.type == duckdb.StatementType.EXPLAIN:
+            text = st.query.strip()
+            if re.match(r"(?is)explain\s+analy[sz]e\b", text):
+                raise ReadOnlyError("EXPLAIN ANALYZE runs its statement; the catalogue allows plain EXPLAIN only")
+            check_read_only(re.sub(r"(?is)^explain\s+", "", text))
+            continue
+        if st.type not in READ_STATEMENTS:
+            raise ReadOnlyError(f"the catalogue is read-only: {st.type.name} statements are not allowed "
+                                f"(only SELECT, WITH, FROM, DESCRIBE, SHOW, SUMMARIZE, EXPLAIN)")
+
+
+def execute_read_only(con: duckdb.DuckDBPyConnection, sql: str) -> duckdb.DuckDBPyRelation | None:
+    """Check ``sql`` and run it; the relation of its last statement."""
+    check_read_only(sql)
+    rel = None
+    for st in duckdb.extract_statements(sql):
+        rel = con.sql(st.query)
+    return rel

@@ -1,0 +1,25 @@
+-- Catalogue schema v1: DuckDB views over the base tables tubes, tube_frames, frames, windows.
+-- `mine query` (mining/catalog/views.py) creates the base tables, then runs this file.
+
+-- Tubes chosen by co-selection: the mined result.
+CREATE VIEW selected_tubes AS
+SELECT * FROM tubes WHERE selected;
+
+-- Selected tubes the class posterior could not name: the discovery candidates.
+CREATE VIEW unknown_tubes AS
+SELECT * FROM tubes WHERE selected AND NOT known;
+
+-- A tube's score and its components: re-ranking by another weighting is one SELECT, e.g.
+--   SELECT tube_id, 0.5 * score_motion + 2 * score_mask + score_objectness AS s
+--   FROM tube_scores ORDER BY s DESC LIMIT 100
+CREATE VIEW tube_scores AS
+SELECT tube_id, dataset, sequence, n_frames, n_observed,
+       score, score_motion, score_mask, score_objectness,
+       selected, known, category, category_prob
+FROM tubes;
+
+-- Every frame of every tube with the tube's class and selection (the 3D track per tube).
+CREATE VIEW tube_tracks AS
+SELECT f.*, t.category, t.known, t.selected, t.score AS tube_score
+FROM tube_frames AS f
+JOIN tubes AS t USING (dataset, sequence, tube_id);
