@@ -20,93 +20,29 @@ either side of it.
 
 from __future__ import annotations
 
+import copy
 from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
-from mining.masks import areas, box_iou, mask_iou
+from mining.masks import areas, box_iou, mask_iou, paired_box_iou
 from mining.score.config import ScoreConfig
 from mining.score.unary import score_tube
 from mining.tubes.config import TubeConfig
+from mining.tubes.gating import GROUND, best_pairs, box_gates
 from mining.tubes.kalman import POS, SIZE, TubeFilter
+from mining.tubes.probe import probe_back
 from mining.tubes.tube import Tube, TubeFrame
-from mining.tubes.warp import MaskPoints, mask_points, predict_box, predict_mask
+from mining.tubes.warp import predict_box, predict_mask
+from mining.tubes.world import WorldObservations
 from mining.types import TrackingFrame
-
-
-@dataclass
-class WorldObservations:
-    """A frame's observations in the world (segment) frame, computed once per frame."""
-
-    frame: TrackingFrame
-    footpoint: np.ndarray  # (N, 3)
-    covariance: np.ndarray  # (N, 3, 3)
-    velocity: np.ndarray  # (N, 3), NaN rows without flow
-    velocity_covariance: np.ndarray  # (N, 3, 3)
-    usable: np.ndarray  # (N,) bool: has a footpoint
-    boxes: np.ndarray  # (N, 4) float64
-
-    @staticmethod
-    def of(frame: TrackingFrame) -> WorldObservations:
-        o = frame.observations
-        R, t = frame.pose[:3, :3], frame.pose[:3, 3]
-        foot = o.footpoint @ R.T + t
-        cov = R @ o.covariance @ R.T
-        vel = o.velocity @ R.T
-        vcov = R @ o.velocity_covariance @ R.T
-        return WorldObservations(frame, foot, cov, vel, vcov, np.isfinite(foot).all(axis=1),
-                                 np.asarray(o.proposals.boxes, np.float64).reshape(-1, 4))
-
-    def __len__(self) -> int:
-        return len(self.footpoint)
 
 
 @dataclass
 class Prediction:
     rle: dict | None  # None: a box-only prediction
     box: np.ndarray
-
-
-GROUND = [0, 2]  # x and z: the footpoint's coordinates on the ground plane (y is the plane's height)
-
-
-def _inv_quad_2x2(d: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """dᵀ c⁻¹ d and det(c) for (N, 2) vectors and (N, 2, 2) matrices, in closed form."""
-    a, b, cc, e = c[:, 0, 0], c[:, 0, 1], c[:, 1, 0], c[:, 1, 1]
-    det = a * e - b * cc
-    m2 = (e * d[:, 0] ** 2 - (b + cc) * d[:, 0] * d[:, 1] + a * d[:, 1] ** 2) / det
-    return m2, det
-
-
-def gaussian_density(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    """N(x; mean, cov) on the ground plane, for (N, 3) points and (N, 3, 3) covariances.
-
-    The motion LLR's null hypothesis spreads clutter uniformly over the ground area
-    (paper: 1/A_GP with A_GP ≈ 80 m × 50 m), so the density is per square metre of ground.
-    """
-    m2, det = _inv_quad_2x2((x - mean)[:, GROUND], cov[:, GROUND][:, :, GROUND])
-    return np.exp(-0.5 * m2) / (2 * np.pi * np.sqrt(det))
-
-
-def mahalanobis2(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    """Squared Mahalanobis distance on the ground plane."""
-    return _inv_quad_2x2((x - mean)[:, GROUND], cov[:, GROUND][:, :, GROUND])[0]
-
-
-def box_gates(pred: np.ndarray, obs: np.ndarray, min_iou: float, min_similarity: float) -> np.ndarray:
-    """(T, N) bool: box IoU > min_iou and 2D size similarity > min_similarity, in one pass."""
-    pw, ph = pred[:, 2] - pred[:, 0], pred[:, 3] - pred[:, 1]
-    ow, oh = obs[:, 2] - obs[:, 0], obs[:, 3] - obs[:, 1]
-    iw = np.minimum(pred[:, None, 2], obs[None, :, 2]) - np.maximum(pred[:, None, 0], obs[None, :, 0])
-    ih = np.minimum(pred[:, None, 3], obs[None, :, 3]) - np.maximum(pred[:, None, 1], obs[None, :, 1])
-    inter = np.clip(iw, 0, None) * np.clip(ih, 0, None)
-    union = (pw * ph)[:, None] + (ow * oh)[None, :] - inter
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ok = inter > min_iou * union
-        sim = (np.minimum(pw[:, None], ow[None]) / np.maximum(pw[:, None], ow[None])
-               * np.minimum(ph[:, None], oh[None]) / np.maximum(ph[:, None], oh[None]))
-    return ok & (sim > min_similarity)
 
 
 class TubeGenerator:
@@ -210,43 +146,28 @@ class TubeGenerator:
         pboxes = np.array([p.box for p in preds], np.float64)
         gate = box_gates(pboxes, world.boxes, self.cfg.gate_box_iou, self.cfg.gate_size_similarity)
         gate &= world.usable[None, :]
-        if not gate.any():
+        r, c = np.nonzero(gate)
+        if r.size == 0:
             return choice, terms
-        rows = np.flatnonzero(gate.any(axis=1))
-        cols = np.flatnonzero(gate.any(axis=0))
+        rows, cols = np.unique(r), np.unique(c)
         if all(preds[i].rle is not None for i in rows):
             ious = mask_iou([preds[i].rle for i in rows], [obs.proposals.rles[j] for j in cols])
+            iou = ious[np.searchsorted(rows, r), np.searchsorted(cols, c)]
         else:  # a box-only prediction (the backward probe) is compared by box IoU
-            ious = box_iou(pboxes[rows], obs.proposals.boxes[cols])
-        for a, i in enumerate(rows):
-            tube = tubes[i]
-            cand = cols[gate[i, cols]]
-            iou = ious[a, np.searchsorted(cols, cand)]
-            ok = iou > self.cfg.gate_mask_iou
-            if not ok.any():
-                continue
-            cand, iou = cand[ok], iou[ok]
-            mean = tube.kf.x[POS]
-            S = tube.kf.position_innovation_cov(world.covariance[cand])
-            ok = mahalanobis2(world.footpoint[cand], mean, S) < self.cfg.gate_mahalanobis**2
-            if not ok.any():
-                continue
-            cand, iou = cand[ok], iou[ok]
-            dens = gaussian_density(world.footpoint[cand], np.broadcast_to(mean, (len(cand), 3)),
-                                    world.covariance[cand] + self.cfg.density_extra_var * np.eye(3))
-            score = iou * dens
-            best = int(np.argmax(score))
-            if score[best] > self.cfg.min_association:
-                choice[i] = cand[best]
-                terms[i] = (float(iou[best]), float(dens[best]))
+            iou = paired_box_iou(pboxes[r], world.boxes[c])
+        mean = np.array([t.kf.x[POS] for t in tubes])
+        pos_cov = np.array([t.kf.P[POS, POS] for t in tubes])
+        took, j, iou, dens = best_pairs(r, c, iou, mean[r], pos_cov[r], world.footpoint[c], world.covariance[c],
+                                        self.cfg)
+        choice[took] = j
+        for i, a, d in zip(took, iou, dens):
+            terms[i] = (float(a), float(d))
         return choice, terms
 
     def _observe(self, tube: Tube, world: WorldObservations, j: int, iou: float, dens: float) -> None:
         frame, obs = world.frame, world.frame.observations
-        vel = world.velocity[j] if np.isfinite(world.velocity[j]).all() else None
-        tube.kf.update(world.footpoint[j], world.covariance[j], obs.size[j], vel,
-                       world.velocity_covariance[j] if vel is not None else None)
-        pts = self._points(frame, j)
+        tube.kf.update(world.footpoint[j], world.covariance[j], obs.size[j], *world.velocity_or_none(j))
+        pts = world.points(j)
         if pts is not None:
             tube.points = pts
             tube.last_observed_t_ns = frame.t_ns
@@ -275,22 +196,15 @@ class TubeGenerator:
             objectness=float(obs.proposals.objectness[j]), mask_iou=iou, motion_density=dens, posterior=post,
         )
 
-    def _points(self, frame: TrackingFrame, j: int) -> MaskPoints | None:
-        obs = frame.observations
-        pts = None if obs.points is None else obs.points[j]
-        grid = 1 if obs.grid is None else obs.grid[j]
-        return mask_points(pts, grid, obs.proposals.boxes[j], obs.position[j], frame.calib, frame.pose)
-
     # --- start ----------------------------------------------------------------------
 
     def _new_tube(self, world: WorldObservations, j: int) -> Tube | None:
         frame, obs = world.frame, world.frame.observations
-        pts = self._points(frame, j)
+        pts = world.points(j)
         if pts is None:
             return None
-        vel = world.velocity[j] if np.isfinite(world.velocity[j]).all() else None
-        kf = TubeFilter(world.footpoint[j], world.covariance[j], obs.size[j], vel,
-                        world.velocity_covariance[j] if vel is not None else None, self.cfg.kalman)
+        kf = TubeFilter(world.footpoint[j], world.covariance[j], obs.size[j], *world.velocity_or_none(j),
+                        self.cfg.kalman)
         tube = Tube(tube_id=-1, segment=frame.segment, kf=kf, points=pts, last_observed_t_ns=frame.t_ns)
         tube.frames.append(self._tube_frame(tube, frame, j, np.nan, np.nan))
         return tube
@@ -298,20 +212,37 @@ class TubeGenerator:
     def _start(self, world: WorldObservations, taken: set[int]) -> None:
         if len(self.history) < self.cfg.backward_required:
             return
-        new: list[Tube] = []
         cands = np.array([j for j in np.flatnonzero(world.usable) if int(j) not in taken], np.int64)
         # Starts that would fail their first backward step's footpoint gate end here.
-        for j in cands[self._may_step_back(world, cands, self.history[-1])]:
-            tube = self._forward_backward(world, int(j))
-            if tube is not None and not self._duplicate(tube, self.live + new):
-                tube.tube_id = self.next_id
-                self.next_id += 1
-                new.append(tube)
+        cands = cands[self._may_step_back(world, cands, self.history[-1])]
+        past = list(self.history)[::-1]  # newest first
+        if self.cfg.probe_with_boxes:
+            starts = probe_back(world, cands, past, self.cfg)
+        else:
+            starts = [self._probe_with_masks(world, int(j), past) for j in cands]
+        new: list[Tube] = []
+        # Candidates whose probes end at the same inlier replay to the same tube: replay once.
+        replayed: dict[tuple[int, int], Tube | None] = {}
+        for start in starts:
+            if start is None:
+                continue
+            key = (start[0].frame.index, start[1])
+            seen = key in replayed
+            if not seen:
+                replayed[key] = self._replay(world, *start)
+            tube = replayed[key]
+            if tube is None or self._duplicate(tube, self.live + new):
+                continue
+            tube = copy.deepcopy(tube) if seen else tube
+            tube.tube_id = self.next_id
+            self.next_id += 1
+            new.append(tube)
         self.live.extend(new)
 
-    def _forward_backward(self, world: WorldObservations, j: int) -> Tube | None:
-        # Backwards: from observation j at t through t−1, t−2, ... (the history, newest first).
-        past = list(self.history)[::-1]
+    def _probe_with_masks(self, world: WorldObservations, j: int,
+                          past: list[WorldObservations]) -> tuple[WorldObservations, int] | None:
+        """The backward probe of one candidate with full mask prediction (``probe_with_boxes``
+        off); ``probe_back`` does the box-only probe of all candidates at once."""
         probe = self._new_tube(world, j)
         if probe is None:
             return None
@@ -320,9 +251,7 @@ class TubeGenerator:
         for k, w in enumerate(past):
             probe.kf.predict((w.frame.t_ns - t_cur) / 1e9)
             t_cur = w.frame.t_ns
-            # The backward probe only proposes where to start: it compares warped boxes, and
-            # the forward replay below re-associates with full mask prediction.
-            pred = self._predict(probe, w.frame, box_only=self.cfg.probe_with_boxes)
+            pred = self._predict(probe, w.frame)
             choice, terms = ([-1], None) if pred is None else self._associate([probe], [pred], w)
             if choice[0] < 0:
                 if k < self.cfg.backward_required:
@@ -330,8 +259,10 @@ class TubeGenerator:
                 continue
             self._observe(probe, w, int(choice[0]), *terms[0])
             earliest = (w, int(choice[0]))
-        # Forwards: re-initialise at the earliest inlier and replay up to now.
-        w0, j0 = earliest
+        return earliest
+
+    def _replay(self, world: WorldObservations, w0: WorldObservations, j0: int) -> Tube | None:
+        """Re-initialise at the earliest inlier (w0, j0) and replay forwards up to now."""
         tube = self._new_tube(w0, j0)
         if tube is None:
             return None

@@ -25,6 +25,21 @@ H_POS_SIZE[3:6, 5:8] = np.eye(3)
 H_FULL = np.eye(DIM_X)
 
 
+def transition(dt: float) -> np.ndarray:
+    """Constant velocity on the ground plane over ``dt`` seconds (negative: backwards)."""
+    F = np.eye(DIM_X)
+    F[0, 3] = dt
+    F[2, 4] = dt
+    return F
+
+
+def process_noise(dt: float, cfg: KalmanConfig) -> np.ndarray:
+    # REFERENCE's noise is per 0.1 s step; a random walk's variance grows linearly in time.
+    scale = abs(dt) / cfg.process_dt_s
+    std = np.concatenate([cfg.process_std_position, cfg.process_std_velocity, [cfg.process_std_size] * 3])
+    return np.diag(np.square(std)) * scale
+
+
 class TubeFilter:
     """Kalman filter of one tube; ``x`` and ``P`` are filterpy's state and covariance."""
 
@@ -63,17 +78,10 @@ class TubeFilter:
         return other
 
     def F(self, dt: float) -> np.ndarray:
-        F = np.eye(DIM_X)
-        F[0, 3] = dt
-        F[2, 4] = dt
-        return F
+        return transition(dt)
 
     def Q(self, dt: float) -> np.ndarray:
-        # REFERENCE's noise is per 0.1 s step; a random walk's variance grows linearly in time.
-        scale = abs(dt) / self.cfg.process_dt_s
-        std = np.concatenate([self.cfg.process_std_position, self.cfg.process_std_velocity,
-                              [self.cfg.process_std_size] * 3])
-        return np.diag(np.square(std)) * scale
+        return process_noise(dt, self.cfg)
 
     def predict(self, dt: float) -> None:
         self.kf.predict(F=self.F(dt), Q=self.Q(dt))
@@ -105,3 +113,64 @@ class TubeFilter:
     def position_innovation_cov(self, obs_cov: np.ndarray) -> np.ndarray:
         """(N, 3, 3) innovation covariance of the footpoint for N observation covariances."""
         return self.kf.P[POS, POS][None] + obs_cov
+
+
+# --- many filters at once (the backward probe of all of a frame's start candidates) ----
+
+
+def initial_states(footpoint: np.ndarray, cov: np.ndarray, size: np.ndarray, velocity: np.ndarray,
+                   velocity_cov: np.ndarray, cfg: KalmanConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(C, 8) states and (C, 8, 8) covariances of C fresh filters, as ``TubeFilter`` starts
+    them; rows of ``velocity`` with NaN start from the prior velocity variance."""
+    n = len(footpoint)
+    x = np.zeros((n, DIM_X))
+    P = np.zeros((n, DIM_X, DIM_X))
+    x[:, POS] = footpoint
+    x[:, SIZE] = np.clip(size, 0.0, cfg.max_size_m)
+    P[:, POS, POS] = cov
+    P[:, SIZE, SIZE] = np.diag(np.square(cfg.measurement_std_size))
+    has_vel = np.isfinite(velocity).all(axis=1)
+    x[has_vel, VEL] = velocity[has_vel][:, [0, 2]]
+    P[has_vel, VEL, VEL] = velocity_cov[has_vel][:, [0, 2]][:, :, [0, 2]]
+    P[~has_vel, VEL, VEL] = np.diag(cfg.initial_var_velocity)
+    return x, P
+
+
+def predict_states(x: np.ndarray, P: np.ndarray, dt: float, cfg: KalmanConfig) -> tuple[np.ndarray, np.ndarray]:
+    """``TubeFilter.predict`` for (C, 8) states and (C, 8, 8) covariances."""
+    F, Q = transition(dt), process_noise(dt, cfg)
+    x = x @ F.T
+    P = F @ P @ F.T + Q
+    x[:, SIZE] = np.clip(x[:, SIZE], 0.0, cfg.max_size_m)
+    return x, P
+
+
+def update_states(x: np.ndarray, P: np.ndarray, footpoint: np.ndarray, cov: np.ndarray, size: np.ndarray,
+                  velocity: np.ndarray, velocity_cov: np.ndarray, cfg: KalmanConfig) -> tuple[np.ndarray, np.ndarray]:
+    """``TubeFilter.update`` for C filters, each with its own measurement (NaN velocity
+    rows: footpoint and size only); filterpy's equations on stacked arrays."""
+    x, P = x.copy(), P.copy()
+    size = np.clip(size, 0.0, cfg.max_size_m)
+    has_vel = np.isfinite(velocity).all(axis=1)
+    size_var = np.diag(np.square(cfg.measurement_std_size))
+    for full, H in ((True, H_FULL), (False, H_POS_SIZE)):
+        rows = np.flatnonzero(has_vel == full)
+        if rows.size == 0:
+            continue
+        m = H.shape[0]
+        R = np.zeros((rows.size, m, m))
+        R[:, 0:3, 0:3] = cov[rows]
+        R[:, m - 3:, m - 3:] = size_var
+        parts = [footpoint[rows]]
+        if full:
+            R[:, VEL, VEL] = velocity_cov[rows][:, [0, 2]][:, :, [0, 2]]
+            parts.append(velocity[rows][:, [0, 2]])
+        z = np.concatenate(parts + [size[rows]], axis=1)
+        xr, Pr = x[rows], P[rows]
+        y = z - xr @ H.T
+        PHT = Pr @ H.T
+        K = PHT @ np.linalg.inv(H @ PHT + R)
+        x[rows] = xr + (K @ y[:, :, None])[:, :, 0]
+        I_KH = np.eye(DIM_X) - K @ H
+        P[rows] = I_KH @ Pr @ I_KH.transpose(0, 2, 1) + K @ R @ K.transpose(0, 2, 1)
+    return x, P

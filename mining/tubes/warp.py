@@ -64,6 +64,33 @@ def predict_box(mp: MaskPoints, shift_world: np.ndarray, pose: np.ndarray, calib
     return box if box[2] > box[0] and box[3] > box[1] else None
 
 
+def predict_boxes(mps: list[MaskPoints], shifts_world: np.ndarray, pose: np.ndarray, calib: StereoCalib,
+                  min_depth_m: float = 0.1) -> np.ndarray:
+    """``predict_box`` for many point sets at once: (C, 4), NaN rows where it gives None.
+    All points move, project and reduce to per-set min/max in one pass."""
+    out = np.full((len(mps), 4), np.nan)
+    if not mps:
+        return out
+    R, t = pose[:3, :3], pose[:3, 3]
+    seg = np.repeat(np.arange(len(mps)), [len(m.points) for m in mps])
+    cam = (np.concatenate([m.points for m in mps]) + shifts_world[seg] - t) @ R
+    front = cam[:, 2] > min_depth_m
+    cam, seg = cam[front], seg[front]
+    if seg.size == 0:
+        return out
+    uv = calib.project(cam)
+    starts = np.flatnonzero(np.r_[True, seg[1:] != seg[:-1]])
+    owner = seg[starts]
+    pad = np.array([0 if m.boxlike else m.grid / 2 for m in mps])[owner]
+    box = np.stack([np.maximum(np.minimum.reduceat(uv[:, 0], starts) - pad, 0),
+                    np.maximum(np.minimum.reduceat(uv[:, 1], starts) - pad, 0),
+                    np.minimum(np.maximum.reduceat(uv[:, 0], starts) + pad + 1, calib.width),
+                    np.minimum(np.maximum.reduceat(uv[:, 1], starts) + pad + 1, calib.height)], axis=1)
+    good = (box[:, 2] > box[:, 0]) & (box[:, 3] > box[:, 1])
+    out[owner[good]] = box[good]
+    return out
+
+
 def predict_mask(mp: MaskPoints, shift_world: np.ndarray, pose: np.ndarray, calib: StereoCalib,
                  close_px: int, min_depth_m: float = 0.1) -> tuple[dict, np.ndarray] | None:
     """Predicted (RLE, box) in the camera of ``pose``; None when nothing lands in the image."""

@@ -1,0 +1,69 @@
+"""The backward probe of tube starts, for all of a frame's start candidates at once.
+
+REFERENCE.md "Start": a filter runs backwards from an unexplained observation up to five
+frames and needs an inlier in each of the first three back-steps; the earliest inlier is
+where the tube is re-initialised and replayed forwards. The probe only proposes that
+start, so it compares warped boxes (``TubeConfig.probe_with_boxes``). Here the filters of
+all candidates are rows of one array: one Kalman step, one warp of all their points and
+one gating pass over candidates × observations per back-step.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mining.masks import paired_box_iou
+from mining.tubes.config import TubeConfig
+from mining.tubes.gating import best_pairs, box_gates
+from mining.tubes.kalman import POS, initial_states, predict_states, update_states
+from mining.tubes.warp import predict_boxes
+from mining.tubes.world import WorldObservations
+
+
+def probe_back(world: WorldObservations, cands: np.ndarray, past: list[WorldObservations],
+               cfg: TubeConfig) -> list[tuple[WorldObservations, int] | None]:
+    """Earliest inlier (frame, observation) of each start candidate ``cands`` (observations
+    of ``world``), probing ``past`` newest first; None where a required back-step has none
+    or the candidate's mask has too few points to warp."""
+    n = len(cands)
+    pts = [world.points(int(j)) for j in cands]
+    alive = np.array([p is not None for p in pts], bool)
+    size = world.frame.observations.size
+    x, P = initial_states(world.footpoint[cands], world.covariance[cands], size[cands], world.velocity[cands],
+                          world.velocity_covariance[cands], cfg.kalman)
+    last_t = np.full(n, world.frame.t_ns, np.int64)  # when each probe's points were observed
+    earliest_k = np.full(n, -1)  # back-step of the earliest inlier (−1: the candidate itself)
+    earliest_j = np.asarray(cands, np.int64).copy()
+    t_cur = world.frame.t_ns
+    for k, w in enumerate(past):
+        x, P = predict_states(x, P, (w.frame.t_ns - t_cur) / 1e9, cfg.kalman)
+        t_cur = w.frame.t_ns
+        idx = np.flatnonzero(alive)
+        if idx.size == 0:
+            break
+        # Points move by the filtered velocity × the time since they were observed.
+        vel = np.stack([x[idx, 3], np.zeros(idx.size), x[idx, 4]], axis=1)
+        shifts = vel * (w.frame.t_ns - last_t[idx])[:, None] / 1e9
+        boxes = predict_boxes([pts[c] for c in idx], shifts, w.frame.pose, w.frame.calib)
+        has_box = np.isfinite(boxes[:, 0])
+        idx, boxes = idx[has_box], boxes[has_box]
+        gate = box_gates(boxes, w.boxes, cfg.gate_box_iou, cfg.gate_size_similarity) & w.usable[None, :]
+        r, c = np.nonzero(gate)
+        cr = idx[r]
+        rows, obs, _, _ = best_pairs(r, c, paired_box_iou(boxes[r], w.boxes[c]), x[cr][:, POS],
+                                     P[cr][:, POS, POS], w.footpoint[c], w.covariance[c], cfg)
+        m = idx[rows]
+        if k < cfg.backward_required:
+            alive[:] = False
+            alive[m] = True
+        if m.size == 0:
+            continue
+        x[m], P[m] = update_states(x[m], P[m], w.footpoint[obs], w.covariance[obs], w.frame.observations.size[obs],
+                                   w.velocity[obs], w.velocity_covariance[obs], cfg.kalman)
+        for c_i, j in zip(m, obs):
+            p = w.points(int(j))
+            if p is not None:  # a mask too small to warp keeps the older points
+                pts[c_i], last_t[c_i] = p, w.frame.t_ns
+        earliest_k[m], earliest_j[m] = k, obs
+    return [None if not alive[i] else ((world if earliest_k[i] < 0 else past[earliest_k[i]]), int(earliest_j[i]))
+            for i in range(n)]
