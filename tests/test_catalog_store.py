@@ -1,0 +1,122 @@
+"""Catalogue storage: atomic writes, compaction per sequence, the schema files."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from _catalog_data import DATASET, SEQUENCE, build_catalogue
+from mining.catalog.schema import SCHEMAS, file_schema
+from mining.catalog.store import TMP_MARK, Store, conform, write_sequence
+from mining.catalog.views import connect
+
+REPO = __import__("pathlib").Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def catalogue(tmp_path_factory, kitti_tracking_root):
+    out = tmp_path_factory.mktemp("catalogue")
+    return out, build_catalogue(out, kitti_tracking_root)
+
+
+def test_write_table_replaces_whole_file(tmp_path):
+    store = Store(tmp_path)
+    rel = "parts/tubes/dataset=a/sequence=b/w0.parquet"
+    store.write_table(rel, pa.table({"x": [1, 2, 3]}))
+    store.write_table(rel, pa.table({"x": [7, 8]}))
+    assert store.read_table(rel).column("x").to_pylist() == [7, 8]
+    assert store.list("parts") == [rel]
+    assert [p.name for p in (tmp_path / rel).parent.iterdir()] == ["w0.parquet"], "no temporary file stays"
+
+
+def test_crash_mid_write_leaves_only_an_ignored_temp_file(catalogue):
+    out, tables = catalogue
+    store = Store(out)
+    folder = store.catalog_dir("tube_frames", DATASET, SEQUENCE)
+    (real,) = store.list(folder)
+    # A crash half-way through writing: the first half of a real Parquet file, under a temp name.
+    data = (out / real).read_bytes()
+    crashed = out / folder / f".part-0.parquet{TMP_MARK}deadbeef"
+    crashed.write_bytes(data[: len(data) // 2])
+    try:
+        assert store.list(folder) == [real]
+        con = connect(out)
+        assert con.sql("SELECT count(*) FROM tube_frames").fetchone()[0] == tables["tube_frames"].num_rows
+        # The next write of that name goes through regardless.
+        store.write_table(f"{folder}/extra.parquet", pa.table({"x": [1]}))
+        assert store.exists(f"{folder}/extra.parquet")
+    finally:
+        crashed.unlink()
+        store.remove(f"{folder}/extra.parquet")
+
+
+def test_bytes_round_trip_and_idempotent_remove(tmp_path):
+    store = Store(f"file://{tmp_path}")
+    store.write_bytes("job.json", b'{"a": 1}')
+    assert store.read_bytes("job.json") == b'{"a": 1}' and store.exists("job.json")
+    assert store.list("", suffix=".json") == ["job.json"]
+    store.remove("job.json")
+    store.remove("job.json")
+    assert not store.exists("job.json")
+
+
+def test_write_sequence_round_trip_sorted_and_split(tmp_path, catalogue):
+    _, tables = catalogue
+    tf = tables["tube_frames"]
+    shuffled = tf.take(pa.array(list(reversed(range(tf.num_rows)))))
+    store = Store(tmp_path)
+    written = write_sequence(store, "tube_frames", DATASET, SEQUENCE, shuffled, rows_per_file=20, row_group_rows=8)
+    assert written == [f"{store.catalog_dir('tube_frames', DATASET, SEQUENCE)}/part-{k}.parquet"
+                       for k in range(-(-tf.num_rows // 20))]
+    back = pa.concat_tables([store.read_table(p) for p in written])
+    assert back.schema.equals(file_schema("tube_frames"))
+    expect = tf.drop_columns(["dataset", "sequence"]).sort_by([("tube_id", "ascending"), ("frame", "ascending")])
+    assert back.equals(expect.cast(file_schema("tube_frames")))
+    meta = pq.ParquetFile(tmp_path / written[0]).metadata
+    assert meta.num_row_groups == 3 and meta.row_group(0).column(0).compression == "ZSTD"
+
+    # A later compaction with fewer rows: new files first, stale ones removed.
+    fewer = write_sequence(store, "tube_frames", DATASET, SEQUENCE, tf.slice(0, 10), rows_per_file=20)
+    assert store.list("catalog") == fewer and len(fewer) == 1
+    assert store.read_table(fewer[0]).num_rows == 10
+
+
+def test_write_sequence_rejects_schema_mismatch(tmp_path, catalogue):
+    _, tables = catalogue
+    tubes = tables["tubes"]
+    store = Store(tmp_path)
+    with pytest.raises(ValueError, match=r"missing columns \['score'\]"):
+        write_sequence(store, "tubes", DATASET, SEQUENCE, tubes.drop_columns(["score"]))
+    with pytest.raises(ValueError, match="column n_frames has type int64"):
+        i = tubes.schema.get_field_index("n_frames")
+        write_sequence(store, "tubes", DATASET, SEQUENCE, tubes.set_column(i, "n_frames", tubes["n_frames"].cast(pa.int64())))
+    with pytest.raises(ValueError, match="column category has 1 nulls"):
+        i = tubes.schema.get_field_index("category")
+        cats = pa.array([None] + tubes["category"].to_pylist()[1:], pa.string())
+        write_sequence(store, "tubes", DATASET, SEQUENCE, tubes.set_column(i, pa.field("category", pa.string()), cats))
+    with pytest.raises(ValueError, match="expected only 'other'"):
+        write_sequence(store, "tubes", DATASET, "other", tubes)
+    with pytest.raises(ValueError, match=r"unexpected columns \['window'\]"):
+        write_sequence(store, "tubes", DATASET, SEQUENCE, tubes.append_column("window", pa.array(["w"] * len(tubes))))
+    assert store.list("") == [], "nothing written on a mismatch"
+    assert conform("tubes", tubes, DATASET, SEQUENCE).schema.equals(file_schema("tubes"))
+
+
+def test_schema_json_is_generated_from_schema_py():
+    """schemas/v1/*.json cannot drift from mining/catalog/schema.py."""
+    r = subprocess.run([sys.executable, str(REPO / "schemas" / "generate.py"), "--check"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stdout + r.stderr
+    sys.path.insert(0, str(REPO / "schemas"))
+    try:
+        import generate
+    finally:
+        sys.path.pop(0)
+    files = generate.generate()
+    assert sorted(files) == sorted(f"{t}.json" for t in SCHEMAS)
+    doc = __import__("json").loads(files["tubes.json"])
+    assert [f["name"] for f in doc["fields"]] == SCHEMAS["tubes"].names
+    assert next(f for f in doc["fields"] if f["name"] == "score")["comment"].startswith("the weighted total")
