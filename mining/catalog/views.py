@@ -43,12 +43,20 @@ def _sql_string(s: str) -> str:
     return "'" + s.replace("'", "''") + "'"
 
 
+def _as_read(schema: pa.Schema) -> pa.Schema:
+    """Types as DuckDB's Parquet reader returns them: fixed-size lists become lists
+    (Parquet stores both alike), so every path gives the same column types."""
+    def plain(t: pa.DataType) -> pa.DataType:
+        return pa.list_(t.value_type) if pa.types.is_fixed_size_list(t) else t
+    return pa.schema([f.with_type(plain(f.type)) for f in schema])
+
+
 def _base_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, native: bool) -> None:
     cols = ", ".join(f'"{n}"' for n in SCHEMAS[table].names)
     folder = TABLE_DIRS[table]
     if not store.list(folder):
         # No files yet: an empty table with the schema's columns and types.
-        con.register(f"_empty_{table}", SCHEMAS[table].empty_table())
+        con.register(f"_empty_{table}", _as_read(SCHEMAS[table]).empty_table())
         con.execute(f"CREATE VIEW {table} AS SELECT {cols} FROM _empty_{table}")
         return
     if native:
@@ -59,7 +67,7 @@ def _base_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, native:
     part = pa.schema([pa.field(n, pa.string()) for n in PARTITION])
     dset = ds.dataset(store.full(folder), filesystem=store.fs, format="parquet",
                       partitioning=ds.partitioning(part, flavor="hive"),
-                      schema=pa.schema(list(file_schema(table)) + list(part)))
+                      schema=_as_read(pa.schema(list(file_schema(table)) + list(part))))
     con.register(f"_arrow_{table}", dset)
     con.execute(f"CREATE VIEW {table} AS SELECT {cols} FROM _arrow_{table}")
 
@@ -105,7 +113,7 @@ def check_read_only(sql: str) -> None:
         if st.type == duckdb.StatementType.EXPLAIN:
             text = st.query.strip()
             if re.match(r"(?is)explain\s+analy[sz]e\b", text):
-                raise ReadOnlyError("EXPLAIN ANALYZE runs its statement; the catalogue allows plain EXPLAIN only")
+                raise ReadOnlyError("the catalogue is read-only: EXPLAIN ANALYZE runs its statement (plain EXPLAIN is allowed)")
             check_read_only(re.sub(r"(?is)^explain\s+", "", text))
             continue
         if st.type not in READ_STATEMENTS:

@@ -1,0 +1,140 @@
+"""`mine query`: DuckDB views over real Parquet files, read-only, every output format."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+
+import duckdb
+import pyarrow.parquet as pq
+import pytest
+
+from _catalog_data import DATASET, SEQUENCE, build_catalogue
+from mining.catalog.query import run_query
+from mining.catalog.schema import SCHEMAS
+from mining.catalog.views import ReadOnlyError, check_read_only, connect
+
+
+@pytest.fixture(scope="module")
+def catalogue(tmp_path_factory, kitti_tracking_root):
+    out = tmp_path_factory.mktemp("catalogue")
+    return out, build_catalogue(out, kitti_tracking_root)
+
+
+def test_tables_carry_hive_columns_as_text(catalogue):
+    out, tables = catalogue
+    con = connect(out)
+    for table in ("tubes", "tube_frames", "frames", "windows"):
+        assert [c[0] for c in con.sql(f"DESCRIBE {table}").fetchall()] == SCHEMAS[table].names
+        assert con.sql(f"SELECT DISTINCT dataset, sequence FROM {table}").fetchall() == [(DATASET, SEQUENCE)]
+    assert con.sql("SELECT count(*) FROM tubes").fetchone()[0] == tables["tubes"].num_rows
+    assert con.sql("SELECT count(*) FROM tube_frames").fetchone()[0] == tables["tube_frames"].num_rows
+    got = con.sql("SELECT tube_id, score FROM tubes ORDER BY tube_id").fetchall()
+    want = sorted(zip(tables["tubes"]["tube_id"].to_pylist(), tables["tubes"]["score"].to_pylist()))
+    assert got == want
+
+
+def test_views(catalogue):
+    out, tables = catalogue
+    con = connect(out)
+    tubes = tables["tubes"].to_pylist()
+    sel = sorted(t["tube_id"] for t in tubes if t["selected"])
+    assert sel and [r[0] for r in con.sql("SELECT tube_id FROM selected_tubes ORDER BY 1").fetchall()] == sel
+    unknown = sorted(t["tube_id"] for t in tubes if t["selected"] and not t["known"])
+    assert [r[0] for r in con.sql("SELECT tube_id FROM unknown_tubes ORDER BY 1").fetchall()] == unknown
+    # Re-ranking by another weighting of the stored components is one SELECT.
+    rerank = con.sql("SELECT tube_id FROM tube_scores ORDER BY score_mask - score_motion DESC, tube_id").fetchall()
+    assert [r[0] for r in rerank] == [t["tube_id"] for t in sorted(tubes, key=lambda t: (-(t["score_mask"] - t["score_motion"]),
+                                                                                          t["tube_id"]))]
+    n_tracks = con.sql("SELECT count(*), count(DISTINCT category) FROM tube_tracks").fetchone()
+    assert n_tracks[0] == tables["tube_frames"].num_rows
+    by_tube = dict(con.sql("SELECT tube_id, count(*) FROM tube_tracks WHERE selected GROUP BY 1").fetchall())
+    assert by_tube == {t["tube_id"]: t["n_frames"] for t in tubes if t["selected"]}
+
+
+def test_empty_catalogue_has_every_table_and_view(tmp_path):
+    con = connect(tmp_path)
+    for table in ("tubes", "tube_frames", "frames", "windows"):
+        assert con.sql(f"SELECT * FROM {table}").fetchall() == []
+        assert con.sql(f"SELECT * FROM {table}").columns == SCHEMAS[table].names
+    for view in ("selected_tubes", "unknown_tubes", "tube_scores", "tube_tracks"):
+        assert con.sql(f"SELECT count(*) FROM {view}").fetchone()[0] == 0
+
+
+def test_pyarrow_filesystem_path_reads_the_same(catalogue):
+    out, _ = catalogue
+    native, arrow = connect(out), connect(f"file://{out}", native=False)
+    q = "SELECT tube_id, dataset, sequence, frame, rle_counts, bbox FROM tube_tracks ORDER BY tube_id, frame"
+    assert native.sql(q).fetchall() == arrow.sql(q).fetchall()
+    assert native.sql("SELECT * FROM windows").fetchall() == arrow.sql("SELECT * FROM windows").fetchall()
+
+
+def test_read_only(catalogue, capsys):
+    out, _ = catalogue
+    before = sorted(p for p in out.rglob("*"))
+    target = out / "catalog" / "x.parquet"
+    for sql in (f"COPY (SELECT 1) TO '{target}'", "CREATE TABLE t AS SELECT 1", "INSERT INTO tubes SELECT * FROM tubes",
+                f"ATTACH '{out}/db.duckdb'", "SET enable_external_access = true", f"EXPLAIN ANALYZE COPY tubes TO '{target}'",
+                "SELECT 1; DROP VIEW tubes"):
+        with pytest.raises(ReadOnlyError):
+            check_read_only(sql)
+        assert run_query(sql, str(out), "table", None) == 2
+        assert "read-only" in capsys.readouterr().err
+    for sql in ("SELECT 1", "WITH a AS (SELECT 1) SELECT * FROM a", "DESCRIBE tubes", "SUMMARIZE tubes", "SHOW TABLES",
+                "EXPLAIN SELECT * FROM tubes", "FROM tubes"):
+        check_read_only(sql)
+    # Below the statement check, the connection itself can reach no file outside the catalogue …
+    con = connect(out)
+    with pytest.raises(duckdb.PermissionException):
+        con.sql("SELECT * FROM read_csv('/etc/hostname')").fetchall()
+    with pytest.raises(duckdb.Error):
+        con.execute("SET enable_external_access = true")
+    assert sorted(p for p in out.rglob("*")) == before, "nothing was written"
+
+
+def test_formats(catalogue, capsys, tmp_path):
+    out, tables = catalogue
+    sql = "SELECT tube_id, n_frames, score, bbox, category_prob FROM tubes JOIN (SELECT tube_id, bbox FROM tube_frames " \
+          "WHERE frame = 5) USING (tube_id) ORDER BY tube_id"
+    ref = connect(out).sql(sql).fetchall()
+    assert ref
+
+    assert run_query(sql, str(out), "table", None) == 0
+    text = capsys.readouterr().out.splitlines()
+    assert text[0].split() == ["tube_id", "n_frames", "score", "bbox", "category_prob"]
+    assert set(text[1]) <= {"-", " "} and text[-1] == f"({len(ref)} row{'s' if len(ref) != 1 else ''})"
+    assert [line.split()[0] for line in text[2:-1]] == [r[0] for r in ref]
+    widths = {len(line) for line in text[:2]}
+    assert len(widths) == 1 or max(len(line) for line in text[2:-1]) <= max(widths)
+
+    assert run_query(sql, str(out), "csv", None) == 0
+    rows = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
+    assert [r["tube_id"] for r in rows] == [r[0] for r in ref]
+    assert [json.loads(r["bbox"]) for r in rows] == [pytest.approx(list(r[3])) for r in ref]
+    assert [float(r["score"]) for r in rows] == pytest.approx([r[2] for r in ref])
+
+    dest = tmp_path / "q.json"
+    assert run_query(sql, str(out), "json", str(dest)) == 0
+    recs = json.loads(dest.read_text())
+    assert [(r["tube_id"], r["n_frames"]) for r in recs] == [(r[0], r[1]) for r in ref]
+
+    assert run_query(sql, str(out), "parquet", None) == 2, "parquet needs --output"
+    assert "--output" in capsys.readouterr().err
+    pq_dest = tmp_path / "q.parquet"
+    assert run_query(sql, str(out), "parquet", str(pq_dest)) == 0
+    t = pq.read_table(pq_dest)
+    assert t.column_names == ["tube_id", "n_frames", "score", "bbox", "category_prob"]
+    assert t["tube_id"].to_pylist() == [r[0] for r in ref]
+    in_frame_5 = {r["tube_id"] for r in tables["tube_frames"].to_pylist() if r["frame"] == 5}
+    assert t.num_rows == len(in_frame_5)
+
+
+def test_errors(catalogue, tmp_path, capsys):
+    out, _ = catalogue
+    assert run_query("SELEC nonsense", str(out), "table", None) == 2
+    assert "parse" in capsys.readouterr().err.lower()
+    assert run_query("SELECT no_such_column FROM tubes", str(out), "table", None) == 2
+    assert "no_such_column" in capsys.readouterr().err
+    assert run_query("SELECT 1", str(tmp_path / "missing"), "table", None) == 2
+    assert "catalogue folder not found" in capsys.readouterr().err
