@@ -1,0 +1,163 @@
+"""`mine export`: KITTI tracking txt, KITTI-MOTS txt and per-tube crops from a real catalogue."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+from pycocotools import mask as mask_utils
+
+from _catalog_data import DATASET, SEQUENCE, build_catalogue
+from mining.catalog.export import crop_box, disjoint_masks, run_export, tube_folder
+from mining.catalog.schema import SCHEMAS
+from mining.catalog.store import Store, write_sequence
+from mining.eval.kitti_export import write_tubes_kitti
+from mining.eval.kitti_labels import read_kitti_tracking
+
+
+@pytest.fixture(scope="module")
+def catalogue(tmp_path_factory, kitti_tracking_root):
+    out = tmp_path_factory.mktemp("catalogue")
+    return out, build_catalogue(out, kitti_tracking_root)
+
+
+def _sorted(rows):
+    return np.lexsort((rows.box[:, 0], rows.frame))
+
+
+def test_kitti_matches_the_tracker_export(catalogue, tmp_path, kitti_tracking_root):
+    """Catalogue → KITTI txt gives the rows the in-memory exporter writes for the same tubes."""
+    from mining.sources.kitti import KittiTrackingSource
+
+    out, tables = catalogue
+    assert run_export(str(out), "selected", "kitti", str(tmp_path / "kitti")) == 0
+    got = read_kitti_tracking(tmp_path / "kitti" / f"{SEQUENCE}.txt", require_score=True)
+    t = KittiTrackingSource(str(kitti_tracking_root)).kitti_calib(SEQUENCE).t_cam2
+    write_tubes_kitti(tmp_path / "ref.txt", tables["mined"], rect0_from_cam2=lambda p: p - t)
+    ref = read_kitti_tracking(tmp_path / "ref.txt", require_score=True)
+    assert len(got) == len(ref) > 0
+    g, r = _sorted(got), _sorted(ref)
+    assert (got.frame[g] == ref.frame[r]).all() and (got.type[g] == ref.type[r]).all()
+    np.testing.assert_allclose(got.box[g], ref.box[r], atol=1e-3)
+    np.testing.assert_allclose(got.location[g], ref.location[r], atol=1e-3)
+    np.testing.assert_allclose(got.dimensions[g], ref.dimensions[r], atol=1e-3)
+    np.testing.assert_allclose(got.score[g], ref.score[r], rtol=1e-6)
+    # Integer track ids, one per selected tube, consistent with the tubes' frames.
+    selected = [m for m in tables["mined"] if m.selected]
+    assert sorted(set(got.track_id)) == list(range(len(selected)))
+    for tid in set(got.track_id):
+        frames = got.frame[got.track_id == tid]
+        assert len(frames) == len(set(frames))
+
+
+def test_kitti_mots_lines_and_disjoint_masks(catalogue, tmp_path):
+    out, tables = catalogue
+    dest = tmp_path / "mots"
+    assert run_export(str(out), "selected", "kitti-mots", str(dest)) == 0
+    lines = (dest / f"{SEQUENCE}.txt").read_text().splitlines()
+    tf = tables["tube_frames"].to_pylist()
+    selected = {t["tube_id"] for t in tables["tubes"].to_pylist() if t["selected"]}
+    assert len(lines) == sum(1 for f in tf if f["tube_id"] in selected and f["observed"])
+    by_frame = {}
+    for line in lines:
+        frame, obj_id, cls, h, w, rle = line.split(" ")
+        assert int(cls) in (1, 2, 10) and int(obj_id) // 1000 == int(cls) and (int(h), int(w)) == (375, 1242)
+        by_frame.setdefault(int(frame), []).append({"size": [375, 1242], "counts": rle.encode()})
+    assert {int(line.split()[2]) for line in lines} == {1}, "the PointRCNN cars of 0005 are class 1"
+    for rles in by_frame.values():
+        masks = mask_utils.decode(rles).astype(np.int32)
+        assert masks.sum(axis=2).max() == 1, "masks of one frame overlap"
+
+
+def test_kitti_mots_lower_score_loses_shared_pixels(catalogue, tmp_path):
+    """A duplicate of a tube with a lower score loses every pixel: nothing of it is written."""
+    out, tables = catalogue
+    cat = tmp_path / "cat"
+    tubes, tf = tables["tubes"], tables["tube_frames"]
+    best = max(tubes.to_pylist(), key=lambda t: t["score"])
+    dup = dict(best, tube_id=best["tube_id"] + "x", score=best["score"] - 1)
+    dup_frames = [dict(f, tube_id=dup["tube_id"]) for f in tf.to_pylist() if f["tube_id"] == best["tube_id"]]
+    store = Store(cat)
+    write_sequence(store, "tubes", DATASET, SEQUENCE, pa.concat_tables(
+        [tubes, pa.Table.from_pylist([dup], schema=SCHEMAS["tubes"])]))
+    write_sequence(store, "tube_frames", DATASET, SEQUENCE, pa.concat_tables(
+        [tf, pa.Table.from_pylist(dup_frames, schema=SCHEMAS["tube_frames"])]))
+    assert run_export(str(cat), f"tube_id LIKE '{best['tube_id']}%'", "kitti-mots", str(tmp_path / "m")) == 0
+    lines = (tmp_path / "m" / f"{SEQUENCE}.txt").read_text().splitlines()
+    assert {line.split()[1] for line in lines} == {"1000"}
+    assert len(lines) == sum(1 for f in dup_frames if f["observed"])
+
+
+def test_disjoint_masks_on_real_overlapping_proposals(shared_data):
+    props = json.loads((shared_data / "proposals_4dgvt_format" / "kitti_tracking_0005" / "top500" / "000000.json").read_text())
+    rles = [dict(p["segmentation"], counts=p["segmentation"]["counts"].encode()) for p in props[:60]]
+    iou = mask_utils.iou(rles, rles, [0] * len(rles))
+    np.fill_diagonal(iou, 0)
+    i, j = np.unravel_index(np.argmax(iou), iou.shape)
+    assert iou[i, j] > 0.1, "real proposals overlap"
+    scores = [0.3, 0.9]
+    a, b = disjoint_masks([rles[i], rles[j]], scores)
+    ma, mb = mask_utils.decode(rles[i]), mask_utils.decode(rles[j])
+    da, db = (mask_utils.decode(dict(m, counts=m["counts"].encode())) for m in (a, b))
+    assert (db == mb).all(), "the higher score keeps its mask"
+    assert (da == (ma & (1 - mb))).all() and not (da & db).any()
+
+
+def test_crops_are_real_image_content(catalogue, tmp_path, kitti_tracking_root):
+    out, tables = catalogue
+    dest = tmp_path / "crops"
+    assert run_export(str(out), "selected AND n_frames >= 10", "crops", str(dest)) == 0
+    tubes = [t for t in tables["tubes"].to_pylist() if t["selected"] and t["n_frames"] >= 10]
+    assert tubes
+    index = pq.read_table(dest / "index.parquet")
+    assert set(SCHEMAS["tubes"].names) <= set(index.column_names) and {"folder", "track"} <= set(index.column_names)
+    assert sorted(index["tube_id"].to_pylist()) == sorted(t["tube_id"] for t in tubes)
+    assert [r["tube_id"] for r in json.loads((dest / "index.json").read_text())] == index["tube_id"].to_pylist()
+    frames = {}
+    for f in tables["tube_frames"].to_pylist():
+        frames.setdefault(f["tube_id"], []).append(f)
+    images = kitti_tracking_root / "training" / "image_02" / SEQUENCE
+    for row in index.to_pylist():
+        tf = sorted(frames[row["tube_id"]], key=lambda f: f["frame"])
+        assert [p["frame"] for p in row["track"]] == [f["frame"] for f in tf]
+        np.testing.assert_allclose([p["position_world"] for p in row["track"]], [f["position_world"] for f in tf])
+        folder = dest / row["folder"]
+        assert row["folder"] == tube_folder(row["tube_id"]) and "/" not in row["folder"]
+        assert len(list(folder.glob("frame_*.png"))) == len(tf) == len(list(folder.glob("mask_*.png")))
+        for f in tf[:: max(1, len(tf) // 4)]:
+            full = cv2.imread(str(images / f"{f['frame']:06d}.png"))
+            x0, x1, y0, y1 = crop_box(f["bbox"], full.shape[1], full.shape[0])
+            crop = cv2.imread(str(folder / f"frame_{f['frame']}.png"))
+            assert crop.shape == (y1 - y0, x1 - x0, 3) and crop.shape[0] > 10 and crop.shape[1] > 10
+            assert (crop == full[y0:y1, x0:x1]).all() and crop.std() > 5, "the frame's own pixels"
+            mask = cv2.imread(str(folder / f"mask_{f['frame']}.png"), cv2.IMREAD_GRAYSCALE)
+            assert set(np.unique(mask)) <= {0, 255} and mask.shape == crop.shape[:2]
+            area = int(mask_utils.area({"size": [f["rle_h"], f["rle_w"]], "counts": f["rle_counts"].encode()}))
+            assert (mask == 255).sum() == area > 0, "the whole mask lies inside the crop"
+
+
+def test_crops_of_frames_the_source_lacks_fail_clearly(catalogue, tmp_path):
+    out, tables = catalogue
+    cat = tmp_path / "cat"
+    store = Store(cat)
+    tf = tables["tube_frames"]
+    late = tf.set_column(tf.schema.get_field_index("frame"), SCHEMAS["tube_frames"].field("frame"),
+                         pa.array(np.asarray(tf["frame"]) + 400, pa.int32()))
+    write_sequence(store, "tubes", DATASET, SEQUENCE, tables["tubes"])
+    write_sequence(store, "tube_frames", DATASET, SEQUENCE, late)
+    store.write_bytes("job.json", Store(out).read_bytes("job.json"))
+    assert run_export(str(cat), "selected", "crops", str(tmp_path / "c")) == 2
+
+
+def test_bad_predicates(catalogue, tmp_path, capsys):
+    out, _ = catalogue
+    assert run_export(str(out), "no_such_column > 1", "kitti", str(tmp_path / "a")) == 2
+    assert "no_such_column" in capsys.readouterr().err
+    assert run_export(str(out), f"selected) TO '{out}/x.csv'; COPY (SELECT 1", "kitti", str(tmp_path / "b")) == 2
+    assert not (out / "x.csv").exists()
+    assert run_export(str(out), "false", "kitti", str(tmp_path / "c")) == 0
+    assert not list((tmp_path / "c").iterdir())
