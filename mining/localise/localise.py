@@ -77,64 +77,92 @@ def localise(
     t_ns: int,
     cfg: LocaliseConfig,
 ) -> Observations:
-    """Localise every proposal of one frame; rows without enough depth stay NaN."""
+    """Localise every proposal of one frame; rows without enough depth stay NaN.
+
+    All masks' pixels are handled as one array (``seg`` says whose pixel it is); only the
+    per-mask sort and the point covariance run mask by mask.
+    """
     n = len(proposals)
     h, w = depth.shape
     position = np.full((n, 3), np.nan)
     size = np.full((n, 3), np.nan)
-    velocity = np.full((n, 3), np.nan)
-    n_points = np.zeros(n, np.int64)
-    flow_keys = _flow_keys(flow, w, h) if dt_s else None
-    lo, hi = cfg.size_percentiles
-    flat_depth = depth.ravel()
-    points: list[np.ndarray] = [np.zeros((0, 3), np.float32)] * n
-    grid = np.ones(n, np.int64)
-    seg, all_rows, all_cols = batch_mask_pixels(proposals.rles)
+    seg, rows, cols = batch_mask_pixels(proposals.rles)
+    velocity = _velocities(seg, rows, cols, n, flow, dt_s, w, h, cfg) if dt_s else np.full((n, 3), np.nan)
+    # A regular grid keeps at most ~max_points samples spread over each mask.
+    count = np.bincount(seg, minlength=n)
+    grid = np.where(count > cfg.max_points, np.ceil(np.sqrt(count / cfg.max_points)), 1).astype(np.int64)
+    g = grid[seg]
+    sel = (rows % g == 0) & (cols % g == 0)
+    seg, rows, cols = seg[sel], rows[sel], cols[sel]
+    z = depth.ravel()[rows * w + cols]
+    ok = np.isfinite(z)
+    n_points = np.bincount(seg[ok], minlength=n).astype(np.int64)
+    good = n_points >= cfg.min_points
+    velocity[~good] = np.nan
+    ok &= good[seg]
+    seg = seg[ok]
+    pts = calib.backproject(cols[ok], rows[ok], z[ok])
     bounds = np.searchsorted(seg, np.arange(n + 1))
-    for i in range(n):
-        rows, cols = all_rows[bounds[i]:bounds[i + 1]], all_cols[bounds[i]:bounds[i + 1]]
-        keys = rows * w + cols
-        if flow_keys is not None:
-            # Mask pixels come in column-major order, sorted: look each flow sample up in them.
-            flow_at, rows_of = flow_keys
-            pix = cols * h + rows
-            first, last = np.searchsorted(flow_at, [pix[0], pix[-1] + 1]) if pix.size else (0, 0)
-            cand = flow_at[first:last]
-            pos = np.minimum(np.searchsorted(pix, cand), pix.size - 1)
-            samples = rows_of[first:last][pix[pos] == cand]
-            if samples.size >= cfg.min_flow_samples:
-                velocity[i] = np.median(flow.motion[samples], axis=0) / dt_s
-        if keys.size > cfg.max_points:  # a regular grid keeps the sample spread over the mask
-            g = int(np.ceil(np.sqrt(keys.size / cfg.max_points)))
-            sel = (rows % g == 0) & (cols % g == 0)
-            rows, cols, keys = rows[sel], cols[sel], keys[sel]
-            grid[i] = g
-        z = flat_depth[keys]
-        ok = np.isfinite(z)
-        n_points[i] = int(ok.sum())
-        if n_points[i] < cfg.min_points:
-            velocity[i] = np.nan
-            continue
-        pts = calib.backproject(cols[ok], rows[ok], z[ok])
-        # One sort gives the median and the robust extent (nearest-rank percentiles).
-        srt = np.sort(pts, axis=0)
-        m = len(srt) - 1
-        position[i] = 0.5 * (srt[m // 2] + srt[(m + 1) // 2])
-        size[i] = np.minimum(srt[int(round(hi / 100 * m))] - srt[int(round(lo / 100 * m))], cfg.max_size_m)
-        points[i] = drop_outliers(pts, position[i], cfg.point_outlier_mahalanobis).astype(np.float32)
+    masks = np.flatnonzero(good)
+    # One sort per mask gives the median and the robust extent (nearest-rank percentiles).
+    srt = np.empty_like(pts)
+    for i in masks:
+        srt[bounds[i]:bounds[i + 1]] = np.sort(pts[bounds[i]:bounds[i + 1]], axis=0)
+    first, m = bounds[masks], n_points[masks] - 1
+    lo, hi = cfg.size_percentiles
+    position[masks] = 0.5 * (srt[first + m // 2] + srt[first + (m + 1) // 2])
+    size[masks] = np.minimum(srt[first + np.round(hi / 100 * m).astype(np.int64)]
+                             - srt[first + np.round(lo / 100 * m).astype(np.int64)], cfg.max_size_m)
+    keep = _inliers(pts, position[seg], bounds, masks, cfg.point_outlier_mahalanobis)
+    points: list[np.ndarray] = [np.zeros((0, 3), np.float32)] * n
+    kept = np.concatenate([[0], np.cumsum(keep)])[bounds]
+    pts32 = pts[keep].astype(np.float32)
+    for i in masks:
+        points[i] = pts32[kept[i]:kept[i + 1]]
     obs = _observations(proposals, t_ns, position, size, velocity, n_points, calib, ground, cfg)
     obs.points, obs.grid = points, grid
     return obs
 
 
-def drop_outliers(points: np.ndarray, median: np.ndarray, max_mahalanobis: float) -> np.ndarray:
-    """Points within ``max_mahalanobis`` of the median under the points' own covariance."""
-    if len(points) < 4:
-        return points
+def _velocities(seg: np.ndarray, rows: np.ndarray, cols: np.ndarray, n: int, flow: SceneFlow | None, dt_s: float,
+                width: int, height: int, cfg: LocaliseConfig) -> np.ndarray:
+    """(n, 3) median scene-flow motion of the samples inside each mask / dt (NaN with too few)."""
+    velocity = np.full((n, 3), np.nan)
+    keys = _flow_keys(flow, width, height)
+    if keys is None or seg.size == 0:
+        return velocity
+    flow_at, rows_of = keys
+    # Flow samples at each mask pixel: a pixel may hold several, in ``flow_at`` order.
+    per_pixel = np.bincount(flow_at, minlength=width * height)
+    pix = cols * height + rows
+    hit = np.flatnonzero(per_pixel[pix])
+    k = per_pixel[pix[hit]]
+    start = np.searchsorted(flow_at, pix[hit])
+    at = np.repeat(start - np.concatenate([[0], np.cumsum(k)[:-1]]), k) + np.arange(k.sum())
+    samples, owner = rows_of[at], np.repeat(seg[hit], k)
+    n_samples = np.bincount(owner, minlength=n)
+    for i in np.flatnonzero(n_samples >= cfg.min_flow_samples):
+        velocity[i] = np.median(flow.motion[samples[owner == i]], axis=0) / dt_s
+    return velocity
+
+
+def _inliers(points: np.ndarray, median: np.ndarray, bounds: np.ndarray, masks: np.ndarray,
+             max_mahalanobis: float) -> np.ndarray:
+    """Which points lie within ``max_mahalanobis`` of their mask's median under the mask's
+    own point covariance; each mask ``i`` of ``masks`` owns ``points[bounds[i]:bounds[i + 1]]``
+    and ``median`` is given per point. Masks with fewer than 4 points keep them all."""
     diff = points - median
-    cov = diff.T @ diff / len(points) + 1e-6 * np.eye(3)
-    m2 = ((diff @ np.linalg.inv(cov)) * diff).sum(axis=1)
-    return points[m2 <= max_mahalanobis**2]
+    big = masks[bounds[masks + 1] - bounds[masks] >= 4]
+    if big.size == 0:
+        return np.ones(len(points), bool)
+    cov = np.stack([diff[bounds[i]:bounds[i + 1]].T @ diff[bounds[i]:bounds[i + 1]] for i in big])
+    cov = cov / (bounds[big + 1] - bounds[big])[:, None, None] + 1e-6 * np.eye(3)
+    y = np.zeros_like(diff)  # stays 0 (kept) for points of small masks
+    for i, c in zip(big, np.linalg.inv(cov)):
+        y[bounds[i]:bounds[i + 1]] = diff[bounds[i]:bounds[i + 1]] @ c
+    p = y * diff
+    m2 = p[:, 0] + p[:, 1] + p[:, 2]  # the row sum, added in the order ``sum(axis=1)`` adds
+    return m2 <= max_mahalanobis**2
 
 
 def _observations(proposals, t_ns, position, size, velocity, n_points, calib, ground, cfg) -> Observations:
