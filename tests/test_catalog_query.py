@@ -138,3 +138,18 @@ def test_errors(catalogue, tmp_path, capsys):
     assert "no_such_column" in capsys.readouterr().err
     assert run_query("SELECT 1", str(tmp_path / "missing"), "table", None) == 2
     assert "catalogue folder not found" in capsys.readouterr().err
+
+
+def test_bench_catalog_small(tmp_path, shared_data):
+    """The catalogue bench on a small catalogue: real distinct RLEs, every example query answered."""
+    from mining.bench.catalog import bench_catalog
+
+    r = bench_catalog(tmp_path, n_rows=4000, repeats=1)
+    con = connect(tmp_path / "bench_catalog")
+    n, distinct = con.sql("SELECT count(*), count(DISTINCT rle_counts) FROM tube_frames").fetchone()
+    assert n == r["tube_frame_rows"] == 4000 and distinct > 0.9 * n
+    assert 20 < r["bytes_per_tube_frame"] < 1000
+    assert set(r["query_s"]) == {"unknown_long_tubes", "tubes_by_category", "rerank", "one_tube_masks"}
+    n_selected = con.sql("SELECT count(*) FROM selected_tubes").fetchone()[0]
+    assert r["query_rows"]["rerank"] == min(100, n_selected) > 0 and r["query_rows"]["one_tube_masks"] > 0
+    assert r["query_rows"]["unknown_long_tubes"] == con.sql(r["queries"]["unknown_long_tubes"]).fetchall().__len__() > 0

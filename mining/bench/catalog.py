@@ -64,18 +64,16 @@ def _slid(rng: np.random.Generator, counts: np.ndarray, h: int, w: int, n: int) 
     """The mask over n frames: slid right by 0, 1, 2, … columns (bouncing inside the
     image; in column-major runs one column moves h pixels from the last run to the first),
     its boundary jittered by a pixel per run and frame, as a real mask's outline changes."""
-    room = int(counts[-1]) // h if counts.size % 2 == 1 else 0  # free columns on the right
+    room = (int(counts[-1]) - 1) // h if counts.size % 2 == 1 else 0  # free columns on the right (jitter takes 1)
     steps = np.arange(n) % (2 * room) if room else np.zeros(n, int)
     steps = np.where(steps > room, 2 * room - steps, steps)
-    objs = []
-    for s in steps:
-        c = counts.copy()
-        d = rng.integers(-1, 2, c.size - 1) * ((c[:-1] >= 3) & (c[1:] >= 3))
-        c[:-1] += d
-        c[1:] -= d
-        c[0] += s * h
-        c[-1] -= s * h
-        objs.append({"counts": c.tolist(), "size": [h, w]})
+    c = np.repeat(counts[None], n, axis=0)
+    d = rng.integers(-1, 2, (n, counts.size - 1)) * ((counts[:-1] >= 3) & (counts[1:] >= 3))
+    c[:, :-1] += d
+    c[:, 1:] -= d
+    c[:, 0] += steps * h
+    c[:, -1] -= steps * h
+    objs = [{"counts": row, "size": [h, w]} for row in c.tolist()]
     return mask_utils.frPyObjects(objs, h, w)
 
 
