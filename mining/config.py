@@ -41,6 +41,19 @@ class ExportConfig:
 
 
 @dataclass
+class WindowConfig:
+    core: int = 100  # DESIGN.md: a window's core is 100 frames
+    context_before: int = 30  # ours: frames tracked before the core so tube start-up and co-selection see the same data as an unsharded run
+    context_after: int = 30  # ours: frames tracked after the core, likewise (tube ends, forward-backward starts)
+    stitch_min_shared: int = 3  # ours: inliers two windows' pieces must share to be one tube
+
+
+@dataclass
+class RunConfig:
+    max_retries: int = 3  # ours: Ray retries of a window's task after a system failure (a dead worker or node)
+
+
+@dataclass
 class JobConfig:
     source: SourceConfig = field(default_factory=SourceConfig)
     geometry: GeometryConfig = field(default_factory=GeometryConfig)
@@ -50,6 +63,8 @@ class JobConfig:
     score: ScoreConfig = field(default_factory=ScoreConfig)
     select: SelectConfig = field(default_factory=SelectConfig)
     export: ExportConfig = field(default_factory=ExportConfig)
+    window: WindowConfig = field(default_factory=WindowConfig)
+    run: RunConfig = field(default_factory=RunConfig)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -59,6 +74,7 @@ class JobConfig:
         """Hash of everything that changes results (the source's location excluded)."""
         d = self.to_dict()
         d["source"] = {k: v for k, v in d["source"].items() if k not in ("root", "sequences")}
+        d.pop("run")  # retries change how a result is reached, not the result
         blob = json.dumps(d, sort_keys=True, default=str).encode()
         return hashlib.sha256(blob).hexdigest()[:16]
 

@@ -141,15 +141,17 @@ class Window:
         return f"{self.sequence}-{self.core[0]:07d}-{self.core[1]:07d}"
 
 
-def plan_windows(plan: SequencePlan, core: int = 100, before: int = 0, after: int = 0) -> list[Window]:
-    """Cut a sequence into windows of ``core`` frames, each with its context margins."""
+def plan_windows(plan: SequencePlan, core: int = 100, before: int = 0, after: int = 0,
+                 start: int = 0, stop: int | None = None) -> list[Window]:
+    """Cut plan positions [start, stop) into windows of ``core`` frames, each with its context margins."""
     if core <= 0:
         raise ValueError("window core length must be positive")
-    n = len(plan)
+    n = len(plan) if stop is None else min(stop, len(plan))
+    start = max(0, start)
     out = []
-    for s in range(0, n, core):
+    for s in range(start, n, core):
         e = min(s + core, n)
-        out.append(Window(plan.dataset, plan.sequence, (s, e), (max(0, s - before), min(n, e + after))))
+        out.append(Window(plan.dataset, plan.sequence, (s, e), (max(start, s - before), min(n, e + after))))
     return out
 
 

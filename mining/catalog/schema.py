@@ -26,8 +26,8 @@ TUBES = pa.schema([
     pa.field("sequence", pa.string(), False),
     pa.field("t_start", pa.int64(), False),  # ns, first frame
     pa.field("t_end", pa.int64(), False),  # ns, last frame
-    pa.field("frame_start", pa.int32(), False),  # plan position of the first frame
-    pa.field("frame_end", pa.int32(), False),  # plan position of the last frame (inclusive)
+    pa.field("frame_start", pa.int32(), False),  # the source's index of the first frame
+    pa.field("frame_end", pa.int32(), False),  # index of the last frame (inclusive)
     pa.field("n_frames", pa.int32(), False),
     pa.field("n_observed", pa.int32(), False),
     pa.field("score", pa.float64(), False),  # the weighted total (score.beta, score.alpha)
@@ -55,7 +55,7 @@ TUBE_FRAMES = pa.schema([
     pa.field("tube_id", pa.string(), False),
     pa.field("dataset", pa.string(), False),
     pa.field("sequence", pa.string(), False),
-    pa.field("frame", pa.int32(), False),  # plan position
+    pa.field("frame", pa.int32(), False),  # the source's frame index
     pa.field("t_ns", pa.int64(), False),
     pa.field("bbox", box4, False),  # x1, y1, x2, y2 pixels
     pa.field("rle_counts", pa.string(), False),  # COCO compressed RLE
@@ -75,7 +75,8 @@ TUBE_FRAMES = pa.schema([
 FRAMES = pa.schema([
     pa.field("dataset", pa.string(), False),
     pa.field("sequence", pa.string(), False),
-    pa.field("frame", pa.int32(), False),
+    pa.field("frame", pa.int32(), False),  # the source's frame index
+    pa.field("position", pa.int32(), False),  # position in the sequence plan (windows count positions)
     pa.field("t_ns", pa.int64(), False),
     pa.field("segment", pa.int32(), False),  # increments after every failed egomotion
     pa.field("pose", pa.list_(pa.float64(), 16), False),  # camera-to-world of the segment, row-major 4×4
@@ -117,8 +118,12 @@ PART_EXTRA = {
         pa.field("window", pa.string(), False),
         pa.field("core", pa.bool_(), False),  # the frame is in the window's core (the window owns it)
         pa.field("posterior", pa.list_(pa.float32())),  # the observation's 81-way posterior
+        pa.field("footpoint_cam", vec3, False),  # filtered footpoint in this frame's camera (worlds differ per window)
+        pa.field("velocity_cam", vec3, False),  # filtered velocity in this frame's camera
     ],
-    "frames": [],
+    "frames": [
+        pa.field("T_cur_prev", pa.list_(pa.float64())),  # 16 floats (variable-size: null fixed-size lists do not round-trip Parquet); egomotion from the previous frame; null when failed or absent
+    ],
     "windows": [],
 }
 

@@ -1,0 +1,113 @@
+"""Mined tubes and observed frames → Arrow tables of catalogue schema v1.
+
+The same two functions fill a window's parts (window-local worlds, with the part-only
+columns) and the stitched catalogue (one world per pose segment of the sequence).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pyarrow as pa
+from pycocotools import mask as mask_utils
+
+from mining.catalog.schema import SCHEMA_VERSION, file_schema, part_schema
+from mining.pipeline.mine import MinedTube
+
+
+@dataclass(frozen=True)
+class RunInfo:
+    """What every tube row records about the run that made it."""
+
+    dataset: str
+    sequence: str
+    run_id: str
+    params_hash: str
+
+
+def _vec(v: np.ndarray) -> list[float]:
+    return [float(x) for x in np.asarray(v, np.float64).ravel()]
+
+
+def _opt(x: float) -> float | None:
+    return None if x is None or not np.isfinite(x) else float(x)
+
+
+def compressed_counts(rle: dict) -> str:
+    """The COCO compressed counts string of an RLE (plain run lists are compressed)."""
+    counts = rle["counts"]
+    if isinstance(counts, list):
+        h, w = rle["size"]
+        counts = mask_utils.frPyObjects({"size": [h, w], "counts": counts}, h, w)["counts"]
+    return counts.decode("ascii") if isinstance(counts, bytes) else counts
+
+
+def tube_summary(mt: MinedTube) -> dict:
+    """The 3D summary of a tube: mean footpoint, median size, path length, mean speed."""
+    frames = mt.tube.frames
+    obs = [f for f in frames if f.observed] or frames
+    foot = np.array([f.footpoint_world for f in frames], np.float64)
+    steps = np.linalg.norm(np.diff(foot, axis=0), axis=1) if len(foot) > 1 else np.zeros(0)
+    speed = np.linalg.norm(np.array([f.velocity_world for f in frames], np.float64), axis=1)
+    return {
+        "mean_position": _vec(np.mean([f.footpoint_world for f in obs], axis=0)),
+        "size": _vec(np.median([f.size for f in obs], axis=0)),
+        "path_length": float(np.nansum(steps)),
+        "speed": float(np.nanmean(speed)) if np.isfinite(speed).any() else 0.0,
+    }
+
+
+def tube_row(mt: MinedTube, tube_id: str, run: RunInfo, n_windows: int = 1) -> dict:
+    t = mt.tube
+    c = mt.category
+    return {
+        "tube_id": tube_id,
+        "t_start": int(t.frames[0].t_ns), "t_end": int(t.frames[-1].t_ns),
+        "frame_start": int(t.first_frame), "frame_end": int(t.last_frame),
+        "n_frames": len(t.frames), "n_observed": t.n_inliers,
+        "score": float(mt.score.total), "score_motion": float(mt.score.motion),
+        "score_mask": float(mt.score.mask), "score_objectness": float(mt.score.objectness),
+        "selected": bool(mt.selected), "known": bool(c.known), "category": c.category,
+        "category_prob": _opt(c.probability), "best_known": c.best_known,
+        "class_posterior": None if c.posterior is None else _vec(c.posterior),
+        "segment": int(t.segment),
+        **tube_summary(mt),
+        "n_windows": n_windows,
+        "run_id": run.run_id, "params_hash": run.params_hash, "schema_version": SCHEMA_VERSION,
+    }
+
+
+def frame_rows(mt: MinedTube, tube_id: str, cam_from_world: Callable[[int], np.ndarray] | None = None,
+               core: Callable[[int], bool] | None = None, window: str | None = None) -> list[dict]:
+    """One row per tube frame. With ``window`` set, the rows are a part's (extra columns).
+
+    ``cam_from_world(frame)`` gives the (4, 4) world-to-camera transform of a frame; parts
+    need it to store the footpoint and velocity in camera coordinates.
+    """
+    rows = []
+    for f in mt.tube.frames:
+        h, w = f.rle["size"]
+        row = {
+            "tube_id": tube_id, "frame": int(f.frame), "t_ns": int(f.t_ns), "bbox": _vec(f.box),
+            "rle_counts": compressed_counts(f.rle), "rle_h": int(h), "rle_w": int(w),
+            "observed": bool(f.observed), "obs_index": int(f.obs_index),
+            "objectness": _opt(f.objectness), "position_cam": _vec(f.position_cam),
+            "position_world": _vec(f.footpoint_world), "velocity_world": _vec(f.velocity_world),
+            "size": _vec(f.size), "mask_iou": _opt(f.mask_iou), "motion_density": _opt(f.motion_density),
+        }
+        if window is not None:
+            T = cam_from_world(f.frame)
+            row["window"] = window
+            row["core"] = bool(core(f.frame))
+            row["posterior"] = None if f.posterior is None else _vec(f.posterior)
+            row["footpoint_cam"] = _vec(T[:3, :3] @ f.footpoint_world + T[:3, 3])
+            row["velocity_cam"] = _vec(T[:3, :3] @ f.velocity_world)
+        rows.append(row)
+    return rows
+
+
+def to_table(rows: Sequence[dict], table: str, part: bool = False) -> pa.Table:
+    schema = part_schema(table) if part else file_schema(table)
+    return pa.Table.from_pylist(list(rows), schema=schema)

@@ -1,0 +1,100 @@
+"""Where steps run: in this process, or on a pool of Ray actors (local Ray or a cluster).
+
+Both executors take the same calls — ``submit(step, *args)`` while ``free()`` and
+``wait()`` for the next result — so the scheduler in ``submit.py`` does not know which
+one it drives. On Ray each worker is an actor holding the steps: a proposer that holds
+a model (ONNX) loads once per worker, not once per window. System failures (a killed
+worker process, a lost node) restart the actor and retry the call; bad input is not a
+system failure and comes back as a failed ``StepResult``.
+"""
+
+from __future__ import annotations
+
+import os
+from collections import deque
+from typing import Any
+
+from mining.pipeline.steps import Finalize, Job, Observe, StepResult, Track
+
+
+class Worker:
+    """The steps of one job, held by one process."""
+
+    def __init__(self, job: Job):
+        self.steps = {"observe": Observe(job), "track": Track(job), "finalize": Finalize(job)}
+
+    def run(self, step: str, *args: Any) -> StepResult:
+        return self.steps[step].run(*args)
+
+    def pid(self) -> int:
+        return os.getpid()
+
+
+class LocalExecutor:
+    """Runs each step in this process when it is submitted (debugging, profiling)."""
+
+    def __init__(self, job: Job):
+        self.worker = Worker(job)
+        self.done: deque = deque()
+        self.n = 0
+
+    def free(self) -> bool:
+        return True
+
+    def submit(self, step: str, *args: Any) -> int:
+        self.n += 1
+        try:
+            self.done.append((self.n, self.worker.run(step, *args), None))
+        except Exception as e:  # noqa: BLE001 - reported as the step's failure, like Ray would
+            self.done.append((self.n, None, e))
+        return self.n
+
+    def pending(self) -> int:
+        return len(self.done)
+
+    def wait(self) -> tuple[int, StepResult | None, BaseException | None]:
+        return self.done.popleft()
+
+    def shutdown(self) -> None:
+        pass
+
+
+class RayExecutor:
+    """A pool of Ray actors, one per CPU the job may use; one call in flight per actor."""
+
+    def __init__(self, job: Job, n_workers: int, max_retries: int):
+        import ray
+
+        self.ray = ray
+        actor = ray.remote(num_cpus=1, max_restarts=-1, max_task_retries=max_retries)(Worker)
+        self.actors = [actor.remote(job) for _ in range(n_workers)]
+        self.idle = deque(self.actors)
+        self.busy: dict[Any, Any] = {}
+
+    def free(self) -> bool:
+        return bool(self.idle)
+
+    def submit(self, step: str, *args: Any):
+        a = self.idle.popleft()
+        ref = a.run.remote(step, *args)
+        self.busy[ref] = a
+        return ref
+
+    def pending(self) -> int:
+        return len(self.busy)
+
+    def wait(self):
+        ready, _ = self.ray.wait(list(self.busy), num_returns=1)
+        ref = ready[0]
+        self.idle.append(self.busy.pop(ref))
+        try:
+            return ref, self.ray.get(ref), None
+        except Exception as e:  # noqa: BLE001 - retries are spent: a system failure of this step
+            return ref, None, e
+
+    def pids(self) -> list[int]:
+        return self.ray.get([a.pid.remote() for a in self.actors])
+
+    def shutdown(self) -> None:
+        for a in self.actors:
+            self.ray.kill(a)

@@ -1,0 +1,50 @@
+"""``mine status``: every planned window of a catalogue, done, failed (with its error) or pending."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+from mining.catalog.store import Store
+from mining.errors import InputError
+
+
+@dataclass
+class WindowStatus:
+    dataset: str
+    sequence: str
+    window: str
+    status: str  # done | failed | pending
+    attempts: int
+    error: str
+
+
+def job_status(out: str) -> list[WindowStatus]:
+    store = Store(out)
+    if not store.exists("job.json"):
+        raise InputError("no mining job here (job.json missing): run `mine submit --out` first", store.full("job.json"))
+    job = json.loads(store.read_bytes("job.json"))
+    rows = []
+    for w in job["windows"]:
+        m = store.manifest_path(w["dataset"], w["sequence"], w["window"])
+        if store.exists(m):
+            r = store.read_table(m).to_pylist()[0]
+            status = r["status"] if r["params_hash"] == job["params_hash"] else "pending"
+            rows.append(WindowStatus(w["dataset"], w["sequence"], w["window"], status, r["attempts"], r["error"] or ""))
+        else:
+            rows.append(WindowStatus(w["dataset"], w["sequence"], w["window"], "pending", 0, ""))
+    return rows
+
+
+def print_status(out: str) -> int:
+    """Print the windows' states; exit 1 when any failed, 0 otherwise."""
+    rows = job_status(out)
+    counts = {s: sum(r.status == s for r in rows) for s in ("done", "failed", "pending")}
+    print(f"{out}: {len(rows)} windows: {counts['done']} done, {counts['failed']} failed, {counts['pending']} pending")
+    for r in rows:
+        line = f"{r.status:8s} {r.dataset}/{r.window}  attempts {r.attempts}"
+        if r.error:
+            line += "  " + r.error.strip().splitlines()[0]
+        if r.status != "done":
+            print(line)
+    return 1 if counts["failed"] else 0

@@ -1,0 +1,235 @@
+"""The pipeline as small steps with one ``run`` each, reading and writing through a Store.
+
+* ``Observe``  — a window's core frames → observation cache (geometry, proposals, localise)
+* ``Track``    — a window's context observations → tube pieces as Parquet parts + manifest row
+* ``Finalize`` — a sequence's parts → stitched, compacted catalogue tables
+
+Steps are plain objects holding the job; executors (``mining/pipeline/executors.py``)
+decide where ``run`` executes (in-process, or Ray workers). Every output has a
+deterministic name and is written atomically, so a retried or resubmitted step never
+duplicates or half-writes anything; a step whose output exists returns at once.
+"""
+
+from __future__ import annotations
+
+import json
+import pickle
+import time
+import traceback
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+
+import numpy as np
+import pyarrow as pa
+
+from mining.catalog.rows import RunInfo, frame_rows, to_table, tube_row
+from mining.catalog.store import Store, write_sequence
+from mining.config import JobConfig
+from mining.errors import InputError, MiningError
+from mining.pipeline.stitch import stitch_sequence
+from mining.pipeline.window import ObservedFrame, chain_poses, observe_window, track_window
+from mining.sources import open_source
+from mining.sources.base import Source
+from mining.types import SequencePlan, Window
+
+CACHE = "cache/obs"
+
+
+def cache_path(w: Window) -> str:
+    return f"{CACHE}/dataset={w.dataset}/sequence={w.sequence}/{w.name}.pkl"
+
+
+def done_path(dataset: str, sequence: str) -> str:
+    """The marker a finalized sequence leaves: which windows its catalogue holds."""
+    return f"catalog/_sequences/dataset={dataset}/sequence={sequence}.json"
+
+
+@dataclass
+class StepResult:
+    window: str
+    ok: bool
+    error: str = ""
+    seconds: float = 0.0
+    frames: int = 0
+    extra: dict = field(default_factory=dict)
+
+
+@dataclass
+class Job:
+    """What every step needs: the config, where the catalogue goes, the run it belongs to."""
+
+    cfg: JobConfig
+    out: str
+    run_id: str
+    plans: dict[str, SequencePlan]  # sequence → (possibly sliced) plan
+
+    @property
+    def params_hash(self) -> str:
+        return self.cfg.params_hash
+
+    def store(self) -> Store:
+        return Store(self.out)
+
+    def run_info(self, sequence: str) -> RunInfo:
+        return RunInfo(self.cfg.source.dataset, sequence, self.run_id, self.params_hash)
+
+
+_SOURCES: dict[str, Source] = {}
+
+
+def job_source(job: Job) -> Source:
+    """The job's source, opened once per process (sources cache calibration and listings)."""
+    s = job.cfg.source
+    key = json.dumps([s.dataset, s.root, s.options], sort_keys=True, default=str)
+    if key not in _SOURCES:
+        _SOURCES[key] = open_source(s.dataset, s.root or None, **s.options)
+    return _SOURCES[key]
+
+
+def _now() -> datetime:
+    return datetime.now(timezone.utc)
+
+
+def _error(e: BaseException) -> str:
+    return str(e) if isinstance(e, MiningError) else f"{type(e).__name__}: {e}\n{traceback.format_exc(limit=3)}"
+
+
+class Observe:
+    def __init__(self, job: Job):
+        self.job = job
+        self.proposer = None  # made on first use and kept: a model loads once per worker
+
+    def run(self, window: Window) -> StepResult:
+        store, t0 = self.job.store(), time.perf_counter()
+        path = cache_path(window)
+        if store.exists(path):
+            return StepResult(window.name, True, extra={"cached": True})
+        try:
+            frames = observe_window(job_source(self.job), self.job.plans[window.sequence], window, self.job.cfg,
+                                    self._proposer(window))
+        except (InputError, MiningError) as e:
+            return StepResult(window.name, False, _error(e), time.perf_counter() - t0)
+        store.write_bytes(path, pickle.dumps(frames, protocol=pickle.HIGHEST_PROTOCOL))
+        return StepResult(window.name, True, seconds=time.perf_counter() - t0, frames=len(frames))
+
+    def _proposer(self, window: Window):
+        from mining.proposals.make import make_proposer
+
+        calib = self.job.plans[window.sequence].calib
+        if self.proposer is None:
+            self.proposer = make_proposer(self.job.cfg.proposals, (calib.height, calib.width))
+        return self.proposer
+
+
+def load_context(store: Store, window: Window, neighbours: list[Window]) -> list[ObservedFrame]:
+    """The observed frames of ``window``'s context, from the caches of the windows that hold them."""
+    a, b = window.context
+    frames: list[ObservedFrame] = []
+    for w in sorted(neighbours, key=lambda w: w.core[0]):
+        if w.core[1] <= a or w.core[0] >= b or not store.exists(cache_path(w)):
+            continue
+        frames.extend(f for f in pickle.loads(store.read_bytes(cache_path(w))) if a <= f.position < b)
+    return frames
+
+
+def write_manifest(job: Job, window: Window, status: str, started: datetime | None, error: str = "",
+                   seconds_observe: float | None = None, seconds_tubes: float | None = None,
+                   n_pieces: int | None = None) -> None:
+    store = job.store()
+    path = store.manifest_path(window.dataset, window.sequence, window.name)
+    attempts = 1
+    if store.exists(path):
+        attempts += int(store.read_table(path, ["attempts"]).column(0)[0].as_py())
+    row = {"run_id": job.run_id, "window": window.name, "core_start": window.core[0], "core_end": window.core[1],
+           "context_start": window.context[0], "context_end": window.context[1], "status": status,
+           "attempts": attempts, "started": started, "finished": _now(), "seconds_observe": seconds_observe,
+           "seconds_tubes": seconds_tubes, "n_pieces": n_pieces, "error": error or None,
+           "params_hash": job.params_hash}
+    store.write_table(path, to_table([row], "windows"))
+
+
+class Track:
+    def __init__(self, job: Job):
+        self.job = job
+
+    def run(self, window: Window, neighbours: list[Window], observe: list[StepResult]) -> StepResult:
+        """Tube pieces of ``window``; ``observe`` are the observe results of its own core and neighbours."""
+        job, store, started, t0 = self.job, self.job.store(), _now(), time.perf_counter()
+        own = next(r for r in observe if r.window == window.name)
+        seconds_observe = own.seconds if not own.extra.get("cached") else None
+        if not own.ok:
+            write_manifest(job, window, "failed", started, own.error, seconds_observe)
+            return StepResult(window.name, False, own.error)
+        try:
+            ok = {r.window for r in observe if r.ok}
+            frames = load_context(store, window, [w for w in neighbours if w.name in ok])
+            mined = track_window(frames, job.cfg)
+            n = self._write_parts(window, frames, mined)
+        except (InputError, MiningError) as e:
+            write_manifest(job, window, "failed", started, _error(e), seconds_observe)
+            return StepResult(window.name, False, _error(e))
+        seconds = time.perf_counter() - t0
+        write_manifest(job, window, "done", started, "", seconds_observe, seconds, n)
+        return StepResult(window.name, True, seconds=seconds, frames=window.core[1] - window.core[0])
+
+    def _write_parts(self, window: Window, frames: list[ObservedFrame], mined) -> int:
+        job, store = self.job, self.job.store()
+        poses = chain_poses(frames)
+        cam_from_world = {f.index: np.linalg.inv(p) for f, (p, _) in zip(frames, poses)}
+        core_frames = {f.index for f in frames if window.core[0] <= f.position < window.core[1]}
+        run = job.run_info(window.sequence)
+        tubes, tframes = [], []
+        for mt in mined:
+            pid = f"{window.name}#{mt.tube.tube_id}"
+            row = tube_row(mt, pid, run)
+            row["window"] = window.name
+            tubes.append(row)
+            tframes.extend(frame_rows(mt, pid, cam_from_world.get, core_frames.__contains__, window.name))
+        frows = []
+        for f, (pose, segment) in zip(frames, poses):
+            if f.index not in core_frames:
+                continue
+            frows.append({"frame": f.index, "position": f.position, "t_ns": f.t_ns, "segment": segment,
+                          "pose": pose.ravel().tolist(), "egomotion_ok": f.egomotion_ok,
+                          "egomotion_inliers": f.egomotion_inliers,
+                          "egomotion_rmse_px": None if not np.isfinite(f.egomotion_rmse_px) else f.egomotion_rmse_px,
+                          "ground_ok": f.ground_ok, "ground_age": f.ground_age, "n_proposals": f.n_proposals,
+                          "n_observations": len(f.observations),
+                          "T_cur_prev": None if f.T_cur_prev is None else f.T_cur_prev.ravel().tolist()})
+        d, s = window.dataset, window.sequence
+        store.write_table(store.part_path("tubes", d, s, window.name), to_table(tubes, "tubes", part=True))
+        store.write_table(store.part_path("tube_frames", d, s, window.name), to_table(tframes, "tube_frames", part=True))
+        store.write_table(store.part_path("frames", d, s, window.name), to_table(frows, "frames", part=True))
+        return len(tubes)
+
+
+class Finalize:
+    def __init__(self, job: Job):
+        self.job = job
+
+    def run(self, sequence: str, windows: list[Window], done: list[str]) -> StepResult:
+        """Stitch the parts of the ``done`` windows of a sequence into its catalogue tables."""
+        job, store, t0 = self.job, self.job.store(), time.perf_counter()
+        d = job.cfg.source.dataset
+        ws = [w for w in windows if w.name in set(done)]
+        parts = {}
+        for table in ("tubes", "tube_frames", "frames"):
+            tabs = [store.read_table(store.part_path(table, d, sequence, w.name)) for w in ws]
+            parts[table] = pa.concat_tables(tabs) if tabs else to_table([], table, part=True)
+        out = stitch_sequence(ws, parts["tubes"], parts["tube_frames"], parts["frames"], job.cfg,
+                              job.run_info(sequence))
+        for table, data in out.items():
+            write_sequence(store, table, d, sequence, data)
+        rows = [store.read_table(store.manifest_path(d, sequence, w.name)) for w in windows
+                if store.exists(store.manifest_path(d, sequence, w.name))]
+        if rows:
+            write_sequence(store, "windows", d, sequence, pa.concat_tables(rows))
+        marker = {"params_hash": job.params_hash, "run_id": job.run_id, "windows": sorted(done),
+                  "planned": len(windows), "finished": _now().isoformat()}
+        store.write_bytes(done_path(d, sequence), json.dumps(marker, indent=1).encode())
+        tubes = out["tubes"]
+        sel = np.asarray(tubes.column("selected").to_pylist(), bool)
+        known = np.asarray(tubes.column("known").to_pylist(), bool)
+        return StepResult(sequence, True, seconds=time.perf_counter() - t0,
+                          extra={"tubes": int(sel.sum()), "candidates": len(sel),
+                                 "known": int((sel & known).sum()), "unknown": int((sel & ~known).sum())})

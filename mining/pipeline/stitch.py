@@ -1,0 +1,173 @@
+"""Stitch a sequence's window parts into one catalogue: one tube per object across borders.
+
+Each window tracked over its context, so neighbouring windows both hold a *piece* of
+any tube that crosses their border, and the pieces took the same observations in the
+frames both windows saw. Pieces of adjacent windows are matched one-to-one by how
+many (frame, observation) inliers they share (Hungarian, at least
+``window.stitch_min_shared``), and a chain of matched pieces is one tube. A window owns
+its core frames: the tube's frames are each piece's core frames. Score and category are
+recomputed over the whole tube; it is selected when the pieces that selected it own
+most of its frames.
+
+Worlds: each window chained poses from its own first frame, so pieces store footpoints
+in camera coordinates; here they move into the sequence's world, chained over all
+frames, one world per pose segment.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass
+
+import numpy as np
+import pyarrow as pa
+from scipy.optimize import linear_sum_assignment
+
+from mining.catalog.rows import RunInfo, frame_rows, to_table, tube_row
+from mining.catalog.schema import file_schema
+from mining.config import JobConfig
+from mining.pipeline.mine import MinedTube
+from mining.score.unary import score_tube
+from mining.tubes.category import tube_category
+from mining.tubes.tube import Tube, TubeFrame
+from mining.types import Window
+
+
+@dataclass
+class SequencePoses:
+    pose: dict[int, np.ndarray]  # frame index → camera-to-world of its segment
+    segment: dict[int, int]
+
+
+def chain_sequence(frames: pa.Table) -> tuple[pa.Table, SequencePoses]:
+    """The sequence's frames table with poses chained over all frames it holds.
+
+    A frame starts a new segment when its egomotion failed or is absent, or when the
+    frame before it in the plan is missing (a failed window).
+    """
+    frames = frames.sort_by("position")
+    cols = frames.to_pydict()
+    poses, segments = [], []
+    pose, segment = np.eye(4), 0
+    for i in range(frames.num_rows):
+        if i > 0:
+            T = cols["T_cur_prev"][i]
+            if T is not None and cols["position"][i] == cols["position"][i - 1] + 1:
+                pose = pose @ np.linalg.inv(np.asarray(T, np.float64).reshape(4, 4))
+            else:
+                pose, segment = np.eye(4), segment + 1
+        poses.append(pose.copy())
+        segments.append(segment)
+    out = {k: v for k, v in cols.items() if k not in ("T_cur_prev", "segment", "pose")}
+    out["segment"] = segments
+    out["pose"] = [p.ravel().tolist() for p in poses]
+    table = pa.Table.from_pydict(out, schema=file_schema("frames"))
+    return table, SequencePoses(dict(zip(cols["frame"], poses)), dict(zip(cols["frame"], segments)))
+
+
+def _pieces(tube_frames: pa.Table) -> dict[str, list[dict]]:
+    by_piece: dict[str, list[dict]] = defaultdict(list)
+    for row in tube_frames.to_pylist():
+        by_piece[row["tube_id"]].append(row)
+    for rows in by_piece.values():
+        rows.sort(key=lambda r: r["frame"])
+    return by_piece
+
+
+def _match(a_pieces: list[str], b_pieces: list[str], keys: dict[str, set], min_shared: int) -> list[tuple[str, str]]:
+    """One-to-one matches between two windows' pieces by shared inliers."""
+    if not a_pieces or not b_pieces:
+        return []
+    owner: dict[tuple, list[int]] = defaultdict(list)
+    for j, b in enumerate(b_pieces):
+        for k in keys[b]:
+            owner[k].append(j)
+    shared = np.zeros((len(a_pieces), len(b_pieces)))
+    for i, a in enumerate(a_pieces):
+        for k in keys[a]:
+            for j in owner.get(k, ()):
+                shared[i, j] += 1
+    rows, cols = linear_sum_assignment(-shared)
+    return [(a_pieces[i], b_pieces[j]) for i, j in zip(rows, cols) if shared[i, j] >= min_shared]
+
+
+def _chains(windows: list[Window], piece_window: dict[str, str], keys: dict[str, set],
+            min_shared: int) -> list[list[str]]:
+    parent = {p: p for p in piece_window}
+
+    def find(p: str) -> str:
+        while parent[p] != p:
+            parent[p] = parent[parent[p]]
+            p = parent[p]
+        return p
+
+    by_window: dict[str, list[str]] = defaultdict(list)
+    for p, w in sorted(piece_window.items()):
+        by_window[w].append(p)
+    order = sorted(windows, key=lambda w: w.core[0])
+    for a, b in zip(order, order[1:]):
+        if a.core[1] != b.core[0]:
+            continue  # a failed window between them: nothing to stitch across
+        for pa_, pb in _match(by_window[a.name], by_window[b.name], keys, min_shared):
+            parent[find(pb)] = find(pa_)
+    groups: dict[str, list[str]] = defaultdict(list)
+    for p in sorted(piece_window):
+        groups[find(p)].append(p)
+    return list(groups.values())
+
+
+def _tube_frame(r: dict, poses: SequencePoses) -> TubeFrame:
+    pose = poses.pose[r["frame"]]
+    R, t = pose[:3, :3], pose[:3, 3]
+    nan = float("nan")
+    return TubeFrame(
+        frame=r["frame"], t_ns=r["t_ns"], observed=r["observed"], obs_index=r["obs_index"],
+        rle={"size": [r["rle_h"], r["rle_w"]], "counts": r["rle_counts"].encode("ascii")},
+        box=np.asarray(r["bbox"], np.float64),
+        footpoint_world=R @ np.asarray(r["footpoint_cam"], np.float64) + t,
+        velocity_world=R @ np.asarray(r["velocity_cam"], np.float64),
+        size=np.asarray(r["size"], np.float64), position_cam=np.asarray(r["position_cam"], np.float64),
+        objectness=nan if r["objectness"] is None else r["objectness"],
+        mask_iou=nan if r["mask_iou"] is None else r["mask_iou"],
+        motion_density=nan if r["motion_density"] is None else r["motion_density"],
+        posterior=None if r["posterior"] is None else np.asarray(r["posterior"], np.float64),
+    )
+
+
+def stitch_sequence(windows: list[Window], tubes: pa.Table, tube_frames: pa.Table, frames: pa.Table,
+                    cfg: JobConfig, run: RunInfo) -> dict[str, pa.Table]:
+    """The catalogue tables of one sequence from its windows' parts."""
+    frames_table, poses = chain_sequence(frames)
+    selected = dict(zip(tubes.column("tube_id").to_pylist(), tubes.column("selected").to_pylist()))
+    pieces = _pieces(tube_frames)
+    piece_window = {p: rows[0]["window"] for p, rows in pieces.items()}
+    keys = {p: {(r["frame"], r["obs_index"]) for r in rows if r["observed"]} for p, rows in pieces.items()}
+    stitched = []
+    for chain in _chains(windows, piece_window, keys, cfg.window.stitch_min_shared):
+        rows = sorted((r for p in chain for r in pieces[p] if r["core"]), key=lambda r: r["frame"])
+        while rows and not rows[-1]["observed"]:
+            rows.pop()
+        while rows and not rows[0]["observed"]:
+            rows.pop(0)
+        if not rows:
+            continue  # owned by no window's core: a neighbour's tube seen from the context
+        owned = defaultdict(int)
+        for r in rows:
+            owned[r["tube_id"]] += 1
+        votes = sum(n if selected[p] else -n for p, n in owned.items())
+        tube = Tube(tube_id=0, segment=poses.segment[rows[0]["frame"]], frames=[_tube_frame(r, poses) for r in rows])
+        mt = MinedTube(tube, score_tube(tube, cfg.score), tube_category(tube, cfg.score.known_threshold), votes > 0)
+        stitched.append((mt, len(owned)))
+    # Stable ids: the first inlier names the tube; ties (one observation can start several) by inliers.
+    stitched.sort(key=lambda x: (x[0].tube.inlier_key(), -x[0].score.total))
+    used: dict[str, int] = defaultdict(int)
+    tube_rows, frame_rows_ = [], []
+    for mt, n_windows in stitched:
+        first = mt.tube.frames[0]
+        base = f"{run.dataset}/{run.sequence}/{first.frame:07d}.{first.obs_index:03d}"
+        tube_id = base if used[base] == 0 else f"{base}-{used[base]}"
+        used[base] += 1
+        tube_rows.append(tube_row(mt, tube_id, run, n_windows))
+        frame_rows_.extend(frame_rows(mt, tube_id))
+    return {"tubes": to_table(tube_rows, "tubes"), "tube_frames": to_table(frame_rows_, "tube_frames"),
+            "frames": frames_table}

@@ -1,0 +1,295 @@
+"""``mine submit``: plan windows, run the steps on an executor, report.
+
+Scheduling: a window is *tracked* once the observe steps of every window its context
+touches have finished, so tracking starts while later windows are still being
+observed; a sequence is *finalized* (stitched, compacted) once all its windows are
+settled. Resubmitting resumes: windows whose manifest row says done (same params) are
+skipped, and a sequence whose catalogue already holds exactly its done windows is not
+rewritten. A finished job resubmitted does nothing.
+
+With ``--address http://HOST:8265`` the same command line is handed to the cluster
+through Ray Jobs and runs there (``--address auto`` on the head node); with any other
+address the scheduler runs here and the steps run on that cluster.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+import time
+import uuid
+from collections import defaultdict
+from dataclasses import dataclass, field
+
+from mining.catalog.store import Store
+from mining.config import JobConfig
+from mining.errors import ConfigError
+from mining.pipeline.steps import CACHE, Job, StepResult, done_path, job_source
+from mining.types import Window, plan_windows
+
+
+@dataclass
+class Summary:
+    windows: int = 0
+    skipped: int = 0
+    ok: int = 0
+    failed: dict[str, str] = field(default_factory=dict)  # window → error
+    frames: int = 0
+    tubes: int = 0
+    candidates: int = 0
+    known: int = 0
+    unknown: int = 0
+    seconds: float = 0.0
+    sequences_written: int = 0
+
+    def lines(self) -> list[str]:
+        out = [f"windows: {self.ok} ok, {len(self.failed)} failed, {self.skipped} already done (of {self.windows})",
+               f"tubes written this run: {self.tubes} selected ({self.known} known, {self.unknown} unknown) "
+               f"of {self.candidates} candidates, in {self.sequences_written} sequence(s)",
+               f"time: {self.seconds:.1f} s, {self.frames / max(self.seconds, 1e-9):.2f} frames/s"]
+        for w, e in sorted(self.failed.items()):
+            out.append(f"FAILED {w}: {e.strip().splitlines()[0] if e.strip() else 'unknown error'}")
+        return out
+
+
+def neighbours(window: Window, windows: list[Window]) -> list[Window]:
+    """The windows whose core frames lie in ``window``'s context (itself included)."""
+    a, b = window.context
+    return [w for w in windows if w.sequence == window.sequence and w.core[0] < b and w.core[1] > a]
+
+
+def plan_job(cfg: JobConfig, sequences: list[str] | None, frames: tuple[int, int | None]) -> tuple[dict, list[Window]]:
+    source = job_source(Job(cfg, "", "", {}))
+    seqs = sequences or cfg.source.sequences or source.sequences()
+    plans, windows = {}, []
+    for seq in seqs:
+        plan = source.plan(seq)
+        plans[seq] = plan
+        w = cfg.window
+        windows += plan_windows(plan, w.core, w.context_before, w.context_after, frames[0], frames[1])
+    return plans, windows
+
+
+def _job_record(store: Store, cfg: JobConfig, windows: list[Window]) -> str:
+    """Write (or check) ``job.json``; returns the job's run id."""
+    if store.exists("job.json"):
+        old = json.loads(store.read_bytes("job.json"))
+        if old["params_hash"] != cfg.params_hash:
+            raise ConfigError(f"{store.uri} holds a catalogue made with params {old['params_hash']}; this job has "
+                              f"{cfg.params_hash}. Use another --out, or the same config to resume.")
+        run_id = old["run_id"]
+        known = {w["window"] for w in old["windows"]}
+    else:
+        run_id, known, old = uuid.uuid4().hex[:12], set(), {"windows": []}
+    planned = old["windows"] + [{"dataset": w.dataset, "sequence": w.sequence, "window": w.name,
+                                 "core": list(w.core), "context": list(w.context)}
+                                for w in windows if w.name not in known]
+    record = {"run_id": run_id, "params_hash": cfg.params_hash, "config": cfg.to_dict(), "windows": planned}
+    store.write_bytes("job.json", json.dumps(record, indent=1, default=str).encode())
+    return run_id
+
+
+def done_windows(store: Store, windows: list[Window], params_hash: str) -> set[str]:
+    """Windows whose manifest row says done with these params and whose parts all exist."""
+    done = set()
+    for w in windows:
+        m = store.manifest_path(w.dataset, w.sequence, w.name)
+        if not store.exists(m):
+            continue
+        row = store.read_table(m).to_pylist()[0]
+        if row["status"] == "done" and row["params_hash"] == params_hash and all(
+                store.exists(store.part_path(t, w.dataset, w.sequence, w.name)) for t in ("tubes", "tube_frames", "frames")):
+            done.add(w.name)
+    return done
+
+
+def finalized(store: Store, dataset: str, sequence: str, done: set[str], params_hash: str) -> bool:
+    if not store.exists(done_path(dataset, sequence)):
+        return False
+    marker = json.loads(store.read_bytes(done_path(dataset, sequence)))
+    return marker["params_hash"] == params_hash and set(marker["windows"]) == done
+
+
+class Progress:
+    def __init__(self, total: int, enabled: bool):
+        self.total, self.enabled, self.t0 = total, enabled, time.perf_counter()
+        self.done = self.failed = self.frames = 0
+
+    def update(self, ok: bool, frames: int) -> None:
+        self.done += 1
+        self.failed += not ok
+        self.frames += frames
+        if self.enabled:
+            dt = time.perf_counter() - self.t0
+            n = 30 * self.done // max(self.total, 1)
+            sys.stderr.write(f"\r[{'#' * n}{'.' * (30 - n)}] windows {self.done}/{self.total}"
+                             f" ({self.failed} failed)  {self.frames / max(dt, 1e-9):.2f} frames/s  {dt:.0f} s ")
+            sys.stderr.flush()
+
+    def close(self) -> None:
+        if self.enabled:
+            sys.stderr.write("\n")
+
+
+def run_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frames: tuple[int, int | None] = (0, None),
+            executor: str = "ray", workers: int | None = None, progress: bool = False) -> Summary:
+    """Mine the job into the catalogue at ``out``; Ray must be initialised for ``executor="ray"``."""
+    t0 = time.perf_counter()
+    store = Store(out)
+    plans, windows = plan_job(cfg, sequences, frames)
+    run_id = _job_record(store, cfg, windows)
+    job = Job(cfg, out, run_id, plans)
+    dataset = cfg.source.dataset
+    by_seq: dict[str, list[Window]] = defaultdict(list)
+    for w in windows:
+        by_seq[w.sequence].append(w)
+
+    done = done_windows(store, windows, job.params_hash)
+    todo = [w for w in windows if w.name not in done]
+    summary = Summary(windows=len(windows), skipped=len(done))
+    to_finalize = {s for s, ws in by_seq.items()
+                   if any(w.name not in done for w in ws) or not finalized(store, dataset, s, done & {w.name for w in ws}, job.params_hash)}
+    if not todo and not to_finalize:
+        summary.seconds = time.perf_counter() - t0
+        return summary
+
+    need_obs = {n.name: n for w in todo for n in neighbours(w, by_seq[w.sequence])}
+    obs_queue = [w for w in windows if w.name in need_obs]
+    track_queue = list(todo)
+    obs_result: dict[str, StepResult] = {}
+    settled: dict[str, set[str]] = defaultdict(set)
+    for name in done:
+        settled[name.rsplit("-", 2)[0]]  # noqa: B018 - sequences with nothing left still finalize
+    ok_windows: dict[str, set[str]] = {s: {w.name for w in ws if w.name in done} for s, ws in by_seq.items()}
+    left = {s: sum(1 for w in ws if w.name not in done) for s, ws in by_seq.items()}
+    fin_queue = [s for s in sorted(to_finalize) if left[s] == 0]
+    kinds: dict = {}
+
+    if executor == "ray":
+        from mining.pipeline.executors import RayExecutor
+
+        import ray
+        n = workers or max(1, int(ray.available_resources().get("CPU", 1)))
+        ex = RayExecutor(job, n, cfg.run.max_retries)
+    else:
+        from mining.pipeline.executors import LocalExecutor
+
+        ex = LocalExecutor(job)
+    bar = Progress(len(todo), progress)
+    try:
+        while obs_queue or track_queue or fin_queue or ex.pending():
+            while ex.free():
+                ready = next((w for w in track_queue
+                              if all(n.name in obs_result for n in neighbours(w, by_seq[w.sequence]))), None)
+                if fin_queue:
+                    s = fin_queue.pop(0)
+                    kinds[ex.submit("finalize", s, by_seq[s], sorted(ok_windows[s]))] = ("finalize", s)
+                elif ready is not None:
+                    track_queue.remove(ready)
+                    nb = neighbours(ready, by_seq[ready.sequence])
+                    kinds[ex.submit("track", ready, nb, [obs_result[n.name] for n in nb])] = ("track", ready)
+                elif obs_queue:
+                    w = obs_queue.pop(0)
+                    kinds[ex.submit("observe", w)] = ("observe", w)
+                else:
+                    break
+            if not ex.pending():
+                continue
+            ref, result, err = ex.wait()
+            kind, what = kinds.pop(ref)
+            if kind == "observe":
+                obs_result[what.name] = result if err is None else StepResult(what.name, False, f"system failure: {err}")
+            elif kind == "track":
+                if err is not None:
+                    result = StepResult(what.name, False, f"system failure after {cfg.run.max_retries} retries: {err}")
+                    from mining.pipeline.steps import write_manifest
+
+                    write_manifest(job, what, "failed", None, result.error)
+                bar.update(result.ok, result.frames)
+                summary.frames += result.frames
+                if result.ok:
+                    summary.ok += 1
+                    ok_windows[what.sequence].add(what.name)
+                else:
+                    summary.failed[what.name] = result.error
+                left[what.sequence] -= 1
+                if left[what.sequence] == 0 and what.sequence in to_finalize:
+                    fin_queue.append(what.sequence)
+            else:
+                if err is not None:
+                    raise RuntimeError(f"finalizing sequence {what} failed: {err}")
+                summary.sequences_written += 1
+                for k in ("tubes", "candidates", "known", "unknown"):
+                    setattr(summary, k, getattr(summary, k) + result.extra[k])
+                if len(ok_windows[what]) == len(by_seq[what]):
+                    for rel in store.list(f"{CACHE}/dataset={dataset}/sequence={what}", ".pkl"):
+                        store.remove(rel)  # the catalogue is complete: the observation cache has served
+    finally:
+        bar.close()
+        ex.shutdown()
+    summary.seconds = time.perf_counter() - t0
+    return summary
+
+
+def _forwarded_argv(argv: list[str]) -> list[str]:
+    """The command line without ``--address`` (and its value), for the cluster to run."""
+    out, skip = [], False
+    for a in argv:
+        if skip:
+            skip = False
+            continue
+        if a == "--address":
+            skip = True
+            continue
+        if a.startswith("--address="):
+            continue
+        out.append(a)
+    return out
+
+
+def submit_ray_job(address: str, argv: list[str]) -> int:
+    """Hand the command line to a cluster through Ray Jobs and follow it to the end."""
+    try:
+        from ray.job_submission import JobStatus, JobSubmissionClient
+    except ImportError as e:
+        raise ConfigError(f"--address {address} needs Ray Jobs: pip install '.[cluster]' ({e})") from None
+    client = JobSubmissionClient(address)
+    entry = "mine " + " ".join(shlex.quote(a) for a in _forwarded_argv(argv) + ["--address", "auto", "--no-progress"])
+    job_id = client.submit_job(entrypoint=entry)
+    print(f"submitted Ray job {job_id}: {entry}", file=sys.stderr)
+    shown = 0
+    while True:
+        status = client.get_job_status(job_id)
+        logs = client.get_job_logs(job_id)
+        sys.stdout.write(logs[shown:])
+        shown = len(logs)
+        if status in (JobStatus.SUCCEEDED, JobStatus.FAILED, JobStatus.STOPPED):
+            return 0 if status == JobStatus.SUCCEEDED else 1
+        time.sleep(2.0)
+
+
+def submit_from_args(args: argparse.Namespace, cfg: JobConfig) -> int:
+    import os
+
+    address = args.address
+    if address and address.startswith("http"):
+        return submit_ray_job(address, sys.argv[2:] if sys.argv[1:2] == ["submit"] else sys.argv[1:])
+    import ray
+
+    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    if address or os.environ.get("RAY_ADDRESS"):
+        # Join a running cluster (e.g. the entrypoint of a Ray job): it decides the CPUs.
+        ray.init(address=address or os.environ["RAY_ADDRESS"], log_to_driver=False)
+        address = address or os.environ["RAY_ADDRESS"]
+    else:
+        ray.init(num_cpus=args.workers, include_dashboard=False, log_to_driver=False)
+    try:
+        summary = run_job(cfg, args.out, args.sequences, args.frames, "ray",
+                          workers=args.workers if not address else None, progress=not args.no_progress)
+    finally:
+        ray.shutdown()
+    for line in summary.lines():
+        print(line)
+    return 1 if summary.failed else 0

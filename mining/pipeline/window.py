@@ -1,0 +1,103 @@
+"""One window's work, as pure functions of the source, the window and the job config.
+
+A window runs in two steps so that its context frames are computed once, by the
+window that owns them as core frames:
+
+1. **observe** (geometry → proposals → localise) over the window's *core* frames. The
+   geometry stage carries state across two frames (the previous frame's features and
+   the last motion, which predicts the next matches), so the step first replays the
+   ``WARMUP_FRAMES`` frames before the core; a frame's observations are then the same
+   whatever window computes them.
+2. **track** (tubes → score → select) over the *context*, from the observations of its
+   own core and its neighbours' cores. Poses are chained from the frames' egomotions,
+   starting at the context's first frame; a failed egomotion, a missing neighbour or a
+   recording gap starts a new pose segment, and tubes never cross one.
+
+Neither step knows about Ray: the executors in ``mining/pipeline/submit.py`` call them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mining.config import JobConfig
+from mining.pipeline.frames import tracking_frames
+from mining.pipeline.mine import MinedTube, mine_tubes
+from mining.proposals.make import Proposer
+from mining.sources.base import Source
+from mining.types import Observations, SequencePlan, StereoCalib, TrackingFrame, Window
+
+WARMUP_FRAMES = 2  # ours: GeometryStage state spans two frames (features of t−1, motion of t−1 predicting t)
+
+
+@dataclass
+class ObservedFrame:
+    """What the observe step keeps of a frame: enough to track and to fill the frames table."""
+
+    position: int  # position in the sequence plan
+    index: int  # the source's frame index
+    t_ns: int
+    calib: StereoCalib
+    T_cur_prev: np.ndarray | None  # (4, 4) egomotion from the previous frame; None when failed or absent
+    egomotion_ok: bool | None  # None: no previous frame (sequence start, after a recording gap)
+    egomotion_inliers: int
+    egomotion_rmse_px: float
+    ground_ok: bool
+    ground_age: int | None  # frames since the plane used was measured; None: no plane
+    n_proposals: int
+    observations: Observations
+
+
+def observe_window(source: Source, plan: SequencePlan, window: Window, cfg: JobConfig,
+                   proposer: Proposer | None = None) -> list[ObservedFrame]:
+    """Geometry, proposals and localisation for the window's core frames."""
+    s, e = window.core
+    start = max(0, s - WARMUP_FRAMES)
+    out = []
+    position = start
+    for rec in tracking_frames(source, plan, start, e, cfg, proposer):
+        if position >= s:
+            ego = rec.geometry.egomotion
+            obs = rec.tracking.observations
+            out.append(ObservedFrame(
+                position=position, index=rec.frame.index, t_ns=rec.frame.t_ns, calib=rec.frame.calib,
+                T_cur_prev=None if ego is None or not ego.ok else ego.T_cur_prev,
+                egomotion_ok=None if ego is None else bool(ego.ok),
+                egomotion_inliers=0 if ego is None else int(ego.inliers),
+                egomotion_rmse_px=float("nan") if ego is None else float(ego.rmse_px),
+                ground_ok=bool(rec.geometry.ground.ok),
+                ground_age=rec.ground_age if rec.ground.ok else None,
+                n_proposals=len(rec.proposals),
+                observations=obs,
+            ))
+        position += 1
+    return out
+
+
+def chain_poses(frames: list[ObservedFrame]) -> list[tuple[np.ndarray, int]]:
+    """Camera-to-world pose and segment of each frame, chained from the first frame.
+
+    A frame without a trusted egomotion, or not the plan successor of the frame before
+    it (a missing window), starts a new segment with its own world frame.
+    """
+    out = []
+    pose, segment = np.eye(4), 0
+    for i, f in enumerate(frames):
+        if i > 0:
+            linked = f.T_cur_prev is not None and f.position == frames[i - 1].position + 1
+            if linked:
+                pose = pose @ np.linalg.inv(f.T_cur_prev)
+            else:
+                pose, segment = np.eye(4), segment + 1
+        out.append((pose.copy(), segment))
+    return out
+
+
+def track_window(frames: list[ObservedFrame], cfg: JobConfig) -> list[MinedTube]:
+    """Tubes, scores and co-selection over a window's context frames (in plan order)."""
+    poses = chain_poses(frames)
+    tracking = (TrackingFrame(f.index, f.t_ns, f.calib, pose, segment, f.observations, None)
+                for f, (pose, segment) in zip(frames, poses))
+    return mine_tubes(tracking, cfg)
