@@ -168,8 +168,9 @@ def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def paired_box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """IoU of the boxes ``a[..., :4]`` and ``b[..., :4]`` element by element (broadcast):
     the pairs of a gate's mask without the full matrix."""
-    iw = np.clip(np.minimum(a[..., 2], b[..., 2]) - np.maximum(a[..., 0], b[..., 0]), 0, None)
-    ih = np.clip(np.minimum(a[..., 3], b[..., 3]) - np.maximum(a[..., 1], b[..., 1]), 0, None)
+    # np.maximum(x, 0) is np.clip(x, 0, None) without clip's Python-level dispatch.
+    iw = np.maximum(np.minimum(a[..., 2], b[..., 2]) - np.maximum(a[..., 0], b[..., 0]), 0)
+    ih = np.maximum(np.minimum(a[..., 3], b[..., 3]) - np.maximum(a[..., 1], b[..., 1]), 0)
     inter = iw * ih
     area_a = (a[..., 2] - a[..., 0]) * (a[..., 3] - a[..., 1])
     area_b = (b[..., 2] - b[..., 0]) * (b[..., 3] - b[..., 1])

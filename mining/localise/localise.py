@@ -133,16 +133,26 @@ def _velocities(seg: np.ndarray, rows: np.ndarray, cols: np.ndarray, n: int, flo
         return velocity
     flow_at, rows_of = keys
     # Flow samples at each mask pixel: a pixel may hold several, in ``flow_at`` order.
-    per_pixel = np.bincount(flow_at, minlength=width * height)
+    has_flow = np.zeros(width * height, bool)
+    has_flow[flow_at] = True
     pix = cols * height + rows
-    hit = np.flatnonzero(per_pixel[pix])
-    k = per_pixel[pix[hit]]
+    hit = np.flatnonzero(has_flow[pix])
     start = np.searchsorted(flow_at, pix[hit])
+    k = np.searchsorted(flow_at, pix[hit], side="right") - start
     at = np.repeat(start - np.concatenate([[0], np.cumsum(k)[:-1]]), k) + np.arange(k.sum())
-    samples, owner = rows_of[at], np.repeat(seg[hit], k)
+    samples, owner = rows_of[at], np.repeat(seg[hit], k)  # owner ascends: masks come in order
     n_samples = np.bincount(owner, minlength=n)
-    for i in np.flatnonzero(n_samples >= cfg.min_flow_samples):
-        velocity[i] = np.median(flow.motion[samples[owner == i]], axis=0) / dt_s
+    enough = np.flatnonzero(n_samples >= cfg.min_flow_samples)
+    if enough.size == 0:
+        return velocity
+    keep = (n_samples >= cfg.min_flow_samples)[owner]
+    motion, owner = flow.motion[samples[keep]], owner[keep]
+    # Median per mask and axis: sort each mask's values, average the middle one or two
+    # (as np.median does, in the motion's dtype).
+    first, m = np.searchsorted(owner, enough), n_samples[enough]
+    for c in range(3):
+        v = motion[np.lexsort((motion[:, c], owner)), c]
+        velocity[enough, c] = (v[first + (m - 1) // 2] + v[first + m // 2]) / 2 / dt_s
     return velocity
 
 

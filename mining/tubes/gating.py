@@ -42,7 +42,7 @@ def box_gates(pred: np.ndarray, obs: np.ndarray, min_iou: float, min_similarity:
     ow, oh = obs[:, 2] - obs[:, 0], obs[:, 3] - obs[:, 1]
     iw = np.minimum(pred[:, None, 2], obs[None, :, 2]) - np.maximum(pred[:, None, 0], obs[None, :, 0])
     ih = np.minimum(pred[:, None, 3], obs[None, :, 3]) - np.maximum(pred[:, None, 1], obs[None, :, 1])
-    inter = np.clip(iw, 0, None) * np.clip(ih, 0, None)
+    inter = np.maximum(iw, 0) * np.maximum(ih, 0)
     union = (pw * ph)[:, None] + (ow * oh)[None, :] - inter
     with np.errstate(divide="ignore", invalid="ignore"):
         ok = inter > min_iou * union
@@ -71,6 +71,7 @@ def best_pairs(rows: np.ndarray, cols: np.ndarray, iou: np.ndarray, mean: np.nda
     order = np.lexsort((-score, rows))  # stable: equal scores keep the column order
     first = order[np.r_[True, rows[order][1:] != rows[order][:-1]]] if order.size else order
     first = first[score[first] > cfg.min_association]
-    # np.argmax would pick a NaN score, which then fails the threshold: such rows take nothing.
-    first = first[~np.isin(rows[first], rows[np.isnan(score)])]
+    nan = np.isnan(score)
+    if nan.any():  # np.argmax would pick a NaN score, which then fails the threshold: such rows take nothing
+        first = first[~np.isin(rows[first], rows[nan])]
     return rows[first], cols[first], iou[first], dens[first]
