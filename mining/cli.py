@@ -342,6 +342,7 @@ def main(argv: list[str] | None = None) -> int:
     if argv[:2] == ["eval", "synthetic"]:  # its own option parser takes everything after
         argv = ["eval", "synthetic", "--", *argv[2:]]
     args = build_parser().parse_args(argv)
+    args.argv = argv
     try:
         return args.func(args)
     except (MiningError, ConfigError) as e:

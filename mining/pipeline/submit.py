@@ -87,7 +87,8 @@ def _job_record(store: Store, cfg: JobConfig, windows: list[Window]) -> str:
                                  "core": list(w.core), "context": list(w.context)}
                                 for w in windows if w.name not in known]
     record = {"run_id": run_id, "params_hash": cfg.params_hash, "config": cfg.to_dict(), "windows": planned}
-    store.write_bytes("job.json", json.dumps(record, indent=1, default=str).encode())
+    if planned != old["windows"]:  # a resubmission of the same job changes nothing
+        store.write_bytes("job.json", json.dumps(record, indent=1, default=str).encode())
     return run_id
 
 
@@ -134,8 +135,14 @@ class Progress:
 
 
 def run_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frames: tuple[int, int | None] = (0, None),
-            executor: str = "ray", workers: int | None = None, progress: bool = False) -> Summary:
-    """Mine the job into the catalogue at ``out``; Ray must be initialised for ``executor="ray"``."""
+            executor: str = "ray", workers: int | None = None, progress: bool = False,
+            keep_cache: bool = False, connect=None) -> Summary:
+    """Mine the job into the catalogue at ``out``.
+
+    ``executor="ray"`` runs the steps on Ray: ``connect()`` is called first when there is
+    work (it initialises Ray), unless Ray is initialised already. ``keep_cache`` keeps the
+    observation cache of complete sequences (benchmarks, the sharding test).
+    """
     t0 = time.perf_counter()
     store = Store(out)
     plans, windows = plan_job(cfg, sequences, frames)
@@ -171,6 +178,8 @@ def run_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frames
         from mining.pipeline.executors import RayExecutor
 
         import ray
+        if not ray.is_initialized():
+            (connect or ray.init)()
         n = workers or max(1, int(ray.available_resources().get("CPU", 1)))
         ex = RayExecutor(job, n, cfg.run.max_retries)
     else:
@@ -223,7 +232,7 @@ def run_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frames
                 summary.sequences_written += 1
                 for k in ("tubes", "candidates", "known", "unknown"):
                     setattr(summary, k, getattr(summary, k) + result.extra[k])
-                if len(ok_windows[what]) == len(by_seq[what]):
+                if len(ok_windows[what]) == len(by_seq[what]) and not keep_cache:
                     for rel in store.list(f"{CACHE}/dataset={dataset}/sequence={what}", ".pkl"):
                         store.remove(rel)  # the catalogue is complete: the observation cache has served
     finally:
@@ -275,21 +284,25 @@ def submit_from_args(args: argparse.Namespace, cfg: JobConfig) -> int:
 
     address = args.address
     if address and address.startswith("http"):
-        return submit_ray_job(address, sys.argv[2:] if sys.argv[1:2] == ["submit"] else sys.argv[1:])
+        return submit_ray_job(address, args.argv[1:])
     import ray
 
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    if address or os.environ.get("RAY_ADDRESS"):
-        # Join a running cluster (e.g. the entrypoint of a Ray job): it decides the CPUs.
-        ray.init(address=address or os.environ["RAY_ADDRESS"], log_to_driver=False)
-        address = address or os.environ["RAY_ADDRESS"]
-    else:
-        ray.init(num_cpus=args.workers, include_dashboard=False, log_to_driver=False)
+    address = address or os.environ.get("RAY_ADDRESS")
+
+    def connect() -> None:
+        if address:  # join a running cluster (e.g. as a Ray job's entrypoint): it decides the CPUs
+            ray.init(address=address, log_to_driver=False)
+        else:
+            ray.init(num_cpus=args.workers, include_dashboard=False, log_to_driver=False)
+
     try:
         summary = run_job(cfg, args.out, args.sequences, args.frames, "ray",
-                          workers=args.workers if not address else None, progress=not args.no_progress)
+                          workers=args.workers if not address else None, progress=not args.no_progress,
+                          connect=connect)
     finally:
-        ray.shutdown()
+        if ray.is_initialized():
+            ray.shutdown()
     for line in summary.lines():
         print(line)
     return 1 if summary.failed else 0
