@@ -41,13 +41,13 @@ CROP_MARGIN_MIN_PX = 8  # ours: at least this much context for small boxes
 
 
 def read_job(store: Store) -> dict:
-    """OUT/job.json (the resolved job config), or {} when the catalogue has none."""
+    """The resolved job config recorded in OUT/job.json, or {} when the catalogue has none."""
     if not store.exists("job.json"):
         return {}
     try:
-        return json.loads(store.read_bytes("job.json"))
-    except ValueError as e:
-        raise InputError(f"job.json is not valid JSON: {e}", store.full("job.json")) from None
+        return json.loads(store.read_bytes("job.json"))["config"]
+    except (ValueError, KeyError) as e:
+        raise InputError(f"job.json is not a job record ({e})", store.full("job.json")) from None
 
 
 def selected_rows(con: duckdb.DuckDBPyConnection, where: str) -> tuple[pa.Table, pa.Table]:
