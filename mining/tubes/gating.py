@@ -62,14 +62,13 @@ def best_pairs(rows: np.ndarray, cols: np.ndarray, iou: np.ndarray, mean: np.nda
     that take an observation, their observation, mask IoU and density. Ties go to the
     lower observation index, as ``np.argmax`` would.
     """
-    ok = iou > cfg.gate_mask_iou
-    rows, cols, iou, mean, pos_cov, foot, cov = (a[ok] for a in (rows, cols, iou, mean, pos_cov, foot, cov))
-    ok = mahalanobis2(foot, mean, pos_cov + cov) < cfg.gate_mahalanobis**2
+    ok = (iou > cfg.gate_mask_iou) & (mahalanobis2(foot, mean, pos_cov + cov) < cfg.gate_mahalanobis**2)
     rows, cols, iou, mean, foot, cov = (a[ok] for a in (rows, cols, iou, mean, foot, cov))
     dens = gaussian_density(foot, mean, cov + cfg.density_extra_var * np.eye(3))
     score = iou * dens
     order = np.lexsort((-score, rows))  # stable: equal scores keep the column order
-    first = order[np.r_[True, rows[order][1:] != rows[order][:-1]]] if order.size else order
+    ro = rows[order]
+    first = order[np.concatenate(([True], ro[1:] != ro[:-1]))] if order.size else order
     first = first[score[first] > cfg.min_association]
     nan = np.isnan(score)
     if nan.any():  # np.argmax would pick a NaN score, which then fails the threshold: such rows take nothing

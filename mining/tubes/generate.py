@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mining.masks import areas, box_iou, mask_iou, paired_box_iou
+from mining.masks import areas, mask_iou, paired_box_iou
 from mining.score.config import ScoreConfig
 from mining.score.unary import score_tube
 from mining.tubes.config import TubeConfig
@@ -318,17 +318,20 @@ class TubeGenerator:
         key = set(f.frame for f in tube.frames if f.observed)
         mine = tube.frame_map()
         last = tube.frames[-1]
-        for other in others:
-            # Same inliers means the same last frame and observation: a cheap first test.
-            end = other.frames[-1]
-            if end.frame != last.frame or not end.observed:
-                continue
+        # Same inlier frames means an observed end in the same frame, whose boxes must then
+        # overlap enough too: cheap first tests, the second on all tubes at once.
+        ends = [o for o in others if o.frames[-1].frame == last.frame and o.frames[-1].observed]
+        if not ends:
+            return False
+        close = paired_box_iou(np.array([o.frames[-1].box for o in ends], np.float64), last.box)
+        for other in (o for o, ok in zip(ends, close >= self.cfg.duplicate_box_iou) if ok):
             frames = other.frame_map()
             theirs = set(f for f, tf in frames.items() if tf.observed and f >= tube.first_frame)
             if theirs != key:
                 continue
             common = sorted(key)
-            ious = np.diag(box_iou(np.array([mine[f].box for f in common]), np.array([frames[f].box for f in common])))
+            ious = paired_box_iou(np.array([mine[f].box for f in common], np.float64),
+                                  np.array([frames[f].box for f in common], np.float64))
             if (ious >= self.cfg.duplicate_box_iou).all():
                 return True
         return False
@@ -372,10 +375,11 @@ class TubeGenerator:
                 ma, mb = maps[a.tube_id], maps[b.tube_id]
                 boxes_a = np.array([ma[f].box for f in common])
                 boxes_b = np.array([mb[f].box for f in common])
-                if not (np.diag(box_iou(boxes_a, boxes_b)) > 0).any():
+                if not (paired_box_iou(boxes_a, boxes_b) > 0).any():
                     continue
-                ious = [mask_iou([ma[f].rle], [mb[f].rle])[0, 0] for f in common]
-                if sum(ious) / max(la, lb) > self.cfg.nms_overlap:
+                # One pycocotools call; the diagonal pairs the same frames.
+                ious = np.diag(mask_iou([ma[f].rle for f in common], [mb[f].rle for f in common]))
+                if sum(ious.tolist()) / max(la, lb) > self.cfg.nms_overlap:
                     suppressed.add(b.tube_id)
         if suppressed:
             for t in self.live:

@@ -79,7 +79,7 @@ def predict_boxes(mps: list[MaskPoints], shifts_world: np.ndarray, pose: np.ndar
     if seg.size == 0:
         return out
     uv = calib.project(cam)
-    starts = np.flatnonzero(np.r_[True, seg[1:] != seg[:-1]])
+    starts = np.flatnonzero(np.concatenate(([True], seg[1:] != seg[:-1])))
     owner = seg[starts]
     pad = np.array([0 if m.boxlike else m.grid / 2 for m in mps])[owner]
     box = np.stack([np.maximum(np.minimum.reduceat(uv[:, 0], starts) - pad, 0),
@@ -121,8 +121,8 @@ def predict_mask(mp: MaskPoints, shift_world: np.ndarray, pose: np.ndarray, cali
     if mp.grid > 1:  # each sample stands for a grid × grid patch
         crop = cv2.dilate(crop, np.ones((mp.grid, mp.grid), np.uint8))
     crop = cv2.morphologyEx(crop, cv2.MORPH_CLOSE, np.ones((close_px, close_px), np.uint8))
-    ys, xs = np.nonzero(crop)
+    xs, ys = np.flatnonzero(crop.any(axis=0)), np.flatnonzero(crop.any(axis=1))
     if ys.size == 0:
         return None
-    box = np.array([x0 + xs.min(), y0 + ys.min(), x0 + xs.max() + 1, y0 + ys.max() + 1], np.float64)
+    box = np.array([x0 + xs[0], y0 + ys[0], x0 + xs[-1] + 1, y0 + ys[-1] + 1], np.float64)
     return crop_rle(crop.astype(bool), x0, y0, H, W), box
