@@ -1,10 +1,15 @@
 #!/usr/bin/env bash
-# Set up and run the main job on the embedded default: the synthetic dataset, on this
-# machine. Results go to ./out/ (override with OUT=...).
+# Set up and run the main job on the embedded default: mine the synthetic dataset
+# (jobs/synthetic.toml: sequence 0000, 500 frames) on a local Ray into ./out/catalog,
+# then query the catalogue. Override the folder with OUT=...; extra arguments go to
+# `mine submit` (e.g. --workers 2). Running it again resumes (a finished job does nothing).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh onnx
 
 export RAY_USAGE_STATS_ENABLED=0
-out="${OUT:-out}"
-exec .venv/bin/mine inspect geometry --dataset synthetic --sequence 0000 --frames 0:20 --out "$out/geometry" "$@"
+out="${OUT:-out}/catalog"
+.venv/bin/mine submit --config jobs/synthetic.toml --out "$out" "$@"
+.venv/bin/mine query --out "$out" \
+  "SELECT category, known, count(*) AS tubes, round(avg(n_frames), 1) AS mean_frames, round(max(score), 1) AS best_score
+   FROM selected_tubes GROUP BY ALL ORDER BY tubes DESC"
