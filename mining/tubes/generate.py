@@ -219,7 +219,7 @@ class TubeGenerator:
         if self.cfg.probe_with_boxes:
             starts = probe_back(world, cands, past, self.cfg)
         else:
-            starts = [self._probe_with_masks(world, int(j), past) for j in cands]
+            starts = [self._probe_one(world, int(j), past, box_only=False) for j in cands]
         new: list[Tube] = []
         # Candidates whose probes end at the same inlier replay to the same tube: replay once.
         replayed: dict[tuple[int, int], Tube | None] = {}
@@ -239,10 +239,11 @@ class TubeGenerator:
             new.append(tube)
         self.live.extend(new)
 
-    def _probe_with_masks(self, world: WorldObservations, j: int,
-                          past: list[WorldObservations]) -> tuple[WorldObservations, int] | None:
-        """The backward probe of one candidate with full mask prediction (``probe_with_boxes``
-        off); ``probe_back`` does the box-only probe of all candidates at once."""
+    def _probe_one(self, world: WorldObservations, j: int, past: list[WorldObservations],
+                   box_only: bool) -> tuple[WorldObservations, int] | None:
+        """The backward probe of one candidate: its earliest inlier, or None. Used with full
+        mask prediction (``probe_with_boxes`` off); ``probe_back`` does the box-only probe
+        of all candidates at once, and must agree with this one."""
         probe = self._new_tube(world, j)
         if probe is None:
             return None
@@ -251,7 +252,7 @@ class TubeGenerator:
         for k, w in enumerate(past):
             probe.kf.predict((w.frame.t_ns - t_cur) / 1e9)
             t_cur = w.frame.t_ns
-            pred = self._predict(probe, w.frame)
+            pred = self._predict(probe, w.frame, box_only=box_only)
             choice, terms = ([-1], None) if pred is None else self._associate([probe], [pred], w)
             if choice[0] < 0:
                 if k < self.cfg.backward_required:
