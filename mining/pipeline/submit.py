@@ -293,8 +293,8 @@ def submit_from_args(args: argparse.Namespace, cfg: JobConfig) -> int:
     def connect() -> None:
         if address:  # join a running cluster (e.g. as a Ray job's entrypoint): it decides the CPUs
             ray.init(address=address, log_to_driver=False)
-        else:
-            ray.init(num_cpus=args.workers, include_dashboard=False, log_to_driver=False)
+        else:  # "local": a Ray of our own, never one that happens to run on this machine
+            ray.init(address="local", num_cpus=args.workers, include_dashboard=False, log_to_driver=False)
 
     try:
         summary = run_job(cfg, args.out, args.sequences, args.frames, "ray",

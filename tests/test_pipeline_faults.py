@@ -1,0 +1,327 @@
+"""Resume and faults of ``mine submit`` on a real local Ray (issue 4, item 4).
+
+Every job here runs the real command line in its own session (``start_new_session``),
+so the test can kill its driver, its Ray processes or one worker, and can always clean
+up every process that session started, and only those (other Ray jobs may share the
+machine). Jobs are small (30 frames, three 10-frame windows) to keep the file fast.
+
+* a finished job resubmitted does no work and changes no file;
+* a driver killed mid-job: the resubmission runs only the windows not done, and the
+  catalogue equals a clean run's; ``mine status`` lists the pending windows meanwhile;
+* a worker process killed mid-job: Ray restarts it, the job completes, no tube missing
+  or duplicated;
+* a truncated PNG in real KITTI frames fails only its window, named with the file and
+  frame; repaired and resubmitted, only that window runs.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from mining.catalog.views import connect
+from conftest import REPO
+
+pytest.importorskip("ray")
+
+N_FRAMES = 30
+WINDOWS = ["0000-0000000-0000010", "0000-0000010-0000020", "0000-0000020-0000030"]
+SMALL_WINDOWS = ["--set", "window.core=10", "--set", "window.context_before=5", "--set", "window.context_after=5"]
+SYNTHETIC = ["--dataset", "synthetic", "--sequences", "0000", "--option", f"n_frames={N_FRAMES}",
+             "--option", "width=621", "--option", "height=188", *SMALL_WINDOWS]
+JOB_TIMEOUT_S = 240  # a hung job fails the test instead of the whole run
+SUMMARY = re.compile(r"windows: (\d+) ok, (\d+) failed, (\d+) already done \(of (\d+)\)")
+
+
+# -- processes ------------------------------------------------------------------------
+
+def _session_pids(sid: int) -> dict[int, str]:
+    """Processes of session ``sid`` (the driver and every Ray process it started): pid → command line."""
+    ps = subprocess.run(["ps", "-eo", "pid=,sid=,stat=,args="], capture_output=True, text=True, check=True).stdout
+    out = {}
+    for line in ps.splitlines():
+        pid, s, stat, args = (line.split(None, 3) + [""])[:4]
+        if int(s) == sid and int(pid) != os.getpid() and not stat.startswith("Z"):  # a zombie runs nothing
+            out[int(pid)] = args
+    return out
+
+
+def _kill_session(sid: int) -> None:
+    """SIGKILL every process of the session (Ray's workers have process groups of their own) until none is left."""
+    deadline = time.monotonic() + 20
+    while pids := _session_pids(sid):
+        for pid in pids:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+        assert time.monotonic() < deadline, f"processes of session {sid} survive SIGKILL: {pids}"
+        time.sleep(0.2)
+
+
+def _mine_cmd(*args: str) -> list[str]:
+    return [sys.executable, "-m", "mining.cli", *args]
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0", PYTHONPATH=str(REPO))
+    env.pop("RAY_ADDRESS", None)  # always a fresh local Ray of the job's own
+    return env
+
+
+class Mine:
+    """``mine submit`` running in a session of its own; ``finish()`` or ``kill()`` ends it."""
+
+    def __init__(self, out: Path, *args: str, logs: Path):
+        self.stdout, self.stderr = open(logs / "stdout.txt", "w+"), open(logs / "stderr.txt", "w+")
+        self.proc = subprocess.Popen(_mine_cmd("submit", *args, "--out", str(out), "--workers", "2", "--no-progress"),
+                                     cwd=REPO, env=_env(), stdout=self.stdout, stderr=self.stderr,
+                                     start_new_session=True)
+
+    def finish(self) -> tuple[int, str, str]:
+        try:
+            rc = self.proc.wait(JOB_TIMEOUT_S)
+        finally:
+            self.kill()
+        self.stdout.seek(0)
+        self.stderr.seek(0)
+        return rc, self.stdout.read(), self.stderr.read()
+
+    def kill(self) -> None:
+        _kill_session(self.proc.pid)  # the session id is the driver's pid
+        self.proc.wait(10)
+
+    def running(self) -> dict[int, str]:
+        return _session_pids(self.proc.pid)
+
+
+def submit(out: Path, *args: str, logs: Path) -> tuple[int, str, str]:
+    logs.mkdir(parents=True, exist_ok=True)
+    return Mine(out, *args, logs=logs).finish()
+
+
+def summary(stdout: str) -> dict[str, int]:
+    m = SUMMARY.search(stdout)
+    assert m, f"no summary line in: {stdout}"
+    return dict(zip(("ok", "failed", "skipped", "windows"), map(int, m.groups())))
+
+
+def status(out: Path) -> tuple[int, str]:
+    p = subprocess.run(_mine_cmd("status", "--out", str(out)), cwd=REPO, env=_env(), capture_output=True, text=True,
+                       timeout=60)
+    return p.returncode, p.stdout + p.stderr
+
+
+def manifests(out: Path) -> dict[str, Path]:
+    """Finished manifest rows: window → file (temporary names start with '.')."""
+    return {p.stem: p for p in out.glob("manifest/*/*/*.parquet") if not p.name.startswith(".")}
+
+
+def wait_for_first_manifest(job: Mine, out: Path, marker: Path) -> set[str]:
+    deadline = time.monotonic() + JOB_TIMEOUT_S
+    while not manifests(out):
+        assert job.proc.poll() is None, "the job ended before any window was done"
+        assert time.monotonic() < deadline, "no window done in time"
+        time.sleep(0.05)
+    assert not marker.exists(), "the job finished before the test could interrupt it"
+    return set(manifests(out))
+
+
+def snapshot(out: Path) -> dict[str, tuple[str, int, int]]:
+    """Every file under ``out``: relative path → (content hash, size, mtime in ns)."""
+    import hashlib
+
+    return {str(p.relative_to(out)): (hashlib.sha256(p.read_bytes()).hexdigest(), p.stat().st_size,
+                                      p.stat().st_mtime_ns)
+            for p in sorted(out.rglob("*")) if p.is_file()}
+
+
+def catalogue(out: Path) -> dict:
+    con = connect(out)
+    try:
+        q = lambda sql: con.sql(sql).fetchall()  # noqa: E731
+        return {"tubes": sorted(r[0] for r in q("SELECT tube_id FROM tubes")),
+                "selected": sorted(r[0] for r in q("SELECT tube_id FROM tubes WHERE selected")),
+                "tube_frames": q("SELECT count(*) FROM tube_frames")[0][0],
+                "duplicates": q("SELECT count(*) FROM (SELECT tube_id, frame FROM tube_frames "
+                                "GROUP BY ALL HAVING count(*) > 1)")[0][0],
+                "frames": [r[0] for r in q("SELECT frame FROM frames ORDER BY frame")],
+                "windows": dict(q('SELECT "window", status FROM windows')),
+                "tube_frame_frames": {r[0] for r in q("SELECT DISTINCT frame FROM tube_frames")}}
+    finally:
+        con.close()
+
+
+def assert_same_catalogue(got: dict, want: dict) -> None:
+    assert got["duplicates"] == 0, "a (tube_id, frame) appears twice in tube_frames"
+    assert got["tubes"] == want["tubes"], "tube ids differ from the clean run"
+    assert got["selected"] == want["selected"], "selected tubes differ from the clean run"
+    assert got["tube_frames"] == want["tube_frames"]
+    assert got["frames"] == want["frames"] == list(range(N_FRAMES))
+    assert got["windows"] == want["windows"] == {w: "done" for w in WINDOWS}
+
+
+# -- shared runs ----------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory) -> tuple[Path, dict]:
+    """The synthetic job run once, uninterrupted."""
+    base = tmp_path_factory.mktemp("clean")
+    rc, out, err = submit(base / "out", *SYNTHETIC, logs=base)
+    assert rc == 0, out + err
+    assert summary(out) == {"ok": 3, "failed": 0, "skipped": 0, "windows": 3}
+    cat = catalogue(base / "out")
+    assert cat["tubes"] and cat["selected"], "the clean run found no tubes: the comparisons would be empty"
+    return base / "out", cat
+
+
+@pytest.fixture(scope="module")
+def interrupted(tmp_path_factory) -> tuple[Path, set[str]]:
+    """The synthetic job with its driver and all its Ray processes SIGKILLed once a window is done."""
+    base = tmp_path_factory.mktemp("interrupted")
+    out = base / "out"
+    job = Mine(out, *SYNTHETIC, logs=base)
+    try:
+        done_before = wait_for_first_manifest(job, out, out / "catalog/_sequences/dataset=synthetic/sequence=0000.json")
+        os.killpg(job.proc.pid, signal.SIGKILL)  # the driver's group: driver, GCS, raylet
+    finally:
+        job.kill()  # and the workers, which Ray puts in process groups of their own
+    assert not job.running(), "Ray processes of the killed job are left running"
+    assert not (out / "catalog/_sequences").exists(), "the killed job had finished"
+    assert set(manifests(out)) >= done_before
+    return out, set(manifests(out))
+
+
+# -- the tests ------------------------------------------------------------------------
+
+def test_resubmitting_a_finished_job_does_nothing(clean, tmp_path):
+    out = tmp_path / "out"
+    shutil.copytree(clean[0], out)
+    before = snapshot(out)
+    time.sleep(0.01)  # a rewrite would get a later mtime
+    rc, stdout, err = submit(out, *SYNTHETIC, logs=tmp_path)
+    assert rc == 0, stdout + err
+    assert summary(stdout) == {"ok": 0, "failed": 0, "skipped": 3, "windows": 3}
+    assert "0 selected" in stdout and "in 0 sequence(s)" in stdout  # nothing written this run
+    after = snapshot(out)
+    assert after == before, f"changed: {sorted(k for k in after.keys() | before.keys() if after.get(k) != before.get(k))}"
+
+
+def test_status_lists_pending_windows_of_an_interrupted_job(interrupted, tmp_path):
+    out = tmp_path / "out"
+    shutil.copytree(interrupted[0], out)
+    rc, text = status(out)
+    assert rc == 0, text  # nothing failed
+    done = interrupted[1]
+    pending = [w for w in WINDOWS if w not in done]
+    assert pending, "every window was done before the kill"
+    assert f"3 windows: {len(done)} done, 0 failed, {len(pending)} pending" in text, text
+    listed = re.findall(r"^pending\s+synthetic/(\S+)", text, re.M)
+    assert listed == pending, text
+
+
+def test_interrupted_job_resumes_only_what_is_left(clean, interrupted, tmp_path):
+    out = tmp_path / "out"
+    shutil.copytree(interrupted[0], out)
+    done_before = interrupted[1]
+    rows_before = {w: p.read_bytes() for w, p in manifests(out).items()}
+    mtimes_before = {w: p.stat().st_mtime_ns for w, p in manifests(out).items()}
+    rc, stdout, err = submit(out, *SYNTHETIC, logs=tmp_path)
+    assert rc == 0, stdout + err
+    s = summary(stdout)
+    assert s["skipped"] >= len(done_before) and s["ok"] == 3 - s["skipped"] and s["failed"] == 0, stdout
+    for w in done_before:  # windows done before the kill were not run again
+        p = manifests(out)[w]
+        assert p.read_bytes() == rows_before[w] and p.stat().st_mtime_ns == mtimes_before[w], w
+    assert_same_catalogue(catalogue(out), clean[1])
+    assert status(out)[1].splitlines()[0].endswith("3 windows: 3 done, 0 failed, 0 pending")
+
+
+def test_killed_worker_is_retried_and_the_catalogue_is_complete(clean, tmp_path):
+    out = tmp_path / "out"
+    job = Mine(out, *SYNTHETIC, logs=tmp_path)
+    try:
+        wait_for_first_manifest(job, out, out / "catalog/_sequences/dataset=synthetic/sequence=0000.json")
+        workers = {pid: a for pid, a in job.running().items() if a.startswith("ray::Worker")}
+        busy = [pid for pid, a in workers.items() if a.startswith("ray::Worker.run")]
+        assert busy, f"no worker actor busy after the first window: {workers}"
+        os.kill(busy[0], signal.SIGKILL)
+        rc, stdout, err = job.finish()
+    finally:
+        job.kill()
+    assert rc == 0, stdout + err
+    assert summary(stdout) == {"ok": 3, "failed": 0, "skipped": 0, "windows": 3}, stdout
+    assert_same_catalogue(catalogue(out), clean[1])
+
+
+# -- bad input: real KITTI frames with one truncated PNG -----------------------------
+
+KITTI_FRAMES = 30
+BAD_FRAME = 15
+KITTI_WINDOWS = ["0005-0000000-0000010", "0005-0000010-0000020", "0005-0000020-0000030"]
+BAD_WINDOW = KITTI_WINDOWS[1]  # core [10, 20) holds frame 15
+
+
+def _kitti_copy(src: Path, dst: Path) -> Path:
+    """The first KITTI_FRAMES stereo pairs and the calibration of 0005, in the tracking layout."""
+    for cam in ("image_02", "image_03"):
+        (dst / "training" / cam / "0005").mkdir(parents=True)
+        for i in range(KITTI_FRAMES):
+            shutil.copyfile(src / "training" / cam / "0005" / f"{i:06d}.png", dst / "training" / cam / "0005" / f"{i:06d}.png")
+    (dst / "training" / "calib").mkdir()
+    shutil.copyfile(src / "training" / "calib" / "0005.txt", dst / "training" / "calib" / "0005.txt")
+    return dst
+
+
+def test_truncated_frame_fails_only_its_window(kitti_tracking_root, tmp_path):
+    root = _kitti_copy(kitti_tracking_root, tmp_path / "kitti")
+    bad = root / "training" / "image_02" / "0005" / f"{BAD_FRAME:06d}.png"
+    good = bad.read_bytes()
+    bad.write_bytes(good[: len(good) // 2])  # a PNG cut off mid-stream: the header still reads
+    out = tmp_path / "out"
+    args = ["--dataset", "kitti", "--root", str(root), "--sequences", "0005", "--set", 'proposals.proposer="stereo"',
+            *SMALL_WINDOWS]
+
+    rc, stdout, err = submit(out, *args, logs=tmp_path / "run1")
+    assert rc != 0, stdout + err
+    assert summary(stdout) == {"ok": 2, "failed": 1, "skipped": 0, "windows": 3}, stdout
+    failed = [line for line in stdout.splitlines() if line.startswith("FAILED")]
+    assert len(failed) == 1 and failed[0].startswith(f"FAILED {BAD_WINDOW}:"), stdout
+    assert str(bad) in failed[0] and f"frame {BAD_FRAME}" in failed[0], failed[0]
+
+    rc, text = status(out)
+    assert rc != 0, text
+    assert "3 windows: 2 done, 1 failed, 0 pending" in text, text
+    line = next(ln for ln in text.splitlines() if BAD_WINDOW in ln)
+    assert line.startswith("failed") and str(bad) in line and f"frame {BAD_FRAME}" in line, text
+
+    cat = catalogue(out)
+    assert cat["windows"] == {KITTI_WINDOWS[0]: "done", BAD_WINDOW: "failed", KITTI_WINDOWS[2]: "done"}
+    assert cat["duplicates"] == 0
+    seen = cat["tube_frame_frames"]
+    assert seen & set(range(0, 10)) and seen & set(range(20, 30)), "tubes of the windows that worked are missing"
+    assert not seen & set(range(10, 20)), "tube frames in the failed window's core"
+    assert cat["frames"] == list(range(10)) + list(range(20, 30))
+    done_rows = {w: (p.read_bytes(), p.stat().st_mtime_ns) for w, p in manifests(out).items() if w != BAD_WINDOW}
+
+    bad.write_bytes(good)  # repaired: resubmitting runs the failed window only
+    rc, stdout, err = submit(out, *args, logs=tmp_path / "run2")
+    assert rc == 0, stdout + err
+    assert summary(stdout) == {"ok": 1, "failed": 0, "skipped": 2, "windows": 3}, stdout
+    for w, (data, mtime) in done_rows.items():
+        p = manifests(out)[w]
+        assert p.read_bytes() == data and p.stat().st_mtime_ns == mtime, f"{w} ran again"
+    rc, text = status(out)
+    assert rc == 0 and "3 windows: 3 done, 0 failed, 0 pending" in text, text
+    cat = catalogue(out)
+    assert cat["windows"] == {w: "done" for w in KITTI_WINDOWS}
+    assert cat["tube_frame_frames"] & set(range(10, 20)), "no tubes in the repaired window"
+    assert cat["frames"] == list(range(KITTI_FRAMES)) and cat["duplicates"] == 0
