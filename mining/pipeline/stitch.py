@@ -5,9 +5,11 @@ any tube that crosses their border, and the pieces took the same observations in
 frames both windows saw. Pieces of adjacent windows are matched one-to-one by how
 many (frame, observation) inliers they share (Hungarian, at least
 ``window.stitch_min_shared``), and a chain of matched pieces is one tube. A window owns
-its core frames: the tube's frames are each piece's core frames. Score and category are
-recomputed over the whole tube; it is selected when the pieces that selected it own
-most of its frames.
+its core frames; a chain hands over from one piece to the next at the shared inlier
+nearest their border, so the tube is continuous where the windows meet. Score and category are
+recomputed over the whole tube, and co-selection runs again over the sequence's stitched
+tubes (group by group of overlapping tubes, so its cost grows with the sequence, not
+with its square): selection then does not depend on where the borders fell.
 
 Worlds: each window chained poses from its own first frame, so pieces store footpoints
 in camera coordinates; here they move into the sequence's world, chained over all
@@ -28,6 +30,7 @@ from mining.catalog.schema import file_schema
 from mining.config import JobConfig
 from mining.pipeline.mine import MinedTube
 from mining.score.unary import score_tube
+from mining.select.coselect import co_select
 from mining.tubes.category import tube_category
 from mining.tubes.tube import Tube, TubeFrame
 from mining.types import Window
@@ -37,6 +40,7 @@ from mining.types import Window
 class SequencePoses:
     pose: dict[int, np.ndarray]  # frame index → camera-to-world of its segment
     segment: dict[int, int]
+    position: dict[int, int]  # frame index → plan position (windows count positions)
 
 
 def chain_sequence(frames: pa.Table) -> tuple[pa.Table, SequencePoses]:
@@ -62,7 +66,8 @@ def chain_sequence(frames: pa.Table) -> tuple[pa.Table, SequencePoses]:
     out["segment"] = segments
     out["pose"] = [p.ravel().tolist() for p in poses]
     table = pa.Table.from_pydict(out, schema=file_schema("frames"))
-    return table, SequencePoses(dict(zip(cols["frame"], poses)), dict(zip(cols["frame"], segments)))
+    return table, SequencePoses(dict(zip(cols["frame"], poses)), dict(zip(cols["frame"], segments)),
+                                dict(zip(cols["frame"], cols["position"])))
 
 
 def _pieces(tube_frames: pa.Table) -> dict[str, list[dict]]:
@@ -91,29 +96,49 @@ def _match(a_pieces: list[str], b_pieces: list[str], keys: dict[str, set], min_s
     return [(a_pieces[i], b_pieces[j]) for i, j in zip(rows, cols) if shared[i, j] >= min_shared]
 
 
+def _splice(a: str, b: str, keys: dict[str, set], border: int, position: dict[int, int]) -> int:
+    """The frame where a tube passes from piece ``a`` to the next window's piece ``b``.
+
+    The shared inlier nearest the windows' border: both pieces took that observation, so
+    the tube is continuous there, and ``b`` is past its own first inlier after it.
+    """
+    shared = sorted(position[f] for f, _ in keys[a] & keys[b])
+    return min(shared, key=lambda p: (abs(p - border), -p))
+
+
 def _chains(windows: list[Window], piece_window: dict[str, str], keys: dict[str, set],
-            min_shared: int) -> list[list[str]]:
-    parent = {p: p for p in piece_window}
+            min_shared: int, position: dict[int, int]) -> list[list[tuple[str, int, int]]]:
+    """Chains of matched pieces; each link (piece, first, last plan position) it contributes.
 
-    def find(p: str) -> str:
-        while parent[p] != p:
-            parent[p] = parent[parent[p]]
-            p = parent[p]
-        return p
-
+    The first piece starts at its window's core, the last ends with its window's core,
+    and neighbours hand over at their splice frame (the earlier piece keeps it).
+    """
+    nxt: dict[str, tuple[str, int]] = {}
+    has_prev: set[str] = set()
     by_window: dict[str, list[str]] = defaultdict(list)
     for p, w in sorted(piece_window.items()):
         by_window[w].append(p)
     order = sorted(windows, key=lambda w: w.core[0])
+    window_of = {w.name: w for w in windows}
     for a, b in zip(order, order[1:]):
         if a.core[1] != b.core[0]:
             continue  # a failed window between them: nothing to stitch across
         for pa_, pb in _match(by_window[a.name], by_window[b.name], keys, min_shared):
-            parent[find(pb)] = find(pa_)
-    groups: dict[str, list[str]] = defaultdict(list)
+            nxt[pa_] = (pb, _splice(pa_, pb, keys, a.core[1], position))
+            has_prev.add(pb)
+    chains = []
     for p in sorted(piece_window):
-        groups[find(p)].append(p)
-    return list(groups.values())
+        if p in has_prev:
+            continue
+        first = window_of[piece_window[p]].core[0]
+        chain = []
+        while p in nxt:
+            q, splice = nxt[p]
+            chain.append((p, first, splice))
+            p, first = q, splice + 1
+        chain.append((p, first, window_of[piece_window[p]].core[1] - 1))
+        chains.append(chain)
+    return chains
 
 
 def _tube_frame(r: dict, poses: SequencePoses) -> TubeFrame:
@@ -138,26 +163,28 @@ def stitch_sequence(windows: list[Window], tubes: pa.Table, tube_frames: pa.Tabl
                     cfg: JobConfig, run: RunInfo) -> dict[str, pa.Table]:
     """The catalogue tables of one sequence from its windows' parts."""
     frames_table, poses = chain_sequence(frames)
-    selected = dict(zip(tubes.column("tube_id").to_pylist(), tubes.column("selected").to_pylist()))
     pieces = _pieces(tube_frames)
     piece_window = {p: rows[0]["window"] for p, rows in pieces.items()}
     keys = {p: {(r["frame"], r["obs_index"]) for r in rows if r["observed"]} for p, rows in pieces.items()}
     stitched = []
-    for chain in _chains(windows, piece_window, keys, cfg.window.stitch_min_shared):
-        rows = sorted((r for p in chain for r in pieces[p] if r["core"]), key=lambda r: r["frame"])
+    pos = poses.position
+    for chain in _chains(windows, piece_window, keys, cfg.window.stitch_min_shared, pos):
+        rows = [r for p, lo, hi in chain for r in pieces[p] if lo <= pos[r["frame"]] <= hi]
         while rows and not rows[-1]["observed"]:
             rows.pop()
         while rows and not rows[0]["observed"]:
             rows.pop(0)
         if not rows:
             continue  # owned by no window's core: a neighbour's tube seen from the context
-        owned = defaultdict(int)
-        for r in rows:
-            owned[r["tube_id"]] += 1
-        votes = sum(n if selected[p] else -n for p, n in owned.items())
+        n_windows = len({r["window"] for r in rows})
         tube = Tube(tube_id=0, segment=poses.segment[rows[0]["frame"]], frames=[_tube_frame(r, poses) for r in rows])
-        mt = MinedTube(tube, score_tube(tube, cfg.score), tube_category(tube, cfg.score.known_threshold), votes > 0)
-        stitched.append((mt, len(owned)))
+        mt = MinedTube(tube, score_tube(tube, cfg.score), tube_category(tube, cfg.score.known_threshold), False)
+        stitched.append((mt, n_windows))
+    # Co-selection again, over the whole sequence's stitched tubes: a window chose among
+    # tubes cut at its context's ends, whose scores (sums over frames) were cut with them.
+    chosen = co_select([mt.tube for mt, _ in stitched], np.array([mt.score.total for mt, _ in stitched]), cfg.select)
+    for (mt, _), c in zip(stitched, chosen):
+        mt.selected = bool(c)
     # Stable ids: the first inlier names the tube; ties (one observation can start several) by inliers.
     stitched.sort(key=lambda x: (x[0].tube.inlier_key(), -x[0].score.total))
     used: dict[str, int] = defaultdict(int)

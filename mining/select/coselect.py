@@ -9,6 +9,8 @@ from __future__ import annotations
 from collections import defaultdict
 
 import numpy as np
+from scipy.sparse import coo_matrix, csr_matrix
+from scipy.sparse.csgraph import connected_components
 
 from mining.masks import box_iou, mask_iou
 from mining.select.config import SelectConfig
@@ -16,14 +18,18 @@ from mining.select.qubo import build_qubo, solve
 from mining.tubes.tube import Tube
 
 
-def pairwise_overlap(tubes: list[Tube], box_iou_gate: float) -> np.ndarray:
-    """(N, N) symmetric Σ_t mask IoU over common frames, zero diagonal."""
+def overlap_pairs(tubes: list[Tube], box_iou_gate: float) -> csr_matrix:
+    """Sparse symmetric (N, N) Σ_t mask IoU over common frames, zero diagonal.
+
+    Sparse because tubes overlap only near in time: a sequence of thousands of tubes has
+    few overlapping pairs, and a dense N × N matrix would not fit.
+    """
     n = len(tubes)
-    overlap = np.zeros((n, n))
     by_frame: dict[int, list[tuple[int, object]]] = defaultdict(list)
     for i, tube in enumerate(tubes):
         for f in tube.frames:
             by_frame[f.frame].append((i, f))
+    rows_, cols_, vals_ = [], [], []
     for entries in by_frame.values():
         if len(entries) < 2:
             continue
@@ -37,16 +43,40 @@ def pairwise_overlap(tubes: list[Tube], box_iou_gate: float) -> np.ndarray:
         ious = mask_iou([entries[r][1].rle for r in rows], [entries[r][1].rle for r in rows])
         sub = gate[np.ix_(rows, rows)]
         a, b = np.nonzero(sub)
-        np.add.at(overlap, (idx[rows[a]], idx[rows[b]]), ious[a, b])
-    np.fill_diagonal(overlap, 0.0)
-    return overlap
+        rows_.append(idx[rows[a]])
+        cols_.append(idx[rows[b]])
+        vals_.append(ious[a, b])
+    if not rows_:
+        return csr_matrix((n, n))
+    m = coo_matrix((np.concatenate(vals_), (np.concatenate(rows_), np.concatenate(cols_))), shape=(n, n)).tocsr()
+    m.sum_duplicates()
+    m.setdiag(0.0)
+    m.eliminate_zeros()
+    return m
+
+
+def pairwise_overlap(tubes: list[Tube], box_iou_gate: float) -> np.ndarray:
+    """(N, N) dense symmetric Σ_t mask IoU over common frames, zero diagonal."""
+    return overlap_pairs(tubes, box_iou_gate).toarray()
 
 
 def co_select(tubes: list[Tube], scores: np.ndarray, cfg: SelectConfig) -> np.ndarray:
-    """Boolean selection of the tubes that maximise mᵀQm."""
-    if not tubes:
+    """Boolean selection of the tubes that maximise mᵀQm.
+
+    Tubes that share no overlap do not interact, so each connected group of the overlap
+    graph is its own QUBO: the same optimum, without an N × N matrix.
+    """
+    n = len(tubes)
+    if not n:
         return np.zeros(0, bool)
-    overlap = pairwise_overlap(tubes, cfg.box_iou_gate)
-    Q = build_qubo(np.asarray(scores, np.float64), overlap, cfg)
-    m, _ = solve(Q, cfg)
-    return np.asarray(m, bool)
+    scores = np.asarray(scores, np.float64)
+    overlap = overlap_pairs(tubes, cfg.box_iou_gate)
+    _, label = connected_components(overlap, directed=False)
+    order = np.argsort(label, kind="stable")
+    m = np.zeros(n, bool)
+    for members in np.split(order, np.nonzero(np.diff(label[order]))[0] + 1):
+        sub = overlap[members][:, members].toarray()
+        sub = 0.5 * (sub + sub.T)  # exact symmetry despite summation order
+        Q = build_qubo(scores[members], sub, cfg)
+        m[members] = np.asarray(solve(Q, cfg)[0], bool)
+    return m
