@@ -1,0 +1,288 @@
+"""``mine bench pipeline``: end-to-end throughput, scaling, Ray's overhead, worker memory, catalogue.
+
+The rows and their targets are those of the distributed-mining issue:
+
+* frames per second of the whole job (plan → observe → track → finalize) on a local Ray
+  with 1 and with 2 workers, same synthetic job at 1242×375, a fresh catalogue each time;
+  scaling efficiency = fps₂ / (2·fps₁) (target ≥ 90 %);
+* Ray's overhead per window: the worker-seconds of the job not spent inside the steps,
+  ``(workers · wall − Σ(seconds_observe + seconds_tubes)) / windows``, with the step
+  times the steps measure themselves (the manifest, ``windows`` table) and ``wall`` the
+  job's time with Ray already started (actor start-up, scheduling, argument passing,
+  waiting on dependencies, the finalize step and the tail where one worker idles all
+  count as overhead);
+* peak resident memory per worker (VmHWM of each ``ray::Worker`` actor process, polled
+  together with VmRSS from /proc) for 100-frame windows (target ≤ 2 GB), and with
+  ``--long`` a 2,000-frame run whose per-window peaks show whether memory grows with
+  the sequence (the peak of any worker while window k's steps run, k in plan order);
+* the catalogue: bytes per tube-frame row and the README's example queries over one
+  million rows (``mining.bench.catalog``; target ≤ 1 s each).
+
+Workers run OpenCV single-threaded (``OPENCV_FOR_THREADS_NUM=1``) so that a worker is
+one core and the scaling figure compares like with like.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import os
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mining.config import JobConfig
+
+WORKER_TITLE = "ray::Worker"  # process title of the pipeline's actors (mining.pipeline.executors.Worker)
+POLL_S = 0.2  # ours: RSS sampling period; VmHWM catches peaks between samples
+GROWTH_TOLERANCE = 1.10  # ours: the later windows' peak may exceed the earlier ones' by 10 % before it counts as growth
+
+
+def bench_job(cfg: JobConfig, n_frames: int, sequences: list[str], core: int = 100) -> JobConfig:
+    """The bench's synthetic job: ``sequences`` of ``n_frames`` frames at the source's default 1242×375."""
+    cfg = copy.deepcopy(cfg)
+    cfg.source.dataset = "synthetic"
+    cfg.source.sequences = list(sequences)
+    cfg.source.options = {**cfg.source.options, "n_frames": int(n_frames)}
+    cfg.window.core = int(core)
+    return cfg
+
+
+def _status(pid: int) -> dict[str, int]:
+    """VmRSS, VmHWM (bytes) and PPid of a process; empty when it has gone."""
+    out: dict[str, int] = {}
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key in ("VmRSS", "VmHWM"):
+                out[key] = int(value.split()[0]) * 1024
+            elif key == "PPid":
+                out[key] = int(value)
+    except (FileNotFoundError, ProcessLookupError, PermissionError):
+        return {}
+    return out
+
+
+def worker_processes(raylet_pid: int) -> dict[int, dict[str, int]]:
+    """The pipeline's actor processes started by this raylet: pid → VmRSS / VmHWM (bytes).
+
+    Filtering by parent keeps out the actors of any other Ray instance on the machine.
+    """
+    out = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            title = (entry / "cmdline").read_bytes().split(b"\0")[0].decode(errors="replace")
+        except (FileNotFoundError, ProcessLookupError, PermissionError):
+            continue
+        if not title.startswith(WORKER_TITLE):
+            continue
+        st = _status(int(entry.name))
+        if st.get("PPid") == raylet_pid and "VmRSS" in st:
+            out[int(entry.name)] = st
+    return out
+
+
+def local_raylet_pid() -> int:
+    """The raylet of the Ray this driver started (``ray.init`` without an address)."""
+    import ray
+
+    node = ray._private.worker.global_worker.node  # noqa: SLF001 - the only handle on the raylet's pid
+    return node.all_processes["raylet"][0].process.pid
+
+
+class RssSampler:
+    """Polls the workers' VmRSS/VmHWM in a thread: ``samples`` are (unix time, pid, rss bytes)."""
+
+    def __init__(self, raylet_pid: int, period: float = POLL_S):
+        self.raylet_pid, self.period = raylet_pid, period
+        self.samples: list[tuple[float, int, int]] = []
+        self.hwm: dict[int, int] = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, daemon=True)
+
+    def _loop(self) -> None:
+        while not self._stop.is_set():
+            t = time.time()
+            for pid, st in worker_processes(self.raylet_pid).items():
+                self.samples.append((t, pid, st["VmRSS"]))
+                self.hwm[pid] = max(self.hwm.get(pid, 0), st.get("VmHWM", 0), st["VmRSS"])
+            self._stop.wait(self.period)
+
+    def __enter__(self) -> "RssSampler":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
+def _window_rows(out: Path) -> list[dict[str, Any]]:
+    from mining.catalog.views import connect
+
+    con = connect(out)
+    try:
+        cur = con.execute('SELECT sequence, "window", core_start, core_end, status, epoch(started) AS started, '
+                          "epoch(finished) AS finished, seconds_observe, seconds_tubes FROM windows ORDER BY sequence, core_start")
+        names = [d[0] for d in cur.description]
+        return [dict(zip(names, r)) for r in cur.fetchall()]
+    finally:
+        con.close()
+
+
+def window_peaks(out: Path, rows: list[dict[str, Any]], samples: list[tuple[float, int, int]]) -> list[int | None]:
+    """Max RSS of any worker sampled while each window's observe or track step ran.
+
+    Track runs from the manifest's ``started`` to ``finished``; observe ends when its
+    cache file is written (the bench keeps the cache) and lasted ``seconds_observe``.
+    """
+    from mining.pipeline.steps import cache_path
+    from mining.types import Window
+
+    t = np.array([s[0] for s in samples]) if samples else np.zeros(0)
+    rss = np.array([s[2] for s in samples]) if samples else np.zeros(0, np.int64)
+    peaks: list[int | None] = []
+    for r in rows:
+        spans = [(r["started"], r["finished"])]  # unix seconds
+        w = Window("synthetic", r["sequence"], (r["core_start"], r["core_end"]), (0, 0))
+        cache = out / cache_path(w)
+        if cache.exists() and r["seconds_observe"] is not None:
+            end = cache.stat().st_mtime
+            spans.append((end - r["seconds_observe"], end))
+        inside = np.zeros(len(t), bool)
+        for a, b in spans:
+            inside |= (t >= a) & (t <= b)
+        peaks.append(int(rss[inside].max()) if inside.any() else None)
+    return peaks
+
+
+def measure_run(cfg: JobConfig, out: str | Path, workers: int) -> dict[str, Any]:
+    """Mine ``cfg`` into a fresh ``out`` on a local Ray of ``workers`` CPUs; time, overhead, memory."""
+    import ray
+
+    from mining.pipeline.submit import run_job
+
+    out = Path(out)
+    if out.exists() and any(out.iterdir()):
+        raise FileExistsError(f"{out} is not empty: the bench needs a fresh catalogue")
+    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    if ray.is_initialized():
+        ray.shutdown()
+    t0 = time.perf_counter()
+    ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False,
+             runtime_env={"env_vars": {"OPENCV_FOR_THREADS_NUM": "1"}})
+    init_s = time.perf_counter() - t0
+    try:
+        with RssSampler(local_raylet_pid()) as sampler:
+            summary = run_job(cfg, str(out), workers=workers, keep_cache=True)
+    finally:
+        ray.shutdown()
+    if summary.failed:
+        raise RuntimeError(f"bench job failed: {summary.lines()}")
+    rows = _window_rows(out)
+    step_s = sum((r["seconds_observe"] or 0.0) + (r["seconds_tubes"] or 0.0) for r in rows)
+    observe_s = sum(r["seconds_observe"] or 0.0 for r in rows)
+    wall = summary.seconds
+    peaks = window_peaks(out, rows, sampler.samples)
+    return {
+        "workers": workers, "windows": len(rows), "frames": summary.frames, "tubes": summary.tubes,
+        "ray_init_s": init_s, "wall_s": wall, "fps": summary.frames / wall,
+        "step_s": step_s, "observe_s": observe_s, "tubes_s": step_s - observe_s,
+        "overhead_s_per_window": (workers * wall - step_s) / max(len(rows), 1),
+        "overhead_fraction": 1.0 - step_s / (workers * wall),
+        "peak_rss_bytes": max(sampler.hwm.values(), default=0),
+        "worker_hwm_bytes": sorted(sampler.hwm.values()),
+        "worker_processes": len(sampler.hwm), "rss_samples": len(sampler.samples),
+        "window_peak_rss_bytes": peaks, "load_avg": os.getloadavg(),
+    }
+
+
+def growth(peaks: list[int | None]) -> dict[str, float]:
+    """Whether per-window peaks rise along the sequence: last half vs first half, and the slope."""
+    p = np.array([x for x in peaks if x is not None], float)
+    if len(p) < 4:
+        return {"first_half_max": float("nan"), "second_half_max": float("nan"), "ratio": float("nan"),
+                "slope_mb_per_100_windows": float("nan")}
+    h = len(p) // 2
+    slope = np.polyfit(np.arange(len(p)), p, 1)[0]
+    return {"first_half_max": float(p[:h].max()), "second_half_max": float(p[h:].max()),
+            "ratio": float(p[h:].max() / p[:h].max()), "slope_mb_per_100_windows": float(slope * 100 / 2**20)}
+
+
+def _mb(x: float) -> str:
+    return f"{x / 2**20:7.0f} MB"
+
+
+def run_pipeline_bench(cfg: JobConfig, frames: int = 200, sequences: list[str] | None = None,
+                       long: bool = False, long_frames: int = 2000, catalog_rows: int = 1_000_000,
+                       workdir: str | None = None, json_out: str | None = None) -> int:
+    """Print the pipeline table; returns 0 when every target holds, 1 otherwise."""
+    from mining.bench.catalog import bench_catalog
+
+    sequences = sequences or ["0000", "0001"]
+    t_start = time.perf_counter()
+    results: dict[str, Any] = {"load_avg_start": os.getloadavg(), "cpus": os.cpu_count()}
+    checks: list[tuple[str, bool]] = []
+    with tempfile.TemporaryDirectory(dir=workdir) as tmp:
+        job = bench_job(cfg, frames, sequences)
+        runs = {n: measure_run(job, Path(tmp) / f"scaling_{n}", n) for n in (1, 2)}
+        results["scaling"] = {str(n): r for n, r in runs.items()}
+        eff = runs[2]["fps"] / (2 * runs[1]["fps"])
+        results["scaling_efficiency"] = eff
+        print(f"End to end, synthetic 1242×375, {len(sequences)} sequence(s) × {frames} frames, "
+              f"{job.window.core}-frame windows (context {job.window.context_before}/{job.window.context_after}), local Ray")
+        print(f"  {'workers':>7} {'windows':>7} {'wall s':>8} {'frames/s':>9} {'steps s':>8} "
+              f"{'overhead s/window':>18} {'peak RSS/worker':>16} {'load avg':>9}")
+        for n, r in runs.items():
+            print(f"  {n:>7} {r['windows']:>7} {r['wall_s']:8.1f} {r['fps']:9.2f} {r['step_s']:8.1f} "
+                  f"{r['overhead_s_per_window']:18.2f} {_mb(r['peak_rss_bytes']):>16} {r['load_avg'][0]:9.2f}")
+        print(f"  scaling efficiency fps2 / (2·fps1): {100 * eff:.1f} %")
+        print("  overhead = (workers · wall − Σ step seconds in the manifest) / windows; Ray start-up "
+              f"({runs[1]['ray_init_s']:.1f} s, {runs[2]['ray_init_s']:.1f} s) not included")
+        checks.append(("scaling efficiency on 2 workers ≥ 90 %", eff >= 0.90))
+        peak = max(r["peak_rss_bytes"] for r in runs.values())
+        checks.append((f"peak RSS per worker, {job.window.core}-frame windows ≤ 2 GB", 0 < peak <= 2 * 2**30))
+
+        if long:
+            ljob = bench_job(cfg, long_frames, sequences[:1])
+            lr = measure_run(ljob, Path(tmp) / "long", 2)
+            g = growth(lr["window_peak_rss_bytes"])
+            results["long"] = {**lr, "growth": g}
+            print(f"\nLong run: 1 sequence × {long_frames} frames on 2 workers: {lr['fps']:.2f} frames/s, "
+                  f"peak RSS per worker {_mb(lr['peak_rss_bytes']).strip()} (load avg {lr['load_avg'][0]:.2f})")
+            print("  peak RSS of any worker while window k ran (MB):")
+            pk = lr["window_peak_rss_bytes"]
+            for i in range(0, len(pk), 10):
+                print("   " + " ".join(f"{'-' if x is None else x / 2**20:6.0f}" for x in pk[i:i + 10]))
+            print(f"  first half max {_mb(g['first_half_max']).strip()}, second half max {_mb(g['second_half_max']).strip()}, "
+                  f"ratio {g['ratio']:.3f}, slope {g['slope_mb_per_100_windows']:+.1f} MB per 100 windows")
+            checks.append((f"no memory growth over {long_frames} frames (second-half peak ≤ "
+                           f"{GROWTH_TOLERANCE:.2f} × first-half peak)", bool(g["ratio"] <= GROWTH_TOLERANCE)))
+            checks.append((f"peak RSS per worker, {long_frames}-frame run ≤ 2 GB", 0 < lr["peak_rss_bytes"] <= 2 * 2**30))
+
+        cat = bench_catalog(tmp, catalog_rows)
+        results["catalog"] = cat
+        print(f"\nCatalogue: {cat['tube_frame_rows']:,} tube-frame rows, {cat['tubes']:,} tubes "
+              f"(built in {cat['build_s']:.1f} s)")
+        print(f"  bytes per tube-frame row: {cat['bytes_per_tube_frame']:.1f} (tube_frames), "
+              f"{cat['catalog_bytes_per_tube_frame']:.1f} (whole catalogue)")
+        for name, s in cat["query_s"].items():
+            print(f"  {name:20s} {s * 1000:8.1f} ms  {cat['query_rows'][name]:6d} rows")
+            checks.append((f"query {name} over {cat['tube_frame_rows']:,} rows ≤ 1 s", s <= 1.0))
+
+    print("\nTargets")
+    for name, ok in checks:
+        print(f"  [{'ok' if ok else 'MISS'}] {name}")
+    results["checks"] = {name: ok for name, ok in checks}
+    results["load_avg_end"] = os.getloadavg()
+    print(f"\n(bench took {time.perf_counter() - t_start:.0f} s; load average {results['load_avg_start'][0]:.2f} at start, "
+          f"{results['load_avg_end'][0]:.2f} at end, {results['cpus']} CPUs)")
+    if json_out:
+        Path(json_out).write_text(json.dumps(results, indent=1, default=float))
+    return 0 if all(ok for _, ok in checks) else 1
