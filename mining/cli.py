@@ -203,6 +203,14 @@ def cmd_bench_tracking(args: argparse.Namespace) -> int:
     return run_tracking_bench(Path(args.data), _job_config(args), args.sequences)
 
 
+def cmd_bench_pipeline(args: argparse.Namespace) -> int:
+    from mining.bench.pipeline import run_pipeline_bench
+
+    return run_pipeline_bench(_job_config(args), frames=args.frames, sequences=args.sequences, long=args.long,
+                              long_frames=args.long_frames, catalog_rows=args.catalog_rows, workdir=args.dir,
+                              json_out=args.json)
+
+
 def cmd_submit(args: argparse.Namespace) -> int:
     from mining.pipeline.submit import submit_from_args
 
@@ -291,6 +299,18 @@ def build_parser() -> argparse.ArgumentParser:
     btrk.add_argument("--data", default=default_data, help="the shared real-data folder (default: ../shared/data)")
     btrk.add_argument("--sequences", nargs="+", default=None, help="default: the twelve training sequences")
     btrk.set_defaults(func=cmd_bench_tracking)
+
+    bpip = bsub.add_parser("pipeline", help="end-to-end frames/s on 1 and 2 workers, Ray overhead, worker memory, "
+                                            "catalogue size and query times (synthetic 1242×375)")
+    _add_job_options(bpip)
+    bpip.add_argument("--frames", type=int, default=200, help="frames per sequence of the scaling job")
+    bpip.add_argument("--sequences", nargs="+", default=["0000", "0001"], help="synthetic sequences of the scaling job")
+    bpip.add_argument("--long", action="store_true", help="also a long run (memory vs sequence length; ~10 min on 2 cores)")
+    bpip.add_argument("--long-frames", type=int, default=2000, help="frames of the long run")
+    bpip.add_argument("--catalog-rows", type=int, default=1_000_000, help="tube-frame rows of the catalogue bench")
+    bpip.add_argument("--dir", help="where the bench catalogues go (default: the system temporary folder)")
+    bpip.add_argument("--json", help="also write the results as JSON here")
+    bpip.set_defaults(func=cmd_bench_pipeline)
 
     track = sub.add_parser("track", help="tubes → score → select over one sequence, written as KITTI tracking txt")
     tsub = track.add_subparsers(dest="mode", required=True)
