@@ -31,7 +31,7 @@ from mining.score.config import ScoreConfig
 from mining.score.unary import score_tube
 from mining.tubes.config import TubeConfig
 from mining.tubes.gating import GROUND, best_pairs, box_gates
-from mining.tubes.kalman import POS, SIZE, TubeFilter
+from mining.tubes.kalman import POS, SIZE, TubeFilter, prior_velocity_cov
 from mining.tubes.probe import probe_back
 from mining.tubes.tube import Tube, TubeFrame
 from mining.tubes.warp import predict_box, predict_mask
@@ -204,7 +204,7 @@ class TubeGenerator:
         if pts is None:
             return None
         kf = TubeFilter(world.footpoint[j], world.covariance[j], obs.size[j], *world.velocity_or_none(j),
-                        self.cfg.kalman)
+                        self.cfg.kalman, frame.pose[:3, :3])
         tube = Tube(tube_id=-1, segment=frame.segment, kf=kf, points=pts, last_observed_t_ns=frame.t_ns)
         tube.frames.append(self._tube_frame(tube, frame, j, np.nan, np.nan))
         return tube
@@ -302,12 +302,12 @@ class TubeGenerator:
         has_vel = np.isfinite(vel).all(axis=1)
         mean = world.footpoint[cands][:, GROUND] + np.where(has_vel[:, None], vel, 0.0) * dt
         vcov = world.velocity_covariance[cands]
-        var_v = np.where(has_vel[:, None], np.stack([vcov[:, 0, 0], vcov[:, 2, 2]], axis=1),
-                         np.asarray(kc.initial_var_velocity)[None, :])
+        var_v = np.where(has_vel[:, None], np.stack([vcov[:, 0, 0], vcov[:, 2, 2]], axis=1), 0.0)
         q = np.square(np.asarray(kc.process_std_position)[GROUND]) * abs(dt) / kc.process_dt_s
         P = world.covariance[cands][:, GROUND][:, :, GROUND].copy()
         P[:, 0, 0] += var_v[:, 0] * dt * dt + q[0]
         P[:, 1, 1] += var_v[:, 1] * dt * dt + q[1]
+        P[~has_vel] += prior_velocity_cov(kc, world.frame.pose[:3, :3]) * dt * dt  # the prior turns with the camera
         S = P[:, None] + prev.covariance[usable][:, GROUND][:, :, GROUND][None]  # (U, M, 2, 2)
         d = prev.footpoint[usable][:, GROUND][None] - mean[:, None]  # (U, M, 2)
         det = S[..., 0, 0] * S[..., 1, 1] - S[..., 0, 1] * S[..., 1, 0]
@@ -378,9 +378,8 @@ class TubeGenerator:
                 boxes_b = np.array([mb[f].box for f in common])
                 if not (paired_box_iou(boxes_a, boxes_b) > 0).any():
                     continue
-                # One pycocotools call; the diagonal pairs the same frames.
-                ious = np.diag(mask_iou([ma[f].rle for f in common], [mb[f].rle for f in common]))
-                if sum(ious.tolist()) / max(la, lb) > self.cfg.nms_overlap:
+                ious = [mask_iou([ma[f].rle], [mb[f].rle])[0, 0] for f in common]
+                if sum(ious) / max(la, lb) > self.cfg.nms_overlap:
                     suppressed.add(b.tube_id)
         if suppressed:
             for t in self.live:

@@ -40,11 +40,25 @@ def process_noise(dt: float, cfg: KalmanConfig) -> np.ndarray:
     return np.diag(np.square(std)) * scale
 
 
+def prior_velocity_cov(cfg: KalmanConfig, R_world_cam: np.ndarray | None = None) -> np.ndarray:
+    """(2, 2) ground-velocity covariance of a tube started without flow, in the world frame.
+
+    The prior is given along the camera's axes (lateral, depth: depth is the uncertain
+    one), so it turns with the camera; with a fixed diagonal in the world, a tube's start
+    would depend on which frame the world happens to be (e.g. where a window begins).
+    """
+    V = np.diag([cfg.initial_var_velocity[0], 0.0, cfg.initial_var_velocity[1]])
+    if R_world_cam is not None:
+        V = R_world_cam @ V @ R_world_cam.T
+    return V[np.ix_([0, 2], [0, 2])]
+
+
 class TubeFilter:
     """Kalman filter of one tube; ``x`` and ``P`` are filterpy's state and covariance."""
 
     def __init__(self, footpoint: np.ndarray, cov: np.ndarray, size: np.ndarray,
-                 velocity: np.ndarray | None, velocity_cov: np.ndarray | None, cfg: KalmanConfig):
+                 velocity: np.ndarray | None, velocity_cov: np.ndarray | None, cfg: KalmanConfig,
+                 R_world_cam: np.ndarray | None = None):
         self.cfg = cfg
         self.kf = KalmanFilter(dim_x=DIM_X, dim_z=DIM_X)
         x = np.zeros(DIM_X)
@@ -57,7 +71,7 @@ class TubeFilter:
             x[VEL] = velocity[[0, 2]]
             P[VEL, VEL] = velocity_cov[np.ix_([0, 2], [0, 2])]
         else:
-            P[VEL, VEL] = np.diag(cfg.initial_var_velocity)
+            P[VEL, VEL] = prior_velocity_cov(cfg, R_world_cam)
         self.kf.x = x
         self.kf.P = P
 
@@ -119,7 +133,8 @@ class TubeFilter:
 
 
 def initial_states(footpoint: np.ndarray, cov: np.ndarray, size: np.ndarray, velocity: np.ndarray,
-                   velocity_cov: np.ndarray, cfg: KalmanConfig) -> tuple[np.ndarray, np.ndarray]:
+                   velocity_cov: np.ndarray, cfg: KalmanConfig,
+                   R_world_cam: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(C, 8) states and (C, 8, 8) covariances of C fresh filters, as ``TubeFilter`` starts
     them; rows of ``velocity`` with NaN start from the prior velocity variance."""
     n = len(footpoint)
@@ -132,7 +147,7 @@ def initial_states(footpoint: np.ndarray, cov: np.ndarray, size: np.ndarray, vel
     has_vel = np.isfinite(velocity).all(axis=1)
     x[has_vel, VEL] = velocity[has_vel][:, [0, 2]]
     P[has_vel, VEL, VEL] = velocity_cov[has_vel][:, [0, 2]][:, :, [0, 2]]
-    P[~has_vel, VEL, VEL] = np.diag(cfg.initial_var_velocity)
+    P[np.ix_(~has_vel, [3, 4], [3, 4])] = prior_velocity_cov(cfg, R_world_cam)
     return x, P
 
 

@@ -30,7 +30,7 @@ def probe_back(world: WorldObservations, cands: np.ndarray, past: list[WorldObse
     alive = np.array([p is not None for p in pts], bool)
     size = world.frame.observations.size
     x, P = initial_states(world.footpoint[cands], world.covariance[cands], size[cands], world.velocity[cands],
-                          world.velocity_covariance[cands], cfg.kalman)
+                          world.velocity_covariance[cands], cfg.kalman, world.frame.pose[:3, :3])
     last_t = np.full(n, world.frame.t_ns, np.int64)  # when each probe's points were observed
     earliest_k = np.full(n, -1)  # back-step of the earliest inlier (−1: the candidate itself)
     earliest_j = np.asarray(cands, np.int64).copy()
