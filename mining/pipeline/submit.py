@@ -166,9 +166,6 @@ def run_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frames
     obs_queue = [w for w in windows if w.name in need_obs]
     track_queue = list(todo)
     obs_result: dict[str, StepResult] = {}
-    settled: dict[str, set[str]] = defaultdict(set)
-    for name in done:
-        settled[name.rsplit("-", 2)[0]]  # noqa: B018 - sequences with nothing left still finalize
     ok_windows: dict[str, set[str]] = {s: {w.name for w in ws if w.name in done} for s, ws in by_seq.items()}
     left = {s: sum(1 for w in ws if w.name not in done) for s, ws in by_seq.items()}
     fin_queue = [s for s in sorted(to_finalize) if left[s] == 0]
@@ -227,8 +224,9 @@ def run_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frames
                 if left[what.sequence] == 0 and what.sequence in to_finalize:
                     fin_queue.append(what.sequence)
             else:
-                if err is not None:
-                    raise RuntimeError(f"finalizing sequence {what} failed: {err}")
+                if err is not None or not result.ok:
+                    summary.failed[f"{dataset}/{what} (stitching)"] = str(err) if err is not None else result.error
+                    continue
                 summary.sequences_written += 1
                 for k in ("tubes", "candidates", "known", "unknown"):
                     setattr(summary, k, getattr(summary, k) + result.extra[k])

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mining.config import JobConfig
+from mining.errors import InputError
 from mining.pipeline.frames import tracking_frames
 from mining.pipeline.mine import MinedTube, mine_tubes
 from mining.proposals.make import Proposer
@@ -55,6 +56,18 @@ def observe_window(source: Source, plan: SequencePlan, window: Window, cfg: JobC
     """Geometry, proposals and localisation for the window's core frames."""
     s, e = window.core
     start = max(0, s - WARMUP_FRAMES)
+    try:
+        return _observe(source, plan, start, s, e, cfg, proposer)
+    except InputError as err:
+        if err.frame is None or start == s or err.frame not in plan.frames[start:s]:
+            raise
+    # A bad warm-up frame belongs to the window before, which fails on it; this window
+    # starts without a previous frame (its first egomotion is absent, a new pose segment).
+    return _observe(source, plan, s, s, e, cfg, proposer)
+
+
+def _observe(source: Source, plan: SequencePlan, start: int, s: int, e: int, cfg: JobConfig,
+             proposer: Proposer | None) -> list[ObservedFrame]:
     out = []
     position = start
     for rec in tracking_frames(source, plan, start, e, cfg, proposer):
