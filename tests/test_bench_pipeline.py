@@ -11,11 +11,11 @@ from mining.config import JobConfig  # noqa: E402
 
 
 def test_measure_run_numbers_are_sane(tmp_path):
-    cfg = bench_job(JobConfig(), n_frames=16, sequences=["0000"], core=8)
-    cfg.window.context_before = cfg.window.context_after = 4
+    cfg = bench_job(JobConfig(), n_frames=8, sequences=["0000"], core=4)
+    cfg.window.context_before = cfg.window.context_after = 2
     runs = {n: measure_run(cfg, tmp_path / f"w{n}", n) for n in (1, 2)}
     for n, r in runs.items():
-        assert r["windows"] == 2 and r["frames"] == 16
+        assert r["windows"] == 2 and r["frames"] == 8
         assert r["fps"] > 0 and r["wall_s"] > 0
         assert 0 < r["step_s"] <= n * r["wall_s"]  # steps are timed inside the job's wall time
         assert r["overhead_s_per_window"] >= 0

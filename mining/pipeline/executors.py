@@ -66,7 +66,12 @@ class RayExecutor:
         import ray
 
         self.ray = ray
-        actor = ray.remote(num_cpus=1, max_restarts=-1, max_task_retries=max_retries)(Worker)
+        # No num_cpus: an actor needs a CPU to be placed but holds none after, so one that
+        # lost its node restarts on a surviving node even when that node's CPUs are all
+        # held by the pool (with num_cpus=1 it would wait for a free CPU forever, and so
+        # would its call). The pool is sized to the CPUs, so nothing is oversubscribed
+        # until a node is lost; SPREAD places the pool across the nodes.
+        actor = ray.remote(max_restarts=-1, max_task_retries=max_retries, scheduling_strategy="SPREAD")(Worker)
         self.actors = [actor.remote(job) for _ in range(n_workers)]
         self.idle = deque(self.actors)
         self.busy: dict[Any, Any] = {}
