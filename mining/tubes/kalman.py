@@ -3,7 +3,9 @@
 State x = [x, y, z, vx, vz, w, h, l]: the ground footpoint in world coordinates
 (metres, y down), the velocity on the ground plane and the 3D size. The filter runs in
 either direction of time (dt < 0 for the backward enumeration). filterpy does the
-algebra; this class only builds F, Q, H and R.
+algebra of a tube's filter; this class only builds F, Q, H and R. The backward probe of
+tube starts runs many filters at once on stacked arrays (``*_states`` below: filterpy's
+equations, agreeing with it to rounding).
 """
 
 from __future__ import annotations
