@@ -136,7 +136,8 @@ def _window_rows(out: Path) -> list[dict[str, Any]]:
         con.close()
 
 
-def window_peaks(out: Path, rows: list[dict[str, Any]], samples: list[tuple[float, int, int]]) -> list[int | None]:
+def window_peaks(out: Path, rows: list[dict[str, Any]], samples: list[tuple[float, int, int]],
+                 dataset: str = "synthetic") -> list[int | None]:
     """Max RSS of any worker sampled while each window's observe or track step ran.
 
     Track runs from the manifest's ``started`` to ``finished``; observe ends when its
@@ -150,7 +151,7 @@ def window_peaks(out: Path, rows: list[dict[str, Any]], samples: list[tuple[floa
     peaks: list[int | None] = []
     for r in rows:
         spans = [(r["started"], r["finished"])]  # unix seconds
-        w = Window("synthetic", r["sequence"], (r["core_start"], r["core_end"]), (0, 0))
+        w = Window(dataset, r["sequence"], (r["core_start"], r["core_end"]), (0, 0))
         cache = out / cache_path(w)
         if cache.exists() and r["seconds_observe"] is not None:
             end = cache.stat().st_mtime
@@ -189,7 +190,7 @@ def measure_run(cfg: JobConfig, out: str | Path, workers: int) -> dict[str, Any]
     step_s = sum((r["seconds_observe"] or 0.0) + (r["seconds_tubes"] or 0.0) for r in rows)
     observe_s = sum(r["seconds_observe"] or 0.0 for r in rows)
     wall = summary.seconds
-    peaks = window_peaks(out, rows, sampler.samples)
+    peaks = window_peaks(out, rows, sampler.samples, cfg.source.dataset)
     return {
         "workers": workers, "windows": len(rows), "frames": summary.frames, "tubes": summary.tubes,
         "ray_init_s": init_s, "wall_s": wall, "fps": summary.frames / wall,
