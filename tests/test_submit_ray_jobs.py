@@ -40,7 +40,7 @@ def _free_port() -> int:
 
 def _kill_group(pgid: int) -> None:
     """End the head's process group (and only it): TERM, then KILL what is left."""
-    for sig, grace in ((signal.SIGTERM, 5.0), (signal.SIGKILL, 0.0)):
+    for sig, grace in ((signal.SIGTERM, 3.0), (signal.SIGKILL, 0.0)):
         try:
             os.killpg(pgid, sig)
         except ProcessLookupError:
@@ -58,6 +58,10 @@ def _kill_group(pgid: int) -> None:
 def head():
     """(dashboard address, environment) of a fresh one-node Ray cluster with 2 CPUs."""
     assert (BIN / "ray").exists() and (BIN / "mine").exists(), f"ray and mine must be installed in {BIN}"
+    try:
+        import aiohttp  # noqa: F401 - the dashboard (Ray Jobs server) needs ray[default]
+    except ImportError:
+        pytest.fail("the Ray Jobs server needs ray[default]: scripts/setup.sh test (the test extra has it)")
     temp = tempfile.mkdtemp(prefix="rj", dir="/tmp")  # short: Ray's socket paths live under it
     env = {k: v for k, v in os.environ.items() if not k.startswith("RAY_")}
     env.update(PATH=f"{BIN}{os.pathsep}{env.get('PATH', '')}", RAY_USAGE_STATS_ENABLED="0",
@@ -153,6 +157,7 @@ def test_submit_runs_on_the_cluster_and_writes_the_catalogue(jobs):
 def test_failed_job_fails_the_command(jobs):
     work, rc, stdout, stderr = jobs["fail"]
     assert rc == 2, f"expected mine's error status from the cluster; stdout:\n{stdout}\nstderr:\n{stderr}"
+    assert "Running entrypoint for job" in stdout  # it failed on the cluster, not here
     assert "mine: error:" in stdout  # the driver's error, from the job's logs
     assert str(work / "no-such-root") in stdout  # resolved on the submitting side
     assert "FAILED" in stderr
