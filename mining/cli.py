@@ -245,7 +245,9 @@ def build_parser() -> argparse.ArgumentParser:
     smt.add_argument("--frames", type=_frames, default=(0, None), metavar="A:B",
                      help="plan positions [A, B) of every sequence (default: all)")
     smt.add_argument("--out", default="out/catalog", help="catalogue folder or pyarrow filesystem URI")
-    smt.add_argument("--address", help="Ray cluster address (ray://host:10001 or http://host:8265); "
+    smt.add_argument("--address", help="http://HEAD:8265: hand the job to that cluster through Ray Jobs (--config, "
+                                       "--root and --out are made absolute here and read on the cluster); "
+                                       "HOST:PORT or auto: run the scheduler here, the work on that cluster; "
                                        "default: start a local Ray on this machine")
     smt.add_argument("--workers", type=int, help="local Ray only: CPUs to use (default: all)")
     smt.add_argument("--no-progress", action="store_true", help="no progress bar (logs and CI)")
