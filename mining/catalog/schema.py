@@ -105,6 +105,7 @@ WINDOWS = pa.schema([
     pa.field("seconds_observe", pa.float32()),  # geometry + proposals + localise
     pa.field("seconds_tubes", pa.float32()),  # tubes + score + select
     pa.field("n_pieces", pa.int32()),  # tube pieces the window wrote
+    pa.field("context_complete", pa.bool_()),  # every neighbour's frames were there when it was tracked
     pa.field("error", pa.string()),  # the InputError text for a failed window
     pa.field("params_hash", pa.string(), False),
 ])

@@ -134,7 +134,7 @@ def load_context(store: Store, window: Window, neighbours: list[Window]) -> list
 
 def write_manifest(job: Job, window: Window, status: str, started: datetime | None, error: str = "",
                    seconds_observe: float | None = None, seconds_tubes: float | None = None,
-                   n_pieces: int | None = None) -> None:
+                   n_pieces: int | None = None, context_complete: bool | None = None) -> None:
     store = job.store()
     path = store.manifest_path(window.dataset, window.sequence, window.name)
     attempts = 1
@@ -143,7 +143,8 @@ def write_manifest(job: Job, window: Window, status: str, started: datetime | No
     row = {"run_id": job.run_id, "window": window.name, "core_start": window.core[0], "core_end": window.core[1],
            "context_start": window.context[0], "context_end": window.context[1], "status": status,
            "attempts": attempts, "started": started, "finished": _now(), "seconds_observe": seconds_observe,
-           "seconds_tubes": seconds_tubes, "n_pieces": n_pieces, "error": error or None,
+           "seconds_tubes": seconds_tubes, "n_pieces": n_pieces,
+           "context_complete": context_complete, "error": error or None,
            "params_hash": job.params_hash}
     store.write_table(path, to_table([row], "windows"))
 
@@ -169,7 +170,8 @@ class Track:
             write_manifest(job, window, "failed", started, _error(e), seconds_observe)
             return StepResult(window.name, False, _error(e))
         seconds = time.perf_counter() - t0
-        write_manifest(job, window, "done", started, "", seconds_observe, seconds, n)
+        write_manifest(job, window, "done", started, "", seconds_observe, seconds, n,
+                       context_complete=all(r.ok for r in observe))
         return StepResult(window.name, True, seconds=seconds, frames=window.core[1] - window.core[0])
 
     def _write_parts(self, window: Window, frames: list[ObservedFrame], mined) -> int:

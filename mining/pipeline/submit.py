@@ -108,6 +108,11 @@ def done_windows(store: Store, windows: list[Window], params_hash: str) -> set[s
     return done
 
 
+def _context_was_complete(store: Store, w: Window) -> bool:
+    row = store.read_table(store.manifest_path(w.dataset, w.sequence, w.name), ["context_complete"]).to_pylist()[0]
+    return row["context_complete"] is not False
+
+
 def finalized(store: Store, dataset: str, sequence: str, done: set[str], params_hash: str) -> bool:
     if not store.exists(done_path(dataset, sequence)):
         return False
@@ -156,6 +161,14 @@ def run_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frames
         by_seq[w.sequence].append(w)
 
     done = done_windows(store, windows, job.params_hash)
+    # A window tracked while a neighbour had failed saw less context; once that neighbour
+    # runs again, track it again too (its observations are cached), so a repaired job ends
+    # as a clean run would.
+    rerun = {w.name for w in windows if w.name not in done}
+    for w in windows:
+        if w.name in done and not _context_was_complete(store, w):
+            if any(n.name in rerun for n in neighbours(w, by_seq[w.sequence])):
+                done.discard(w.name)
     todo = [w for w in windows if w.name not in done]
     summary = Summary(windows=len(windows), skipped=len(done))
     to_finalize = {s for s, ws in by_seq.items()
