@@ -53,13 +53,8 @@ def local_ray():
     ray.shutdown()
 
 
-# Half the default resolution: the same scenes and the same pipeline, a quarter of the pixels
-# (the test's cost is the geometry of 500 frames and tracking them twice).
-HALF = ["source.options.width=621", "source.options.height=188"]
-
-
 def test_100_frame_windows_give_the_tubes_of_one_500_frame_window(local_ray, tmp_path):
-    cfg = load_config(REPO / "jobs" / "synthetic.toml", HALF)
+    cfg = load_config(REPO / "jobs" / "synthetic.toml")
     assert cfg.window.core == 100
     sharded = str(tmp_path / "sharded")
     summary = run_job(cfg, sharded, ["0000"], (0, 500), "ray", keep_cache=True)
@@ -72,7 +67,7 @@ def test_100_frame_windows_give_the_tubes_of_one_500_frame_window(local_ray, tmp
         frames += pickle.loads(Store(sharded).read_bytes(rel))
     frames.sort(key=lambda f: f.position)
     assert [f.position for f in frames] == list(range(500))
-    ref_cfg = load_config(REPO / "jobs" / "synthetic.toml", HALF + ["window.core=500"])
+    ref_cfg = load_config(REPO / "jobs" / "synthetic.toml", ["window.core=500"])
     Store(whole).write_bytes(cache_path(Window("synthetic", "0000", (0, 500), (0, 500))), pickle.dumps(frames))
     assert run_job(ref_cfg, whole, ["0000"], (0, 500), "local").ok == 1
 
