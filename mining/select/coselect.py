@@ -18,6 +18,9 @@ from mining.select.qubo import build_qubo, solve
 from mining.tubes.tube import Tube
 
 
+DENSE_MAX = 400  # ours: up to this many tubes one dense N × N QUBO is cheaper than splitting it first
+
+
 def overlap_pairs(tubes: list[Tube], box_iou_gate: float) -> csr_matrix:
     """Sparse symmetric (N, N) Σ_t mask IoU over common frames, zero diagonal.
 
@@ -71,6 +74,9 @@ def co_select(tubes: list[Tube], scores: np.ndarray, cfg: SelectConfig) -> np.nd
         return np.zeros(0, bool)
     scores = np.asarray(scores, np.float64)
     overlap = overlap_pairs(tubes, cfg.box_iou_gate)
+    if n <= DENSE_MAX:  # small: one dense QUBO (the solver splits it into groups itself)
+        dense = overlap.toarray()
+        return np.asarray(solve(build_qubo(scores, 0.5 * (dense + dense.T), cfg), cfg)[0], bool)
     _, label = connected_components(overlap, directed=False)
     order = np.argsort(label, kind="stable")
     m = np.zeros(n, bool)
