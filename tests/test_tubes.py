@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -18,6 +20,8 @@ from mining.tubes.config import KalmanConfig, TubeConfig
 from mining.tubes.generate import TubeGenerator
 from mining.tubes.kalman import TubeFilter
 from mining.tubes.tube import Tube, TubeFrame
+
+REPO = Path(__file__).resolve().parents[1]
 from mining.tubes.warp import mask_points, predict_mask
 from mining.types import GroundPlane, Proposals, StereoCalib, TrackingFrame, UNKNOWN_CLASS
 
@@ -232,3 +236,23 @@ def test_same_input_same_tubes(kitti_tracking_root, tmp_path):
                          cfg, tmp_path / f"{k}.txt")
         outs.append((tmp_path / f"{k}.txt").read_text())
     assert outs[0] == outs[1] and outs[0].count("\n") > 50
+
+
+def test_co_selection_group_by_group_equals_one_dense_qubo(kitti_tracking_root, monkeypatch):
+    """Whole sequences are co-selected group by group of overlapping tubes (sparse); small
+    batches as one dense QUBO. Both must choose the same tubes (real detections-only tubes)."""
+    import mining.select.coselect as coselect
+    from mining.pipeline.detections import track_detections
+
+    train = kitti_tracking_root / "training"
+    cfg = load_config(REPO / "jobs" / "kitti-detections.toml")
+    mined = track_detections(kitti_tracking_root, "0005", train / "det_pointrcnn",
+                             train / "egoposes_orbslam3" / "0005.txt", cfg)
+    tubes = [m.tube for m in mined]
+    scores = np.array([m.score.total for m in mined])
+    assert len(tubes) > 20
+    dense = coselect.co_select(tubes, scores, cfg.select)
+    monkeypatch.setattr(coselect, "DENSE_MAX", 0)
+    grouped = coselect.co_select(tubes, scores, cfg.select)
+    np.testing.assert_array_equal(dense, grouped)
+    assert dense.any() and not dense.all()
