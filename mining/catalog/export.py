@@ -98,10 +98,17 @@ def _cam_to_rect0(job: dict, sequence: str):
     return lambda p: p - t
 
 
+def _export_settings(job: dict) -> tuple[bool, str]:
+    """The job's ``[export]`` settings, with ExportConfig's defaults."""
+    from mining.config import ExportConfig
+
+    exp, default = job.get("export", {}), ExportConfig()
+    return exp.get("observed_only", default.observed_only), exp.get("unclassified_as", default.unclassified_as)
+
+
 def export_kitti(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path) -> int:
     """KITTI tracking result txt per sequence; returns the rows written."""
-    exp = job.get("export", {})
-    observed_only, unclassified_as = exp.get("observed_only", True), exp.get("unclassified_as", "Misc")
+    observed_only, unclassified_as = _export_settings(job)
     per_tube = _frames_by_tube(frames)
     n = 0
     for (_, sequence), seq_tubes in _by_sequence(tubes).items():
@@ -153,8 +160,7 @@ def disjoint_masks(rles: list[dict], scores: list[float]) -> list[dict | None]:
 
 def export_kitti_mots(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path) -> int:
     """KITTI-MOTS txt per sequence; returns the lines written."""
-    exp = job.get("export", {})
-    observed_only, unclassified_as = exp.get("observed_only", True), exp.get("unclassified_as", "Misc")
+    observed_only, unclassified_as = _export_settings(job)
     per_tube = _frames_by_tube(frames)
     n = 0
     for (dataset, sequence), seq_tubes in _by_sequence(tubes).items():
