@@ -16,19 +16,20 @@ the scheduler runs here and the steps run on that cluster.
 from __future__ import annotations
 
 import argparse
+import bisect
 import json
 import os
 import shlex
 import sys
 import time
 import uuid
-from collections import defaultdict
+from collections import defaultdict, deque
 from dataclasses import dataclass, field
 
 from mining.catalog.store import Store
 from mining.config import JobConfig
 from mining.errors import ConfigError
-from mining.pipeline.steps import CACHE, Job, StepResult, done_path, job_source
+from mining.pipeline.steps import Job, StepResult, cache_path, done_path, job_source
 from mining.types import Window, plan_windows
 
 
@@ -60,6 +61,24 @@ def neighbours(window: Window, windows: list[Window]) -> list[Window]:
     """The windows whose core frames lie in ``window``'s context (itself included)."""
     a, b = window.context
     return [w for w in windows if w.sequence == window.sequence and w.core[0] < b and w.core[1] > a]
+
+
+def neighbour_map(windows: list[Window]) -> dict[str, list[Window]]:
+    """``neighbours`` of every window, by a sweep over each sequence's sorted cores
+    (a recording of hours has thousands of windows: no scan over all of them per window)."""
+    out: dict[str, list[Window]] = {}
+    by_seq: dict[str, list[Window]] = defaultdict(list)
+    for w in windows:
+        by_seq[w.sequence].append(w)
+    for ws in by_seq.values():
+        ws = sorted(ws, key=lambda w: w.core[0])
+        starts = [w.core[0] for w in ws]
+        for w in ws:
+            a, b = w.context
+            lo = max(0, bisect.bisect_right(starts, a) - 1)
+            hi = bisect.bisect_left(starts, b)
+            out[w.name] = [n for n in ws[lo:hi] if n.core[0] < b and n.core[1] > a]
+    return out
 
 
 def plan_job(cfg: JobConfig, sequences: list[str] | None, frames: tuple[int, int | None]) -> tuple[dict, list[Window]]:
@@ -120,6 +139,15 @@ def finalized(store: Store, dataset: str, sequence: str, done: set[str], params_
     return marker["params_hash"] == params_hash and set(marker["windows"]) == done
 
 
+def _drop_served_caches(store: Store, served: list[Window], users: dict[str, list[Window]], ok: set[str]) -> None:
+    """Remove the observation caches no track needs any more: a window's cache serves the
+    windows whose context holds its core, and is kept while any of them is not done (it
+    may run again). Caches are about 0.5 MB a frame: they must not pile up over hours."""
+    for n in served:
+        if all(m.name in ok for m in users[n.name]) and store.exists(cache_path(n)):
+            store.remove(cache_path(n))
+
+
 class Progress:
     def __init__(self, total: int, enabled: bool):
         self.total, self.enabled, self.t0 = total, enabled, time.perf_counter()
@@ -164,10 +192,15 @@ def run_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frames
     # A window tracked while a neighbour had failed saw less context; once that neighbour
     # runs again, track it again too (its observations are cached), so a repaired job ends
     # as a clean run would.
+    nbrs = neighbour_map(windows)
+    users: dict[str, list[Window]] = defaultdict(list)  # the windows whose context holds a window's core
+    for w in windows:
+        for n in nbrs[w.name]:
+            users[n.name].append(w)
     rerun = {w.name for w in windows if w.name not in done}
     for w in windows:
         if w.name in done and not _context_was_complete(store, w):
-            if any(n.name in rerun for n in neighbours(w, by_seq[w.sequence])):
+            if any(n.name in rerun for n in nbrs[w.name]):
                 done.discard(w.name)
     todo = [w for w in windows if w.name not in done]
     summary = Summary(windows=len(windows), skipped=len(done))
@@ -177,13 +210,15 @@ def run_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frames
         summary.seconds = time.perf_counter() - t0
         return summary
 
-    need_obs = {n.name: n for w in todo for n in neighbours(w, by_seq[w.sequence])}
-    obs_queue = [w for w in windows if w.name in need_obs]
-    track_queue = list(todo)
+    need_obs = {n.name for w in todo for n in nbrs[w.name]}
+    obs_queue = deque(w for w in windows if w.name in need_obs)
+    todo_names = {w.name for w in todo}
+    waiting = {w.name: len(nbrs[w.name]) for w in todo}  # observe results a track still waits for
+    ready: deque[Window] = deque()
     obs_result: dict[str, StepResult] = {}
     ok_windows: dict[str, set[str]] = {s: {w.name for w in ws if w.name in done} for s, ws in by_seq.items()}
     left = {s: sum(1 for w in ws if w.name not in done) for s, ws in by_seq.items()}
-    fin_queue = [s for s in sorted(to_finalize) if left[s] == 0]
+    fin_queue = deque(s for s in sorted(to_finalize) if left[s] == 0)
     kinds: dict = {}
 
     if executor == "ray":
@@ -200,20 +235,20 @@ def run_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frames
         ex = LocalExecutor(job)
     bar = Progress(len(todo), progress)
     try:
-        while obs_queue or track_queue or fin_queue or ex.pending():
+        while obs_queue or ready or any(waiting.values()) or fin_queue or ex.pending():
             while ex.free():
-                ready = next((w for w in track_queue
-                              if all(n.name in obs_result for n in neighbours(w, by_seq[w.sequence]))), None)
-                if fin_queue:
-                    s = fin_queue.pop(0)
-                    kinds[ex.submit("finalize", s, by_seq[s], sorted(ok_windows[s]))] = ("finalize", s)
-                elif ready is not None:
-                    track_queue.remove(ready)
-                    nb = neighbours(ready, by_seq[ready.sequence])
-                    kinds[ex.submit("track", ready, nb, [obs_result[n.name] for n in nb])] = ("track", ready)
+                # Tracks first (they write the parts), then observes (tracks wait on them);
+                # a sequence's stitching has no dependents, so it fills otherwise idle workers.
+                if ready:
+                    w = ready.popleft()
+                    nb = nbrs[w.name]
+                    kinds[ex.submit("track", w, nb, [obs_result[n.name] for n in nb])] = ("track", w)
                 elif obs_queue:
-                    w = obs_queue.pop(0)
+                    w = obs_queue.popleft()
                     kinds[ex.submit("observe", w)] = ("observe", w)
+                elif fin_queue:
+                    seq = fin_queue.popleft()
+                    kinds[ex.submit("finalize", seq, by_seq[seq], sorted(ok_windows[seq]))] = ("finalize", seq)
                 else:
                     break
             if not ex.pending():
@@ -222,6 +257,11 @@ def run_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frames
             kind, what = kinds.pop(ref)
             if kind == "observe":
                 obs_result[what.name] = result if err is None else StepResult(what.name, False, f"system failure: {err}")
+                for u in users[what.name]:
+                    if u.name in todo_names:
+                        waiting[u.name] -= 1
+                        if waiting[u.name] == 0:
+                            ready.append(u)
             elif kind == "track":
                 if err is not None:
                     result = StepResult(what.name, False, f"system failure after {cfg.run.max_retries} retries: {err}")
@@ -233,6 +273,8 @@ def run_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frames
                 if result.ok:
                     summary.ok += 1
                     ok_windows[what.sequence].add(what.name)
+                    if not keep_cache:
+                        _drop_served_caches(store, nbrs[what.name], users, ok_windows[what.sequence])
                 else:
                     summary.failed[what.name] = result.error
                 left[what.sequence] -= 1
@@ -245,9 +287,6 @@ def run_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frames
                 summary.sequences_written += 1
                 for k in ("tubes", "candidates", "known", "unknown"):
                     setattr(summary, k, getattr(summary, k) + result.extra[k])
-                if len(ok_windows[what]) == len(by_seq[what]) and not keep_cache:
-                    for rel in store.list(f"{CACHE}/dataset={dataset}/sequence={what}", ".pkl"):
-                        store.remove(rel)  # the catalogue is complete: the observation cache has served
     finally:
         bar.close()
         ex.shutdown()
