@@ -47,6 +47,7 @@ def tube_agreement(reference: dict[str, dict[int, dict]], other: dict[str, dict[
                    threshold: float = AGREE_IOU) -> TubeAgreement:
     ref_ids, oth_ids = sorted(reference), sorted(other)
     iou_sum = np.zeros((len(ref_ids), len(oth_ids)))
+    shared = np.zeros_like(iou_sum)  # frames both tubes cover
     by_frame_ref: dict[int, list[int]] = defaultdict(list)
     by_frame_oth: dict[int, list[int]] = defaultdict(list)
     for i, t in enumerate(ref_ids):
@@ -62,14 +63,10 @@ def tube_agreement(reference: dict[str, dict[int, dict]], other: dict[str, dict[
         a = [reference[ref_ids[i]][f] for i in ri]
         b = [other[oth_ids[j]][f] for j in oj]
         iou_sum[np.ix_(ri, oj)] += np.asarray(mask_utils.iou(a, b, [0] * len(b))).reshape(len(a), len(b))
+        shared[np.ix_(ri, oj)] += 1
     n_ref = np.array([len(reference[t]) for t in ref_ids], float)
     n_oth = np.array([len(other[t]) for t in oth_ids], float)
-    # |union of frames| = |A| + |B| − |A ∩ B|; shared frames counted pair by pair.
-    shared = np.zeros_like(iou_sum)
-    for f, ri in by_frame_ref.items():
-        oj = by_frame_oth.get(f)
-        if oj:
-            shared[np.ix_(ri, oj)] += 1
+    # |union of frames| = |A| + |B| − |A ∩ B|
     mean = iou_sum / np.maximum(n_ref[:, None] + n_oth[None, :] - shared, 1)
     best = np.zeros(len(ref_ids))
     if len(ref_ids) and len(oth_ids):

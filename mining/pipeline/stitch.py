@@ -29,6 +29,7 @@ from mining.catalog.rows import RunInfo, frame_rows, to_table, tube_row
 from mining.catalog.schema import file_schema
 from mining.config import JobConfig
 from mining.pipeline.mine import MinedTube
+from mining.pipeline.window import chain
 from mining.score.unary import score_tube
 from mining.select.coselect import co_select
 from mining.tubes.category import tube_category
@@ -51,17 +52,9 @@ def chain_sequence(frames: pa.Table) -> tuple[pa.Table, SequencePoses]:
     """
     frames = frames.sort_by("position")
     cols = frames.to_pydict()
-    poses, segments = [], []
-    pose, segment = np.eye(4), 0
-    for i in range(frames.num_rows):
-        if i > 0:
-            T = cols["T_cur_prev"][i]
-            if T is not None and cols["position"][i] == cols["position"][i - 1] + 1:
-                pose = pose @ np.linalg.inv(np.asarray(T, np.float64).reshape(4, 4))
-            else:
-                pose, segment = np.eye(4), segment + 1
-        poses.append(pose.copy())
-        segments.append(segment)
+    motions = [None if T is None else np.asarray(T, np.float64).reshape(4, 4) for T in cols["T_cur_prev"]]
+    chained = chain(cols["position"], motions)
+    poses, segments = [p for p, _ in chained], [s for _, s in chained]
     out = {k: v for k, v in cols.items() if k not in ("T_cur_prev", "segment", "pose")}
     out["segment"] = segments
     out["pose"] = [p.ravel().tolist() for p in poses]
@@ -168,8 +161,8 @@ def stitch_sequence(windows: list[Window], tubes: pa.Table, tube_frames: pa.Tabl
     keys = {p: {(r["frame"], r["obs_index"]) for r in rows if r["observed"]} for p, rows in pieces.items()}
     stitched = []
     pos = poses.position
-    for chain in _chains(windows, piece_window, keys, cfg.window.stitch_min_shared, pos):
-        rows = [r for p, lo, hi in chain for r in pieces[p] if lo <= pos[r["frame"]] <= hi]
+    for links in _chains(windows, piece_window, keys, cfg.window.stitch_min_shared, pos):
+        rows = [r for p, lo, hi in links for r in pieces[p] if lo <= pos[r["frame"]] <= hi]
         while rows and not rows[-1]["observed"]:
             rows.pop()
         while rows and not rows[0]["observed"]:

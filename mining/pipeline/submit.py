@@ -113,9 +113,10 @@ def _job_record(store: Store, cfg: JobConfig, windows: list[Window]) -> str:
     return run_id
 
 
-def done_windows(store: Store, windows: list[Window], params_hash: str) -> set[str]:
-    """Windows whose manifest row says done with these params and whose parts all exist."""
-    done = set()
+def done_windows(store: Store, windows: list[Window], params_hash: str) -> dict[str, bool]:
+    """Windows whose manifest row says done with these params and whose parts all exist,
+    each with whether its context was complete when it was tracked."""
+    done = {}
     for w in windows:
         m = store.manifest_path(w.dataset, w.sequence, w.name)
         if not store.exists(m):
@@ -123,13 +124,8 @@ def done_windows(store: Store, windows: list[Window], params_hash: str) -> set[s
         row = store.read_table(m).to_pylist()[0]
         if row["status"] == "done" and row["params_hash"] == params_hash and all(
                 store.exists(store.part_path(t, w.dataset, w.sequence, w.name)) for t in ("tubes", "tube_frames", "frames")):
-            done.add(w.name)
+            done[w.name] = row.get("context_complete") is not False
     return done
-
-
-def _context_was_complete(store: Store, w: Window) -> bool:
-    row = store.read_table(store.manifest_path(w.dataset, w.sequence, w.name), ["context_complete"]).to_pylist()[0]
-    return row["context_complete"] is not False
 
 
 def finalized(store: Store, dataset: str, sequence: str, done: set[str], params_hash: str) -> bool:
@@ -188,7 +184,8 @@ def run_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frames
     for w in windows:
         by_seq[w.sequence].append(w)
 
-    done = done_windows(store, windows, job.params_hash)
+    complete = done_windows(store, windows, job.params_hash)
+    done = set(complete)
     # A window tracked while a neighbour had failed saw less context; once that neighbour
     # runs again, track it again too (its observations are cached), so a repaired job ends
     # as a clean run would.
@@ -199,7 +196,7 @@ def run_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frames
             users[n.name].append(w)
     rerun = {w.name for w in windows if w.name not in done}
     for w in windows:
-        if w.name in done and not _context_was_complete(store, w):
+        if w.name in done and not complete[w.name]:
             if any(n.name in rerun for n in nbrs[w.name]):
                 done.discard(w.name)
     todo = [w for w in windows if w.name not in done]

@@ -89,23 +89,28 @@ def _observe(source: Source, plan: SequencePlan, start: int, s: int, e: int, cfg
     return out
 
 
-def chain_poses(frames: list[ObservedFrame]) -> list[tuple[np.ndarray, int]]:
+def chain(positions: list[int], motions: list[np.ndarray | None]) -> list[tuple[np.ndarray, int]]:
     """Camera-to-world pose and segment of each frame, chained from the first frame.
 
-    A frame without a trusted egomotion, or not the plan successor of the frame before
-    it (a missing window), starts a new segment with its own world frame.
+    ``motions[i]`` is frame i's egomotion T_cur_prev (None when failed or absent). A frame
+    without one, or not the plan successor of the frame before it (a missing window),
+    starts a new segment with its own world frame.
     """
     out = []
     pose, segment = np.eye(4), 0
-    for i, f in enumerate(frames):
+    for i, T in enumerate(motions):
         if i > 0:
-            linked = f.T_cur_prev is not None and f.position == frames[i - 1].position + 1
-            if linked:
-                pose = pose @ np.linalg.inv(f.T_cur_prev)
+            if T is not None and positions[i] == positions[i - 1] + 1:
+                pose = pose @ np.linalg.inv(T)
             else:
                 pose, segment = np.eye(4), segment + 1
         out.append((pose.copy(), segment))
     return out
+
+
+def chain_poses(frames: list[ObservedFrame]) -> list[tuple[np.ndarray, int]]:
+    """``chain`` over observed frames in plan order."""
+    return chain([f.position for f in frames], [f.T_cur_prev for f in frames])
 
 
 def track_window(frames: list[ObservedFrame], cfg: JobConfig) -> list[MinedTube]:
