@@ -92,7 +92,7 @@ def cmd_track_detections(args: argparse.Namespace) -> int:
 
 def cmd_track_images(args: argparse.Namespace) -> int:
     from mining.eval.kitti_export import write_tubes_kitti
-    from mining.pipeline.frames import tracking_frames
+    from mining.pipeline.frames import frame_records
     from mining.pipeline.mine import mine_tubes
 
     cfg = _job_config(args)
@@ -100,7 +100,7 @@ def cmd_track_images(args: argparse.Namespace) -> int:
     plan = source.plan(args.sequence)
     start, stop = args.frames
     stop = len(plan) if stop is None else min(stop, len(plan))
-    mined = mine_tubes((r.tracking for r in tracking_frames(source, plan, start, stop, cfg)), cfg)
+    mined = mine_tubes((r.tracking for r in frame_records(source, plan, start, stop, cfg)), cfg)
     out = Path(args.out) / f"{args.sequence}.txt"
     to_rect0 = None
     if cfg.source.dataset == "kitti":
@@ -165,7 +165,7 @@ def cmd_eval_recall(args: argparse.Namespace) -> int:
         print(_format_recall(recall_at_n(props, boxes, known)))
         return 0
     from mining.eval.kitti_labels import read_kitti_tracking
-    from mining.pipeline.frames import tracking_frames
+    from mining.pipeline.frames import frame_records
 
     cfg = _job_config(args)
     source = _open(cfg)
@@ -175,7 +175,7 @@ def cmd_eval_recall(args: argparse.Namespace) -> int:
     labels = Path(args.labels) if args.labels else Path(cfg.source.root) / "training" / "label_02" / f"{args.sequence}.txt"
     rows = read_kitti_tracking(labels)
     props, frames = [], []
-    for rec in tracking_frames(source, plan, start, stop, cfg):
+    for rec in frame_records(source, plan, start, stop, cfg):
         props.append(rec.proposals)
         frames.append(rec.frame.index)
     boxes, known = kitti_ground_truth(rows, frames)

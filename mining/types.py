@@ -316,3 +316,96 @@ class TrackingFrame:
     segment: int
     observations: Observations
     depth: np.ndarray | None = None  # (H, W) float32 metres, NaN invalid
+
+
+@dataclass
+class TubeFrame:
+    """One frame of a tube: an observation (inlier) or the tube's prediction in a gap.
+
+    World coordinates are those of the tube's pose segment (``TrackingFrame.pose``).
+    """
+
+    frame: int
+    t_ns: int
+    observed: bool
+    obs_index: int  # row in that frame's Observations; −1 when predicted
+    rle: dict  # observed mask, or the predicted mask in a gap
+    box: np.ndarray  # (4,) x1, y1, x2, y2
+    footpoint_world: np.ndarray  # (3,) filtered footpoint, world (segment) frame
+    velocity_world: np.ndarray  # (3,) filtered velocity on the ground plane, m/s
+    size: np.ndarray  # (3,) filtered width, height, length
+    position_cam: np.ndarray  # (3,) observed 3D position in this frame's camera (predicted in a gap)
+    objectness: float  # the proposal's score; NaN when predicted
+    mask_iou: float  # IoU(predicted mask, observed mask); NaN for a tube's first inlier and in gaps
+    motion_density: float  # Gaussian density of the observed footpoint under the prediction; NaN likewise
+    posterior: np.ndarray | None = None  # the observation's 81-way class posterior
+
+
+@dataclass
+class Tube:
+    """A video object tube (the paper's hypothesis): the frames it spans, in time order.
+
+    The tracking state a tube has while it is being extended (filter, mask points, gap)
+    is the tube generator's, not the tube's: a tube read back from the catalogue is the
+    same object as one just made.
+    """
+
+    tube_id: int
+    segment: int
+    frames: list[TubeFrame] = field(default_factory=list)
+    end_reason: str = ""
+
+    @property
+    def n_inliers(self) -> int:
+        return sum(1 for f in self.frames if f.observed)
+
+    @property
+    def first_frame(self) -> int:
+        return self.frames[0].frame
+
+    @property
+    def last_frame(self) -> int:
+        return self.frames[-1].frame
+
+    def frame_map(self) -> dict[int, TubeFrame]:
+        return {f.frame: f for f in self.frames}
+
+    def inlier_key(self) -> tuple[tuple[int, int], ...]:
+        """(frame, observation) of every inlier: two tubes with the same key explain the same data."""
+        return tuple((f.frame, f.obs_index) for f in self.frames if f.observed)
+
+    def trim(self) -> None:
+        """Drop trailing predicted frames: a tube ends at its last observation."""
+        while self.frames and not self.frames[-1].observed:
+            self.frames.pop()
+
+
+@dataclass
+class TubeScore:
+    """The tube's unary score (paper Eq. 2–8): its three log-likelihood ratios and their weighted total."""
+
+    motion: float
+    mask: float
+    objectness: float
+    total: float
+
+
+@dataclass
+class TubeCategory:
+    """What the tube is: its averaged class posterior, the category and whether it is known."""
+
+    posterior: np.ndarray | None  # (81,) mean over observed frames, or None without classes
+    category: str  # COCO class name, or "unknown"
+    probability: float  # posterior mass of ``category`` (NaN without classes)
+    known: bool
+    best_known: str  # the most probable of the 80 classes, even when the tube is unknown (or "unknown" without classes)
+
+
+@dataclass
+class MinedTube:
+    """A tube as the miner judged it: score, category and whether co-selection chose it."""
+
+    tube: Tube
+    score: TubeScore
+    category: TubeCategory
+    selected: bool

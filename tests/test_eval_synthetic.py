@@ -10,12 +10,8 @@ from pycocotools import mask as mask_utils
 from mining.config import load_config
 from mining.errors import InputError
 from mining.eval.synthetic import evaluate_synthetic, format_synthetic, gt_frame, run_synthetic
-from mining.pipeline.mine import MinedTube
-from mining.score.unary import TubeScore
 from mining.sources.synthetic import SyntheticSource
-from mining.tubes.category import TubeCategory
-from mining.tubes.tube import Tube, TubeFrame
-from mining.types import FrameTruth, ObjectTruth
+from mining.types import FrameTruth, MinedTube, ObjectTruth, Tube, TubeCategory, TubeFrame, TubeScore
 
 H, W = 40, 60
 

@@ -32,6 +32,20 @@ def test_plan_is_instant_and_kitti_like():
     assert s._scenes == {}  # planning rendered and generated nothing
 
 
+def test_dropped_frames_are_a_recording_gap():
+    s = SyntheticSource(n_frames=30, width=160, height=64, fx=90.0, drop_frames=[[10, 14], [20, 21]])
+    p = s.plan("0000")
+    assert p.frames == tuple(i for i in range(30) if not (10 <= i < 14 or i == 20))
+    assert p.gaps == (10, 16) and p.frames[10] == 14 and p.frames[16] == 21
+    assert p.t_ns[10] - p.t_ns[9] == 5 * 100_000_000  # time goes on through the gap
+    f = s.read_frame(p, 10)
+    g = SyntheticSource(n_frames=30, width=160, height=64, fx=90.0).read_frame(SyntheticSource(
+        n_frames=30, width=160, height=64, fx=90.0).plan("0000"), 14)
+    assert f.index == 14 and f.t_ns == g.t_ns and np.array_equal(f.left, g.left)  # the same world
+    with pytest.raises(InputError):
+        SyntheticSource(n_frames=30, drop_frames=[[5, 40]])
+
+
 def test_bad_input_raises():
     s = SyntheticSource(n_frames=5)
     with pytest.raises(InputError):

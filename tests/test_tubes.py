@@ -19,11 +19,10 @@ from mining.tubes.category import tube_category
 from mining.tubes.config import KalmanConfig, TubeConfig
 from mining.tubes.generate import TubeGenerator
 from mining.tubes.kalman import TubeFilter
-from mining.tubes.tube import Tube, TubeFrame
 
 REPO = Path(__file__).resolve().parents[1]
 from mining.tubes.warp import mask_points, predict_mask
-from mining.types import GroundPlane, Proposals, StereoCalib, TrackingFrame, UNKNOWN_CLASS
+from mining.types import UNKNOWN_CLASS, GroundPlane, Proposals, StereoCalib, TrackingFrame, Tube, TubeFrame
 
 CALIB = StereoCalib(700.0, 700.0, 320.0, 120.0, 0.5, 640, 240)
 GROUND = GroundPlane(np.array([0.0, -1.0, 0.0]), 1.65, 5000, True)
@@ -128,7 +127,7 @@ def test_mask_warping_follows_egomotion():
 
 
 def test_generator_tracks_two_objects_and_rejects_clutter():
-    gen = TubeGenerator(TubeConfig(), ScoreConfig())
+    gen = TubeGenerator(TubeConfig(), lambda t: score_tube(t, ScoreConfig()).total)
     for k in range(12):
         # A parked car, and a car driving ahead at 5 m/s, while the ego camera drives 1 m per frame.
         gen.step(_frame(k, 1.0 * k, [(3.0, 25.0), (-2.0, 20.0 + 0.5 * k)], clutter=True))
@@ -211,7 +210,7 @@ def test_detections_only_kitti_0005(kitti_tracking_root, tmp_path):
 
 def test_tubes_never_cross_a_segment_border():
     """A failed egomotion starts a new pose segment; no tube may link the two sides."""
-    gen = TubeGenerator(TubeConfig(), ScoreConfig())
+    gen = TubeGenerator(TubeConfig(), lambda t: score_tube(t, ScoreConfig()).total)
     for k in range(12):
         f = _frame(k, 1.0 * k, [(3.0, 25.0)])
         if k >= 6:  # egomotion failed between frames 5 and 6: new segment, new world frame

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from mining.config import load_config
-from mining.localise.localise import geometric_filter, localise, take
 from mining.masks import mask_pixels
+from mining.score.unary import score_tube
 from mining.tubes.generate import TubeGenerator
 from mining.tubes.kalman import TubeFilter, initial_states, predict_states, update_states
 from mining.tubes.probe import probe_back
@@ -32,24 +32,29 @@ def kitti_geometry(shared_data):
 
 
 @pytest.fixture(scope="module")
-def mask_frames(kitti_geometry, shared_data):
-    """TrackingFrames with the first 100 real mask proposals per frame, localised."""
-    from mining.pipeline.frames import move_plane
+def mask_records(kitti_geometry, shared_data):
+    """The pipeline's frame loop on the first 100 real mask proposals per frame."""
+    from mining.pipeline.frames import FrameLoop
     from mining.proposals.precomputed import JsonProposals
 
     cfg, geoms = kitti_geometry
     reader = JsonProposals(shared_data / "proposals_4dgvt_format" / "kitti_tracking_0005" / "top500")
-    pose, ground, prev_t, out = np.eye(4), None, None, []
-    for frame, g in geoms:
+    loop, out = FrameLoop(cfg), []
+    for frame, g, after_gap in geoms:
+        assert not after_gap
         props = reader(frame.index)
-        props = props.take(np.arange(min(100, len(props))))
-        if g.egomotion is not None:
-            pose = pose @ np.linalg.inv(g.egomotion.T_cur_prev)
-        ground = g.ground if g.ground.ok else move_plane(ground, g.egomotion.T_cur_prev)
-        dt = None if prev_t is None else (frame.t_ns - prev_t) / 1e9
-        prev_t = frame.t_ns
-        obs = localise(props, g.depth, frame.calib, ground, g.flow, dt, frame.t_ns, cfg.localise)
-        out.append((props, g, frame, dt, obs, pose.copy()))
+        out.append(loop.step(frame, geometry=g, proposals=props.take(np.arange(min(100, len(props))))))
+    return out
+
+
+@pytest.fixture(scope="module")
+def mask_frames(mask_records):
+    """(proposals, geometry, frame, dt, observations before the geometric filter, pose) per frame."""
+    out, prev_t = [], None
+    for rec in mask_records:
+        dt = None if prev_t is None else (rec.frame.t_ns - prev_t) / 1e9
+        prev_t = rec.frame.t_ns
+        out.append((rec.proposals, rec.geometry, rec.frame, dt, rec.localised, rec.tracking.pose))
     return out
 
 
@@ -163,13 +168,11 @@ class _CheckedGenerator(TubeGenerator):
         super()._start(world, taken)
 
 
-def test_batched_probe_agrees_on_real_masks(mask_frames):
+def test_batched_probe_agrees_on_real_masks(mask_records):
     cfg = load_config()
-    gen = _CheckedGenerator(cfg.tubes, cfg.score)
-    filt = cfg.proposals.filters
-    for props, g, frame, dt, obs, pose in mask_frames:
-        obs = take(obs, geometric_filter(obs, g.ground if g.ground.ok else None, filt))
-        gen.step(TrackingFrame(frame.index, frame.t_ns, frame.calib, pose, 0, obs, g.depth))
+    gen = _CheckedGenerator(cfg.tubes, lambda t: score_tube(t, cfg.score).total)
+    for rec in mask_records:
+        gen.step(rec.tracking)
     assert gen.compared > 50 and gen.found > 5
     assert gen.finish()
 
@@ -179,7 +182,7 @@ def test_batched_probe_agrees_on_real_detections(kitti_tracking_root):
 
     train = kitti_tracking_root / "training"
     cfg = load_config(REPO / "jobs" / "kitti-detections.toml")
-    gen = _CheckedGenerator(cfg.tubes, cfg.score)
+    gen = _CheckedGenerator(cfg.tubes, lambda t: score_tube(t, cfg.score).total)
     frames = detection_frames(kitti_tracking_root, "0005", train / "det_pointrcnn",
                               train / "egoposes_orbslam3" / "0005.txt", cfg)
     for f in frames:

@@ -1,4 +1,4 @@
-"""``mine bench tubes``: ms per frame for localise + tubes + score + select on one core.
+"""``mine bench tubes``: ms per frame for localise + tubes + judge (score, category, select) on one core.
 
 Real inputs: KITTI tracking 0005 frames 0–15 (geometry computed first, not timed) and the
 shared 4D-GVT-format mask proposals (``top20``: ~20 per frame; ``top500``: 500 per
@@ -18,68 +18,59 @@ import numpy as np
 
 from mining.bench.geometry import pin_one_core
 from mining.config import JobConfig
-from mining.geometry.stage import GeometryStage
-from mining.localise.localise import geometric_filter, localise, take
-from mining.pipeline.frames import move_plane
+from mining.pipeline.frames import FrameLoop, plan_frames
+from mining.pipeline.mine import judge, tube_generator
 from mining.proposals.precomputed import JsonProposals
-from mining.score.unary import score_tube
-from mining.select.coselect import co_select
 from mining.sources import open_source
-from mining.tubes.generate import TubeGenerator
-from mining.types import TrackingFrame
 
 SETTINGS = (("top20", None, 10.0), ("top500", 100, None), ("top500", 500, 200.0))
 
 
 def _geometry(data: Path, cfg: JobConfig, n_frames: int):
+    """(frame, geometry, after_gap) of KITTI 0005's first frames, computed once (not timed)."""
     source = open_source("kitti", str(data / "kitti_tracking"))
     plan = source.plan("0005")
-    stage = None
+    loop = FrameLoop(cfg)
     out = []
-    for frame in source.read(plan, 0, n_frames):
-        stage = stage or GeometryStage(frame.calib, cfg.geometry)
-        out.append((frame, stage.run(frame)))
+    for _, frame, after_gap in plan_frames(source, plan, 0, n_frames):
+        if after_gap:
+            loop.recording_gap()
+        out.append((frame, loop.geometry(frame), after_gap))
     return out
 
 
 def bench_setting(geoms, proposals: JsonProposals, limit: int | None, cfg: JobConfig) -> dict[str, float]:
     filt = cfg.proposals.filters
     filt.max_proposals = max(filt.max_proposals, 500)
-    gen = TubeGenerator(cfg.tubes, cfg.score)
-    pose, ground, prev_t = np.eye(4), None, None
+    loop = FrameLoop(cfg)
+    gen = tube_generator(cfg)
     t_loc = t_tube = 0.0
     counts = []
-    for frame, g in geoms:
+    for frame, g, after_gap in geoms:
         props = proposals(frame.index)
         if limit is not None:
             props = props.take(np.arange(min(limit, len(props))))
         counts.append(len(props))
-        if g.egomotion is not None:
-            pose = pose @ np.linalg.inv(g.egomotion.T_cur_prev)
-        ground = g.ground if g.ground.ok else move_plane(ground, g.egomotion.T_cur_prev)
-        dt = None if prev_t is None else (frame.t_ns - prev_t) / 1e9
-        prev_t = frame.t_ns
+        if after_gap:
+            loop.recording_gap()
         t0 = time.process_time()
-        obs = localise(props, g.depth, frame.calib, ground, g.flow, dt, frame.t_ns, cfg.localise)
-        obs = take(obs, geometric_filter(obs, ground, filt))
+        rec = loop.step(frame, geometry=g, proposals=props)  # localise + geometric filter + pose
         t1 = time.process_time()
-        gen.step(TrackingFrame(frame.index, frame.t_ns, frame.calib, pose.copy(), 0, obs, g.depth))
+        gen.step(rec.tracking)
         t2 = time.process_time()
         t_loc += t1 - t0
         t_tube += t2 - t1
     t0 = time.process_time()
     tubes = gen.finish()
-    scores = np.array([score_tube(t, cfg.score).total for t in tubes])
+    mined = judge(tubes, cfg.score, cfg.select)
     t1 = time.process_time()
-    selected = co_select(tubes, scores, cfg.select)
-    t2 = time.process_time()
     n = len(geoms)
-    ms = {"localise": 1e3 * t_loc / n, "tubes": 1e3 * t_tube / n, "score": 1e3 * (t1 - t0) / n,
-          "select": 1e3 * (t2 - t1) / n}
+    # judge = score (sums over inliers) + category + co-selection
+    ms = {"localise": 1e3 * t_loc / n, "tubes": 1e3 * t_tube / n, "judge": 1e3 * (t1 - t0) / n}
     ms["total"] = sum(ms.values())
     ms["proposals_per_frame"] = float(np.mean(counts))
     ms["n_tubes"] = float(len(tubes))
-    ms["n_selected"] = float(selected.sum())
+    ms["n_selected"] = float(sum(m.selected for m in mined))
     return ms
 
 
@@ -90,16 +81,16 @@ def run_tubes_bench(data: Path, cfg: JobConfig, n_frames: int = 16, repeats: int
     pin_one_core()
     geoms = _geometry(data, cfg, n_frames)
     root = data / "proposals_4dgvt_format" / "kitti_tracking_0005"
-    print(f"Localise + tubes + score + select, ms per frame on one core (KITTI 0005 frames 0-{n_frames - 1}, "
+    print(f"Localise + tubes + judge, ms per frame on one core (KITTI 0005 frames 0-{n_frames - 1}, "
           f"best of {repeats})")
-    print(f"  {'proposals':>9} {'localise':>9} {'tubes':>8} {'score':>7} {'select':>7} {'total':>8} {'target':>7} {'tubes made':>10}")
+    print(f"  {'proposals':>9} {'localise':>9} {'tubes':>8} {'judge':>7} {'total':>8} {'target':>7} {'tubes made':>10}")
     ok = True
     for folder, limit, target in SETTINGS:
         reader = JsonProposals(root / folder)
         best = min((bench_setting(geoms, reader, limit, cfg) for _ in range(repeats)), key=lambda r: r["total"])
         tgt = "" if target is None else f"≤{target:.0f}"
-        print(f"  {best['proposals_per_frame']:>9.0f} {best['localise']:>9.1f} {best['tubes']:>8.1f} {best['score']:>7.1f} "
-              f"{best['select']:>7.1f} {best['total']:>8.1f} {tgt:>7} {best['n_tubes']:>10.0f}")
+        print(f"  {best['proposals_per_frame']:>9.0f} {best['localise']:>9.1f} {best['tubes']:>8.1f} {best['judge']:>7.1f} "
+              f"{best['total']:>8.1f} {tgt:>7} {best['n_tubes']:>10.0f}")
         if target is not None and best["total"] > target:
             ok = False
     return 0 if ok else 1

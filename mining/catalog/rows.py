@@ -14,7 +14,7 @@ import pyarrow as pa
 from pycocotools import mask as mask_utils
 
 from mining.catalog.schema import SCHEMA_VERSION, file_schema, part_schema
-from mining.pipeline.mine import MinedTube
+from mining.types import MinedTube
 
 
 @dataclass(frozen=True)

@@ -56,10 +56,10 @@ from mining.eval.clear import clear_metrics, clear_sums
 from mining.eval.hota import hota_metrics, hota_sums
 from mining.eval.identity import identity_metrics, identity_sums
 from mining.masks import areas, box_iou, crop_rle, mask_iou
-from mining.pipeline.frames import tracking_frames
-from mining.pipeline.mine import MinedTube, mine_tubes
+from mining.pipeline.frames import frame_records
+from mining.pipeline.mine import mine_tubes
 from mining.sources import open_source
-from mining.types import FrameTruth, TrackingFrame
+from mining.types import FrameTruth, MinedTube, TrackingFrame
 
 SPLITS = ("all", "known", "unknown")
 _EPS = np.finfo(float).eps
@@ -317,7 +317,7 @@ def run_synthetic(sequence: str, n_frames: int, cfg: JobConfig, start: int = 0, 
 
     def frames() -> Iterator[TrackingFrame]:
         # keep only the compact truth: a FrameRecord holds full-frame arrays
-        for rec in tracking_frames(src, plan, start, stop, cfg):
+        for rec in frame_records(src, plan, start, stop, cfg):
             if rec.frame.truth is None:
                 raise InputError("synthetic frame without ground truth", frame=rec.frame.index)
             truths[rec.frame.index] = gt_frame(rec.frame.truth)

@@ -17,10 +17,10 @@ from mining.eval.formats import read_poses
 from mining.eval.kitti_export import write_tubes_kitti
 from mining.errors import InputError
 from mining.localise.localise import geometric_filter, localise_detections, take
-from mining.pipeline.mine import MinedTube, mine_tubes
+from mining.pipeline.mine import mine_tubes
 from mining.proposals.precomputed import KittiDetections
 from mining.sources.kitti import KittiTrackingSource
-from mining.types import GroundPlane, TrackingFrame
+from mining.types import GroundPlane, MinedTube, TrackingFrame
 
 FRAME_INTERVAL_NS = 100_000_000  # KITTI tracking is recorded at 10 Hz
 

@@ -1,10 +1,20 @@
-"""Per-frame work of the image pipeline: geometry → proposals → localise → TrackingFrame.
+"""The per-frame driver of the image pipeline: geometry → proposals → localise → TrackingFrame.
 
-Poses chain the egomotion within a *segment*. A failed egomotion is never replaced: it
-ends the segment, the next frame starts a new one with its own world frame, and tubes
-do not cross the border. A frame whose ground plane failed uses the last good plane
-moved by the egomotion (``ground_age`` counts the frames since it was measured); with
-no plane at all the frame's proposals cannot be placed on the ground and are dropped.
+Every per-frame loop of the project runs through ``FrameLoop`` (``mine track``, the
+windows' observe step, the benchmarks and the tests), so the rules below hold everywhere:
+
+* **Pose segments.** Poses chain the egomotion within a *segment* (``PoseChain``). A
+  frame without a trusted egomotion from the frame before it starts a new segment with
+  its own world frame, and tubes never cross the border. That is a failed egomotion
+  (never replaced by the identity) and a frame that does not follow the one before it:
+  a recording gap (``SequencePlan.gaps``: a RobotCar chunk not downloaded, a dropped MCAP
+  frame) or a missing window.
+* **Recording gaps** also reset the geometry state (``GeometryStage.reset``): no
+  features are matched and no egomotion is estimated across a gap, and nothing measured
+  before it (flow, ground plane, frame interval) is carried over it.
+* **Ground.** A frame whose ground plane failed uses the last good plane moved by the
+  egomotion (``ground_age`` counts the frames since it was measured); with no plane at
+  all the frame's proposals cannot be placed on the ground and are dropped.
 """
 
 from __future__ import annotations
@@ -19,7 +29,8 @@ from mining.geometry.stage import GeometryStage
 from mining.localise.localise import geometric_filter, localise, take
 from mining.proposals.make import Proposer, make_proposer
 from mining.sources.base import Source
-from mining.types import FrameGeometry, GroundPlane, Proposals, SequencePlan, StereoFrame, TrackingFrame
+from mining.types import (FrameGeometry, GroundPlane, Observations, Proposals, SequencePlan, StereoFrame,
+                          TrackingFrame)
 
 
 @dataclass
@@ -27,11 +38,19 @@ class FrameRecord:
     """What the pipeline knows about a frame besides its tracking input (for the catalogue)."""
 
     frame: StereoFrame
+    position: int | None  # position in the sequence plan (None when the caller fed frames itself)
     geometry: FrameGeometry
     proposals: Proposals  # before the geometric filter
+    localised: Observations  # every proposal localised, before the geometric filter
     ground: GroundPlane  # the plane used (measured or carried)
     ground_age: int  # 0 = measured in this frame
-    tracking: TrackingFrame
+    tracking: TrackingFrame  # the observations that passed the geometric filter, with the pose
+
+    @property
+    def egomotion_T(self) -> np.ndarray | None:
+        """The frame's trusted egomotion T_cur_prev, None when it failed or is absent."""
+        ego = self.geometry.egomotion
+        return ego.T_cur_prev if ego is not None and ego.ok else None
 
 
 def move_plane(plane: GroundPlane, T_cur_prev: np.ndarray) -> GroundPlane:
@@ -41,38 +60,115 @@ def move_plane(plane: GroundPlane, T_cur_prev: np.ndarray) -> GroundPlane:
     return GroundPlane(n, float(plane.d - n @ t), plane.inliers, True, "carried from an earlier frame")
 
 
-def tracking_frames(source: Source, plan: SequencePlan, start: int, stop: int, cfg: JobConfig,
-                    proposer: Proposer | None = None) -> Iterator[FrameRecord]:
-    stage: GeometryStage | None = None
-    pose = np.eye(4)
-    segment = 0
-    ground: GroundPlane | None = None
-    ground_age = 0
-    prev_t = None
-    for frame in source.read(plan, start, stop):
-        if stage is None:
-            stage = GeometryStage(frame.calib, cfg.geometry)
-            proposer = proposer or make_proposer(cfg.proposals, (frame.calib.height, frame.calib.width))
-        geom = stage.run(frame)
-        ego = geom.egomotion
-        if ego is not None:
-            if ego.ok:
-                pose = pose @ np.linalg.inv(ego.T_cur_prev)
-            else:
-                segment += 1
-                pose = np.eye(4)
-        if geom.ground.ok:
-            ground, ground_age = geom.ground, 0
-        elif ground is not None and ego is not None and ego.ok:
-            ground, ground_age = move_plane(ground, ego.T_cur_prev), ground_age + 1
+class PoseChain:
+    """Camera-to-world poses chained from egomotions, one world frame per pose segment.
+
+    ``step(T_cur_prev)`` takes each frame's egomotion from the frame before it, or None
+    when there is none to trust (failed, absent after a gap, or the frame before is
+    missing): the frame then starts a new segment whose world is its own camera. The
+    first frame's egomotion is not used: its world is its camera.
+    """
+
+    def __init__(self) -> None:
+        self.pose = np.eye(4)
+        self.segment = 0
+        self._first = True
+
+    def step(self, T_cur_prev: np.ndarray | None) -> tuple[np.ndarray, int]:
+        if self._first:
+            self._first = False
+        elif T_cur_prev is not None:
+            self.pose = self.pose @ np.linalg.inv(T_cur_prev)  # pose_cur = pose_prev · T_cur_prev⁻¹
         else:
-            ground = None
-        props = proposer(frame, geom)
-        dt = None if prev_t is None else (frame.t_ns - prev_t) / 1e9
-        prev_t = frame.t_ns
-        plane = ground or GroundPlane(None, 0.0, 0, False, geom.ground.reason)
-        obs = localise(props, geom.depth, frame.calib, plane, geom.flow if ego is not None and ego.ok else None,
-                       dt, frame.t_ns, cfg.localise)
-        obs = take(obs, geometric_filter(obs, plane, cfg.proposals.filters))
-        tf = TrackingFrame(frame.index, frame.t_ns, frame.calib, pose.copy(), segment, obs, geom.depth)
-        yield FrameRecord(frame, geom, props, plane, ground_age, tf)
+            self.pose, self.segment = np.eye(4), self.segment + 1
+        return self.pose.copy(), self.segment
+
+
+def chain(positions: list[int], motions: list[np.ndarray | None]) -> list[tuple[np.ndarray, int]]:
+    """Camera-to-world pose and segment of each frame, chained from the first frame.
+
+    ``motions[i]`` is frame i's egomotion T_cur_prev (None when failed or absent). A frame
+    without one, or not the plan successor of the frame before it (a missing window),
+    starts a new segment with its own world frame.
+    """
+    poses = PoseChain()
+    return [poses.step(T if i == 0 or positions[i] == positions[i - 1] + 1 else None)
+            for i, T in enumerate(motions)]
+
+
+class FrameLoop:
+    """One frame at a time, in time order: geometry → proposals → localise → TrackingFrame.
+
+    ``step(frame)`` computes what it is not given: pass ``geometry`` (e.g. computed once
+    for a benchmark) or ``proposals`` (e.g. a fixed set) to reuse them. Call
+    ``recording_gap()`` before the first frame after a hole in the recording.
+    """
+
+    def __init__(self, cfg: JobConfig, proposer: Proposer | None = None):
+        self.cfg = cfg
+        self.proposer = proposer
+        self.stage: GeometryStage | None = None
+        self.poses = PoseChain()
+        self._ground: GroundPlane | None = None
+        self._ground_age = 0
+        self._prev_t: int | None = None
+        self._after_gap = False
+
+    def recording_gap(self) -> None:
+        """The next frame does not follow the last one: start a new segment, forget the geometry state."""
+        if self.stage is not None:
+            self.stage.reset()
+        self._ground, self._ground_age, self._prev_t = None, 0, None
+        self._after_gap = True
+
+    def geometry(self, frame: StereoFrame) -> FrameGeometry:
+        """The geometry stage on ``frame`` (its state carries to the next frame)."""
+        if self.stage is None:
+            self.stage = GeometryStage(frame.calib, self.cfg.geometry)
+        return self.stage.run(frame)
+
+    def step(self, frame: StereoFrame, geometry: FrameGeometry | None = None, proposals: Proposals | None = None,
+             position: int | None = None) -> FrameRecord:
+        cfg = self.cfg
+        geom = geometry if geometry is not None else self.geometry(frame)
+        ego = geom.egomotion
+        T = ego.T_cur_prev if ego is not None and ego.ok and not self._after_gap else None
+        self._after_gap = False
+        pose, segment = self.poses.step(T)
+        if geom.ground.ok:
+            self._ground, self._ground_age = geom.ground, 0
+        elif self._ground is not None and T is not None:
+            self._ground, self._ground_age = move_plane(self._ground, T), self._ground_age + 1
+        else:
+            self._ground = None
+        if proposals is None:
+            if self.proposer is None:
+                self.proposer = make_proposer(cfg.proposals, (frame.calib.height, frame.calib.width))
+            proposals = self.proposer(frame, geom)
+        dt = None if self._prev_t is None else (frame.t_ns - self._prev_t) / 1e9
+        self._prev_t = frame.t_ns
+        plane = self._ground or GroundPlane(None, 0.0, 0, False, geom.ground.reason)
+        # Scene flow relates this frame to the one before only through a trusted egomotion.
+        localised = localise(proposals, geom.depth, frame.calib, plane, geom.flow if T is not None else None,
+                             dt, frame.t_ns, cfg.localise)
+        obs = take(localised, geometric_filter(localised, plane, cfg.proposals.filters))
+        tracking = TrackingFrame(frame.index, frame.t_ns, frame.calib, pose, segment, obs, geom.depth)
+        return FrameRecord(frame, position, geom, proposals, localised, plane, self._ground_age, tracking)
+
+
+def plan_frames(source: Source, plan: SequencePlan, start: int, stop: int) -> Iterator[tuple[int, StereoFrame, bool]]:
+    """(position, frame, after_gap) at plan positions [start, stop): ``after_gap`` is True for
+    the first frame after a recording gap (never for the first frame read)."""
+    gaps = set(plan.gaps)
+    for position, frame in enumerate(source.read(plan, start, stop), start=max(0, start)):
+        yield position, frame, position in gaps and position > start
+
+
+def frame_records(source: Source, plan: SequencePlan, start: int, stop: int, cfg: JobConfig,
+                  proposer: Proposer | None = None) -> Iterator[FrameRecord]:
+    """``FrameLoop`` over plan positions [start, stop), honouring the plan's recording gaps."""
+    loop = FrameLoop(cfg, proposer)
+    for position, frame, after_gap in plan_frames(source, plan, start, stop):
+        if after_gap:
+            loop.recording_gap()
+        yield loop.step(frame, position=position)

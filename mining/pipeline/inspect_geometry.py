@@ -4,8 +4,9 @@ Outputs, in ``out_dir``:
 
 * ``disparity/<frame>.png`` — KITTI 16-bit disparity (value = disparity × 256, 0 = invalid);
 * ``poses.txt`` — KITTI odometry poses from the chained egomotion, one row-major 3×4
-  camera-to-world line per frame, the first frame the identity. A failed egomotion breaks
-  the chain: that frame's line and all later ones are NaN (never a guessed identity);
+  camera-to-world line per frame, the first frame the identity. A failed egomotion or a
+  recording gap breaks the chain: that frame's line and all later ones are NaN (never a
+  guessed identity);
 * ``quality.json`` — per frame: egomotion (ok, reason, inliers, matches, RMSE, the 3×4
   relative transform), ground plane, disparity density, flow count and timings.
 
@@ -27,6 +28,7 @@ from mining.eval.formats import write_disparity_png, write_poses
 from mining.eval.odometry import chain_egomotion
 from mining.geometry.config import GeometryConfig
 from mining.geometry.stage import GeometryStage
+from mining.pipeline.frames import plan_frames
 from mining.sources.base import Source
 from mining.types import FrameGeometry
 
@@ -79,9 +81,11 @@ def inspect_geometry(
     transforms: list[np.ndarray | None] = []
     error = None
     try:
-        for frame in source.read(plan, start, stop):
+        for _, frame, after_gap in plan_frames(source, plan, start, stop):
             if stage is None:
                 stage = GeometryStage(frame.calib, cfg)
+            if after_gap:  # nothing is matched across a recording gap: the chain breaks there
+                stage.reset()
             g = stage.run(frame)
             _atomic(out / "disparity" / f"{g.index:06d}.png", lambda p: write_disparity_png(p, g.disparity))
             frames.append(frame_quality(g))

@@ -1,36 +1,41 @@
-"""Tubes → score → select → known/unknown over a run of tracking frames."""
+"""Tubes → judge: generate tubes over tracking frames, then score, classify and co-select them.
+
+``judge`` is the one step after tube generation (score → category → co-selection); a
+window judges its own tubes and the stitcher judges a sequence's stitched tubes with it.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass
 
 import numpy as np
 
 from mining.config import JobConfig
-from mining.score.unary import TubeScore, score_tube
+from mining.score.config import ScoreConfig
+from mining.score.unary import score_tube
+from mining.select.config import SelectConfig
 from mining.select.coselect import co_select
-from mining.tubes.category import TubeCategory, tube_category
+from mining.tubes.category import tube_category
 from mining.tubes.generate import TubeGenerator
-from mining.tubes.tube import Tube
-from mining.types import TrackingFrame
+from mining.types import MinedTube, TrackingFrame, Tube
 
 
-@dataclass
-class MinedTube:
-    tube: Tube
-    score: TubeScore
-    category: TubeCategory
-    selected: bool
+def judge(tubes: list[Tube], score_cfg: ScoreConfig, select_cfg: SelectConfig) -> list[MinedTube]:
+    """Each tube's unary score and category, and the co-selection over all of them."""
+    scores = [score_tube(t, score_cfg) for t in tubes]
+    selected = co_select(tubes, np.array([s.total for s in scores]), select_cfg)
+    return [MinedTube(t, s, tube_category(t, score_cfg.known_threshold), bool(m))
+            for t, s, m in zip(tubes, scores, selected)]
+
+
+def tube_generator(cfg: JobConfig, first_id: int = 0) -> TubeGenerator:
+    """The job's tube generator, ranking tubes for tube NMS by their unary score."""
+    return TubeGenerator(cfg.tubes, lambda tube: score_tube(tube, cfg.score).total, first_id=first_id)
 
 
 def mine_tubes(frames: Iterable[TrackingFrame], cfg: JobConfig, first_id: int = 0) -> list[MinedTube]:
-    """Generate, score and co-select tubes over frames given in time order."""
-    gen = TubeGenerator(cfg.tubes, cfg.score, first_id=first_id)
+    """Generate tubes over frames given in time order, then judge them."""
+    gen = tube_generator(cfg, first_id)
     for frame in frames:
         gen.step(frame)
-    tubes = gen.finish()
-    scores = [score_tube(t, cfg.score) for t in tubes]
-    selected = co_select(tubes, np.array([s.total for s in scores]), cfg.select)
-    return [MinedTube(t, s, tube_category(t, cfg.score.known_threshold), bool(m))
-            for t, s, m in zip(tubes, scores, selected)]
+    return judge(gen.finish(), cfg.score, cfg.select)

@@ -28,13 +28,9 @@ from scipy.optimize import linear_sum_assignment
 from mining.catalog.rows import RunInfo, frame_rows, to_table, tube_row
 from mining.catalog.schema import file_schema
 from mining.config import JobConfig
-from mining.pipeline.mine import MinedTube
-from mining.pipeline.window import chain
-from mining.score.unary import score_tube
-from mining.select.coselect import co_select
-from mining.tubes.category import tube_category
-from mining.tubes.tube import Tube, TubeFrame
-from mining.types import Window
+from mining.pipeline.mine import judge
+from mining.pipeline.frames import chain
+from mining.types import Tube, TubeFrame, Window
 
 
 @dataclass
@@ -159,7 +155,7 @@ def stitch_sequence(windows: list[Window], tubes: pa.Table, tube_frames: pa.Tabl
     pieces = _pieces(tube_frames)
     piece_window = {p: rows[0]["window"] for p, rows in pieces.items()}
     keys = {p: {(r["frame"], r["obs_index"]) for r in rows if r["observed"]} for p, rows in pieces.items()}
-    stitched = []
+    tubes, windows_of = [], []
     pos = poses.position
     for links in _chains(windows, piece_window, keys, cfg.window.stitch_min_shared, pos):
         rows = [r for p, lo, hi in links for r in pieces[p] if lo <= pos[r["frame"]] <= hi]
@@ -169,15 +165,12 @@ def stitch_sequence(windows: list[Window], tubes: pa.Table, tube_frames: pa.Tabl
             rows.pop(0)
         if not rows:
             continue  # owned by no window's core: a neighbour's tube seen from the context
-        n_windows = len({r["window"] for r in rows})
-        tube = Tube(tube_id=0, segment=poses.segment[rows[0]["frame"]], frames=[_tube_frame(r, poses) for r in rows])
-        mt = MinedTube(tube, score_tube(tube, cfg.score), tube_category(tube, cfg.score.known_threshold), False)
-        stitched.append((mt, n_windows))
-    # Co-selection again, over the whole sequence's stitched tubes: a window chose among
-    # tubes cut at its context's ends, whose scores (sums over frames) were cut with them.
-    chosen = co_select([mt.tube for mt, _ in stitched], np.array([mt.score.total for mt, _ in stitched]), cfg.select)
-    for (mt, _), c in zip(stitched, chosen):
-        mt.selected = bool(c)
+        windows_of.append(len({r["window"] for r in rows}))
+        tubes.append(Tube(tube_id=0, segment=poses.segment[rows[0]["frame"]], frames=[_tube_frame(r, poses) for r in rows]))
+    # Judged again (score, category, co-selection) over the whole sequence's stitched tubes:
+    # a window chose among tubes cut at its context's ends, whose scores (sums over frames)
+    # were cut with them.
+    stitched = list(zip(judge(tubes, cfg.score, cfg.select), windows_of))
     # Stable ids: the first inlier names the tube; ties (one observation can start several) by inliers.
     stitched.sort(key=lambda x: (x[0].tube.inlier_key(), -x[0].score.total))
     used: dict[str, int] = defaultdict(int)

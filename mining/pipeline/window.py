@@ -24,11 +24,11 @@ import numpy as np
 
 from mining.config import JobConfig
 from mining.errors import InputError
-from mining.pipeline.frames import tracking_frames
-from mining.pipeline.mine import MinedTube, mine_tubes
+from mining.pipeline.frames import chain, frame_records
+from mining.pipeline.mine import mine_tubes
 from mining.proposals.make import Proposer
 from mining.sources.base import Source
-from mining.types import Observations, SequencePlan, StereoCalib, TrackingFrame, Window
+from mining.types import MinedTube, Observations, SequencePlan, StereoCalib, TrackingFrame, Window
 
 WARMUP_FRAMES = 2  # ours: GeometryStage state spans two frames (features of t−1, motion of t−1 predicting t)
 
@@ -69,14 +69,13 @@ def observe_window(source: Source, plan: SequencePlan, window: Window, cfg: JobC
 def _observe(source: Source, plan: SequencePlan, start: int, s: int, e: int, cfg: JobConfig,
              proposer: Proposer | None) -> list[ObservedFrame]:
     out = []
-    position = start
-    for rec in tracking_frames(source, plan, start, e, cfg, proposer):
-        if position >= s:
+    for rec in frame_records(source, plan, start, e, cfg, proposer):
+        if rec.position >= s:
             ego = rec.geometry.egomotion
             obs = rec.tracking.observations
             out.append(ObservedFrame(
-                position=position, index=rec.frame.index, t_ns=rec.frame.t_ns, calib=rec.frame.calib,
-                T_cur_prev=None if ego is None or not ego.ok else ego.T_cur_prev,
+                position=rec.position, index=rec.frame.index, t_ns=rec.frame.t_ns, calib=rec.frame.calib,
+                T_cur_prev=rec.egomotion_T,
                 egomotion_ok=None if ego is None else bool(ego.ok),
                 egomotion_inliers=0 if ego is None else int(ego.inliers),
                 egomotion_rmse_px=float("nan") if ego is None else float(ego.rmse_px),
@@ -85,26 +84,6 @@ def _observe(source: Source, plan: SequencePlan, start: int, s: int, e: int, cfg
                 n_proposals=len(rec.proposals),
                 observations=obs,
             ))
-        position += 1
-    return out
-
-
-def chain(positions: list[int], motions: list[np.ndarray | None]) -> list[tuple[np.ndarray, int]]:
-    """Camera-to-world pose and segment of each frame, chained from the first frame.
-
-    ``motions[i]`` is frame i's egomotion T_cur_prev (None when failed or absent). A frame
-    without one, or not the plan successor of the frame before it (a missing window),
-    starts a new segment with its own world frame.
-    """
-    out = []
-    pose, segment = np.eye(4), 0
-    for i, T in enumerate(motions):
-        if i > 0:
-            if T is not None and positions[i] == positions[i - 1] + 1:
-                pose = pose @ np.linalg.inv(T)
-            else:
-                pose, segment = np.eye(4), segment + 1
-        out.append((pose.copy(), segment))
     return out
 
 

@@ -12,20 +12,10 @@ so longer tubes score higher.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from mining.score.config import ScoreConfig
-from mining.tubes.tube import Tube
-
-
-@dataclass
-class TubeScore:
-    motion: float
-    mask: float
-    objectness: float
-    total: float
+from mining.types import Tube, TubeScore
 
 
 def llr(x: np.ndarray, k: float, floor: float) -> float:

@@ -15,7 +15,7 @@ from scipy.sparse.csgraph import connected_components
 from mining.masks import box_iou, mask_iou
 from mining.select.config import SelectConfig
 from mining.select.qubo import build_qubo, solve
-from mining.tubes.tube import Tube
+from mining.types import Tube
 
 
 DENSE_MAX = 400  # ours: up to this many tubes one dense N × N QUBO is cheaper than splitting it first

@@ -9,22 +9,10 @@ posterior and are unknown.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from mining.proposals.coco import COCO_CLASSES
-from mining.tubes.tube import Tube
-from mining.types import UNKNOWN_CLASS
-
-
-@dataclass
-class TubeCategory:
-    posterior: np.ndarray | None  # (81,) mean over observed frames, or None without classes
-    category: str  # COCO class name, or "unknown"
-    probability: float  # posterior mass of ``category`` (NaN without classes)
-    known: bool
-    best_known: str  # the most probable of the 80 classes, even when the tube is unknown (or "unknown" without classes)
+from mining.types import UNKNOWN_CLASS, Tube, TubeCategory
 
 
 def tube_category(tube: Tube, known_threshold: float) -> TubeCategory:

@@ -22,21 +22,19 @@ from __future__ import annotations
 
 import copy
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from mining.masks import areas, mask_iou, paired_box_iou
-from mining.score.config import ScoreConfig
-from mining.score.unary import score_tube
 from mining.tubes.config import TubeConfig
 from mining.tubes.gating import GROUND, best_pairs, box_gates
 from mining.tubes.kalman import POS, SIZE, TubeFilter, prior_velocity_cov
 from mining.tubes.probe import probe_back
-from mining.tubes.tube import Tube, TubeFrame
-from mining.tubes.warp import predict_box, predict_mask
+from mining.tubes.warp import MaskPoints, predict_box, predict_mask
 from mining.tubes.world import WorldObservations
-from mining.types import TrackingFrame
+from mining.types import TrackingFrame, Tube, TubeFrame
 
 
 @dataclass
@@ -45,13 +43,28 @@ class Prediction:
     box: np.ndarray
 
 
-class TubeGenerator:
-    """Feed frames in time order with ``step``; ``finish`` returns every tube made."""
+@dataclass
+class LiveTube:
+    """A tube while it is extended: the tube so far and the generator's tracking state."""
 
-    def __init__(self, cfg: TubeConfig, score_cfg: ScoreConfig | None = None, first_id: int = 0):
+    tube: Tube
+    kf: TubeFilter
+    points: MaskPoints  # 3D points of the last observed mask (world), warped to predict the next
+    last_observed_t_ns: int
+    gap: int = 0  # frames since the last observation
+
+
+class TubeGenerator:
+    """Feed frames in time order with ``step``; ``finish`` returns every tube made.
+
+    ``nms_score(tube)`` ranks tubes for tube NMS (the caller's unary score: the generator
+    does not score).
+    """
+
+    def __init__(self, cfg: TubeConfig, nms_score: Callable[[Tube], float], first_id: int = 0):
         self.cfg = cfg
-        self.score_cfg = score_cfg or ScoreConfig()
-        self.live: list[Tube] = []
+        self.nms_score = nms_score
+        self.live: list[LiveTube] = []
         self.ended: list[Tube] = []
         self.history: deque[WorldObservations] = deque(maxlen=cfg.backward_steps)
         self.next_id = first_id
@@ -86,7 +99,7 @@ class TubeGenerator:
             pred = self._predict(tube, world.frame)
             reason = self._left_view(tube, pred, world.frame)
             if reason:
-                tube.end_reason = reason
+                tube.tube.end_reason = reason
                 self._end(tube)
                 continue
             survivors.append(tube)
@@ -100,14 +113,14 @@ class TubeGenerator:
             else:
                 self._miss(tube, world, pred)
                 if tube.gap > self._gap_limit(tube):
-                    tube.end_reason = "gap"
+                    tube.tube.end_reason = "gap"
                     self._end(tube)
                     continue
             keep.append(tube)
         self.live = keep
         return set(int(j) for j in choice if j >= 0)
 
-    def _predict(self, tube: Tube, frame: TrackingFrame, box_only: bool = False) -> Prediction | None:
+    def _predict(self, tube: LiveTube, frame: TrackingFrame, box_only: bool = False) -> Prediction | None:
         shift = np.array([tube.kf.x[3], 0.0, tube.kf.x[4]]) * (frame.t_ns - tube.last_observed_t_ns) / 1e9
         if box_only:
             box = predict_box(tube.points, shift, frame.pose, frame.calib)
@@ -115,7 +128,7 @@ class TubeGenerator:
         out = predict_mask(tube.points, shift, frame.pose, frame.calib, self.cfg.warp_close_px)
         return None if out is None else Prediction(*out)
 
-    def _left_view(self, tube: Tube, pred: Prediction | None, frame: TrackingFrame) -> str:
+    def _left_view(self, tube: LiveTube, pred: Prediction | None, frame: TrackingFrame) -> str:
         if pred is None:
             return "mask left the image"
         if areas([pred.rle])[0] <= self.cfg.min_predicted_mask_px:
@@ -132,10 +145,10 @@ class TubeGenerator:
             return "left the view laterally"
         return ""
 
-    def _gap_limit(self, tube: Tube) -> int:
-        return min(self.cfg.max_gap_frames, max(1, round(self.cfg.gap_inlier_factor * tube.n_inliers)))
+    def _gap_limit(self, tube: LiveTube) -> int:
+        return min(self.cfg.max_gap_frames, max(1, round(self.cfg.gap_inlier_factor * tube.tube.n_inliers)))
 
-    def _associate(self, tubes: list[Tube], preds: list[Prediction], world: WorldObservations):
+    def _associate(self, tubes: list[LiveTube], preds: list[Prediction], world: WorldObservations):
         """Best gated observation per tube (−1: none) and its (mask IoU, density)."""
         T, N = len(tubes), len(world)
         choice = np.full(T, -1, np.int64)
@@ -164,7 +177,7 @@ class TubeGenerator:
             terms[i] = (float(a), float(d))
         return choice, terms
 
-    def _observe(self, tube: Tube, world: WorldObservations, j: int, iou: float, dens: float) -> None:
+    def _observe(self, tube: LiveTube, world: WorldObservations, j: int, iou: float, dens: float) -> None:
         frame, obs = world.frame, world.frame.observations
         tube.kf.update(world.footpoint[j], world.covariance[j], obs.size[j], *world.velocity_or_none(j))
         pts = world.points(j)
@@ -172,20 +185,20 @@ class TubeGenerator:
             tube.points = pts
             tube.last_observed_t_ns = frame.t_ns
         tube.gap = 0
-        tube.frames.append(self._tube_frame(tube, frame, j, iou, dens))
+        tube.tube.frames.append(self._tube_frame(tube, frame, j, iou, dens))
 
-    def _miss(self, tube: Tube, world: WorldObservations, pred: Prediction) -> None:
+    def _miss(self, tube: LiveTube, world: WorldObservations, pred: Prediction) -> None:
         frame = world.frame
         R, t = frame.pose[:3, :3], frame.pose[:3, 3]
         x = tube.kf.x
         tube.gap += 1
-        tube.frames.append(TubeFrame(
+        tube.tube.frames.append(TubeFrame(
             frame=frame.index, t_ns=frame.t_ns, observed=False, obs_index=-1, rle=pred.rle, box=pred.box,
             footpoint_world=x[POS].copy(), velocity_world=np.array([x[3], 0.0, x[4]]), size=x[SIZE].copy(),
             position_cam=(x[POS] - t) @ R, objectness=np.nan, mask_iou=np.nan, motion_density=np.nan,
         ))
 
-    def _tube_frame(self, tube: Tube, frame: TrackingFrame, j: int, iou: float, dens: float) -> TubeFrame:
+    def _tube_frame(self, tube: LiveTube, frame: TrackingFrame, j: int, iou: float, dens: float) -> TubeFrame:
         obs = frame.observations
         x = tube.kf.x
         post = None if obs.proposals.posterior is None else obs.proposals.posterior[j]
@@ -198,15 +211,15 @@ class TubeGenerator:
 
     # --- start ----------------------------------------------------------------------
 
-    def _new_tube(self, world: WorldObservations, j: int) -> Tube | None:
+    def _new_tube(self, world: WorldObservations, j: int) -> LiveTube | None:
         frame, obs = world.frame, world.frame.observations
         pts = world.points(j)
         if pts is None:
             return None
         kf = TubeFilter(world.footpoint[j], world.covariance[j], obs.size[j], *world.velocity_or_none(j),
                         self.cfg.kalman, frame.pose[:3, :3])
-        tube = Tube(tube_id=-1, segment=frame.segment, kf=kf, points=pts, last_observed_t_ns=frame.t_ns)
-        tube.frames.append(self._tube_frame(tube, frame, j, np.nan, np.nan))
+        tube = LiveTube(Tube(tube_id=-1, segment=frame.segment), kf, pts, frame.t_ns)
+        tube.tube.frames.append(self._tube_frame(tube, frame, j, np.nan, np.nan))
         return tube
 
     def _start(self, world: WorldObservations, taken: set[int]) -> None:
@@ -220,9 +233,9 @@ class TubeGenerator:
             starts = probe_back(world, cands, past, self.cfg)
         else:
             starts = [self._probe_one(world, int(j), past, box_only=False) for j in cands]
-        new: list[Tube] = []
+        new: list[LiveTube] = []
         # Candidates whose probes end at the same inlier replay to the same tube: replay once.
-        replayed: dict[tuple[int, int], Tube | None] = {}
+        replayed: dict[tuple[int, int], LiveTube | None] = {}
         for start in starts:
             if start is None:
                 continue
@@ -231,10 +244,10 @@ class TubeGenerator:
             if not seen:
                 replayed[key] = self._replay(world, *start)
             tube = replayed[key]
-            if tube is None or self._duplicate(tube, self.live + new):
+            if tube is None or self._duplicate(tube.tube, [t.tube for t in self.live + new]):
                 continue
             tube = copy.deepcopy(tube) if seen else tube
-            tube.tube_id = self.next_id
+            tube.tube.tube_id = self.next_id
             self.next_id += 1
             new.append(tube)
         self.live.extend(new)
@@ -262,7 +275,7 @@ class TubeGenerator:
             earliest = (w, int(choice[0]))
         return earliest
 
-    def _replay(self, world: WorldObservations, w0: WorldObservations, j0: int) -> Tube | None:
+    def _replay(self, world: WorldObservations, w0: WorldObservations, j0: int) -> LiveTube | None:
         """Re-initialise at the earliest inlier (w0, j0) and replay forwards up to now."""
         tube = self._new_tube(w0, j0)
         if tube is None:
@@ -280,7 +293,7 @@ class TubeGenerator:
                 self._observe(tube, w, int(choice[0]), *terms[0])
             else:
                 self._miss(tube, w, pred)
-        if not tube.frames[-1].observed:
+        if not tube.tube.frames[-1].observed:
             return None
         return tube
 
@@ -339,25 +352,24 @@ class TubeGenerator:
 
     # --- end and NMS -----------------------------------------------------------------
 
-    def _end(self, tube: Tube) -> None:
-        tube.trim()
-        tube.kf = None
-        tube.points = None
-        if tube.frames:
-            self.ended.append(tube)
+    def _end(self, live: LiveTube) -> None:
+        """The tube ends at its last observation; its tracking state goes."""
+        live.tube.trim()
+        if live.tube.frames:
+            self.ended.append(live.tube)
 
     def _end_all(self, reason: str) -> None:
-        for tube in self.live:
-            tube.end_reason = tube.end_reason or reason
-            self._end(tube)
+        for live in self.live:
+            live.tube.end_reason = live.tube.end_reason or reason
+            self._end(live)
         self.live = []
 
     def _tube_nms(self) -> None:
         """Suppress the weaker of two old tubes that cover the same masks (REFERENCE.md)."""
-        old = [t for t in self.live if len(t.frames) > self.cfg.nms_min_age]
+        old = [t.tube for t in self.live if len(t.tube.frames) > self.cfg.nms_min_age]
         if len(old) < 2:
             return
-        scores = {t.tube_id: score_tube(t, self.score_cfg).total for t in old}
+        scores = {t.tube_id: self.nms_score(t) for t in old}
         old.sort(key=lambda t: -scores[t.tube_id])
         suppressed: set[int] = set()
         maps = {t.tube_id: t.frame_map() for t in old}
@@ -383,7 +395,7 @@ class TubeGenerator:
                     suppressed.add(b.tube_id)
         if suppressed:
             for t in self.live:
-                if t.tube_id in suppressed:
-                    t.end_reason = "suppressed"
+                if t.tube.tube_id in suppressed:
+                    t.tube.end_reason = "suppressed"
             # Suppressed tubes are dropped, not kept as ended candidates.
-            self.live = [t for t in self.live if t.tube_id not in suppressed]
+            self.live = [t for t in self.live if t.tube.tube_id not in suppressed]

@@ -35,9 +35,16 @@ class SyntheticSource(Source):
 
     def __init__(self, root: str | None = None, n_frames: int = 500, width: int = 1242, height: int = 375,
                  fx: float = 721.5377, baseline_m: float = 0.5327, hz: float = 10.0, seed_base: int = 0,
-                 sequences: list[str] | None = None):
+                 sequences: list[str] | None = None, drop_frames: list[list[int]] | None = None):
+        """``drop_frames``: ranges [a, b) of frames left out of every plan, as if never recorded
+        (each is a recording gap, ``SequencePlan.gaps``); the world goes on moving through them."""
         if n_frames <= 0 or width < 16 or height < 16 or hz <= 0:
             raise InputError(f"bad synthetic options n_frames={n_frames} size={width}x{height} hz={hz}")
+        self.dropped: set[int] = set()
+        for r in drop_frames or ():
+            if len(r) != 2 or not 0 <= int(r[0]) < int(r[1]) <= n_frames:
+                raise InputError(f"bad synthetic option drop_frames={drop_frames}: ranges [a, b) with 0 <= a < b <= n_frames")
+            self.dropped.update(range(int(r[0]), int(r[1])))
         self.n_frames, self.hz, self.seed_base = int(n_frames), float(hz), int(seed_base)
         self.calib = StereoCalib(fx, fx, width * CX_FRAC, height * CY_FRAC, baseline_m, width, height)
         self._names = list(sequences) if sequences else [f"{i:04d}" for i in range(4)]
@@ -57,9 +64,10 @@ class SyntheticSource(Source):
 
     def plan(self, sequence: str) -> SequencePlan:
         self._seed(sequence)
-        frames = tuple(range(self.n_frames))
+        frames = tuple(i for i in range(self.n_frames) if i not in self.dropped)
         t_ns = tuple(int(round(i * 1e9 / self.hz)) for i in frames)
-        return SequencePlan(self.dataset, sequence, self.calib, frames, t_ns)
+        gaps = tuple(p for p in range(1, len(frames)) if frames[p] != frames[p - 1] + 1)
+        return SequencePlan(self.dataset, sequence, self.calib, frames, t_ns, gaps)
 
     def scene(self, sequence: str) -> Scene:
         if self._atlas is None:
