@@ -14,7 +14,7 @@ from mining.eval.kitti_labels import read_kitti_tracking
 from mining.geometry.config import GroundConfig
 from mining.geometry.ground import estimate_ground
 from mining.geometry.stage import GeometryStage
-from mining.masks import box_iou
+from mining.boxes import box_iou
 from mining.proposals.stereo import CUES, StereoProposer, objectness_from_cues
 from mining.proposals.stereo_config import StereoProposerConfig
 from mining.sources import open_source

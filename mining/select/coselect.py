@@ -12,7 +12,8 @@ import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import connected_components
 
-from mining.masks import box_iou, mask_iou
+from mining.boxes import box_iou
+from mining.masks import mask_iou
 from mining.select.config import SelectConfig
 from mining.select.qubo import build_qubo, solve
 from mining.tubes.tube import Tube
