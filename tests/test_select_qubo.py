@@ -15,12 +15,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.sparse import csr_matrix
 
 from mining.boxes import box_iou
 from mining.errors import ConfigError, InputError
 from mining.select.config import SelectConfig
 from mining.select.qubo import (
     build_qubo,
+    connected_groups,
     fix_forced,
     multibranch_widths,
     qubo_value,
@@ -119,6 +121,14 @@ def _gap(value: float, best: float) -> float:
 
 
 # --------------------------------------------------------------------------- exact solver
+
+
+def test_connected_groups():
+    links = np.zeros((6, 6), bool)
+    for i, j in ((0, 4), (4, 2), (3, 5)):
+        links[i, j] = links[j, i] = True
+    groups = connected_groups(csr_matrix(links))
+    assert [g.tolist() for g in groups] == [[0, 2, 4], [1], [3, 5]]
 
 
 def test_exhaustive_matches_plain_enumeration():
