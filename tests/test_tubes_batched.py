@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from mining.config import load_config
-from mining.localise.localise import geometric_filter, localise, take
+from mining.localise.localise import geometric_filter, localise
 from mining.masks import mask_pixels
 from mining.tubes.generate import TubeGenerator
 from mining.tubes.kalman import TubeFilter, initial_states, predict_states, update_states
@@ -168,7 +168,7 @@ def test_batched_probe_agrees_on_real_masks(mask_frames):
     gen = _CheckedGenerator(cfg.tubes, cfg.score)
     filt = cfg.proposals.filters
     for props, g, frame, dt, obs, pose in mask_frames:
-        obs = take(obs, geometric_filter(obs, g.ground if g.ground.ok else None, filt))
+        obs = obs.take(geometric_filter(obs, g.ground if g.ground.ok else None, filt))
         gen.step(TrackingFrame(frame.index, frame.t_ns, frame.calib, pose, 0, obs, g.depth))
     assert gen.compared > 50 and gen.found > 5
     assert gen.finish()

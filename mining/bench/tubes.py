@@ -19,7 +19,7 @@ import numpy as np
 from mining.bench.geometry import pin_one_core
 from mining.config import JobConfig
 from mining.geometry.stage import GeometryStage
-from mining.localise.localise import geometric_filter, localise, take
+from mining.localise.localise import geometric_filter, localise
 from mining.pipeline.frames import move_plane
 from mining.proposals.precomputed import JsonProposals
 from mining.score.unary import score_tube
@@ -61,7 +61,7 @@ def bench_setting(geoms, proposals: JsonProposals, limit: int | None, cfg: JobCo
         prev_t = frame.t_ns
         t0 = time.process_time()
         obs = localise(props, g.depth, frame.calib, ground, g.flow, dt, frame.t_ns, cfg.localise)
-        obs = take(obs, geometric_filter(obs, ground, filt))
+        obs = obs.take(geometric_filter(obs, ground, filt))
         t1 = time.process_time()
         gen.step(TrackingFrame(frame.index, frame.t_ns, frame.calib, pose.copy(), 0, obs, g.depth))
         t2 = time.process_time()

@@ -16,7 +16,7 @@ import numpy as np
 
 from mining.config import JobConfig
 from mining.geometry.stage import GeometryStage
-from mining.localise.localise import geometric_filter, localise, take
+from mining.localise.localise import geometric_filter, localise
 from mining.proposals.make import Proposer, make_proposer
 from mining.sources.base import Source
 from mining.types import FrameGeometry, GroundPlane, Proposals, SequencePlan, StereoFrame, TrackingFrame
@@ -73,6 +73,6 @@ def tracking_frames(source: Source, plan: SequencePlan, start: int, stop: int, c
         plane = ground or GroundPlane(None, 0.0, 0, False, geom.ground.reason)
         obs = localise(props, geom.depth, frame.calib, plane, geom.flow if ego is not None and ego.ok else None,
                        dt, frame.t_ns, cfg.localise)
-        obs = take(obs, geometric_filter(obs, plane, cfg.proposals.filters))
+        obs = obs.take(geometric_filter(obs, plane, cfg.proposals.filters))
         tf = TrackingFrame(frame.index, frame.t_ns, frame.calib, pose.copy(), segment, obs, geom.depth)
         yield FrameRecord(frame, geom, props, plane, ground_age, tf)
