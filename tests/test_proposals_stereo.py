@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from pycocotools import mask as mask_utils
 
+from mining.boxes import box_iou
 from mining.errors import InputError
 from mining.eval.kitti_labels import read_kitti_tracking
 from mining.geometry.config import GroundConfig
 from mining.geometry.ground import estimate_ground
 from mining.geometry.stage import GeometryStage
-from mining.boxes import box_iou
 from mining.proposals.stereo import CUES, StereoProposer, objectness_from_cues
 from mining.proposals.stereo_config import StereoProposerConfig
 from mining.sources import open_source
