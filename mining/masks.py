@@ -158,39 +158,6 @@ def mask_iou(a: list[dict], b: list[dict]) -> np.ndarray:
     return np.asarray(mask_utils.iou(a, b, [0] * len(b)), np.float64).reshape(len(a), len(b))
 
 
-def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(len(a), len(b)) IoU of x1, y1, x2, y2 boxes."""
-    a = np.asarray(a, np.float64).reshape(-1, 4)
-    b = np.asarray(b, np.float64).reshape(-1, 4)
-    return paired_box_iou(a[:, None], b[None, :])
-
-
-def paired_box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """IoU of the boxes ``a[..., :4]`` and ``b[..., :4]`` element by element (broadcast):
-    the pairs of a gate's mask without the full matrix."""
-    # np.maximum(x, 0) is np.clip(x, 0, None) without clip's Python-level dispatch.
-    iw = np.maximum(np.minimum(a[..., 2], b[..., 2]) - np.maximum(a[..., 0], b[..., 0]), 0)
-    ih = np.maximum(np.minimum(a[..., 3], b[..., 3]) - np.maximum(a[..., 1], b[..., 1]), 0)
-    inter = iw * ih
-    area_a = (a[..., 2] - a[..., 0]) * (a[..., 3] - a[..., 1])
-    area_b = (b[..., 2] - b[..., 0]) * (b[..., 3] - b[..., 1])
-    union = area_a + area_b - inter
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(union > 0, inter / union, 0.0)
-
-
-def size_similarity(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(len(a), len(b)) 2D size similarity of boxes: product of width and height ratios (≤ 1)."""
-    a = np.asarray(a, np.float64).reshape(-1, 4)
-    b = np.asarray(b, np.float64).reshape(-1, 4)
-    wa, ha = a[:, 2] - a[:, 0], a[:, 3] - a[:, 1]
-    wb, hb = b[:, 2] - b[:, 0], b[:, 3] - b[:, 1]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        rw = np.minimum(wa[:, None], wb[None]) / np.maximum(wa[:, None], wb[None])
-        rh = np.minimum(ha[:, None], hb[None]) / np.maximum(ha[:, None], hb[None])
-    return np.nan_to_num(rw * rh)
-
-
 def rle_box(rle: dict) -> np.ndarray:
     """x1, y1, x2, y2 of a mask (pycocotools gives x, y, w, h)."""
     x, y, w, h = mask_utils.toBbox(rle)

@@ -14,6 +14,7 @@ Conventions used throughout the code base:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -270,8 +271,46 @@ class Proposals:
         )
 
     @staticmethod
+    def cat(parts: Sequence[Proposals]) -> Proposals:
+        """The rows of several proposal sets of one frame, one set after the other.
+
+        An optional field (posterior, position, size) that some sets lack becomes NaN rows
+        for them ("not known"); None when every set lacks it. Proposer names are kept when
+        every set has them.
+        """
+        if not parts:
+            raise ValueError("concatenation of no proposal sets")
+        frame = parts[0].frame
+        if any(p.frame != frame for p in parts):
+            raise ValueError(f"cannot concatenate proposals of frames {sorted({p.frame for p in parts})}")
+        named = [len(p.proposer) == len(p) for p in parts]
+        if any(named) and not all(named):
+            raise ValueError("cannot concatenate proposal sets with and without proposer names")
+        n = [len(p) for p in parts]
+        return Proposals(
+            frame=frame,
+            rles=[r for p in parts for r in p.rles],
+            boxes=np.concatenate([p.boxes.reshape(-1, 4) for p in parts]).astype(np.float32),
+            objectness=np.concatenate([p.objectness for p in parts]).astype(np.float32),
+            posterior=_stack_rows([p.posterior for p in parts], n, N_CLASSES),
+            proposer=[name for p in parts for name in p.proposer],
+            position=_stack_rows([p.position for p in parts], n, 3),
+            size=_stack_rows([p.size for p in parts], n, 3),
+        )
+
+    @staticmethod
     def empty(frame: int) -> Proposals:
         return Proposals(frame, [], np.zeros((0, 4), np.float32), np.zeros(0, np.float32))
+
+
+def _stack_rows(parts: list[np.ndarray | None], n: list[int], width: int) -> np.ndarray | None:
+    """Row-stack optional float32 arrays of ``n[i]`` rows each; a missing one becomes NaN
+    rows (None if all are missing)."""
+    if all(a is None for a in parts):
+        return None
+    rows = [np.full((k, width), np.nan, np.float32) if a is None else np.asarray(a, np.float32).reshape(k, width)
+            for a, k in zip(parts, n)]
+    return np.concatenate(rows)
 
 
 @dataclass
@@ -298,6 +337,16 @@ class Observations:
 
     def __len__(self) -> int:
         return len(self.proposals)
+
+    def take(self, idx: np.ndarray) -> Observations:
+        """The observations at ``idx`` (indices or a boolean mask), in that order."""
+        idx = np.flatnonzero(idx) if np.asarray(idx).dtype == bool else np.asarray(idx, np.int64)
+        return Observations(
+            self.proposals.take(idx), self.t_ns, self.position[idx], self.covariance[idx], self.footpoint[idx],
+            self.velocity[idx], self.velocity_covariance[idx], self.size[idx], self.n_points[idx],
+            None if self.points is None else [self.points[i] for i in idx],
+            None if self.grid is None else self.grid[idx],
+        )
 
 
 @dataclass

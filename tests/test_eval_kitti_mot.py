@@ -11,7 +11,8 @@ import pytest
 
 from mining.errors import InputError
 from mining.eval.kitti_labels import read_kitti_tracking, write_kitti_tracking
-from mining.eval.kitti_mot import box_ioa, box_iou, evaluate_kitti_mot, format_table, read_seqmap
+from mining.boxes import box_ioa, box_iou
+from mining.eval.kitti_mot import evaluate_kitti_mot, format_table, read_seqmap
 
 # ---------------------------------------------------------------- helpers for hand-made files
 

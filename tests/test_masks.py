@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from pycocotools import mask as mask_utils
 
-from mining.masks import (areas, batch_mask_pixels, box_iou, box_rle, crop_rle, mask_iou, mask_pixels, rle_box,
-                          rle_counts, size_similarity)
+from mining.boxes import box_iou, size_similarity
+from mining.masks import areas, batch_mask_pixels, box_rle, crop_rle, mask_iou, mask_pixels, rle_box, rle_counts
 
 
 def _random_masks(rng, n, h=60, w=80):

@@ -13,9 +13,9 @@ import pytest
 from pycocotools import mask as mask_utils
 
 from conftest import MODELS
+from mining.boxes import box_iou
 from mining.errors import ConfigError, InputError
 from mining.eval.kitti_labels import read_kitti_tracking
-from mining.eval.kitti_mot import box_iou
 from mining.proposals.config import OnnxConfig
 from mining.proposals.onnx_convert import anchor_grid, converted_model, convert_to_float
 from mining.masks import crop_rle

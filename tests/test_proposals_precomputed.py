@@ -21,7 +21,7 @@ from mining.proposals.precomputed import (
 )
 from mining.proposals.union import filter_by_box_area_and_count, union
 from mining.sources.kitti import KittiTrackingSource
-from mining.types import N_CLASSES, UNKNOWN_CLASS
+from mining.types import N_CLASSES, UNKNOWN_CLASS, Proposals
 
 W, H = 1242, 375
 FRAMES = range(16)
@@ -374,6 +374,26 @@ def test_detections_bad_input(training, tmp_path):
 
 
 # -- union and filter ---------------------------------------------------------------
+
+
+def test_cat_and_take_are_inverse(top20, pointrcnn):
+    a, b = top20[3], pointrcnn(3)
+    c = Proposals.cat([a, b])
+    assert len(c) == len(a) + len(b) and c.proposer == a.proposer + b.proposer
+    # The JSON proposer has classes and no 3D, PointRCNN both: missing fields are NaN rows.
+    assert np.isnan(c.position[: len(a)]).all() and np.isnan(c.size[: len(a)]).all()
+    np.testing.assert_array_equal(c.posterior[: len(a)], a.posterior)
+    for part, rows in ((a, np.arange(len(a))), (b, len(a) + np.arange(len(b)))):
+        back = c.take(rows)
+        assert back.rles == part.rles and back.proposer == part.proposer
+        np.testing.assert_array_equal(back.boxes, part.boxes)
+        np.testing.assert_array_equal(back.objectness, part.objectness)
+    mask = np.zeros(len(c), bool)
+    mask[len(a):] = True
+    np.testing.assert_array_equal(c.take(mask).position, b.position)
+    assert Proposals.cat([a]).posterior.dtype == np.float32 and Proposals.cat([a]).position is None
+    with pytest.raises(ValueError):
+        Proposals.cat([a, pointrcnn(4)])
 
 
 def test_union_of_json_and_pointrcnn(top20, pointrcnn):

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from pycocotools import mask as mask_utils
 
+from mining.boxes import box_iou
 from mining.errors import InputError
 from mining.eval.kitti_labels import read_kitti_tracking
 from mining.geometry.config import GroundConfig
 from mining.geometry.ground import estimate_ground
 from mining.geometry.stage import GeometryStage
-from mining.masks import box_iou
 from mining.proposals.stereo import CUES, StereoProposer, objectness_from_cues
 from mining.proposals.stereo_config import StereoProposerConfig
 from mining.sources import open_source
@@ -83,11 +83,12 @@ def test_objectness_is_monotone_in_each_cue(kitti_frames):
         objectness_from_cues(cues, dataclasses.replace(cfg, w_fill=-1.0))
     # The proposer's scores are exactly the function of the cues it reports.
     f, g, _ = kitti_frames[0]
-    proposer = StereoProposer(cfg)
-    p = proposer(f, g)
-    assert proposer.last_cues.shape == (len(p), len(CUES))
-    assert ((proposer.last_cues >= 0) & (proposer.last_cues <= 1)).all()
-    np.testing.assert_allclose(objectness_from_cues(proposer.last_cues, cfg), p.objectness, atol=1e-6)
+    result = StereoProposer(cfg).propose(f, g)
+    p = result.proposals
+    assert result.cues.shape == (len(p), len(CUES)) and result.reason == ""
+    assert ((result.cues >= 0) & (result.cues <= 1)).all()
+    np.testing.assert_allclose(objectness_from_cues(result.cues, cfg), p.objectness, atol=1e-6)
+    assert set(result.timings_ms) == {"points", "cluster", "stats", "masks", "encode"}
 
 
 def test_no_ground_plane_gives_no_proposals(kitti_frames):
@@ -95,10 +96,10 @@ def test_no_ground_plane_gives_no_proposals(kitti_frames):
     # A real RANSAC failure: more candidate points demanded than the frame has.
     failed = estimate_ground(g.disparity, f.calib, GroundConfig(min_points=10**7))
     assert not failed.ok
-    proposer = StereoProposer()
-    p = proposer(f, dataclasses.replace(g, ground=failed))
+    result = StereoProposer().propose(f, dataclasses.replace(g, ground=failed))
+    p = result.proposals
     assert len(p) == 0 and p.boxes.shape == (0, 4) and p.posterior is None
-    assert proposer.last_reason.startswith("no ground plane")
+    assert result.reason.startswith("no ground plane") and result.cues.shape == (0, len(CUES))
 
 
 def test_bad_geometry_raises(kitti_frames):

@@ -15,11 +15,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.sparse import csr_matrix
 
+from mining.boxes import box_iou
 from mining.errors import ConfigError, InputError
 from mining.select.config import SelectConfig
 from mining.select.qubo import (
     build_qubo,
+    connected_groups,
     fix_forced,
     multibranch_widths,
     qubo_value,
@@ -34,17 +37,6 @@ HEURISTIC = SelectConfig(exact_max_candidates=0)  # forces multi-branch + local 
 
 
 # --------------------------------------------------------------------------- problem generators
-
-
-def _box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    x1 = np.maximum(a[:, None, 0], b[None, :, 0])
-    y1 = np.maximum(a[:, None, 1], b[None, :, 1])
-    x2 = np.minimum(a[:, None, 2], b[None, :, 2])
-    y2 = np.minimum(a[:, None, 3], b[None, :, 3])
-    inter = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
-    area_a = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
-    area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
-    return inter / (area_a[:, None] + area_b[None, :] - inter)
 
 
 def _kitti_tracks(label_file: Path, first: int, window: int = 100) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -78,7 +70,7 @@ def _tube_problem(tracks, n: int, rng: np.random.Generator, window: int = 100) -
     for here in alive:
         if len(here) > 1:
             idx = np.array([i for i, _ in here])
-            iou = _box_iou(np.array([b for _, b in here]), np.array([b for _, b in here]))
+            iou = box_iou(np.array([b for _, b in here]), np.array([b for _, b in here]))
             iou[iou <= CFG.box_iou_gate] = 0.0
             np.fill_diagonal(iou, 0.0)
             np.add.at(overlap, (idx[:, None], idx[None, :]), iou)
@@ -129,6 +121,14 @@ def _gap(value: float, best: float) -> float:
 
 
 # --------------------------------------------------------------------------- exact solver
+
+
+def test_connected_groups():
+    links = np.zeros((6, 6), bool)
+    for i, j in ((0, 4), (4, 2), (3, 5)):
+        links[i, j] = links[j, i] = True
+    groups = connected_groups(csr_matrix(links))
+    assert [g.tolist() for g in groups] == [[0, 2, 4], [1], [3, 5]]
 
 
 def test_exhaustive_matches_plain_enumeration():

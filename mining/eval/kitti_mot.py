@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from mining.boxes import box_ioa, box_iou
 from mining.errors import InputError
 from mining.eval.clear import clear_metrics, clear_sums, combine_clear_sums
 from mining.eval.hota import combine_hota_sums, hota_metrics, hota_sums
@@ -78,33 +79,6 @@ class ClassSequence:
     gt_ids: list[np.ndarray]  # per frame, contiguous 0-based gt ids
     tracker_ids: list[np.ndarray]  # per frame, contiguous 0-based tracker ids
     similarity: list[np.ndarray]  # per frame, (len(gt_ids[t]), len(tracker_ids[t])) box IoU
-
-
-def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """IoU of (N, 4) and (M, 4) x1 y1 x2 y2 boxes (continuous pixel coordinates); 0 for empty boxes."""
-    inter = _intersection(a, b)
-    area_a, area_b = _area(a), _area(b)
-    union = area_a[:, None] + area_b[None, :] - inter
-    valid = (area_a[:, None] > _EPS) & (area_b[None, :] > _EPS) & (union > _EPS)
-    return np.divide(inter, union, out=np.zeros_like(inter), where=valid)
-
-
-def box_ioa(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Intersection over the area of each box of ``a`` (rows), with each box of ``b``."""
-    inter = _intersection(a, b)
-    area_a = _area(a)
-    return np.divide(inter, area_a[:, None], out=np.zeros_like(inter), where=area_a[:, None] > _EPS)
-
-
-def _area(boxes: np.ndarray) -> np.ndarray:
-    return (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
-
-
-def _intersection(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    lo = np.maximum(a[:, None, :2], b[None, :, :2])
-    hi = np.minimum(a[:, None, 2:], b[None, :, 2:])
-    wh = np.maximum(hi - lo, 0)
-    return wh[..., 0] * wh[..., 1]
 
 
 def read_seqmap(path: str | Path) -> dict[str, int]:
@@ -181,7 +155,7 @@ def preprocess_class(gt: KittiTrackingRows, res: KittiTrackingRows, cls: str, n_
     out = ClassSequence([], [], [])
     for t in range(n_frames):
         g, r = gt_rows[t], res_rows[t]
-        iou = box_iou(gt.box[g], res.box[r])
+        iou = box_iou(gt.box[g], res.box[r], min_area=_EPS)
         removed = np.zeros(len(r), bool)
         matched = np.zeros(len(r), bool)
         if len(g) and len(r):
@@ -195,7 +169,7 @@ def preprocess_class(gt: KittiTrackingRows, res: KittiTrackingRows, cls: str, n_
         # Step 3: unmatched boxes that are too small or inside a DontCare region.
         boxes = res.box[r]
         too_small = boxes[:, 3] - boxes[:, 1] <= protocol.min_height_px + _EPS
-        in_dontcare = (box_ioa(boxes, gt.box[dc_rows[t]]) > protocol.dontcare_ioa + _EPS).any(axis=1)
+        in_dontcare = (box_ioa(boxes, gt.box[dc_rows[t]], min_area=_EPS) > protocol.dontcare_ioa + _EPS).any(axis=1)
         removed |= ~matched & (too_small | in_dontcare)
         # Step 4: keep only gt that counts.
         keep_gt = ~gt_ignored[g]

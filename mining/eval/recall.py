@@ -20,7 +20,7 @@ import numpy as np
 
 from mining.errors import InputError
 from mining.eval.kitti_labels import KittiTrackingRows
-from mining.masks import box_iou
+from mining.boxes import box_iou
 from mining.types import Proposals
 
 RECALL_IOU = 0.5  # REFERENCE: proposal recall counts box IoU > 0.5

@@ -55,7 +55,8 @@ from mining.errors import InputError
 from mining.eval.clear import clear_metrics, clear_sums
 from mining.eval.hota import hota_metrics, hota_sums
 from mining.eval.identity import identity_metrics, identity_sums
-from mining.masks import areas, box_iou, crop_rle, mask_iou
+from mining.boxes import box_iou
+from mining.masks import areas, crop_rle, mask_iou
 from mining.pipeline.frames import frame_records
 from mining.pipeline.mine import mine_tubes
 from mining.sources import open_source

@@ -221,14 +221,3 @@ def geometric_filter(obs: Observations, ground: GroundPlane | None, cfg: Proposa
     idx = np.flatnonzero(keep)
     order = np.argsort(-obs.proposals.objectness[idx], kind="stable")
     return idx[order][: cfg.max_proposals]
-
-
-def take(obs: Observations, idx: np.ndarray) -> Observations:
-    """The observations at ``idx``, in that order."""
-    idx = np.asarray(idx, np.int64)
-    return Observations(
-        obs.proposals.take(idx), obs.t_ns, obs.position[idx], obs.covariance[idx], obs.footpoint[idx],
-        obs.velocity[idx], obs.velocity_covariance[idx], obs.size[idx], obs.n_points[idx],
-        None if obs.points is None else [obs.points[i] for i in idx],
-        None if obs.grid is None else obs.grid[idx],
-    )

@@ -16,7 +16,7 @@ from mining.config import JobConfig
 from mining.eval.formats import read_poses
 from mining.eval.kitti_export import write_tubes_kitti
 from mining.errors import InputError
-from mining.localise.localise import geometric_filter, localise_detections, take
+from mining.localise.localise import geometric_filter, localise_detections
 from mining.pipeline.mine import mine_tubes
 from mining.proposals.precomputed import KittiDetections
 from mining.sources.kitti import KittiTrackingSource
@@ -49,7 +49,7 @@ def detection_frames(kitti_root: str | Path, sequence: str, detections: str | Pa
         t_ns = index * FRAME_INTERVAL_NS
         props = dets(index)
         obs = localise_detections(props, calib, t_ns, cfg.localise)
-        obs = take(obs, geometric_filter(obs, no_ground, cfg.proposals.filters))
+        obs = obs.take(geometric_filter(obs, no_ground, cfg.proposals.filters))
         yield TrackingFrame(index=index, t_ns=t_ns, calib=calib, pose=pose, segment=0, observations=obs, depth=None)
 
 

@@ -26,7 +26,7 @@ import numpy as np
 
 from mining.config import JobConfig
 from mining.geometry.stage import GeometryStage
-from mining.localise.localise import geometric_filter, localise, take
+from mining.localise.localise import geometric_filter, localise
 from mining.proposals.make import Proposer, make_proposer
 from mining.sources.base import Source
 from mining.types import (FrameGeometry, GroundPlane, Observations, Proposals, SequencePlan, StereoFrame,
@@ -151,7 +151,7 @@ class FrameLoop:
         # Scene flow relates this frame to the one before only through a trusted egomotion.
         localised = localise(proposals, geom.depth, frame.calib, plane, geom.flow if T is not None else None,
                              dt, frame.t_ns, cfg.localise)
-        obs = take(localised, geometric_filter(localised, plane, cfg.proposals.filters))
+        obs = localised.take(geometric_filter(localised, plane, cfg.proposals.filters))
         tracking = TrackingFrame(frame.index, frame.t_ns, frame.calib, pose, segment, obs, geom.depth)
         return FrameRecord(frame, position, geom, proposals, localised, plane, self._ground_age, tracking)
 

@@ -44,15 +44,23 @@ Per frame:
    jump — the object stands free), fill (mask area / box area), plausible footprint,
    plausible top height, point support.
 
+Each step is a function below: :func:`points_above_ground` (1), :func:`polar_grid` (2),
+:func:`cluster_points` (3), :func:`cluster_stats`, :func:`first_masks` and :func:`build_mask`
+(4), :func:`score_and_encode` (5). ``StereoProposer.propose`` runs them and returns the
+proposals with their cues and step timings (:class:`StereoResult`); calling the proposer
+returns the proposals alone, the shape every proposer has.
+
 A frame whose ground plane failed gets no proposals: without the ground there is no
-"above the ground" and inventing a plane would be a silent substitute. The reason is kept
-in ``StereoProposer.last_reason`` (the caller also has ``geometry.ground.reason``).
+"above the ground" and inventing a plane would be a silent substitute. The reason is
+returned in ``StereoResult.reason`` (the caller also has ``geometry.ground.reason``).
 """
 
 from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -61,7 +69,7 @@ from mining.errors import InputError
 from mining.masks import crop_rle
 from mining.proposals.onnx_yolo import nms_keep
 from mining.proposals.stereo_config import StereoProposerConfig
-from mining.types import FrameGeometry, Proposals, StereoFrame
+from mining.types import FrameGeometry, GroundPlane, Proposals, StereoCalib, StereoFrame
 
 PROPOSER_NAME = "stereo"
 CUES = ("contrast", "fill", "extent", "top", "support")
@@ -113,18 +121,323 @@ def _collect(point_label: np.ndarray, n_labels: int, min_points: int, seen: set[
             clusters.append(idx)
 
 
+@dataclass
+class StereoResult:
+    """One frame's stereo proposals and what explains them."""
+
+    proposals: Proposals
+    cues: np.ndarray  # (N, 5) float32, the proposals' cues in ``CUES`` order (objectness is their function)
+    reason: str  # why the frame has no proposals (no ground plane); empty otherwise
+    timings_ms: dict[str, float]  # per step: points, cluster, stats, masks, encode (those that ran)
+
+
+def _no_cues() -> np.ndarray:
+    return np.zeros((0, len(CUES)), np.float32)
+
+
+@dataclass
+class SamplePoints:
+    """Step 1: the sample grid (every ``step``-th pixel) and its points above the ground."""
+
+    step: int
+    z: np.ndarray  # (hs, ws) float32 depth, NaN where invalid
+    x: np.ndarray  # (hs, ws) camera x
+    y: np.ndarray  # (hs, ws) camera y
+    low: np.ndarray  # (hs, ws) bool: ground, or no depth
+    growable: np.ndarray  # (hs, ws) bool: masks may grow over these (an object's feet)
+    keep: np.ndarray  # (hs, ws) bool: object-height points
+    pv: np.ndarray  # (P,) sample rows of the kept points
+    pu: np.ndarray  # (P,) sample columns
+    pz: np.ndarray  # (P,) depth
+    ph: np.ndarray  # (P,) height above the ground
+    px: np.ndarray  # (P,) camera x
+
+
+def points_above_ground(depth: np.ndarray, ground: GroundPlane, calib: StereoCalib,
+                        cfg: StereoProposerConfig) -> SamplePoints:
+    """Step 1: points above the ground, on the sample grid (every s-th pixel)."""
+    s, bf = cfg.pixel_step, calib.bf
+    z = depth[::s, ::s].astype(np.float64)
+    hs, ws = z.shape
+    u = (np.arange(ws) * s)[None, :]
+    v = (np.arange(hs) * s)[:, None]
+    n, d0 = ground.normal, ground.d
+    valid = np.isfinite(z) & (z > 0)
+    z = np.where(valid, z, np.nan).astype(np.float32)
+    x = (u - calib.cx) * z / calib.fx
+    y = (v - calib.cy) * z / calib.fy
+    h = n[0] * x + n[1] * y + n[2] * z + d0
+    # Height std from depth noise: along the viewing ray h changes by (h − d0)/z per metre.
+    sigma_z = z * z * cfg.disparity_noise_px / bf
+    ground_cut = cfg.min_height_m + cfg.height_noise_sigmas * np.abs(h - d0) / z * sigma_z
+    low = ~(h >= ground_cut)  # ground, or no depth (NaN compares False)
+    # Masks may grow over points down to a lower cut: the feet of an object lie below ground_cut.
+    growable = (h >= cfg.grow_min_height_m + np.abs(h - d0) / z * sigma_z) & (h < cfg.max_height_m)
+    keep = valid & ~low & (h < cfg.max_height_m) & (z < cfg.max_depth_m)
+    pv, pu = np.nonzero(keep)
+    pz, ph, px = z[pv, pu], h[pv, pu], x[pv, pu]
+    return SamplePoints(s, z, x, y, low, growable, keep, pv, pu, pz, ph, px)
+
+
+@dataclass
+class PolarGrid:
+    """Step 2: the polar bird's-eye grid of visible vertical surface per cell."""
+
+    cell: np.ndarray  # (P,) flat cell index of each kept point
+    surface: np.ndarray  # (n_rows, n_cols) metres of visible vertical surface
+
+
+def polar_grid(pts: SamplePoints, calib: StereoCalib, cfg: StereoProposerConfig) -> PolarGrid:
+    """Step 2: kept points → cells (image column bin, range), each holding its visible surface."""
+    s, bf, W = pts.step, calib.bf, calib.width
+    n_cols = -(-W // cfg.column_px)
+    n_rows = int(range_index(np.array([cfg.max_depth_m]), bf, cfg)[0]) + 1
+    rng = np.minimum(range_index(pts.pz, bf, cfg).astype(np.int64), n_rows - 1)
+    cell = rng * n_cols + (pts.pu * s) // cfg.column_px
+    surface = np.bincount(cell, weights=s * s * pts.pz / (calib.fy * cfg.column_px), minlength=n_rows * n_cols)
+    return PolarGrid(cell, surface.reshape(n_rows, n_cols))
+
+
+def cluster_points(pts: SamplePoints, grid: PolarGrid, bf: float, cfg: StereoProposerConfig) -> list[np.ndarray]:
+    """Step 3: candidate point sets (indices into the kept points) of the three groupings,
+    each distinct set once, in the order the groupings find them."""
+    clusters: list[np.ndarray] = []
+    seen: set[bytes] = set()
+    _grid_components(grid, cfg, seen, clusters)
+    if cfg.height_band_m > 0:
+        _height_band_components(pts, grid, cfg, seen, clusters)
+    _image_regions(pts, bf, cfg, seen, clusters)
+    return clusters
+
+
+def _grid_components(grid: PolarGrid, cfg: StereoProposerConfig, seen: set[bytes], clusters: list[np.ndarray]) -> None:
+    """Connected components of occupied cells per ``scales`` entry (dilation only links cells)."""
+    for mult, dr, dc in cfg.scales:
+        occupied = (grid.surface >= cfg.min_density_m * mult).astype(np.uint8)
+        links = cv2.dilate(occupied, np.ones((2 * dr + 1, 2 * dc + 1), np.uint8)) if dr or dc else occupied
+        _, labels = cv2.connectedComponents(links, connectivity=8)
+        labels[occupied == 0] = 0
+        _collect(labels.ravel()[grid.cell], labels.max(), cfg.min_points, seen, clusters)
+
+
+def _height_band_components(pts: SamplePoints, grid: PolarGrid, cfg: StereoProposerConfig, seen: set[bytes],
+                            clusters: list[np.ndarray]) -> None:
+    """Components within bands of cell top height: adjacent cells whose tops differ (a car
+    before a taller bush) part."""
+    n_rows, n_cols = grid.surface.shape
+    top = np.zeros(n_rows * n_cols)
+    np.maximum.at(top, grid.cell, pts.ph)
+    top = top.reshape(n_rows, n_cols)
+    occupied = grid.surface >= cfg.min_density_m
+    for offset in (0.0, 0.5 * cfg.height_band_m):
+        band = np.floor((top + offset) / cfg.height_band_m).astype(np.int32)
+        labels = np.zeros((n_rows, n_cols), np.int32)
+        n_labels = 0
+        for b in np.unique(band[occupied]):
+            n_b, lab_b = cv2.connectedComponents((occupied & (band == b)).astype(np.uint8), connectivity=8)
+            labels[lab_b > 0] = lab_b[lab_b > 0] + n_labels
+            n_labels += n_b - 1
+        _collect(labels.ravel()[grid.cell], n_labels, cfg.min_points, seen, clusters)
+
+
+def _image_regions(pts: SamplePoints, bf: float, cfg: StereoProposerConfig, seen: set[bytes],
+                   clusters: list[np.ndarray]) -> None:
+    """The same in the image: regions of object-height points cut where the depth jumps."""
+    hs, ws = pts.z.shape
+    disparity = bf / pts.z
+    for jump_px in cfg.image_jumps_px:
+        cut = np.zeros((hs, ws), bool)
+        gap = np.maximum(jump_px, cfg.border_gap_m * disparity * disparity / bf)
+        dx = np.abs(np.diff(disparity, axis=1)) > gap[:, 1:]
+        dy = np.abs(np.diff(disparity, axis=0)) > gap[1:, :]
+        cut[:, 1:] |= dx
+        cut[1:, :] |= dy
+        _, labels = cv2.connectedComponents((pts.keep & ~cut).astype(np.uint8), connectivity=4)
+        _collect(labels[pts.pv, pts.pu], labels.max(), cfg.min_points, seen, clusters)
+
+
+class ClusterStats(NamedTuple):
+    """Cheap 3D statistics of one cluster (order statistics of at most ~``stats_points`` points)."""
+
+    idx: np.ndarray  # the cluster's kept points
+    sub: np.ndarray  # the subsample the statistics come from
+    q: np.ndarray  # positions of the 5 %, 50 %, 95 % quantiles in the sorted subsample
+    zq: np.ndarray  # depth quantiles
+    xq: np.ndarray  # camera-x quantiles
+    top: float  # 95 % height above the ground
+    width: float  # across x, metres
+    length: float  # along z less the spread stereo noise alone makes, metres
+    box: tuple  # sample-grid box of the points (x2, y2 exclusive)
+
+
+def cluster_stats(clusters: list[np.ndarray], pts: SamplePoints, bf: float,
+                  cfg: StereoProposerConfig) -> list[ClusterStats]:
+    """Step 4a: statistics per cluster; footprints longer than ``max_extent_m`` are dropped."""
+    stats = []
+    for idx in clusters:
+        sub = idx[:: max(1, idx.size // cfg.stats_points)]
+        zs, xs_, hs_ = np.sort(pts.pz[sub]), np.sort(pts.px[sub]), np.sort(pts.ph[sub])
+        q = (np.array([0.05, 0.5, 0.95]) * (sub.size - 1)).round().astype(int)
+        zq, xq = zs[q], xs_[q]
+        spread = 2.0 * zq[1] ** 2 * cfg.disparity_noise_px / bf  # range spread stereo noise alone makes
+        length = max(0.0, zq[2] - zq[0] - spread)
+        width = xq[2] - xq[0]
+        if max(width, length) > cfg.max_extent_m:
+            continue
+        cv_, cu_ = pts.pv[idx], pts.pu[idx]
+        box = (cu_.min(), cv_.min(), cu_.max() + 1, cv_.max() + 1)
+        stats.append(ClusterStats(idx, sub, q, zq, xq, float(hs_[q[2]]), width, length, box))
+    return stats
+
+
+def first_masks(stats: list[ClusterStats], cfg: StereoProposerConfig) -> np.ndarray:
+    """Step 4b: which clusters get a mask. Near-duplicates across scales go before their
+    masks are built: NMS on the point boxes, ranked by the cues known so far (border
+    contrast taken as 1/2 for all); at most ``mask_budget·max_proposals``."""
+    pre = np.array([(0.5, st.idx.size / ((st.box[2] - st.box[0]) * (st.box[3] - st.box[1])),
+                     max(st.width, st.length), st.top, st.idx.size) for st in stats])
+    return nms_keep(np.array([st.box for st in stats], np.float64), objectness_from_cues(cues_from_raw(pre, cfg), cfg),
+                    cfg.nms_iou, int(cfg.mask_budget * cfg.max_proposals))
+
+
+class MaskKernels(NamedTuple):
+    """The image operations' kernels, the same for every cluster of a frame."""
+
+    close: np.ndarray  # closing that fills stereo holes
+    ring: np.ndarray  # the border ring's width
+    grow: np.ndarray  # one growth step: one row down, one column aside
+    pad: int  # crop margin around a cluster's points, samples
+    trim: int  # left-edge trim, samples
+
+
+def mask_kernels(cfg: StereoProposerConfig) -> MaskKernels:
+    """The kernels for the configured sample step."""
+    s = cfg.pixel_step
+    k_close = max(1, cfg.mask_close_px // s) | 1
+    close_kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k_close, k_close))
+    ring_kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
+    pad = k_close // 2 + 3 + cfg.grow_steps
+    return MaskKernels(close_kernel, ring_kernel, np.ones((1, 3), np.uint8), pad, cfg.left_trim_px // s)
+
+
+class Candidate(NamedTuple):
+    """One cluster's mask and the values its proposal row needs."""
+
+    crop: np.ndarray  # (h, w) bool full-resolution mask crop
+    x0: int  # the crop's top-left pixel
+    y0: int
+    box: tuple[int, int, int, int]  # x1, y1, x2, y2 pixels (x2, y2 exclusive)
+    raw_cues: tuple  # (contrast, fill, extent m, top m, points), see :func:`cues_from_raw`
+    position: tuple  # camera metres
+    size: tuple  # width, top height, length metres
+
+
+def build_mask(st: ClusterStats, pts: SamplePoints, kernels: MaskKernels, calib: StereoCalib, d0: float,
+               cfg: StereoProposerConfig) -> Candidate:
+    """Step 4c: a cluster's mask (grown over its feet, closed, left-trimmed) and its
+    remaining cues (border contrast, fill)."""
+    s, bf, H, W = pts.step, calib.bf, calib.height, calib.width
+    hs, ws = pts.z.shape
+    pad, trim = kernels.pad, kernels.trim
+    idx, sub, q, zq, xq, top, width, length, _ = st
+    cv_, cu_, cz = pts.pv[idx], pts.pu[idx], pts.pz[idx]
+    r0, c0 = max(0, cv_.min() - pad), max(0, cu_.min() - pad)
+    r1, c1 = min(hs, cv_.max() + pad + 1), min(ws, cu_.max() + pad + 1)
+    points = np.zeros((r1 - r0, c1 - c0), np.uint8)
+    points[cv_ - r0, cu_ - c0] = 1
+    zobj = np.zeros(points.shape, np.float32)
+    zobj[cv_ - r0, cu_ - c0] = cz
+    # Growth downwards (and diagonally) over points within the cluster's depth range: its
+    # feet, below the ground cut, as many rows as the ground cut removed at this depth.
+    zc = pts.z[r0:r1, c0:c1]
+    noise_z = zq[1] ** 2 * cfg.disparity_noise_px / bf
+    grow_gap, ring_gap = max(cfg.border_gap_m, noise_z), max(cfg.border_gap_m, 3.0 * noise_z)
+    cut_gap = (cfg.min_height_m - cfg.grow_min_height_m
+               + cfg.height_noise_sigmas * d0 * zq[1] * cfg.disparity_noise_px / bf)
+    steps = min(cfg.grow_steps, math.ceil(cut_gap * calib.fy / (zq[1] * s)))
+    if steps > 0:
+        ok = (pts.growable[r0:r1, c0:c1] & (zc >= zq[0] - grow_gap) & (zc <= zq[2] + grow_gap)).astype(np.uint8)
+        for _ in range(steps):
+            below = np.zeros_like(points)
+            below[1:] = cv2.dilate(points, kernels.grow)[:-1]  # one row down, one column aside
+            new = below & ok & (points == 0)
+            if not new.any():
+                break
+            points |= new
+        grown = (points > 0) & (zobj == 0)
+        zobj[grown] = zc[grown]
+    mask = cv2.morphologyEx(points, cv2.MORPH_CLOSE, kernels.close)
+    if trim > 0:  # left-edge fattening: keep pixels whose left neighbours are in the mask too
+        kept = mask.copy()
+        for k in range(1, trim + 1):
+            kept[:, k:] &= mask[:, :-k]
+            kept[:, :k] = 0
+        mask = kept if kept.any() else mask
+    # Border ring: background where there is no object-height point at the object's depth.
+    znear = cv2.dilate(zobj, kernels.ring)
+    ring = (cv2.dilate(mask, kernels.ring) > 0) & (mask == 0) & (znear > 0)
+    rz = zc[ring]
+    rlow = pts.low[r0:r1, c0:c1][ring]
+    jump = ~(np.abs(rz - znear[ring]) <= ring_gap)  # NaN depth counts as a jump
+    contrast = float((rlow | jump).mean()) if rz.size else 1.0
+    rows = np.nonzero(mask.any(axis=1))[0]
+    cols = np.nonzero(mask.any(axis=0))[0]
+    mask = mask[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]
+    fill = float(np.count_nonzero(mask)) / mask.size
+    # Full-resolution crop: each sample stands for an s × s block.
+    y0, x0 = (r0 + int(rows[0])) * s, (c0 + int(cols[0])) * s
+    crop = np.repeat(np.repeat(mask.astype(bool), s, axis=0), s, axis=1)[: H - y0, : W - x0]
+    return Candidate(crop, x0, y0, (x0, y0, x0 + crop.shape[1], y0 + crop.shape[0]),
+                     (contrast, fill, max(width, length), top, idx.size),
+                     (xq[1], float(np.sort(pts.y[pts.pv[sub], pts.pu[sub]])[q[1]]), zq[1]), (width, top, length))
+
+
+def cues_from_raw(raw: np.ndarray, cfg: StereoProposerConfig) -> np.ndarray:
+    """Raw (contrast, fill, extent m, top m, points) → the five cues in [0, 1], higher = more object-like."""
+    return np.column_stack([
+        np.clip(raw[:, 0], 0.0, 1.0),
+        np.clip(raw[:, 1], 0.0, 1.0),
+        _plausible(raw[:, 2], 0.0, cfg.plausible_extent_m, cfg.max_extent_m),
+        _plausible(raw[:, 3], cfg.plausible_top_m[0], cfg.plausible_top_m[1], cfg.max_height_m),
+        np.clip(np.log(raw[:, 4]) / math.log(cfg.support_points), 0.0, 1.0),
+    ])
+
+
+def score_and_encode(frame: int, candidates: list[Candidate], calib: StereoCalib,
+                     cfg: StereoProposerConfig) -> tuple[Proposals, np.ndarray]:
+    """Step 5: objectness from the cues, the final NMS, RLE of the survivors; (proposals, their cues)."""
+    cue = cues_from_raw(np.asarray([c.raw_cues for c in candidates], np.float64), cfg)
+    score = objectness_from_cues(cue, cfg)
+    boxes_a = np.asarray([c.box for c in candidates], np.float32)
+    keep_i = nms_keep(boxes_a, score, cfg.nms_iou, cfg.max_proposals)
+    rles = [crop_rle(candidates[i].crop, candidates[i].x0, candidates[i].y0, calib.height, calib.width) for i in keep_i]
+    proposals = Proposals(
+        frame=frame,
+        rles=rles,
+        boxes=boxes_a[keep_i].reshape(-1, 4),
+        objectness=score[keep_i],
+        posterior=None,
+        proposer=[PROPOSER_NAME] * len(keep_i),
+        position=np.asarray([c.position for c in candidates], np.float32)[keep_i].reshape(-1, 3),
+        size=np.asarray([c.size for c in candidates], np.float32)[keep_i].reshape(-1, 3),
+    )
+    return proposals, cue[keep_i].astype(np.float32)
+
+
 class StereoProposer:
-    """Stateless per frame; ``last_timings_ms``, ``last_reason`` and ``last_cues`` describe the last call."""
+    """Stateless per frame. ``propose`` gives a :class:`StereoResult`; calling the proposer
+    gives its proposals alone (the ``proposer(frame, geometry) -> Proposals`` shape)."""
 
     def __init__(self, cfg: StereoProposerConfig | None = None):
         self.cfg = cfg or StereoProposerConfig()
         if self.cfg.pixel_step < 1 or self.cfg.column_px < 1:
             raise ValueError("stereo proposer: pixel_step and column_px must be ≥ 1")
-        self.last_timings_ms: dict[str, float] = {}
-        self.last_reason = ""
-        self.last_cues = np.zeros((0, len(CUES)), np.float32)
 
     def __call__(self, frame: StereoFrame, geometry: FrameGeometry) -> Proposals:
+        return self.propose(frame, geometry).proposals
+
+    def propose(self, frame: StereoFrame, geometry: FrameGeometry) -> StereoResult:
+        """One frame's proposals, their cues, the reason when there are none, and step timings."""
         calib, cfg = frame.calib, self.cfg
         H, W = calib.height, calib.width
         where = f"{frame.dataset}/{frame.sequence}"
@@ -133,198 +446,25 @@ class StereoProposer:
                              where, frame.index)
         if geometry.index != frame.index:
             raise InputError(f"geometry of frame {geometry.index} given with frame {frame.index}", where, frame.index)
-        self.last_cues = np.zeros((0, len(CUES)), np.float32)
         if not geometry.ground.ok:
-            self.last_reason = "no ground plane: " + geometry.ground.reason
-            self.last_timings_ms = {}
-            return empty_proposals(frame.index)
-        self.last_reason = ""
+            reason = "no ground plane: " + geometry.ground.reason
+            return StereoResult(empty_proposals(frame.index), _no_cues(), reason, {})
         t0 = time.perf_counter()
-
-        # 1. Points above the ground, on the sample grid (every s-th pixel).
-        s, bf = cfg.pixel_step, calib.bf
-        z = geometry.depth[::s, ::s].astype(np.float64)
-        hs, ws = z.shape
-        u = (np.arange(ws) * s)[None, :]
-        v = (np.arange(hs) * s)[:, None]
-        n, d0 = geometry.ground.normal, geometry.ground.d
-        valid = np.isfinite(z) & (z > 0)
-        z = np.where(valid, z, np.nan).astype(np.float32)
-        x = (u - calib.cx) * z / calib.fx
-        y = (v - calib.cy) * z / calib.fy
-        h = n[0] * x + n[1] * y + n[2] * z + d0
-        # Height std from depth noise: along the viewing ray h changes by (h − d0)/z per metre.
-        sigma_z = z * z * cfg.disparity_noise_px / bf
-        ground_cut = cfg.min_height_m + cfg.height_noise_sigmas * np.abs(h - d0) / z * sigma_z
-        low = ~(h >= ground_cut)  # ground, or no depth (NaN compares False)
-        # Masks may grow over points down to a lower cut: the feet of an object lie below ground_cut.
-        growable = (h >= cfg.grow_min_height_m + np.abs(h - d0) / z * sigma_z) & (h < cfg.max_height_m)
-        keep = valid & ~low & (h < cfg.max_height_m) & (z < cfg.max_depth_m)
-        pv, pu = np.nonzero(keep)
-        pz, ph, px = z[pv, pu], h[pv, pu], x[pv, pu]
-
-        # 2. Polar bird's-eye grid of visible vertical surface per cell.
-        n_cols = -(-W // cfg.column_px)
-        n_rows = int(range_index(np.array([cfg.max_depth_m]), bf, cfg)[0]) + 1
-        cell = np.minimum(range_index(pz, bf, cfg).astype(np.int64), n_rows - 1) * n_cols + (pu * s) // cfg.column_px
-        surface = np.bincount(cell, weights=s * s * pz / (calib.fy * cfg.column_px), minlength=n_rows * n_cols)
-        surface = surface.reshape(n_rows, n_cols)
+        pts = points_above_ground(geometry.depth, geometry.ground, calib, cfg)
+        grid = polar_grid(pts, calib, cfg)
         t1 = time.perf_counter()
-
-        # 3. Multi-scale connected components; each distinct point set once.
-        clusters: list[np.ndarray] = []
-        seen: set[bytes] = set()
-        for mult, dr, dc in cfg.scales:
-            occupied = (surface >= cfg.min_density_m * mult).astype(np.uint8)
-            links = cv2.dilate(occupied, np.ones((2 * dr + 1, 2 * dc + 1), np.uint8)) if dr or dc else occupied
-            _, labels = cv2.connectedComponents(links, connectivity=8)
-            labels[occupied == 0] = 0
-            _collect(labels.ravel()[cell], labels.max(), cfg.min_points, seen, clusters)
-        # Height bands: adjacent cells whose tops differ (a car before a taller bush) part.
-        if cfg.height_band_m > 0:
-            top = np.zeros(n_rows * n_cols)
-            np.maximum.at(top, cell, ph)
-            top = top.reshape(n_rows, n_cols)
-            occupied = surface >= cfg.min_density_m
-            for offset in (0.0, 0.5 * cfg.height_band_m):
-                band = np.floor((top + offset) / cfg.height_band_m).astype(np.int32)
-                labels = np.zeros((n_rows, n_cols), np.int32)
-                n_labels = 0
-                for b in np.unique(band[occupied]):
-                    n_b, lab_b = cv2.connectedComponents((occupied & (band == b)).astype(np.uint8), connectivity=8)
-                    labels[lab_b > 0] = lab_b[lab_b > 0] + n_labels
-                    n_labels += n_b - 1
-                _collect(labels.ravel()[cell], n_labels, cfg.min_points, seen, clusters)
-
-        # The same in the image: regions of object-height points cut where the depth jumps.
-        disparity = bf / z
-        for jump_px in cfg.image_jumps_px:
-            cut = np.zeros((hs, ws), bool)
-            gap = np.maximum(jump_px, cfg.border_gap_m * disparity * disparity / bf)
-            dx = np.abs(np.diff(disparity, axis=1)) > gap[:, 1:]
-            dy = np.abs(np.diff(disparity, axis=0)) > gap[1:, :]
-            cut[:, 1:] |= dx
-            cut[1:, :] |= dy
-            _, labels = cv2.connectedComponents((keep & ~cut).astype(np.uint8), connectivity=4)
-            _collect(labels[pv, pu], labels.max(), cfg.min_points, seen, clusters)
+        clusters = cluster_points(pts, grid, calib.bf, cfg)
         t2 = time.perf_counter()
-
-        # 4.–5. Masks and cues per cluster.
-        k_close = max(1, cfg.mask_close_px // s) | 1
-        close_kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k_close, k_close))
-        ring_kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
-        pad = k_close // 2 + 3 + cfg.grow_steps
-        grow_kernel = np.ones((1, 3), np.uint8)
-        trim = cfg.left_trim_px // s
-        # 4a. Cheap 3D statistics per cluster (order statistics of at most ~256 points each).
-        stats = []  # (idx, subsample, quantile positions, z quantiles, x quantiles, top, width, length, point box)
-        for idx in clusters:
-            sub = idx[:: max(1, idx.size // cfg.stats_points)]
-            zs, xs_, hs_ = np.sort(pz[sub]), np.sort(px[sub]), np.sort(ph[sub])
-            q = (np.array([0.05, 0.5, 0.95]) * (sub.size - 1)).round().astype(int)
-            zq, xq = zs[q], xs_[q]
-            spread = 2.0 * zq[1] ** 2 * cfg.disparity_noise_px / bf  # range spread stereo noise alone makes
-            length = max(0.0, zq[2] - zq[0] - spread)
-            width = xq[2] - xq[0]
-            if max(width, length) > cfg.max_extent_m:
-                continue
-            cv_, cu_ = pv[idx], pu[idx]
-            box = (cu_.min(), cv_.min(), cu_.max() + 1, cv_.max() + 1)
-            stats.append((idx, sub, q, zq, xq, float(hs_[q[2]]), width, length, box))
+        stats = cluster_stats(clusters, pts, calib.bf, cfg)
         if not stats:
-            self.last_timings_ms = {"points": 1e3 * (t1 - t0), "cluster": 1e3 * (t2 - t1)}
-            return empty_proposals(frame.index)
-        # 4b. Near-duplicates across scales go before their masks are built: NMS on the point
-        # boxes, ranked by the cues known so far (border contrast taken as 1/2 for all).
-        pre = np.array([(0.5, st[0].size / ((st[8][2] - st[8][0]) * (st[8][3] - st[8][1])),
-                         max(st[6], st[7]), st[5], st[0].size) for st in stats])
-        pre_keep = nms_keep(np.array([st[8] for st in stats], np.float64), objectness_from_cues(self._cues(pre), cfg),
-                            cfg.nms_iou, int(cfg.mask_budget * cfg.max_proposals))
+            return StereoResult(empty_proposals(frame.index), _no_cues(), "",
+                                {"points": 1e3 * (t1 - t0), "cluster": 1e3 * (t2 - t1)})
+        chosen = first_masks(stats, cfg)
         t3 = time.perf_counter()
-
-        # 4c. Masks and the remaining cues of the survivors.
-        crops, boxes, cues, positions, sizes = [], [], [], [], []
-        for i in pre_keep:
-            idx, sub, q, zq, xq, top, width, length, _ = stats[i]
-            cv_, cu_, cz = pv[idx], pu[idx], pz[idx]
-            r0, c0 = max(0, cv_.min() - pad), max(0, cu_.min() - pad)
-            r1, c1 = min(hs, cv_.max() + pad + 1), min(ws, cu_.max() + pad + 1)
-            points = np.zeros((r1 - r0, c1 - c0), np.uint8)
-            points[cv_ - r0, cu_ - c0] = 1
-            zobj = np.zeros(points.shape, np.float32)
-            zobj[cv_ - r0, cu_ - c0] = cz
-            # Growth downwards (and diagonally) over points within the cluster's depth range: its
-            # feet, below the ground cut, as many rows as the ground cut removed at this depth.
-            zc = z[r0:r1, c0:c1]
-            noise_z = zq[1] ** 2 * cfg.disparity_noise_px / bf
-            grow_gap, ring_gap = max(cfg.border_gap_m, noise_z), max(cfg.border_gap_m, 3.0 * noise_z)
-            cut_gap = cfg.min_height_m - cfg.grow_min_height_m + cfg.height_noise_sigmas * d0 * zq[1] * cfg.disparity_noise_px / bf
-            steps = min(cfg.grow_steps, math.ceil(cut_gap * calib.fy / (zq[1] * s)))
-            if steps > 0:
-                ok = (growable[r0:r1, c0:c1] & (zc >= zq[0] - grow_gap) & (zc <= zq[2] + grow_gap)).astype(np.uint8)
-                for _ in range(steps):
-                    below = np.zeros_like(points)
-                    below[1:] = cv2.dilate(points, grow_kernel)[:-1]  # one row down, one column aside
-                    new = below & ok & (points == 0)
-                    if not new.any():
-                        break
-                    points |= new
-                grown = (points > 0) & (zobj == 0)
-                zobj[grown] = zc[grown]
-            mask = cv2.morphologyEx(points, cv2.MORPH_CLOSE, close_kernel)
-            if trim > 0:  # left-edge fattening: keep pixels whose left neighbours are in the mask too
-                kept = mask.copy()
-                for k in range(1, trim + 1):
-                    kept[:, k:] &= mask[:, :-k]
-                    kept[:, :k] = 0
-                mask = kept if kept.any() else mask
-            # Border ring: background where there is no object-height point at the object's depth.
-            znear = cv2.dilate(zobj, ring_kernel)
-            ring = (cv2.dilate(mask, ring_kernel) > 0) & (mask == 0) & (znear > 0)
-            rz = zc[ring]
-            rlow = low[r0:r1, c0:c1][ring]
-            jump = ~(np.abs(rz - znear[ring]) <= ring_gap)  # NaN depth counts as a jump
-            contrast = float((rlow | jump).mean()) if rz.size else 1.0
-            rows = np.nonzero(mask.any(axis=1))[0]
-            cols = np.nonzero(mask.any(axis=0))[0]
-            mask = mask[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]
-            fill = float(np.count_nonzero(mask)) / mask.size
-            # Full-resolution crop: each sample stands for an s × s block.
-            y0, x0 = (r0 + int(rows[0])) * s, (c0 + int(cols[0])) * s
-            crop = np.repeat(np.repeat(mask.astype(bool), s, axis=0), s, axis=1)[: H - y0, : W - x0]
-            crops.append((crop, x0, y0))
-            boxes.append((x0, y0, x0 + crop.shape[1], y0 + crop.shape[0]))
-            cues.append((contrast, fill, max(width, length), top, idx.size))
-            positions.append((xq[1], float(np.sort(y[pv[sub], pu[sub]])[q[1]]), zq[1]))
-            sizes.append((width, top, length))
+        kernels = mask_kernels(cfg)
+        candidates = [build_mask(stats[i], pts, kernels, calib, geometry.ground.d, cfg) for i in chosen]
         t4 = time.perf_counter()
-
-        cue = self._cues(np.asarray(cues, np.float64))
-        score = objectness_from_cues(cue, cfg)
-        boxes_a = np.asarray(boxes, np.float32)
-        keep_i = nms_keep(boxes_a, score, cfg.nms_iou, cfg.max_proposals)
-        rles = [crop_rle(crops[i][0], crops[i][1], crops[i][2], H, W) for i in keep_i]
-        self.last_cues = cue[keep_i].astype(np.float32)
-        self.last_timings_ms = {"points": 1e3 * (t1 - t0), "cluster": 1e3 * (t2 - t1), "stats": 1e3 * (t3 - t2),
-                                "masks": 1e3 * (t4 - t3), "encode": 1e3 * (time.perf_counter() - t4)}
-        return Proposals(
-            frame=frame.index,
-            rles=rles,
-            boxes=boxes_a[keep_i].reshape(-1, 4),
-            objectness=score[keep_i],
-            posterior=None,
-            proposer=[PROPOSER_NAME] * len(keep_i),
-            position=np.asarray(positions, np.float32)[keep_i].reshape(-1, 3),
-            size=np.asarray(sizes, np.float32)[keep_i].reshape(-1, 3),
-        )
-
-    def _cues(self, raw: np.ndarray) -> np.ndarray:
-        """Raw (contrast, fill, extent m, top m, points) → the five cues in [0, 1], higher = more object-like."""
-        cfg = self.cfg
-        return np.column_stack([
-            np.clip(raw[:, 0], 0.0, 1.0),
-            np.clip(raw[:, 1], 0.0, 1.0),
-            _plausible(raw[:, 2], 0.0, cfg.plausible_extent_m, cfg.max_extent_m),
-            _plausible(raw[:, 3], cfg.plausible_top_m[0], cfg.plausible_top_m[1], cfg.max_height_m),
-            np.clip(np.log(raw[:, 4]) / math.log(cfg.support_points), 0.0, 1.0),
-        ])
+        proposals, cues = score_and_encode(frame.index, candidates, calib, cfg)
+        timings = {"points": 1e3 * (t1 - t0), "cluster": 1e3 * (t2 - t1), "stats": 1e3 * (t3 - t2),
+                   "masks": 1e3 * (t4 - t3), "encode": 1e3 * (time.perf_counter() - t4)}
+        return StereoResult(proposals, cues, "", timings)

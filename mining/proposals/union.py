@@ -27,22 +27,7 @@ import numpy as np
 from mining.errors import InputError
 from mining.masks import mask_iou
 from mining.proposals.config import ProposalFilterConfig
-from mining.types import N_CLASSES, Proposals
-
-
-def take(p: Proposals, idx: np.ndarray) -> Proposals:
-    """The rows ``idx`` of ``p``, in that order."""
-    idx = np.asarray(idx, np.int64).reshape(-1)
-    return Proposals(
-        frame=p.frame,
-        rles=[p.rles[i] for i in idx],
-        boxes=p.boxes[idx],
-        objectness=p.objectness[idx],
-        posterior=None if p.posterior is None else p.posterior[idx],
-        proposer=[p.proposer[i] for i in idx] if p.proposer else [],
-        position=None if p.position is None else p.position[idx],
-        size=None if p.size is None else p.size[idx],
-    )
+from mining.types import Proposals
 
 
 def union(proposals_list: Sequence[Proposals], iou_threshold: float) -> Proposals:
@@ -63,19 +48,9 @@ def union(proposals_list: Sequence[Proposals], iou_threshold: float) -> Proposal
     if len(sizes) > 1:
         raise InputError(f"proposal masks of different frame sizes {sorted(sizes)}", frame=frame)
 
-    n = [len(p) for p in proposals_list]
-    group = np.repeat(np.arange(len(n)), n)
-    rles = [r for p in proposals_list for r in p.rles]
-    merged = Proposals(
-        frame=frame,
-        rles=rles,
-        boxes=np.concatenate([p.boxes.reshape(-1, 4) for p in proposals_list]).astype(np.float32),
-        objectness=np.concatenate([p.objectness for p in proposals_list]).astype(np.float32),
-        posterior=_stack([p.posterior for p in proposals_list], n, N_CLASSES, np.nan),
-        proposer=[name for p in proposals_list for name in p.proposer],
-        position=_stack([p.position for p in proposals_list], n, 3, np.nan),
-        size=_stack([p.size for p in proposals_list], n, 3, np.nan),
-    )
+    group = np.repeat(np.arange(len(proposals_list)), [len(p) for p in proposals_list])
+    merged = Proposals.cat(proposals_list)
+    rles = merged.rles
     # Earlier proposers win duplicates ("onnx+stereo": the learned masks and classes stand,
     # the stereo proposer adds what the network missed); within one proposer, objectness.
     # Objectness of different proposers is not on one scale, so it cannot decide between them.
@@ -90,16 +65,7 @@ def union(proposals_list: Sequence[Proposals], iou_threshold: float) -> Proposal
             keep.append(i)
             alive &= ~same[i]
     keep = np.asarray(keep, np.int64)
-    return take(merged, keep[np.argsort(-merged.objectness[keep], kind="stable")])
-
-
-def _stack(parts: list[np.ndarray | None], n: list[int], width: int, fill: float) -> np.ndarray | None:
-    """Row-stack optional per-proposer arrays; missing ones become ``fill`` rows (None if all are missing)."""
-    if all(a is None for a in parts):
-        return None
-    rows = [np.full((k, width), fill, np.float32) if a is None else np.asarray(a, np.float32).reshape(k, width)
-            for a, k in zip(parts, n)]
-    return np.concatenate(rows) if rows else np.zeros((0, width), np.float32)
+    return merged.take(keep[np.argsort(-merged.objectness[keep], kind="stable")])
 
 
 def filter_by_box_area_and_count(proposals: Proposals, cfg: ProposalFilterConfig) -> Proposals:
@@ -108,4 +74,4 @@ def filter_by_box_area_and_count(proposals: Proposals, cfg: ProposalFilterConfig
     area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
     big = np.flatnonzero(area >= cfg.min_box_area_px)
     order = big[np.argsort(-proposals.objectness[big], kind="stable")]
-    return take(proposals, order[: cfg.max_proposals])
+    return proposals.take(order[: cfg.max_proposals])

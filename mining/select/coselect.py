@@ -10,11 +10,11 @@ from collections import defaultdict
 
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
-from scipy.sparse.csgraph import connected_components
 
-from mining.masks import box_iou, mask_iou
+from mining.boxes import box_iou
+from mining.masks import mask_iou
 from mining.select.config import SelectConfig
-from mining.select.qubo import build_qubo, solve
+from mining.select.qubo import build_qubo, connected_groups, solve
 from mining.types import Tube
 
 
@@ -77,10 +77,8 @@ def co_select(tubes: list[Tube], scores: np.ndarray, cfg: SelectConfig) -> np.nd
     if n <= DENSE_MAX:  # small: one dense QUBO (the solver splits it into groups itself)
         dense = overlap.toarray()
         return np.asarray(solve(build_qubo(scores, 0.5 * (dense + dense.T), cfg), cfg)[0], bool)
-    _, label = connected_components(overlap, directed=False)
-    order = np.argsort(label, kind="stable")
     m = np.zeros(n, bool)
-    for members in np.split(order, np.nonzero(np.diff(label[order]))[0] + 1):
+    for members in connected_groups(overlap):
         sub = overlap[members][:, members].toarray()
         sub = 0.5 * (sub + sub.T)  # exact symmetry despite summation order
         Q = build_qubo(scores[members], sub, cfg)

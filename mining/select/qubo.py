@@ -355,6 +355,14 @@ def _large(Q: np.ndarray, cfg: SelectConfig) -> tuple[np.ndarray, float]:
 # --------------------------------------------------------------------------- production
 
 
+def connected_groups(graph: csr_matrix) -> list[np.ndarray]:
+    """The members of each connected component of an undirected graph (nonzero entries
+    are edges), each group in ascending index order, groups in scipy's label order."""
+    _, label = connected_components(graph, directed=False)
+    order = np.argsort(label, kind="stable")
+    return np.split(order, np.nonzero(np.diff(label[order]))[0] + 1)
+
+
 def fix_forced(Q: np.ndarray) -> np.ndarray:
     """Candidates whose choice cannot matter for the optimum: −1 free, 0 drop, 1 keep.
 
@@ -416,10 +424,7 @@ def solve(Q: np.ndarray, cfg: SelectConfig | None = None) -> tuple[np.ndarray, f
         sub[np.diag_indices(free.size)] += 2.0 * Q[np.ix_(free, np.nonzero(m)[0])].sum(axis=1)
         links = sub != 0
         np.fill_diagonal(links, False)
-        _, label = connected_components(csr_matrix(links), directed=False)
-        order = np.argsort(label, kind="stable")
-        groups = np.split(order, np.nonzero(np.diff(label[order]))[0] + 1)
-        for members in groups:
+        for members in connected_groups(csr_matrix(links)):
             part = sub[np.ix_(members, members)]
             if members.size == 1:  # a tube that overlaps no undecided tube
                 chosen = part[0, 0] > 0

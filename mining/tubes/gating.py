@@ -1,9 +1,10 @@
 """Gating and association score of predictions against observations (REFERENCE.md "Extend").
 
-Gates: box IoU and 2D size similarity of the predicted and observed boxes, mask IoU (box
-IoU for box-only predictions) and the footpoint's Mahalanobis distance on the ground
-plane. Score: mask IoU × Gaussian density of the footpoint. Everything works on arrays
-of (prediction, observation) pairs, so many tubes are gated in one pass.
+Gates: box IoU and 2D size similarity of the predicted and observed boxes
+(``mining.boxes.box_gates``), mask IoU (box IoU for box-only predictions) and the
+footpoint's Mahalanobis distance on the ground plane. Score: mask IoU × Gaussian density
+of the footpoint. Everything works on arrays of (prediction, observation) pairs, so many
+tubes are gated in one pass.
 """
 
 from __future__ import annotations
@@ -34,21 +35,6 @@ def gaussian_density(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.nda
 def mahalanobis2(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """Squared Mahalanobis distance on the ground plane."""
     return _inv_quad_2x2((x - mean)[:, GROUND], cov[:, GROUND][:, :, GROUND])[0]
-
-
-def box_gates(pred: np.ndarray, obs: np.ndarray, min_iou: float, min_similarity: float) -> np.ndarray:
-    """(T, N) bool: box IoU > min_iou and 2D size similarity > min_similarity, in one pass."""
-    pw, ph = pred[:, 2] - pred[:, 0], pred[:, 3] - pred[:, 1]
-    ow, oh = obs[:, 2] - obs[:, 0], obs[:, 3] - obs[:, 1]
-    iw = np.minimum(pred[:, None, 2], obs[None, :, 2]) - np.maximum(pred[:, None, 0], obs[None, :, 0])
-    ih = np.minimum(pred[:, None, 3], obs[None, :, 3]) - np.maximum(pred[:, None, 1], obs[None, :, 1])
-    inter = np.maximum(iw, 0) * np.maximum(ih, 0)
-    union = (pw * ph)[:, None] + (ow * oh)[None, :] - inter
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ok = inter > min_iou * union
-        sim = (np.minimum(pw[:, None], ow[None]) / np.maximum(pw[:, None], ow[None])
-               * np.minimum(ph[:, None], oh[None]) / np.maximum(ph[:, None], oh[None]))
-    return ok & (sim > min_similarity)
 
 
 def best_pairs(rows: np.ndarray, cols: np.ndarray, iou: np.ndarray, mean: np.ndarray, pos_cov: np.ndarray,

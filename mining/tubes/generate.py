@@ -27,9 +27,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mining.masks import areas, mask_iou, paired_box_iou
+from mining.boxes import box_gates, paired_box_iou
+from mining.masks import areas, mask_iou
 from mining.tubes.config import TubeConfig
-from mining.tubes.gating import GROUND, best_pairs, box_gates
+from mining.tubes.gating import GROUND, best_pairs
 from mining.tubes.kalman import POS, SIZE, TubeFilter, prior_velocity_cov
 from mining.tubes.probe import probe_back
 from mining.tubes.warp import MaskPoints, predict_box, predict_mask

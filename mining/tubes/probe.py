@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from mining.masks import paired_box_iou
+from mining.boxes import box_gates, paired_box_iou
 from mining.tubes.config import TubeConfig
-from mining.tubes.gating import best_pairs, box_gates
+from mining.tubes.gating import best_pairs
 from mining.tubes.kalman import POS, initial_states, predict_states, update_states
 from mining.tubes.warp import predict_boxes
 from mining.tubes.world import WorldObservations

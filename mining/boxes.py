@@ -1,0 +1,88 @@
+"""Box algebra on x1, y1, x2, y2 pixel boxes: IoU, intersection over area, 2D size similarity.
+
+One plain implementation of each, used by every stage and metric. ``box_gates`` is the
+tube gate's fused pass (IoU and size similarity of all prediction × observation pairs
+without the IoU division); ``tests/test_boxes.py`` holds it equal to the plain functions
+on real boxes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def _overlap(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Intersection area and the two box areas of ``a[..., :4]`` and ``b[..., :4]``, broadcast."""
+    # np.maximum(x, 0) is np.clip(x, 0, None) without clip's Python-level dispatch.
+    iw = np.maximum(np.minimum(a[..., 2], b[..., 2]) - np.maximum(a[..., 0], b[..., 0]), 0)
+    ih = np.maximum(np.minimum(a[..., 3], b[..., 3]) - np.maximum(a[..., 1], b[..., 1]), 0)
+    inter = iw * ih
+    area_a = (a[..., 2] - a[..., 0]) * (a[..., 3] - a[..., 1])
+    area_b = (b[..., 2] - b[..., 0]) * (b[..., 3] - b[..., 1])
+    return inter, area_a, area_b
+
+
+def paired_box_iou(a: np.ndarray, b: np.ndarray, min_area: float | None = None) -> np.ndarray:
+    """IoU of the boxes ``a[..., :4]`` and ``b[..., :4]`` element by element (broadcast):
+    the pairs of a gate's mask without the full matrix.
+
+    0 where the union is empty. With ``min_area`` (TrackEval's rule, its float epsilon), a
+    box of area ≤ ``min_area`` overlaps nothing, and neither does a union that small.
+    """
+    inter, area_a, area_b = _overlap(a, b)
+    union = area_a + area_b - inter
+    if min_area is None:
+        valid = union > 0
+    else:
+        valid = (area_a > min_area) & (area_b > min_area) & (union > min_area)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(valid, inter / union, 0.0)
+
+
+def box_iou(a: np.ndarray, b: np.ndarray, min_area: float | None = None) -> np.ndarray:
+    """(len(a), len(b)) IoU of x1, y1, x2, y2 boxes (``min_area`` as in :func:`paired_box_iou`)."""
+    a = np.asarray(a, np.float64).reshape(-1, 4)
+    b = np.asarray(b, np.float64).reshape(-1, 4)
+    return paired_box_iou(a[:, None], b[None, :], min_area)
+
+
+def box_ioa(a: np.ndarray, b: np.ndarray, min_area: float = 0.0) -> np.ndarray:
+    """(len(a), len(b)) intersection over the area of each box of ``a`` (rows); 0 for rows
+    of area ≤ ``min_area``."""
+    a = np.asarray(a, np.float64).reshape(-1, 4)
+    b = np.asarray(b, np.float64).reshape(-1, 4)
+    inter, area_a, _ = _overlap(a[:, None], b[None, :])
+    return np.divide(inter, area_a, out=np.zeros_like(inter), where=area_a > min_area)
+
+
+def size_similarity(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(len(a), len(b)) 2D size similarity of boxes: product of width and height ratios (≤ 1)."""
+    a = np.asarray(a, np.float64).reshape(-1, 4)
+    b = np.asarray(b, np.float64).reshape(-1, 4)
+    wa, ha = a[:, 2] - a[:, 0], a[:, 3] - a[:, 1]
+    wb, hb = b[:, 2] - b[:, 0], b[:, 3] - b[:, 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rw = np.minimum(wa[:, None], wb[None]) / np.maximum(wa[:, None], wb[None])
+        rh = np.minimum(ha[:, None], hb[None]) / np.maximum(ha[:, None], hb[None])
+    return np.nan_to_num(rw * rh)
+
+
+def box_gates(pred: np.ndarray, obs: np.ndarray, min_iou: float, min_similarity: float) -> np.ndarray:
+    """(T, N) bool: box IoU > min_iou and 2D size similarity > min_similarity, in one pass.
+
+    The same test as ``(box_iou(pred, obs) > min_iou) & (size_similarity(pred, obs) >
+    min_similarity)`` but faster: IoU is compared as ``inter > min_iou · union`` without
+    the division, and the ratios multiply in another order, so a pair within rounding of
+    a threshold may fall on the other side.
+    """
+    pw, ph = pred[:, 2] - pred[:, 0], pred[:, 3] - pred[:, 1]
+    ow, oh = obs[:, 2] - obs[:, 0], obs[:, 3] - obs[:, 1]
+    iw = np.minimum(pred[:, None, 2], obs[None, :, 2]) - np.maximum(pred[:, None, 0], obs[None, :, 0])
+    ih = np.minimum(pred[:, None, 3], obs[None, :, 3]) - np.maximum(pred[:, None, 1], obs[None, :, 1])
+    inter = np.maximum(iw, 0) * np.maximum(ih, 0)
+    union = (pw * ph)[:, None] + (ow * oh)[None, :] - inter
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ok = inter > min_iou * union
+        sim = (np.minimum(pw[:, None], ow[None]) / np.maximum(pw[:, None], ow[None])
+               * np.minimum(ph[:, None], oh[None]) / np.maximum(ph[:, None], oh[None]))
+    return ok & (sim > min_similarity)
