@@ -91,8 +91,8 @@ def cmd_track_detections(args: argparse.Namespace) -> int:
 
 
 def cmd_track_images(args: argparse.Namespace) -> int:
-    from mining.eval.kitti_export import write_tubes_kitti
     from mining.pipeline.frames import tracking_frames
+    from mining.pipeline.kitti_export import write_tubes_kitti
     from mining.pipeline.mine import mine_tubes
 
     cfg = _job_config(args)
@@ -102,10 +102,8 @@ def cmd_track_images(args: argparse.Namespace) -> int:
     stop = len(plan) if stop is None else min(stop, len(plan))
     mined = mine_tubes((r.tracking for r in tracking_frames(source, plan, start, stop, cfg)), cfg)
     out = Path(args.out) / f"{args.sequence}.txt"
-    to_rect0 = None
-    if cfg.source.dataset == "kitti":
-        t = source.kitti_calib(args.sequence).t_cam2
-        to_rect0 = lambda p: p - t  # noqa: E731 — KITTI's 3D fields are in rectified camera 0
+    # KITTI's 3D fields are in rectified camera 0; elsewhere they are placeholders.
+    to_rect0 = source.kitti_calib(args.sequence).cam2_to_rect0 if cfg.source.dataset == "kitti" else None
     n = write_tubes_kitti(out, mined, to_rect0, observed_only=cfg.export.observed_only,
                           unclassified_as=cfg.export.unclassified_as)
     sel = [m for m in mined if m.selected]
@@ -151,7 +149,7 @@ def cmd_eval_recall(args: argparse.Namespace) -> int:
     from mining.eval.recall import kitti_ground_truth, recall_at_n
 
     if args.oxford_labels:
-        from mining.eval.oxford_labels import read_oxford_labels
+        from mining.formats.oxford_labels import read_oxford_labels
         from mining.proposals.precomputed import read_proposal_json
 
         labels = read_oxford_labels(args.oxford_labels)
@@ -164,7 +162,7 @@ def cmd_eval_recall(args: argparse.Namespace) -> int:
         print(f"Proposal recall (box IoU > 0.5) on {len(labels)} labelled RobotCar frames")
         print(_format_recall(recall_at_n(props, boxes, known)))
         return 0
-    from mining.eval.kitti_labels import read_kitti_tracking
+    from mining.formats.kitti_tracking import read_kitti_tracking
     from mining.pipeline.frames import tracking_frames
 
     cfg = _job_config(args)

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from mining.errors import InputError
-from mining.eval.kitti_labels import read_kitti_tracking, write_kitti_tracking
 from mining.eval.kitti_mot import box_ioa, box_iou, evaluate_kitti_mot, format_table, read_seqmap
+from mining.formats.kitti_tracking import read_kitti_tracking, write_kitti_tracking
 
 # ---------------------------------------------------------------- helpers for hand-made files
 

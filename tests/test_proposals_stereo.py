@@ -10,7 +10,7 @@ import pytest
 from pycocotools import mask as mask_utils
 
 from mining.errors import InputError
-from mining.eval.kitti_labels import read_kitti_tracking
+from mining.formats.kitti_tracking import read_kitti_tracking
 from mining.geometry.config import GroundConfig
 from mining.geometry.ground import estimate_ground
 from mining.geometry.stage import GeometryStage

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from mining.eval.kitti_labels import KittiTrackingRows, write_kitti_tracking
+from mining.formats.kitti_tracking import KittiTrackingRows, write_kitti_tracking
 from mining.masks import box_iou
 from mining.proposals.precomputed import KittiDetections
 

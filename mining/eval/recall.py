@@ -19,7 +19,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from mining.errors import InputError
-from mining.eval.kitti_labels import KittiTrackingRows
+from mining.formats.kitti_tracking import KittiTrackingRows
 from mining.masks import box_iou
 from mining.types import Proposals
 

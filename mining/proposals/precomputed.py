@@ -40,7 +40,7 @@ import numpy as np
 from pycocotools import mask as mask_utils
 
 from mining.errors import InputError
-from mining.eval.kitti_labels import read_kitti_tracking
+from mining.formats.kitti_tracking import read_kitti_tracking
 from mining.proposals.coco import CATEGORY_ID_TO_INDEX, CLASS_INDEX
 from mining.proposals.config import JsonProposalsConfig, KittiDetectionsConfig
 from mining.sources.kitti_calib import KittiCalib
