@@ -24,12 +24,13 @@ import cv2
 import numpy as np
 
 from mining.eval.depth import depth_errors
-from mining.eval.odometry import chain_egomotion, odometry_errors
+from mining.eval.odometry import odometry_errors
 from mining.eval.stereo import bad_n, d1_all, density
 from mining.formats.disparity import read_pfm
 from mining.formats.poses import read_poses
 from mining.geometry.config import GeometryConfig
 from mining.geometry.disparity import compute_disparity
+from mining.geometry.egomotion import chain_egomotion
 from mining.geometry.stage import GeometryStage
 from mining.sources import open_source
 
