@@ -183,10 +183,13 @@ def cmd_eval_recall(args: argparse.Namespace) -> int:
 
 
 def cmd_eval_synthetic(args: argparse.Namespace) -> int:
-    from mining.eval.synthetic import main as synthetic_main
+    from mining.bench.synthetic import run_synthetic_eval
 
-    synthetic_main([a for a in args.rest if a != "--"])
-    return 0
+    protocol = {"max_depth_m": args.max_depth_m}
+    if args.min_visible_px is not None:
+        protocol["min_visible_px"] = args.min_visible_px
+    return run_synthetic_eval(args.sequence, args.n_frames, load_config(args.config, args.set), save=args.save,
+                              **protocol)
 
 
 def cmd_bench_tubes(args: argparse.Namespace) -> int:
@@ -348,10 +351,17 @@ def build_parser() -> argparse.ArgumentParser:
     erec.add_argument("--oxford-labels", help="RobotCar: the 4D-GVT labels_4dgvt folder")
     erec.add_argument("--proposals-json", help="RobotCar: proposal JSON files laid out like the label files")
     erec.set_defaults(func=cmd_eval_recall)
-    esyn = esub.add_parser("synthetic", add_help=False,
-                           help="mine a synthetic sequence and score known and unknown objects against its exact truth "
-                                "(options: see `mine eval synthetic --help`)")
-    esyn.add_argument("rest", nargs=argparse.REMAINDER)
+    esyn = esub.add_parser("synthetic", help="mine a synthetic sequence and score known and unknown objects against "
+                                             "its exact truth", description="Mine a synthetic sequence and score it "
+                                                                            "against its ground truth.")
+    esyn.add_argument("--sequence", default="0000")
+    esyn.add_argument("--n-frames", type=int, default=100)
+    esyn.add_argument("--config", default=None, help="job TOML (default: built-in defaults)")
+    esyn.add_argument("--set", action="append", default=[], help="config override KEY=VALUE")
+    esyn.add_argument("--min-visible-px", type=int, default=None,
+                      help="ignore objects with fewer visible pixels (default: the protocol's)")
+    esyn.add_argument("--max-depth-m", type=float, default=None)
+    esyn.add_argument("--save", default=None, help="pickle (mined, results) here for re-evaluation")
     esyn.set_defaults(func=cmd_eval_synthetic)
     return parser
 
@@ -359,8 +369,6 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     argv = sys.argv[1:] if argv is None else argv
-    if argv[:2] == ["eval", "synthetic"]:  # its own option parser takes everything after
-        argv = ["eval", "synthetic", "--", *argv[2:]]
     args = build_parser().parse_args(argv)
     args.argv = argv
     try:
