@@ -91,8 +91,8 @@ def cmd_track_detections(args: argparse.Namespace) -> int:
 
 
 def cmd_track_images(args: argparse.Namespace) -> int:
-    from mining.eval.kitti_export import write_tubes_kitti
     from mining.pipeline.frames import frame_records
+    from mining.pipeline.kitti_export import write_tubes_kitti
     from mining.pipeline.mine import mine_tubes
 
     cfg = _job_config(args)
@@ -102,10 +102,8 @@ def cmd_track_images(args: argparse.Namespace) -> int:
     stop = len(plan) if stop is None else min(stop, len(plan))
     mined = mine_tubes((r.tracking for r in frame_records(source, plan, start, stop, cfg)), cfg)
     out = Path(args.out) / f"{args.sequence}.txt"
-    to_rect0 = None
-    if cfg.source.dataset == "kitti":
-        t = source.kitti_calib(args.sequence).t_cam2
-        to_rect0 = lambda p: p - t  # noqa: E731 — KITTI's 3D fields are in rectified camera 0
+    # KITTI's 3D fields are in rectified camera 0; elsewhere they are placeholders.
+    to_rect0 = source.kitti_calib(args.sequence).cam2_to_rect0 if cfg.source.dataset == "kitti" else None
     n = write_tubes_kitti(out, mined, to_rect0, observed_only=cfg.export.observed_only,
                           unclassified_as=cfg.export.unclassified_as)
     sel = [m for m in mined if m.selected]
@@ -151,7 +149,7 @@ def cmd_eval_recall(args: argparse.Namespace) -> int:
     from mining.eval.recall import kitti_ground_truth, recall_at_n
 
     if args.oxford_labels:
-        from mining.eval.oxford_labels import read_oxford_labels
+        from mining.formats.oxford_labels import read_oxford_labels
         from mining.proposals.precomputed import read_proposal_json
 
         labels = read_oxford_labels(args.oxford_labels)
@@ -164,7 +162,7 @@ def cmd_eval_recall(args: argparse.Namespace) -> int:
         print(f"Proposal recall (box IoU > 0.5) on {len(labels)} labelled RobotCar frames")
         print(_format_recall(recall_at_n(props, boxes, known)))
         return 0
-    from mining.eval.kitti_labels import read_kitti_tracking
+    from mining.formats.kitti_tracking import read_kitti_tracking
     from mining.pipeline.frames import frame_records
 
     cfg = _job_config(args)
@@ -185,10 +183,13 @@ def cmd_eval_recall(args: argparse.Namespace) -> int:
 
 
 def cmd_eval_synthetic(args: argparse.Namespace) -> int:
-    from mining.eval.synthetic import main as synthetic_main
+    from mining.bench.synthetic import run_synthetic_eval
 
-    synthetic_main([a for a in args.rest if a != "--"])
-    return 0
+    protocol = {"max_depth_m": args.max_depth_m}
+    if args.min_visible_px is not None:
+        protocol["min_visible_px"] = args.min_visible_px
+    return run_synthetic_eval(args.sequence, args.n_frames, load_config(args.config, args.set), save=args.save,
+                              **protocol)
 
 
 def cmd_bench_tubes(args: argparse.Namespace) -> int:
@@ -350,10 +351,17 @@ def build_parser() -> argparse.ArgumentParser:
     erec.add_argument("--oxford-labels", help="RobotCar: the 4D-GVT labels_4dgvt folder")
     erec.add_argument("--proposals-json", help="RobotCar: proposal JSON files laid out like the label files")
     erec.set_defaults(func=cmd_eval_recall)
-    esyn = esub.add_parser("synthetic", add_help=False,
-                           help="mine a synthetic sequence and score known and unknown objects against its exact truth "
-                                "(options: see `mine eval synthetic --help`)")
-    esyn.add_argument("rest", nargs=argparse.REMAINDER)
+    esyn = esub.add_parser("synthetic", help="mine a synthetic sequence and score known and unknown objects against "
+                                             "its exact truth", description="Mine a synthetic sequence and score it "
+                                                                            "against its ground truth.")
+    esyn.add_argument("--sequence", default="0000")
+    esyn.add_argument("--n-frames", type=int, default=100)
+    esyn.add_argument("--config", default=None, help="job TOML (default: built-in defaults)")
+    esyn.add_argument("--set", action="append", default=[], help="config override KEY=VALUE")
+    esyn.add_argument("--min-visible-px", type=int, default=None,
+                      help="ignore objects with fewer visible pixels (default: the protocol's)")
+    esyn.add_argument("--max-depth-m", type=float, default=None)
+    esyn.add_argument("--save", default=None, help="pickle (mined, results) here for re-evaluation")
     esyn.set_defaults(func=cmd_eval_synthetic)
     return parser
 
@@ -361,8 +369,6 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     argv = sys.argv[1:] if argv is None else argv
-    if argv[:2] == ["eval", "synthetic"]:  # its own option parser takes everything after
-        argv = ["eval", "synthetic", "--", *argv[2:]]
     args = build_parser().parse_args(argv)
     args.argv = argv
     try:

@@ -41,7 +41,7 @@ CASES = ("kitti0005-json20", "kitti0005-json500", "kitti0005-onnx", "detections"
 
 
 def _api():
-    """(tracking_frames(source, plan, start, stop, cfg) → TrackingFrames, mine_tubes, detection_frames, run_job)."""
+    """(frames(source, plan, start, stop, cfg) → TrackingFrames, mine_tubes, detection_frames, run_job)."""
     from mining.pipeline.detections import detection_frames
     from mining.pipeline.submit import run_job
     try:

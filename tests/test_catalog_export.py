@@ -15,8 +15,8 @@ from _catalog_data import DATASET, SEQUENCE, build_catalogue
 from mining.catalog.export import crop_box, disjoint_masks, run_export, tube_folder
 from mining.catalog.schema import SCHEMAS
 from mining.catalog.store import Store, write_sequence
-from mining.eval.kitti_export import write_tubes_kitti
-from mining.eval.kitti_labels import read_kitti_tracking
+from mining.formats.kitti_tracking import read_kitti_tracking
+from mining.pipeline.kitti_export import write_tubes_kitti
 
 
 @pytest.fixture(scope="module")
@@ -36,8 +36,8 @@ def test_kitti_matches_the_tracker_export(catalogue, tmp_path, kitti_tracking_ro
     out, tables = catalogue
     assert run_export(str(out), "selected", "kitti", str(tmp_path / "kitti")) == 0
     got = read_kitti_tracking(tmp_path / "kitti" / f"{SEQUENCE}.txt", require_score=True)
-    t = KittiTrackingSource(str(kitti_tracking_root)).kitti_calib(SEQUENCE).t_cam2
-    write_tubes_kitti(tmp_path / "ref.txt", tables["mined"], rect0_from_cam2=lambda p: p - t)
+    kcalib = KittiTrackingSource(str(kitti_tracking_root)).kitti_calib(SEQUENCE)
+    write_tubes_kitti(tmp_path / "ref.txt", tables["mined"], rect0_from_cam2=kcalib.cam2_to_rect0)
     ref = read_kitti_tracking(tmp_path / "ref.txt", require_score=True)
     assert len(got) == len(ref) > 0
     g, r = _sorted(got), _sorted(ref)

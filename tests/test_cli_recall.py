@@ -8,7 +8,7 @@ import numpy as np
 from pycocotools import mask as mask_utils
 
 from mining.cli import main
-from mining.eval.oxford_labels import read_oxford_labels
+from mining.formats.oxford_labels import read_oxford_labels
 
 
 def test_recall_kitti_stereo(kitti_tracking_root, capsys):

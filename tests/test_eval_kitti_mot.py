@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from mining.errors import InputError
-from mining.eval.kitti_labels import read_kitti_tracking, write_kitti_tracking
 from mining.boxes import box_ioa, box_iou
 from mining.eval.kitti_mot import evaluate_kitti_mot, format_table, read_seqmap
+from mining.formats.kitti_tracking import read_kitti_tracking, write_kitti_tracking
 
 # ---------------------------------------------------------------- helpers for hand-made files
 

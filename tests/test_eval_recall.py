@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from mining.errors import InputError
-from mining.eval.kitti_labels import read_kitti_tracking
-from mining.eval.oxford_labels import OXFORD_KNOWN, read_oxford_labels
 from mining.eval.recall import first_hit_rank, kitti_ground_truth, recall_at_n
+from mining.formats.kitti_tracking import read_kitti_tracking
+from mining.formats.oxford_labels import OXFORD_KNOWN, read_oxford_labels
 from mining.types import Proposals
 
 

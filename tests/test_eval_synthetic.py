@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 from pycocotools import mask as mask_utils
 
+from mining.bench.synthetic import run_synthetic
 from mining.config import load_config
 from mining.errors import InputError
-from mining.eval.synthetic import evaluate_synthetic, format_synthetic, gt_frame, run_synthetic
+from mining.eval.synthetic import evaluate_synthetic, format_synthetic, gt_frame
 from mining.sources.synthetic import SyntheticSource
 from mining.types import FrameTruth, MinedTube, ObjectTruth, Tube, TubeCategory, TubeFrame, TubeScore
 
@@ -209,3 +210,15 @@ def test_real_pipeline_on_a_short_synthetic_sequence():
     every = evaluate_synthetic(mined_tubes, r["truths"], selected_only=False)
     assert every["all"]["frame_recall"] >= a["frame_recall"]
     print(format_synthetic(r))
+
+
+def test_cli_parses_the_synthetic_options():
+    from mining.cli import build_parser, cmd_eval_synthetic
+
+    a = build_parser().parse_args(["eval", "synthetic", "--sequence", "0001", "--n-frames", "30", "--set", "x.y=1",
+                                   "--set", "x.z=2", "--min-visible-px", "50", "--max-depth-m", "40", "--save", "r.pkl"])
+    assert a.func is cmd_eval_synthetic
+    assert (a.sequence, a.n_frames, a.set, a.min_visible_px, a.max_depth_m, a.save, a.config) == \
+        ("0001", 30, ["x.y=1", "x.z=2"], 50, 40.0, "r.pkl", None)
+    d = build_parser().parse_args(["eval", "synthetic"])
+    assert (d.sequence, d.n_frames, d.min_visible_px, d.max_depth_m) == ("0000", 100, None, None)

@@ -8,8 +8,9 @@ import pytest
 from _geometry_data import oxts_positions, raw_calib, raw_frame, tracking_calib, tracking_frame, tracking_poses
 
 from mining.errors import InputError
-from mining.eval.odometry import chain_egomotion, odometry_errors, rotation_angle
+from mining.eval.odometry import odometry_errors, rotation_angle
 from mining.geometry.config import GeometryConfig, GroundConfig
+from mining.geometry.egomotion import chain_egomotion
 from mining.geometry.flow import match_quad, stereo_features
 from mining.geometry.ground import fit_ground_plane, ground_candidates
 from mining.geometry.stage import GeometryStage

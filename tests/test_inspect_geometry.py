@@ -8,8 +8,9 @@ import shutil
 import numpy as np
 
 from mining.cli import main
-from mining.eval.formats import read_disparity_png, read_poses
 from mining.eval.odometry import odometry_errors
+from mining.formats.disparity import read_disparity_png
+from mining.formats.poses import read_poses
 
 
 def test_inspect_geometry_writes_kitti_formats(kitti_tracking_root, tmp_path):

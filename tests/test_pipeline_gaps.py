@@ -17,7 +17,7 @@ from mining.pipeline.frames import frame_records
 from mining.pipeline.mine import mine_tubes
 from mining.pipeline.submit import run_job
 from mining.sources.oxford import OxfordSource
-from mining.sources.fixtures import write_robotcar_fixture
+from mining.testing.fixtures import write_robotcar_fixture
 
 REPO = Path(__file__).resolve().parents[1]
 N_FRAMES = 10  # KITTI 0005 frames 0-9, chunks of 2: chunk 3 (frames 4, 5) missing

@@ -15,10 +15,10 @@ from pycocotools import mask as mask_utils
 from conftest import MODELS
 from mining.boxes import box_iou
 from mining.errors import ConfigError, InputError
-from mining.eval.kitti_labels import read_kitti_tracking
+from mining.formats.kitti_tracking import read_kitti_tracking
+from mining.masks import crop_rle
 from mining.proposals.config import OnnxConfig
 from mining.proposals.onnx_convert import anchor_grid, converted_model, convert_to_float
-from mining.masks import crop_rle
 from mining.proposals.onnx_yolo import OnnxProposer, decode_predictions, letterbox_image, plan_letterbox
 from mining.types import N_CLASSES
 

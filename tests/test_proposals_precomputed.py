@@ -11,8 +11,8 @@ import pytest
 from pycocotools import mask as mask_utils
 
 from mining.errors import InputError
-from mining.eval.kitti_labels import read_kitti_tracking
 from mining.eval.recall import kitti_ground_truth, recall_at_n
+from mining.formats.kitti_tracking import read_kitti_tracking
 from mining.masks import mask_iou
 from mining.proposals.coco import CATEGORY_ID_TO_INDEX, CLASS_INDEX, COCO_CATEGORY_IDS, COCO_CLASSES
 from mining.proposals.config import JsonProposalsConfig, KittiDetectionsConfig, ProposalFilterConfig

@@ -11,7 +11,7 @@ from pycocotools import mask as mask_utils
 
 from mining.boxes import box_iou
 from mining.errors import InputError
-from mining.eval.kitti_labels import read_kitti_tracking
+from mining.formats.kitti_tracking import read_kitti_tracking
 from mining.geometry.config import GroundConfig
 from mining.geometry.ground import estimate_ground
 from mining.geometry.stage import GeometryStage

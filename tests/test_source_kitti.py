@@ -74,6 +74,22 @@ def test_label_points_project_the_same_in_both_frames(source: KittiTrackingSourc
     assert np.linalg.norm(kc.t_cam2) == pytest.approx(0.06, abs=0.005)  # image_02 ~6 cm right of camera 0
 
 
+def test_cam2_to_rect0_undoes_rect0_to_cam2_and_poses_move_with_the_rig(source: KittiTrackingSource) -> None:
+    kc = source.kitti_calib("0005")
+    X = np.array([[1.0, 2.0, 30.0], [-4.0, 1.5, 12.0]])
+    np.testing.assert_allclose(kc.cam2_to_rect0(kc.rect0_to_cam2(X)), X, atol=1e-12)
+    # camera 0 driving 1 m forward and turning: camera 2 makes the same motion about its own centre
+    pose0 = np.eye(4)
+    c, s = np.cos(0.1), np.sin(0.1)
+    pose0[:3, :3] = [[c, 0, s], [0, 1, 0], [-s, 0, c]]
+    pose0[:3, 3] = [0.0, 0.0, 1.0]
+    poses = kc.camera2_poses(np.stack([np.eye(4), pose0]))
+    np.testing.assert_allclose(poses[0], np.eye(4), atol=1e-12)
+    centre2 = poses[1] @ np.r_[0.0, 0.0, 0.0, 1.0]  # camera 2's centre, in camera 2's first frame
+    expected = kc.T_cam2_rect0 @ pose0 @ np.r_[-kc.t_cam2, 1.0]
+    np.testing.assert_allclose(centre2, expected, atol=1e-12)
+
+
 def test_read_frames_lazily_in_rgb(source: KittiTrackingSource, kitti_tracking_root: Path) -> None:
     plan = source.plan("0005")
     frames = source.read(plan, 3, 6)

@@ -11,8 +11,8 @@ import pytest
 from conftest import kitti_0005_stereo
 from mining.errors import InputError
 from mining.sources import open_source
-from mining.sources.fixtures import write_stereo_mcap
 from mining.sources.mcap import McapSource, header_stamp_ns
+from mining.testing.fixtures import write_stereo_mcap
 
 N_FRAMES = 4
 T0 = 1_700_000_000_123_456_789
@@ -164,7 +164,7 @@ def test_missing_camera_info(kitti, tmp_path):
 def test_ambiguous_topics_need_explicit_choice(kitti, tmp_path):
     from mcap_ros2.writer import Writer
 
-    from mining.sources.fixtures import IMAGE_MSGDEF, image_message
+    from mining.testing.fixtures import IMAGE_MSGDEF, image_message
 
     left, _, _ = kitti
     path = tmp_path / "ambiguous.mcap"

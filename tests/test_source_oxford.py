@@ -12,7 +12,6 @@ import pytest
 from conftest import kitti_0005_stereo
 from mining.errors import InputError
 from mining.sources import open_source
-from mining.sources.fixtures import bayer_mosaic, write_robotcar_fixture
 from mining.sources.oxford import (
     BAYER_GBRG_TO_RGB,
     OxfordSource,
@@ -20,6 +19,7 @@ from mining.sources.oxford import (
     load_lut,
     stereo_calib,
 )
+from mining.testing.fixtures import bayer_mosaic, write_robotcar_fixture
 
 N_FRAMES = 6
 MARGIN = 20  # px left out at the borders, where interpolation sees the black outside

@@ -24,11 +24,13 @@ import cv2
 import numpy as np
 
 from mining.eval.depth import depth_errors
-from mining.eval.formats import read_pfm, read_poses
-from mining.eval.odometry import chain_egomotion, odometry_errors
+from mining.eval.odometry import odometry_errors
 from mining.eval.stereo import bad_n, d1_all, density
+from mining.formats.disparity import read_pfm
+from mining.formats.poses import read_poses
 from mining.geometry.config import GeometryConfig
 from mining.geometry.disparity import compute_disparity
+from mining.geometry.egomotion import chain_egomotion
 from mining.geometry.stage import GeometryStage
 from mining.sources import open_source
 
@@ -73,7 +75,7 @@ def bench_depth(data: Path, cfg: GeometryConfig) -> list[dict[str, Any]]:
 
 
 def bench_stereo(data: Path, cfg: GeometryConfig) -> dict[str, Any]:
-    from mining.eval.formats import read_disparity_png
+    from mining.formats.disparity import read_disparity_png
 
     k = data / "stereo_gt" / "kitti2015_000046"
     left = cv2.cvtColor(cv2.imread(str(k / "image_2" / "000046_10.png")), cv2.COLOR_BGR2RGB)

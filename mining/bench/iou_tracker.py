@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from mining.eval.kitti_labels import KittiTrackingRows, write_kitti_tracking
 from mining.boxes import box_iou
+from mining.formats.kitti_tracking import KittiTrackingRows, write_kitti_tracking
 from mining.proposals.precomputed import KittiDetections
 
 KITTI_TYPE_OF_CLASS = {0: "Pedestrian", 1: "Cyclist", 2: "Car"}  # COCO person, bicycle, car

@@ -28,8 +28,7 @@ from pycocotools import mask as mask_utils
 from mining.catalog.store import Store
 from mining.catalog.views import connect, execute_read_only
 from mining.errors import InputError, MiningError
-from mining.eval.kitti_export import KITTI_TYPE
-from mining.eval.kitti_labels import KittiTrackingRows, write_kitti_tracking
+from mining.formats.kitti_tracking import ResultFrame, ResultTrack, kitti_type, write_tracking_results
 
 FORMATS = ("kitti", "kitti-mots", "crops")
 # KITTI-MOTS class ids (MOTS annotation format): car 1, pedestrian 2, ignore region 10.
@@ -82,11 +81,6 @@ def _file_name(sequence: str) -> str:
     return sequence.replace("/", "_")
 
 
-def _kitti_type(tube: dict, unclassified_as: str) -> str:
-    # A KITTI result names the detector's best class; known-ness is a separate question.
-    return KITTI_TYPE.get(tube["best_known"], "Misc") if tube["class_posterior"] is not None else unclassified_as
-
-
 def _cam_to_rect0(job: dict, sequence: str):
     """Map from our left camera to KITTI's rectified camera 0 (identity off KITTI)."""
     src = job.get("source", {})
@@ -94,8 +88,7 @@ def _cam_to_rect0(job: dict, sequence: str):
         return lambda p: p
     from mining.sources.kitti import KittiTrackingSource
 
-    t = KittiTrackingSource(src["root"], **src.get("options", {})).kitti_calib(sequence).t_cam2
-    return lambda p: p - t
+    return KittiTrackingSource(src["root"], **src.get("options", {})).kitti_calib(sequence).cam2_to_rect0
 
 
 def _export_settings(job: dict) -> tuple[bool, str]:
@@ -106,32 +99,24 @@ def _export_settings(job: dict) -> tuple[bool, str]:
     return exp.get("observed_only", default.observed_only), exp.get("unclassified_as", default.unclassified_as)
 
 
+def _result_tracks(seq_tubes: list[dict], per_tube: dict[str, list[dict]], unclassified_as: str):
+    """A sequence's tubes as tracking results; track ids 0, 1, … in catalogue order."""
+    for track_id, t in enumerate(seq_tubes):
+        kind = kitti_type(t["best_known"], t["class_posterior"] is not None, unclassified_as)
+        frames = [ResultFrame(f["frame"], f["observed"], f["bbox"], f["size"], f["position_cam"])
+                  for f in per_tube.get(t["tube_id"], [])]
+        yield ResultTrack(track_id, kind, t["score"], frames)
+
+
 def export_kitti(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path) -> int:
     """KITTI tracking result txt per sequence; returns the rows written."""
     observed_only, unclassified_as = _export_settings(job)
     per_tube = _frames_by_tube(frames)
     n = 0
     for (_, sequence), seq_tubes in _by_sequence(tubes).items():
-        to_rect0 = _cam_to_rect0(job, sequence)
-        rows = []
-        for track_id, t in enumerate(seq_tubes):
-            kind = _kitti_type(t, unclassified_as)
-            for f in per_tube.get(t["tube_id"], []):
-                if observed_only and not f["observed"]:
-                    continue
-                size, pos = np.asarray(f["size"], np.float64), np.asarray(f["position_cam"], np.float64)
-                if np.isfinite(pos).all() and np.isfinite(size).all():
-                    loc = to_rect0((pos + np.array([0.0, size[1] / 2, 0.0]))[None])[0]  # KITTI: bottom centre
-                    dims = (size[1], size[0], size[2])  # KITTI: h w l
-                else:
-                    loc, dims = (-1000.0, -1000.0, -1000.0), (-1.0, -1.0, -1.0)
-                rows.append((f["frame"], track_id, kind, f["bbox"], dims, loc, t["score"]))
-        rows.sort(key=lambda r: (r[0], r[1]))
-        k = KittiTrackingRows.results(dest / f"{_file_name(sequence)}.txt", [r[0] for r in rows], [r[1] for r in rows],
-                                      [r[2] for r in rows], [r[3] for r in rows], [r[6] for r in rows],
-                                      dimensions=[r[4] for r in rows], location=[r[5] for r in rows])
-        write_kitti_tracking(k.path, k, with_score=True)
-        n += len(rows)
+        n += write_tracking_results(dest / f"{_file_name(sequence)}.txt",
+                                    _result_tracks(seq_tubes, per_tube, unclassified_as),
+                                    _cam_to_rect0(job, sequence), observed_only)
     return n
 
 

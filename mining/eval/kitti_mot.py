@@ -44,7 +44,7 @@ from mining.errors import InputError
 from mining.eval.clear import clear_metrics, clear_sums, combine_clear_sums
 from mining.eval.hota import combine_hota_sums, hota_metrics, hota_sums
 from mining.eval.identity import combine_identity_sums, identity_metrics, identity_sums
-from mining.eval.kitti_labels import KittiTrackingRows, read_kitti_tracking
+from mining.formats.kitti_tracking import KittiTrackingRows, read_kitti_tracking
 
 # KITTI object types (devkit readme); DontCare marks regions that were not labelled.
 KITTI_TYPES = ("car", "van", "truck", "pedestrian", "person", "cyclist", "tram", "misc", "dontcare")

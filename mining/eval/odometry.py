@@ -58,21 +58,3 @@ def odometry_errors(estimate: np.ndarray, truth: np.ndarray, min_frames: int = 5
     if not t_err:
         return OdometryErrors(float("nan"), float("nan"), 0, skipped)
     return OdometryErrors(float(np.mean(t_err)), float(np.mean(r_err)), len(t_err), skipped)
-
-
-def chain_egomotion(transforms: list[np.ndarray | None]) -> np.ndarray:
-    """Camera-to-world poses from per-frame egomotions ``T_cur_prev`` (first entry ignored).
-
-    A failed egomotion (None) breaks the chain: that pose and every later one are NaN,
-    because nothing links them to the first frame. They are never guessed.
-    """
-    poses = np.full((len(transforms), 4, 4), np.nan)
-    if not transforms:
-        return poses
-    poses[0] = np.eye(4)
-    for k in range(1, len(transforms)):
-        T = transforms[k]
-        if T is None or not np.isfinite(poses[k - 1]).all():
-            continue
-        poses[k] = poses[k - 1] @ np.linalg.inv(T)
-    return poses

@@ -19,8 +19,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from mining.errors import InputError
-from mining.eval.kitti_labels import KittiTrackingRows
 from mining.boxes import box_iou
+from mining.formats.kitti_tracking import KittiTrackingRows
 from mining.types import Proposals
 
 RECALL_IOU = 0.5  # REFERENCE: proposal recall counts box IoU > 0.5

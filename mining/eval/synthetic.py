@@ -36,31 +36,25 @@ detections that some tube detection overlaps with IoU ≥ ``iou_threshold``. Bot
 evaluation's detections (step 5) but not the one-to-one matching: they ask "was this object
 mined?", not "how well was it tracked?".
 
-Run it: ``python -m mining.eval.synthetic --sequence 0000 --n-frames 500 [--set KEY=VALUE ...]``.
+Run it: ``mine eval synthetic --sequence 0000 --n-frames 500 [--set KEY=VALUE ...]`` (the
+driver, which mines the sequence, is ``mining/bench/synthetic.py``).
 """
 
 from __future__ import annotations
 
-import argparse
-import pickle
-import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from mining.config import JobConfig, load_config
 from mining.errors import InputError
 from mining.eval.clear import clear_metrics, clear_sums
 from mining.eval.hota import hota_metrics, hota_sums
 from mining.eval.identity import identity_metrics, identity_sums
 from mining.boxes import box_iou
 from mining.masks import areas, crop_rle, mask_iou
-from mining.pipeline.frames import frame_records
-from mining.pipeline.mine import mine_tubes
-from mining.sources import open_source
-from mining.types import FrameTruth, MinedTube, TrackingFrame
+from mining.types import FrameTruth, MinedTube
 
 SPLITS = ("all", "known", "unknown")
 _EPS = np.finfo(float).eps
@@ -300,39 +294,6 @@ def evaluate_synthetic(mined: Sequence[MinedTube], truths: Mapping[int, FrameTru
     return results
 
 
-def run_synthetic(sequence: str, n_frames: int, cfg: JobConfig, start: int = 0, stop: int | None = None,
-                  **protocol) -> tuple[list[MinedTube], dict]:
-    """Mine a synthetic sequence of ``n_frames`` frames over positions [start, stop) and evaluate.
-
-    ``n_frames`` is the source's sequence length (it fixes the world); ``stop`` defaults to it.
-    ``protocol`` takes ``evaluate_synthetic``'s keyword arguments. The results carry the
-    ground truth as ``results["truths"]`` (frame → GtFrame) for re-evaluation and the wall
-    time as ``results["seconds"]``.
-    """
-    options = {k: v for k, v in cfg.source.options.items() if k != "n_frames"}
-    src = open_source("synthetic", None, n_frames=n_frames, **options)
-    plan = src.plan(sequence)
-    stop = len(plan) if stop is None else stop
-    truths: dict[int, GtFrame] = {}
-    t0 = time.perf_counter()
-
-    def frames() -> Iterator[TrackingFrame]:
-        # keep only the compact truth: a FrameRecord holds full-frame arrays
-        for rec in frame_records(src, plan, start, stop, cfg):
-            if rec.frame.truth is None:
-                raise InputError("synthetic frame without ground truth", frame=rec.frame.index)
-            truths[rec.frame.index] = gt_frame(rec.frame.truth)
-            yield rec.tracking
-
-    mined = mine_tubes(frames(), cfg)
-    t1 = time.perf_counter()
-    results = evaluate_synthetic(mined, truths, **protocol)
-    results["seconds"] = {"mine": t1 - t0, "eval": time.perf_counter() - t1}
-    results["sequence"] = sequence
-    results["truths"] = truths
-    return mined, results
-
-
 def format_synthetic(results: dict) -> str:
     """A small text table: one row per evaluation, then the tube counts."""
     cols = [("HOTA", "HOTA", "{:.3f}"), ("DetA", "DetA", "{:.3f}"), ("AssA", "AssA", "{:.3f}"),
@@ -349,31 +310,3 @@ def format_synthetic(results: dict) -> str:
                  f"({t.get('unknown_called_unknown')} called unknown), {t.get('clutter')} clutter; "
                  f"{t.get('ignored_dets')} detections on ignored objects")
     return "\n".join(lines)
-
-
-def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description="Mine a synthetic sequence and score it against its ground truth.")
-    ap.add_argument("--sequence", default="0000")
-    ap.add_argument("--n-frames", type=int, default=100)
-    ap.add_argument("--config", default=None, help="job TOML (default: built-in defaults)")
-    ap.add_argument("--set", action="append", default=[], help="config override KEY=VALUE")
-    ap.add_argument("--min-visible-px", type=int, default=SyntheticEvalProtocol.min_visible_px)
-    ap.add_argument("--max-depth-m", type=float, default=None)
-    ap.add_argument("--save", default=None, help="pickle (mined, results) here for re-evaluation")
-    a = ap.parse_args(argv)
-    cfg = load_config(a.config, a.set)
-    mined, results = run_synthetic(a.sequence, a.n_frames, cfg, min_visible_px=a.min_visible_px,
-                                   max_depth_m=a.max_depth_m)
-    print(f"synthetic {a.sequence}, {a.n_frames} frames, proposer {cfg.proposals.proposer}: "
-          f"mined in {results['seconds']['mine']:.0f} s")
-    print(format_synthetic(results))
-    if a.save:
-        with open(a.save, "wb") as fh:
-            pickle.dump((mined, results), fh)
-
-
-if __name__ == "__main__":
-    # run the imported module's main, so that pickled GtFrames name mining.eval.synthetic, not __main__
-    from mining.eval.synthetic import main as _main
-
-    _main()

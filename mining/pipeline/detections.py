@@ -13,25 +13,16 @@ from pathlib import Path
 import numpy as np
 
 from mining.config import JobConfig
-from mining.eval.formats import read_poses
-from mining.eval.kitti_export import write_tubes_kitti
 from mining.errors import InputError
+from mining.formats.poses import read_poses
 from mining.localise.localise import geometric_filter, localise_detections
+from mining.pipeline.kitti_export import write_tubes_kitti
 from mining.pipeline.mine import mine_tubes
 from mining.proposals.precomputed import KittiDetections
 from mining.sources.kitti import KittiTrackingSource
 from mining.types import GroundPlane, MinedTube, TrackingFrame
 
 FRAME_INTERVAL_NS = 100_000_000  # KITTI tracking is recorded at 10 Hz
-
-
-def camera2_poses(poses_cam0: np.ndarray, T_cam2_rect0: np.ndarray) -> np.ndarray:
-    """Poses of the left colour camera from poses of rectified camera 0 (same rig).
-
-    pose2_k = T · pose0_k · T⁻¹ with T = T_cam2_rect0: world = camera 2 at the first frame.
-    """
-    T_inv = np.linalg.inv(T_cam2_rect0)
-    return np.einsum("ij,njk,kl->nil", T_cam2_rect0, poses_cam0, T_inv)
 
 
 def detection_frames(kitti_root: str | Path, sequence: str, detections: str | Path, poses_path: str | Path,
@@ -43,7 +34,7 @@ def detection_frames(kitti_root: str | Path, sequence: str, detections: str | Pa
     poses0 = read_poses(poses_path)
     if not np.isfinite(poses0).all():
         raise InputError("egoposes contain non-finite values", poses_path)
-    poses = camera2_poses(poses0, kcalib.T_cam2_rect0)
+    poses = kcalib.camera2_poses(poses0)
     no_ground = GroundPlane(None, 0.0, 0, False, "detections-only mode: no images")
     for index, pose in enumerate(poses):
         t_ns = index * FRAME_INTERVAL_NS
@@ -58,6 +49,5 @@ def track_detections(kitti_root: str | Path, sequence: str, detections: str | Pa
     mined = mine_tubes(detection_frames(kitti_root, sequence, detections, poses_path, cfg), cfg)
     if out_txt is not None:
         kcalib = KittiTrackingSource(str(kitti_root)).kitti_calib(sequence)
-        t = kcalib.t_cam2
-        write_tubes_kitti(out_txt, mined, rect0_from_cam2=lambda p: p - t, observed_only=cfg.export.observed_only)
+        write_tubes_kitti(out_txt, mined, rect0_from_cam2=kcalib.cam2_to_rect0, observed_only=cfg.export.observed_only)
     return mined

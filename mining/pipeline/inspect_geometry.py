@@ -24,9 +24,10 @@ from typing import Any
 import numpy as np
 
 from mining.errors import MiningError
-from mining.eval.formats import write_disparity_png, write_poses
-from mining.eval.odometry import chain_egomotion
+from mining.formats.disparity import write_disparity_png
+from mining.formats.poses import write_poses
 from mining.geometry.config import GeometryConfig
+from mining.geometry.egomotion import chain_egomotion
 from mining.geometry.stage import GeometryStage
 from mining.pipeline.frames import plan_frames
 from mining.sources.base import Source

@@ -17,7 +17,8 @@ Two inputs:
   A file where only some elements carry ``second_posterior`` is rejected.
 
 * ``KittiDetections`` — KITTI tracking detection files: PointRCNN's comma-separated 15-column
-  files (SOURCES.md §1.6) and the 18-column tracking result format (§1.5). Each detection
+  files (SOURCES.md §1.6) and the 18-column tracking result format (§1.5), read by
+  ``mining/formats/kitti_detections.py``. Each detection
   becomes a box-shaped mask (the pixels whose centres lie inside the box clipped to the
   image). The scores are unbounded, so objectness is a logistic map
   1 / (1 + exp(−(score − score_offset) / score_scale)); the defaults are fitted on PointRCNN
@@ -40,7 +41,7 @@ import numpy as np
 from pycocotools import mask as mask_utils
 
 from mining.errors import InputError
-from mining.eval.kitti_labels import read_kitti_tracking
+from mining.formats.kitti_detections import read_kitti_detections
 from mining.proposals.coco import CATEGORY_ID_TO_INDEX, CLASS_INDEX
 from mining.proposals.config import JsonProposalsConfig, KittiDetectionsConfig
 from mining.sources.kitti_calib import KittiCalib
@@ -55,8 +56,6 @@ KITTI_TYPE_TO_COCO: dict[str, str | None] = {
     "Car": "car", "Van": "car", "Truck": "truck", "Pedestrian": "person", "Person": "person",
     "Person_sitting": "person", "Cyclist": "bicycle", "Tram": "train", "Misc": None,
 }
-POINTRCNN_TYPES = {1: "Pedestrian", 2: "Car", 3: "Cyclist"}  # SOURCES.md §1.6 type codes
-POINTRCNN_COLUMNS = 15  # frame, type, x1 y1 x2 y2, score, h w l, x y z, rot_y, alpha
 
 
 def empty_proposals(frame: int, with_classes: bool, with_3d: bool, name: str) -> Proposals:
@@ -306,14 +305,7 @@ def _detection_files(source, sequence: str) -> list[Path]:
 
 def _read_detection_file(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(frame, COCO class index or −1, [x1 y1 x2 y2 score h w l x y z]) of one file."""
-    try:
-        text = path.read_text()
-    except OSError as e:
-        raise InputError(f"cannot read detections: {e.strerror or e}", path) from None
-    first = next((line for line in text.splitlines() if line.strip()), "")
-    if "," in first:
-        return _read_pointrcnn(path, text)
-    rows = read_kitti_tracking(path, require_score=True)
+    rows = read_kitti_detections(path)
     keep = rows.type != "DontCare"
     cls = np.full(len(rows), -1, np.int64)
     for t in np.unique(rows.type[keep]):
@@ -324,41 +316,3 @@ def _read_detection_file(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray
         cls[rows.type == t] = -1 if coco is None else CLASS_INDEX[coco]
     num = np.column_stack([rows.box, rows.score, rows.dimensions, rows.location])
     return rows.frame[keep], cls[keep], num[keep]
-
-
-def _read_pointrcnn(path: Path, text: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    lines = [(no, line) for no, line in enumerate(text.splitlines(), 1) if line.strip()]
-    for no, line in lines:
-        if line.count(",") != POINTRCNN_COLUMNS - 1:
-            raise InputError(f"line {no}: expected {POINTRCNN_COLUMNS} comma-separated columns, "
-                             f"got {line.count(',') + 1}", path, _leading_int(line))
-    if not lines:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 11))
-    try:
-        table = np.array(",".join(line for _, line in lines).split(","), dtype=np.float64)
-    except ValueError:  # find the culprit only on failure; parsing stays vectorised
-        for no, line in lines:
-            try:
-                [float(v) for v in line.split(",")]
-            except ValueError:
-                raise InputError(f"line {no}: a column is not a number", path, _leading_int(line)) from None
-        raise
-    table = table.reshape(-1, POINTRCNN_COLUMNS)
-    frame, code = table[:, 0], table[:, 1]
-    bad = ~((frame >= 0) & (frame == np.round(frame)) & np.isin(code, list(POINTRCNN_TYPES)))
-    bad |= ~np.isfinite(table[:, 2:7]).all(axis=1)
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        raise InputError(f"line {lines[i][0]}: frame must be a non-negative integer, type one of "
-                         f"{sorted(POINTRCNN_TYPES)}, box and score finite", path, _leading_int(lines[i][1]))
-    lut = np.full(max(POINTRCNN_TYPES) + 1, -1, np.int64)
-    for c, t in POINTRCNN_TYPES.items():
-        lut[c] = CLASS_INDEX[KITTI_TYPE_TO_COCO[t]]
-    cls = lut[code.astype(np.int64)]
-    # PointRCNN: x1 y1 x2 y2 score h w l x y z at columns 2..12
-    return frame.astype(np.int64), cls, table[:, 2:13]
-
-
-def _leading_int(line: str) -> int | None:
-    head = re.split(r"[,\s]", line.strip(), maxsplit=1)[0]
-    return int(head) if head.isdigit() else None

@@ -147,6 +147,18 @@ class KittiCalib:
         """(N, 3) points in rectified camera 0 (KITTI labels/detections) → image_02 frame."""
         return np.asarray(points, np.float64) + self.t_cam2
 
+    def cam2_to_rect0(self, points: np.ndarray) -> np.ndarray:
+        """(N, 3) points in the image_02 frame → rectified camera 0 (the frame of KITTI's 3D fields)."""
+        return np.asarray(points, np.float64) - self.t_cam2
+
+    def camera2_poses(self, poses_rect0: np.ndarray) -> np.ndarray:
+        """(N, 4, 4) poses of the left colour camera from poses of rectified camera 0 (same rig).
+
+        pose2_k = T · pose0_k · T⁻¹ with T = T_cam2_rect0: world = camera 2 at the first frame.
+        """
+        T = self.T_cam2_rect0
+        return np.einsum("ij,njk,kl->nil", T, poses_rect0, np.linalg.inv(T))
+
     def day_size(self) -> tuple[int, int] | None:
         """(w, h) of this calibration's recording day from KITTI_DAY_SIZES, or None."""
         for fx, size in KITTI_DAY_SIZES.items():

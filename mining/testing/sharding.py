@@ -1,4 +1,4 @@
-"""Do two catalogues hold the same tubes? (Sharding invariance, issue 4.)
+"""Do two catalogues hold the same tubes? (Sharding invariance, issue 4; a test helper.)
 
 Two tubes are compared by their mean mask IoU over the union of their frames (a frame
 only one of them covers counts as IoU 0). Tubes are matched one-to-one (Hungarian on

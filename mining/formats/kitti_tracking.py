@@ -1,4 +1,4 @@
-"""Reader of KITTI tracking label and result files (``label_02/<seq>.txt`` and tracker output).
+"""KITTI tracking label and result files (``label_02/<seq>.txt``, tracker output, detections).
 
 One object per line, space separated (shared/data/SOURCES.md §1.4, §1.5):
 
@@ -8,12 +8,17 @@ Ground truth has 17 columns; tracker results add an 18th, the score. A file must
 column count throughout. DontCare rows carry track id −1 and placeholder values; they are
 read like any other row (what they mean is up to the evaluation). Rows keep file order,
 which the evaluation relies on for reproducible matching.
+
+``write_tracking_results`` is the one writer of mined tubes as tracking results: `mine
+track` feeds it tubes in memory, `mine export --format kitti` tubes from the catalogue.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -21,6 +26,10 @@ from mining.errors import InputError
 
 LABEL_COLUMNS = 17  # KITTI tracking devkit: label_02 lines
 RESULT_COLUMNS = 18  # KITTI tracking devkit: result lines = label columns + score
+
+# COCO category → KITTI type; everything else is written as Misc (KITTI MOT ignores it).
+KITTI_TYPE = {"car": "Car", "person": "Pedestrian", "bicycle": "Cyclist", "motorcycle": "Cyclist",
+              "truck": "Truck", "bus": "Truck", "train": "Tram"}
 
 
 @dataclass
@@ -160,3 +169,69 @@ def write_kitti_tracking(path: str | Path, rows: KittiTrackingRows, with_score: 
             text += f" {score:.6f}"
         out.append(text)
     Path(path).write_text("\n".join(out) + ("\n" if out else ""))
+
+
+# -- mined tubes as tracking results ----------------------------------------------------
+
+
+def kitti_type(best_known: str | None, classified: bool, unclassified_as: str = "Misc") -> str:
+    """The KITTI type of a tube: its best known COCO class mapped by KITTI_TYPE, or
+    ``unclassified_as`` for a tube without class information (a class-agnostic proposer)."""
+    # A KITTI result names the detector's best class; known-ness is a separate question.
+    return KITTI_TYPE.get(best_known, "Misc") if classified else unclassified_as
+
+
+class ResultFrame(NamedTuple):
+    """One frame of a tube, as a tracking result needs it."""
+
+    frame: int
+    observed: bool
+    box: object  # (4,) x1 y1 x2 y2 in image_02 [px]
+    size: object  # (3,) w h l [m]
+    position_cam: object  # (3,) box centre in the image_02 camera [m]; NaN when unknown
+
+
+class ResultTrack(NamedTuple):
+    """One tube, as a tracking result needs it: its id in the file, KITTI type, score, frames."""
+
+    track_id: int
+    type: str
+    score: float
+    frames: Iterable[ResultFrame]
+
+
+def tracking_result_rows(tracks: Iterable[ResultTrack],
+                         rect0_from_cam2: Callable[[np.ndarray], np.ndarray] | None = None,
+                         observed_only: bool = True, path: str | Path = "<tubes>") -> KittiTrackingRows:
+    """One row per (observed) frame of each track, in (frame, track id) order.
+
+    KITTI's 3D fields are the box's bottom centre in rectified camera 0 and h w l:
+    ``rect0_from_cam2`` maps image_02 camera points there (e.g. ``KittiCalib.cam2_to_rect0``);
+    without it, or where position or size is not finite, the 3D fields are placeholders.
+    """
+    rows = []
+    for t in tracks:
+        for f in t.frames:
+            if observed_only and not f.observed:
+                continue
+            size, pos = np.asarray(f.size, np.float64), np.asarray(f.position_cam, np.float64)
+            if rect0_from_cam2 is not None and np.isfinite(pos).all() and np.isfinite(size).all():
+                loc = rect0_from_cam2((pos + np.array([0.0, size[1] / 2, 0.0]))[None])[0]  # KITTI: bottom centre
+                dims = (size[1], size[0], size[2])  # KITTI: h w l
+            else:
+                loc, dims = (-1000.0, -1000.0, -1000.0), (-1.0, -1.0, -1.0)
+            rows.append((f.frame, t.track_id, t.type, f.box, dims, loc, t.score))
+    rows.sort(key=lambda r: (r[0], r[1]))
+    return KittiTrackingRows.results(path, [r[0] for r in rows], [r[1] for r in rows], [r[2] for r in rows],
+                                     [r[3] for r in rows], [r[6] for r in rows],
+                                     dimensions=[r[4] for r in rows], location=[r[5] for r in rows])
+
+
+def write_tracking_results(path: str | Path, tracks: Iterable[ResultTrack],
+                           rect0_from_cam2: Callable[[np.ndarray], np.ndarray] | None = None,
+                           observed_only: bool = True) -> int:
+    """Write tracks as an 18-column KITTI tracking result file (folders made); returns the rows."""
+    rows = tracking_result_rows(tracks, rect0_from_cam2, observed_only, path)
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    write_kitti_tracking(path, rows, with_score=True)
+    return len(rows)

@@ -1,4 +1,4 @@
-"""Writers that turn real RGB stereo frames into other datasets' on-disk formats.
+"""Writers that turn real RGB stereo frames into other datasets' on-disk formats (test-only).
 
 Tests and benchmarks use them to build RobotCar-layout traversals and ROS 2 MCAP logs
 from real KITTI frames, so the ``oxford`` and ``mcap`` adapters are exercised on real

@@ -1,4 +1,4 @@
-"""File formats of the benchmarks: KITTI disparity PNG, Middlebury PFM, KITTI odometry poses."""
+"""Disparity maps on disk: KITTI's 16-bit disparity PNG and Middlebury's portable float map (PFM)."""
 
 from __future__ import annotations
 
@@ -52,27 +52,3 @@ def read_pfm(path: str | Path) -> np.ndarray:
     img = np.flipud(data.reshape(h, w, channels) if channels == 3 else data.reshape(h, w)).astype(np.float32)
     img[~np.isfinite(img)] = np.nan
     return img
-
-
-def write_poses(path: str | Path, poses: np.ndarray) -> None:
-    """KITTI odometry poses: one row-major 3×4 camera-to-world matrix per line (NaN rows allowed)."""
-    poses = np.asarray(poses, np.float64).reshape(-1, 4, 4)
-    with open(path, "w") as f:
-        for T in poses:
-            f.write(" ".join(f"{v:.9e}" for v in T[:3].ravel()) + "\n")
-
-
-def read_poses(path: str | Path) -> np.ndarray:
-    """KITTI odometry poses file → (N, 4, 4)."""
-    p = Path(path)
-    rows = []
-    for n, line in enumerate(p.read_text().splitlines()):
-        if not line.strip():
-            continue
-        vals = line.split()
-        if len(vals) != 12:
-            raise InputError(f"line {n + 1}: expected 12 values, got {len(vals)}", p, frame=n)
-        T = np.eye(4)
-        T[:3] = np.array(vals, np.float64).reshape(3, 4)
-        rows.append(T)
-    return np.array(rows).reshape(-1, 4, 4)

@@ -1,0 +1,38 @@
+"""Mined tubes → KITTI tracking result txt, for `mine track` (and `mine eval kitti-mot`, TrackEval).
+
+The file format and its writer live in ``mining/formats/kitti_tracking.py``; this module
+only says which tubes and fields go in: the selected tubes, each under its tube id, typed
+by its category, scored by its total score.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
+
+import numpy as np
+
+from mining.formats.kitti_tracking import ResultFrame, ResultTrack, kitti_type, write_tracking_results
+from mining.types import MinedTube
+
+
+def result_tracks(mined: Iterable[MinedTube], unclassified_as: str = "Misc") -> Iterator[ResultTrack]:
+    """The selected tubes as tracking results."""
+    for m in mined:
+        if not m.selected:
+            continue
+        kind = kitti_type(m.category.best_known, m.category.posterior is not None, unclassified_as)
+        frames = (ResultFrame(f.frame, f.observed, f.box, f.size, f.position_cam) for f in m.tube.frames)
+        yield ResultTrack(m.tube.tube_id, kind, m.score.total, frames)
+
+
+def write_tubes_kitti(path: str | Path, mined: Iterable[MinedTube],
+                      rect0_from_cam2: Callable[[np.ndarray], np.ndarray] | None = None,
+                      observed_only: bool = True, unclassified_as: str = "Misc") -> int:
+    """Write the selected tubes as a KITTI tracking result file; returns the rows written.
+
+    ``rect0_from_cam2`` maps image_02 camera points to KITTI's rectified camera 0 (the
+    frame of KITTI's 3D fields, ``KittiCalib.cam2_to_rect0``); without it the 3D fields
+    are placeholders.
+    """
+    return write_tracking_results(path, result_tracks(mined, unclassified_as), rect0_from_cam2, observed_only)
