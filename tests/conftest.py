@@ -60,3 +60,13 @@ def kitti_0005_stereo(kitti_tracking_root: Path, n_frames: int):
     right = [read_rgb(seq / "image_03" / "0005" / f"{i:06d}.png", i) for i in range(n_frames)]
     h, w = left[0].shape[:2]
     return left, right, read_tracking_calib(seq / "calib" / "0005.txt").stereo(w, h)
+
+
+@pytest.fixture(scope="module")
+def catalogue(tmp_path_factory, kitti_tracking_root):
+    """(folder, tables) of a real small catalogue (tests/_catalog_data.py), built once per test module
+    (module scope: some tests write into it)."""
+    from _catalog_data import build_catalogue
+
+    out = tmp_path_factory.mktemp("catalogue")
+    return out, build_catalogue(out, kitti_tracking_root)

@@ -11,18 +11,12 @@ import pyarrow.parquet as pq
 import pytest
 from pycocotools import mask as mask_utils
 
-from _catalog_data import DATASET, SEQUENCE, build_catalogue
+from _catalog_data import DATASET, SEQUENCE
 from mining.catalog.export import crop_box, disjoint_masks, run_export, tube_folder
 from mining.catalog.schema import SCHEMAS
 from mining.catalog.store import Store, write_sequence
 from mining.formats.kitti_tracking import read_kitti_tracking
 from mining.pipeline.kitti_export import write_tubes_kitti
-
-
-@pytest.fixture(scope="module")
-def catalogue(tmp_path_factory, kitti_tracking_root):
-    out = tmp_path_factory.mktemp("catalogue")
-    return out, build_catalogue(out, kitti_tracking_root)
 
 
 def _sorted(rows):

@@ -10,16 +10,10 @@ import duckdb
 import pyarrow.parquet as pq
 import pytest
 
-from _catalog_data import DATASET, SEQUENCE, build_catalogue
+from _catalog_data import DATASET, SEQUENCE
 from mining.catalog.query import run_query
 from mining.catalog.schema import SCHEMAS
 from mining.catalog.views import ReadOnlyError, check_read_only, connect
-
-
-@pytest.fixture(scope="module")
-def catalogue(tmp_path_factory, kitti_tracking_root):
-    out = tmp_path_factory.mktemp("catalogue")
-    return out, build_catalogue(out, kitti_tracking_root)
 
 
 def test_tables_carry_hive_columns_as_text(catalogue):

@@ -10,18 +10,12 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from _catalog_data import DATASET, SEQUENCE, build_catalogue
+from _catalog_data import DATASET, SEQUENCE
 from mining.catalog.schema import SCHEMAS, file_schema
 from mining.catalog.store import TMP_MARK, Store, conform, write_sequence
 from mining.catalog.views import connect
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-@pytest.fixture(scope="module")
-def catalogue(tmp_path_factory, kitti_tracking_root):
-    out = tmp_path_factory.mktemp("catalogue")
-    return out, build_catalogue(out, kitti_tracking_root)
 
 
 def test_write_table_replaces_whole_file(tmp_path):
