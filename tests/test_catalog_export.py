@@ -8,7 +8,6 @@ import cv2
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
-import pytest
 from pycocotools import mask as mask_utils
 
 from _catalog_data import DATASET, SEQUENCE
