@@ -20,7 +20,7 @@ from mining.catalog.store import Store
 from mining.catalog.views import connect
 from mining.config import load_config
 from mining.eval.sharding import AGREE_IOU, selected_tube_masks, tube_agreement
-from mining.pipeline.steps import cache_path
+from mining.catalog.layout import cache_path
 from mining.pipeline.submit import run_job
 from mining.pipeline.window import observe_window
 from mining.sources.synthetic import SyntheticSource

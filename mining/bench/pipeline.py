@@ -143,7 +143,7 @@ def window_peaks(out: Path, rows: list[dict[str, Any]], samples: list[tuple[floa
     Track runs from the manifest's ``started`` to ``finished``; observe ends when its
     cache file is written (the bench keeps the cache) and lasted ``seconds_observe``.
     """
-    from mining.pipeline.steps import cache_path
+    from mining.catalog.layout import cache_path
     from mining.types import Window
 
     t = np.array([s[0] for s in samples]) if samples else np.zeros(0)

@@ -26,10 +26,11 @@ import uuid
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
 
+from mining.catalog.layout import PART_TABLES, JobRecord, cache_path, done_path, manifest_path, part_path
 from mining.catalog.store import Store
 from mining.config import JobConfig
 from mining.errors import ConfigError
-from mining.pipeline.steps import Job, StepResult, cache_path, done_path, job_source
+from mining.pipeline.steps import Job, StepResult, job_source
 from mining.types import Window, plan_windows
 
 
@@ -93,24 +94,19 @@ def plan_job(cfg: JobConfig, sequences: list[str] | None, frames: tuple[int, int
     return plans, windows
 
 
-def _job_record(store: Store, cfg: JobConfig, windows: list[Window]) -> str:
-    """Write (or check) ``job.json``; returns the job's run id."""
-    if store.exists("job.json"):
-        old = json.loads(store.read_bytes("job.json"))
-        if old["params_hash"] != cfg.params_hash:
-            raise ConfigError(f"{store.uri} holds a catalogue made with params {old['params_hash']}; this job has "
-                              f"{cfg.params_hash}. Use another --out, or the same config to resume.")
-        run_id = old["run_id"]
-        known = {w["window"] for w in old["windows"]}
-    else:
-        run_id, known, old = uuid.uuid4().hex[:12], set(), {"windows": []}
-    planned = old["windows"] + [{"dataset": w.dataset, "sequence": w.sequence, "window": w.name,
-                                 "core": list(w.core), "context": list(w.context)}
-                                for w in windows if w.name not in known]
-    record = {"run_id": run_id, "params_hash": cfg.params_hash, "config": cfg.to_dict(), "windows": planned}
-    if planned != old["windows"]:  # a resubmission of the same job changes nothing
-        store.write_bytes("job.json", json.dumps(record, indent=1, default=str).encode())
-    return run_id
+def record_job(store: Store, cfg: JobConfig, windows: list[Window]) -> JobRecord:
+    """Write (or check and extend) ``job.json``: refuses other params, keeps the run id,
+    adds the windows not planned before."""
+    old = JobRecord.load(store)
+    if old is not None:
+        old.check(cfg.params_hash, store.uri)
+    prior = old.windows if old is not None else []
+    known = {w.name for w in prior}
+    record = JobRecord(old.run_id if old is not None else uuid.uuid4().hex[:12], cfg.params_hash, cfg.to_dict(),
+                       prior + [w for w in windows if w.name not in known])
+    if record.windows != prior:  # a resubmission of the same job changes nothing
+        record.save(store)
+    return record
 
 
 def done_windows(store: Store, windows: list[Window], params_hash: str) -> dict[str, bool]:
@@ -118,12 +114,12 @@ def done_windows(store: Store, windows: list[Window], params_hash: str) -> dict[
     each with whether its context was complete when it was tracked."""
     done = {}
     for w in windows:
-        m = store.manifest_path(w.dataset, w.sequence, w.name)
+        m = manifest_path(w.dataset, w.sequence, w.name)
         if not store.exists(m):
             continue
         row = store.read_table(m).to_pylist()[0]
         if row["status"] == "done" and row["params_hash"] == params_hash and all(
-                store.exists(store.part_path(t, w.dataset, w.sequence, w.name)) for t in ("tubes", "tube_frames", "frames")):
+                store.exists(part_path(t, w.dataset, w.sequence, w.name)) for t in PART_TABLES):
             done[w.name] = row.get("context_complete") is not False
     return done
 
@@ -177,8 +173,7 @@ def run_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frames
     t0 = time.perf_counter()
     store = Store(out)
     plans, windows = plan_job(cfg, sequences, frames)
-    run_id = _job_record(store, cfg, windows)
-    job = Job(cfg, out, run_id, plans)
+    job = Job(cfg, out, record_job(store, cfg, windows).run_id, plans)
     dataset = cfg.source.dataset
     by_seq: dict[str, list[Window]] = defaultdict(list)
     for w in windows:
