@@ -23,7 +23,7 @@ import numpy as np
 import pyarrow as pa
 
 from mining.catalog.layout import PART_TABLES, cache_path, done_path, manifest_path, part_path
-from mining.catalog.rows import RunInfo, frame_rows, to_table, tube_row
+from mining.catalog.rows import RunInfo, frame_rows, frames_row, to_table, tube_row
 from mining.catalog.store import Store, write_sequence
 from mining.config import JobConfig
 from mining.errors import InputError, MiningError
@@ -176,17 +176,7 @@ class Track:
             row["window"] = window.name
             tubes.append(row)
             tframes.extend(frame_rows(mt, pid, cam_from_world.get, core_frames.__contains__, window.name))
-        frows = []
-        for f, (pose, segment) in zip(frames, poses):
-            if f.index not in core_frames:
-                continue
-            frows.append({"frame": f.index, "position": f.position, "t_ns": f.t_ns, "segment": segment,
-                          "pose": pose.ravel().tolist(), "egomotion_ok": f.egomotion_ok,
-                          "egomotion_inliers": f.egomotion_inliers,
-                          "egomotion_rmse_px": None if not np.isfinite(f.egomotion_rmse_px) else f.egomotion_rmse_px,
-                          "ground_ok": f.ground_ok, "ground_age": f.ground_age, "n_proposals": f.n_proposals,
-                          "n_observations": len(f.observations),
-                          "T_cur_prev": None if f.T_cur_prev is None else f.T_cur_prev.ravel().tolist()})
+        frows = [frames_row(f, pose, segment) for f, (pose, segment) in zip(frames, poses) if f.index in core_frames]
         d, s = window.dataset, window.sequence
         for table, rows in {"tubes": tubes, "tube_frames": tframes, "frames": frows}.items():
             store.write_table(part_path(table, d, s, window.name), to_table(rows, table, part=True))
