@@ -213,9 +213,18 @@ def cmd_bench_pipeline(args: argparse.Namespace) -> int:
 
 
 def cmd_submit(args: argparse.Namespace) -> int:
-    from mining.pipeline.submit import submit_from_args
+    cfg = _job_config(args)
+    if args.address and args.address.startswith("http"):
+        from mining.pipeline.rayjobs import submit_ray_job
 
-    return submit_from_args(args, _job_config(args))
+        return submit_ray_job(args.address, args.argv, args.out)
+    from mining.pipeline.submit import mine_on_ray
+
+    summary = mine_on_ray(cfg, args.out, args.sequences, args.frames, address=args.address, workers=args.workers,
+                          progress=not args.no_progress)
+    for line in summary.lines():
+        print(line)
+    return 1 if summary.failed else 0
 
 
 def cmd_status(args: argparse.Namespace) -> int:

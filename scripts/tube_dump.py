@@ -41,9 +41,20 @@ CASES = ("kitti0005-json20", "kitti0005-json500", "kitti0005-onnx", "detections"
 
 
 def _api():
-    """(frames(source, plan, start, stop, cfg) → TrackingFrames, mine_tubes, detection_frames, run_job)."""
+    """(frames(source, plan, start, stop, cfg) → TrackingFrames, mine_tubes, detection_frames,
+    run_job(cfg, out) → Summary, in this process)."""
     from mining.pipeline.detections import detection_frames
-    from mining.pipeline.submit import run_job
+    try:
+        from mining.pipeline.executors import LocalExecutor
+        from mining.pipeline.submit import mine_job  # after issue 8
+
+        def run_job(cfg, out):
+            return mine_job(cfg, out, executor=LocalExecutor)
+    except ImportError:
+        from mining.pipeline.submit import run_job as _run_job  # before
+
+        def run_job(cfg, out):
+            return _run_job(cfg, out, executor="local")
     try:
         from mining.pipeline.frames import frame_records  # after issue 8
 
@@ -130,7 +141,7 @@ def run_case(name: str, data: Path, models: Path) -> list[str]:
 
         cfg = load_config(str(REPO / "jobs" / "synthetic.toml"), ["source.options.n_frames=200"])
         with tempfile.TemporaryDirectory() as tmp:
-            summary = run_job(cfg, tmp, executor="local")
+            summary = run_job(cfg, tmp)
             assert not summary.failed, summary.failed
             lines = []
             for table in ("tubes", "tube_frames", "frames"):

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
+from mining.catalog.layout import manifest_path
 from mining.catalog.rows import RunInfo, tube_row
 from mining.catalog.rows import frame_rows as rows_of_frames
 from mining.catalog.schema import SCHEMAS, file_schema
@@ -77,7 +78,7 @@ def build_catalogue(out: Path, kitti_tracking_root: Path) -> dict:
     write_sequence(store, "tubes", DATASET, SEQUENCE, tubes)
     write_sequence(store, "tube_frames", DATASET, SEQUENCE, tf)
     write_sequence(store, "frames", DATASET, SEQUENCE, frame_rows(frames))
-    store.write_table(store.manifest_path(DATASET, SEQUENCE, "w00000"), window_rows(cfg.params_hash))
+    store.write_table(manifest_path(DATASET, SEQUENCE, "w00000"), window_rows(cfg.params_hash))
     job = {"run_id": RUN_ID, "params_hash": cfg.params_hash, "config": cfg.to_dict(), "windows": []}
     store.write_bytes("job.json", json.dumps(job, default=str).encode())
     return {"tubes": tubes, "tube_frames": tf, "mined": mined}

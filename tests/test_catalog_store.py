@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -11,9 +12,12 @@ import pyarrow.parquet as pq
 import pytest
 
 from _catalog_data import DATASET, SEQUENCE
+from mining.catalog.layout import JobRecord, catalog_dir
 from mining.catalog.schema import SCHEMAS, file_schema
 from mining.catalog.store import TMP_MARK, Store, conform, write_sequence
 from mining.catalog.views import connect
+from mining.errors import ConfigError, InputError
+from mining.types import Window
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -31,7 +35,7 @@ def test_write_table_replaces_whole_file(tmp_path):
 def test_crash_mid_write_leaves_only_an_ignored_temp_file(catalogue):
     out, tables = catalogue
     store = Store(out)
-    folder = store.catalog_dir("tube_frames", DATASET, SEQUENCE)
+    folder = catalog_dir("tube_frames", DATASET, SEQUENCE)
     (real,) = store.list(folder)
     # A crash half-way through writing: the first half of a real Parquet file, under a temp name.
     data = (out / real).read_bytes()
@@ -65,7 +69,7 @@ def test_write_sequence_round_trip_sorted_and_split(tmp_path, catalogue):
     shuffled = tf.take(pa.array(list(reversed(range(tf.num_rows)))))
     store = Store(tmp_path)
     written = write_sequence(store, "tube_frames", DATASET, SEQUENCE, shuffled, rows_per_file=20, row_group_rows=8)
-    assert written == [f"{store.catalog_dir('tube_frames', DATASET, SEQUENCE)}/part-{k}.parquet"
+    assert written == [f"{catalog_dir('tube_frames', DATASET, SEQUENCE)}/part-{k}.parquet"
                        for k in range(-(-tf.num_rows // 20))]
     back = pa.concat_tables([store.read_table(p) for p in written])
     assert back.schema.equals(file_schema("tube_frames"))
@@ -115,3 +119,28 @@ def test_schema_json_is_generated_from_schema_py():
     doc = __import__("json").loads(files["tubes.json"])
     assert [f["name"] for f in doc["fields"]] == SCHEMAS["tubes"].names
     assert next(f for f in doc["fields"] if f["name"] == "score")["comment"].startswith("the weighted total")
+
+
+def test_job_record_round_trips(tmp_path):
+    store = Store(tmp_path)
+    assert JobRecord.load(store) is None
+    w = Window("synthetic", "0000", (10, 20), (5, 25))
+    JobRecord("r1", "p1", {"window": {"core": 10}}, [w]).save(store)
+    assert JobRecord.load(store) == JobRecord("r1", "p1", {"window": {"core": 10}}, [w])
+    assert json.loads((tmp_path / "job.json").read_text())["windows"] == [
+        {"dataset": "synthetic", "sequence": "0000", "window": "0000-0000010-0000020", "core": [10, 20],
+         "context": [5, 25]}]
+
+
+def test_job_record_refuses_other_params(tmp_path):
+    record = JobRecord("r1", "p1", {}, [])
+    record.check("p1", "cat")
+    with pytest.raises(ConfigError, match=r"cat holds a catalogue made with params p1; this job has p2\. "
+                                          r"Use another --out, or the same config to resume\."):
+        record.check("p2", "cat")
+
+
+def test_a_file_that_is_no_job_record_is_an_input_error(tmp_path):
+    Store(tmp_path).write_bytes("job.json", b'{"run_id": "r1"}')
+    with pytest.raises(InputError, match="job.json is not a job record"):
+        JobRecord.load(Store(tmp_path))

@@ -15,7 +15,8 @@ from conftest import kitti_0005_stereo
 from mining.config import load_config
 from mining.pipeline.frames import frame_records
 from mining.pipeline.mine import mine_tubes
-from mining.pipeline.submit import run_job
+from mining.pipeline.executors import LocalExecutor
+from mining.pipeline.submit import mine_job
 from mining.sources.oxford import OxfordSource
 from mining.testing.fixtures import write_robotcar_fixture
 
@@ -74,7 +75,7 @@ def test_synthetic_forced_gap_in_a_windowed_job(tmp_path):
         "source.options.fx=360.77", "source.options.drop_frames=[[22, 30]]",
         "window.core=12", "window.context_before=6", "window.context_after=6"])
     out = tmp_path / "catalog"
-    summary = run_job(cfg, str(out), executor="local")
+    summary = mine_job(cfg, str(out), executor=LocalExecutor)
     assert not summary.failed and summary.ok == 5
     frames = pq.read_table(out / "catalog" / "frames").to_pylist()
     frames.sort(key=lambda r: r["position"])

@@ -21,7 +21,8 @@ from ray.cluster_utils import Cluster  # noqa: E402
 from mining.bench.pipeline import worker_processes  # noqa: E402
 from mining.catalog.views import connect  # noqa: E402
 from mining.config import JobConfig  # noqa: E402
-from mining.pipeline.submit import run_job  # noqa: E402
+from mining.pipeline.executors import RayExecutor  # noqa: E402
+from mining.pipeline.submit import mine_job  # noqa: E402
 
 N_FRAMES = 20
 JOB_TIMEOUT_S = 300  # a hung job (a step waiting for an actor that never restarts) fails here
@@ -76,7 +77,7 @@ def test_node_removed_mid_job_catalogue_complete(cluster, tmp_path):
     cfg = _job()
     n_windows = N_FRAMES // cfg.window.core
 
-    clean = run_job(cfg, str(tmp_path / "clean"))
+    clean = mine_job(cfg, str(tmp_path / "clean"), executor=RayExecutor)
     assert clean.ok == n_windows and not clean.failed
 
     out = tmp_path / "faulty"
@@ -84,7 +85,7 @@ def test_node_removed_mid_job_catalogue_complete(cluster, tmp_path):
 
     def mine() -> None:
         try:
-            result["summary"] = run_job(cfg, str(out))
+            result["summary"] = mine_job(cfg, str(out), executor=RayExecutor)
         except BaseException as e:  # noqa: BLE001 - handed to the test thread
             result["error"] = e
 

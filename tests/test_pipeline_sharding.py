@@ -16,11 +16,12 @@ import numpy as np
 import pytest
 import ray
 
+from mining.catalog.layout import cache_path
 from mining.catalog.store import Store
 from mining.catalog.views import connect
 from mining.config import load_config
-from mining.pipeline.steps import cache_path
-from mining.pipeline.submit import run_job
+from mining.pipeline.executors import LocalExecutor, RayExecutor
+from mining.pipeline.submit import mine_job
 from mining.pipeline.window import observe_window
 from mining.sources.synthetic import SyntheticSource
 from mining.testing.sharding import AGREE_IOU, selected_tube_masks, tube_agreement
@@ -57,7 +58,7 @@ def test_100_frame_windows_give_the_tubes_of_one_500_frame_window(local_ray, tmp
     cfg = load_config(REPO / "jobs" / "synthetic.toml")
     assert cfg.window.core == 100
     sharded = str(tmp_path / "sharded")
-    summary = run_job(cfg, sharded, ["0000"], (0, 500), "ray", keep_cache=True)
+    summary = mine_job(cfg, sharded, ["0000"], (0, 500), executor=RayExecutor, keep_cache=True)
     assert summary.ok == 5 and not summary.failed
 
     # The reference: one window over all 500 frames, from the same observations.
@@ -69,7 +70,7 @@ def test_100_frame_windows_give_the_tubes_of_one_500_frame_window(local_ray, tmp
     assert [f.position for f in frames] == list(range(500))
     ref_cfg = load_config(REPO / "jobs" / "synthetic.toml", ["window.core=500"])
     Store(whole).write_bytes(cache_path(Window("synthetic", "0000", (0, 500), (0, 500))), pickle.dumps(frames))
-    assert run_job(ref_cfg, whole, ["0000"], (0, 500), "local").ok == 1
+    assert mine_job(ref_cfg, whole, ["0000"], (0, 500), executor=LocalExecutor).ok == 1
 
     agreement = tube_agreement(selected_tube_masks(whole), selected_tube_masks(sharded))
     print(f"selected tubes: unsharded {agreement.n_reference}, sharded {agreement.n_other}, "

@@ -51,19 +51,3 @@ def test_bad_warm_up_frame_fails_only_the_window_that_owns_it(kitti_tracking_roo
         assert [r["counts"] for r in a.observations.proposals.rles] == [r["counts"] for r in b.observations.proposals.rles]
     poses = chain_poses(frames)
     assert [s for _, s in poses] == [0, 0, 0, 0]
-
-
-def test_neighbour_map_equals_the_definition():
-    """The scheduler's sweep finds exactly the windows whose core lies in each context."""
-    from mining.pipeline.submit import neighbour_map, neighbours
-    from mining.types import SequencePlan, StereoCalib
-
-    calib = StereoCalib(700.0, 700.0, 600.0, 180.0, 0.5, 1242, 375)
-    windows = []
-    for seq, n, core, before, after in (("a", 1000, 100, 30, 30), ("b", 257, 20, 45, 5), ("c", 7, 3, 0, 0)):
-        plan = SequencePlan("synthetic", seq, calib, tuple(range(n)), tuple(range(n)))
-        windows += plan_windows(plan, core, before, after)
-    got = neighbour_map(windows)
-    assert len(got) == len(windows)
-    for w in windows:
-        assert [n.name for n in got[w.name]] == [n.name for n in neighbours(w, windows)]

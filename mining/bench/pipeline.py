@@ -143,7 +143,7 @@ def window_peaks(out: Path, rows: list[dict[str, Any]], samples: list[tuple[floa
     Track runs from the manifest's ``started`` to ``finished``; observe ends when its
     cache file is written (the bench keeps the cache) and lasted ``seconds_observe``.
     """
-    from mining.pipeline.steps import cache_path
+    from mining.catalog.layout import cache_path
     from mining.types import Window
 
     t = np.array([s[0] for s in samples]) if samples else np.zeros(0)
@@ -167,7 +167,8 @@ def measure_run(cfg: JobConfig, out: str | Path, workers: int) -> dict[str, Any]
     """Mine ``cfg`` into a fresh ``out`` on a local Ray of ``workers`` CPUs; time, overhead, memory."""
     import ray
 
-    from mining.pipeline.submit import run_job
+    from mining.pipeline.executors import RayExecutor
+    from mining.pipeline.submit import mine_job
 
     out = Path(out)
     if out.exists() and any(out.iterdir()):
@@ -181,7 +182,7 @@ def measure_run(cfg: JobConfig, out: str | Path, workers: int) -> dict[str, Any]
     init_s = time.perf_counter() - t0
     try:
         with RssSampler(local_raylet_pid()) as sampler:
-            summary = run_job(cfg, str(out), workers=workers, keep_cache=True)
+            summary = mine_job(cfg, str(out), executor=lambda job: RayExecutor(job, workers), keep_cache=True)
     finally:
         ray.shutdown()
     if summary.failed:

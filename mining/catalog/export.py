@@ -25,6 +25,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from pycocotools import mask as mask_utils
 
+from mining.catalog.layout import JobRecord
 from mining.catalog.store import Store
 from mining.catalog.views import connect, execute_read_only
 from mining.errors import InputError, MiningError
@@ -41,12 +42,8 @@ CROP_MARGIN_MIN_PX = 8  # ours: at least this much context for small boxes
 
 def read_job(store: Store) -> dict:
     """The resolved job config recorded in OUT/job.json, or {} when the catalogue has none."""
-    if not store.exists("job.json"):
-        return {}
-    try:
-        return json.loads(store.read_bytes("job.json"))["config"]
-    except (ValueError, KeyError) as e:
-        raise InputError(f"job.json is not a job record ({e})", store.full("job.json")) from None
+    record = JobRecord.load(store)
+    return {} if record is None else record.config
 
 
 def selected_rows(con: duckdb.DuckDBPyConnection, where: str) -> tuple[pa.Table, pa.Table]:

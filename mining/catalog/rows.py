@@ -1,20 +1,23 @@
-"""Mined tubes and observed frames → Arrow tables of catalogue schema v1.
+"""Mined tubes and observed frames → Arrow tables of catalogue schema v1, and back.
 
-The same two functions fill a window's parts (window-local worlds, with the part-only
-columns) and the stitched catalogue (one world per pose segment of the sequence).
+Encoders: ``tube_row`` and ``frame_rows`` fill a window's parts (window-local worlds,
+with the part-only columns) and the stitched catalogue (one world per pose segment of
+the sequence); ``frames_row`` is a frame's row of a window's ``frames`` part. Decoder:
+``part_tube_frame`` reads a part's tube-frame row back (the stitcher's input).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Sequence, Sized
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import pyarrow as pa
 from pycocotools import mask as mask_utils
 
 from mining.catalog.schema import SCHEMA_VERSION, file_schema, part_schema
-from mining.types import MinedTube
+from mining.types import MinedTube, TubeFrame
 
 
 @dataclass(frozen=True)
@@ -106,6 +109,53 @@ def frame_rows(mt: MinedTube, tube_id: str, cam_from_world: Callable[[int], np.n
             row["velocity_cam"] = _vec(T[:3, :3] @ f.velocity_world)
         rows.append(row)
     return rows
+
+
+def part_tube_frame(r: dict, pose: np.ndarray) -> TubeFrame:
+    """A part's tube-frame row (``frame_rows`` with ``window``) as a tube frame in the world
+    whose (4, 4) camera-to-world transform of that frame is ``pose``."""
+    R, t = pose[:3, :3], pose[:3, 3]
+    nan = float("nan")
+    return TubeFrame(
+        frame=r["frame"], t_ns=r["t_ns"], observed=r["observed"], obs_index=r["obs_index"],
+        rle={"size": [r["rle_h"], r["rle_w"]], "counts": r["rle_counts"].encode("ascii")},
+        box=np.asarray(r["bbox"], np.float64),
+        footpoint_world=R @ np.asarray(r["footpoint_cam"], np.float64) + t,
+        velocity_world=R @ np.asarray(r["velocity_cam"], np.float64),
+        size=np.asarray(r["size"], np.float64), position_cam=np.asarray(r["position_cam"], np.float64),
+        objectness=nan if r["objectness"] is None else r["objectness"],
+        mask_iou=nan if r["mask_iou"] is None else r["mask_iou"],
+        motion_density=nan if r["motion_density"] is None else r["motion_density"],
+        posterior=None if r["posterior"] is None else np.asarray(r["posterior"], np.float64),
+    )
+
+
+class ObservedFrameLike(Protocol):
+    """What a ``frames`` row records of an observed frame (``mining.pipeline.window.ObservedFrame``)."""
+
+    position: int
+    index: int
+    t_ns: int
+    T_cur_prev: np.ndarray | None
+    egomotion_ok: bool | None
+    egomotion_inliers: int
+    egomotion_rmse_px: float
+    ground_ok: bool
+    ground_age: int | None
+    n_proposals: int
+    observations: Sized
+
+
+def frames_row(f: ObservedFrameLike, pose: np.ndarray, segment: int) -> dict:
+    """A frame's row of a window's ``frames`` part: its (4, 4) chained ``pose`` and pose
+    ``segment`` in the window, its egomotion and ground quality and its counts."""
+    return {"frame": f.index, "position": f.position, "t_ns": f.t_ns, "segment": segment,
+            "pose": pose.ravel().tolist(), "egomotion_ok": f.egomotion_ok,
+            "egomotion_inliers": f.egomotion_inliers,
+            "egomotion_rmse_px": None if not np.isfinite(f.egomotion_rmse_px) else f.egomotion_rmse_px,
+            "ground_ok": f.ground_ok, "ground_age": f.ground_age, "n_proposals": f.n_proposals,
+            "n_observations": len(f.observations),
+            "T_cur_prev": None if f.T_cur_prev is None else f.T_cur_prev.ravel().tolist()}
 
 
 def to_table(rows: Sequence[dict], table: str, part: bool = False) -> pa.Table:

@@ -11,7 +11,8 @@ have no rename, but a single object appears only once its upload completes, so t
 copy that ``move`` does there is just as invisible while in flight.
 
 ``write_sequence`` compacts one table of one sequence into few large, sorted Parquet
-files under ``catalog/<table>/dataset=D/sequence=S/part-<k>.parquet``.
+files under ``catalog/<table>/dataset=D/sequence=S/part-<k>.parquet``. Which path holds
+what is ``layout.py``'s; this module only reads and writes.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import pyarrow.compute as pc
 import pyarrow.fs as pafs
 import pyarrow.parquet as pq
 
+from mining.catalog.layout import catalog_dir, catalog_file
 from mining.catalog.schema import PARTITION, file_schema
 from mining.errors import InputError
 
@@ -66,18 +68,6 @@ class Store:
     def full(self, rel: str) -> str:
         """The filesystem path of ``rel`` (for pyarrow calls on ``self.fs``)."""
         return posixpath.join(self.root, rel) if rel else self.root
-
-    @staticmethod
-    def part_path(table: str, dataset: str, sequence: str, window: str) -> str:
-        return f"parts/{table}/dataset={dataset}/sequence={sequence}/{window}.parquet"
-
-    @staticmethod
-    def manifest_path(dataset: str, sequence: str, window: str) -> str:
-        return f"manifest/dataset={dataset}/sequence={sequence}/{window}.parquet"
-
-    @staticmethod
-    def catalog_dir(table: str, dataset: str, sequence: str) -> str:
-        return f"catalog/{table}/dataset={dataset}/sequence={sequence}"
 
     # -- queries -------------------------------------------------------------------
 
@@ -221,13 +211,12 @@ def write_sequence(store: Store, table: str, dataset: str, sequence: str, table_
     data = conform(table, table_data, dataset, sequence)
     if table in SORT_KEYS and len(data):
         data = data.sort_by(SORT_KEYS[table])
-    folder = store.catalog_dir(table, dataset, sequence)
-    old = set(store.list(folder))
+    old = set(store.list(catalog_dir(table, dataset, sequence)))
     n_files = max(1, -(-len(data) // rows_per_file))
     staged = []
     try:
         for k in range(n_files):
-            rel = f"{folder}/part-{k}.parquet"
+            rel = catalog_file(table, dataset, sequence, k)
             staged.append((store.stage_table(rel, data.slice(k * rows_per_file, rows_per_file), row_group_rows), rel))
     except BaseException:
         for tmp, _ in staged:

@@ -25,13 +25,12 @@ import duckdb
 import pyarrow as pa
 import pyarrow.dataset as ds
 
+from mining.catalog.layout import TABLE_DIRS
 from mining.catalog.schema import PARTITION, SCHEMAS, file_schema
 from mining.catalog.store import Store
 from mining.errors import InputError
 
 VIEWS_SQL = Path(__file__).resolve().parents[2] / "schemas" / "v1" / "views.sql"
-TABLE_DIRS = {"tubes": "catalog/tubes", "tube_frames": "catalog/tube_frames", "frames": "catalog/frames",
-              "windows": "manifest"}
 READ_STATEMENTS = {duckdb.StatementType.SELECT}
 
 

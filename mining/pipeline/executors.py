@@ -1,8 +1,9 @@
 """Where steps run: in this process, or on a pool of Ray actors (local Ray or a cluster).
 
-Both executors take the same calls — ``submit(step, *args)`` while ``free()`` and
-``wait()`` for the next result — so the scheduler in ``submit.py`` does not know which
-one it drives. On Ray each worker is an actor holding the steps: a proposer that holds
+Both executors are made the same way — ``LocalExecutor(job)``, ``RayExecutor(job)`` — and
+take the same calls (``Executor``): ``submit(step, *args)`` while ``free()`` and
+``wait()`` for the next result, so the loop in ``submit.py`` does not know which one it
+drives. On Ray each worker is an actor holding the steps: a proposer that holds
 a model (ONNX) loads once per worker, not once per window. System failures (a killed
 worker process, a lost node) restart the actor and retry the call; bad input is not a
 system failure and comes back as a failed ``StepResult``.
@@ -12,9 +13,26 @@ from __future__ import annotations
 
 import os
 from collections import deque
-from typing import Any
+from typing import Any, Protocol
 
 from mining.pipeline.steps import Finalize, Job, Observe, StepResult, Track
+
+
+class Executor(Protocol):
+    """Where the steps of one job run; ``submit`` only while ``free()``."""
+
+    def free(self) -> bool: ...
+
+    def submit(self, step: str, *args: Any) -> Any:
+        """Start ``step`` on ``args``; returns the reference ``wait`` hands back with its result."""
+
+    def pending(self) -> int:
+        """How many submitted steps ``wait`` has not returned yet."""
+
+    def wait(self) -> tuple[Any, StepResult | None, BaseException | None]:
+        """(reference, result, None) of a finished step, or (reference, None, error) when it could not run."""
+
+    def shutdown(self) -> None: ...
 
 
 class Worker:
@@ -60,12 +78,19 @@ class LocalExecutor:
 
 
 class RayExecutor:
-    """A pool of Ray actors, one per CPU the job may use; one call in flight per actor."""
+    """A pool of Ray actors, one per CPU the job may use; one call in flight per actor.
 
-    def __init__(self, job: Job, n_workers: int, max_retries: int):
+    Runs on the Ray this process has initialised: ``n_workers`` actors (default one per
+    CPU of the cluster), each call retried ``max_retries`` times (default the job's
+    ``run.max_retries``) after system failures.
+    """
+
+    def __init__(self, job: Job, n_workers: int | None = None, max_retries: int | None = None):
         import ray
 
         self.ray = ray
+        n_workers = n_workers or max(1, int(ray.available_resources().get("CPU", 1)))
+        max_retries = job.cfg.run.max_retries if max_retries is None else max_retries
         # No num_cpus: an actor needs a CPU to be placed but holds none after, so one that
         # lost its node restarts on a surviving node even when that node's CPUs are all
         # held by the pool (with num_cpus=1 it would wait for a free CPU forever, and so

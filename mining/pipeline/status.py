@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 
+from mining.catalog.layout import JOB, JobRecord, manifest_path
 from mining.catalog.store import Store
 from mining.errors import InputError
 
@@ -21,18 +21,18 @@ class WindowStatus:
 
 def job_status(out: str) -> list[WindowStatus]:
     store = Store(out)
-    if not store.exists("job.json"):
-        raise InputError("no mining job here (job.json missing): run `mine submit --out` first", store.full("job.json"))
-    job = json.loads(store.read_bytes("job.json"))
+    job = JobRecord.load(store)
+    if job is None:
+        raise InputError("no mining job here (job.json missing): run `mine submit --out` first", store.full(JOB))
     rows = []
-    for w in job["windows"]:
-        m = store.manifest_path(w["dataset"], w["sequence"], w["window"])
+    for w in job.windows:
+        m = manifest_path(w.dataset, w.sequence, w.name)
         if store.exists(m):
             r = store.read_table(m).to_pylist()[0]
-            status = r["status"] if r["params_hash"] == job["params_hash"] else "pending"
-            rows.append(WindowStatus(w["dataset"], w["sequence"], w["window"], status, r["attempts"], r["error"] or ""))
+            status = r["status"] if r["params_hash"] == job.params_hash else "pending"
+            rows.append(WindowStatus(w.dataset, w.sequence, w.name, status, r["attempts"], r["error"] or ""))
         else:
-            rows.append(WindowStatus(w["dataset"], w["sequence"], w["window"], "pending", 0, ""))
+            rows.append(WindowStatus(w.dataset, w.sequence, w.name, "pending", 0, ""))
     return rows
 
 

@@ -22,7 +22,8 @@ from datetime import datetime, timezone
 import numpy as np
 import pyarrow as pa
 
-from mining.catalog.rows import RunInfo, frame_rows, to_table, tube_row
+from mining.catalog.layout import PART_TABLES, cache_path, done_path, manifest_path, part_path
+from mining.catalog.rows import RunInfo, frame_rows, frames_row, to_table, tube_row
 from mining.catalog.store import Store, write_sequence
 from mining.config import JobConfig
 from mining.errors import InputError, MiningError
@@ -31,18 +32,6 @@ from mining.pipeline.window import ObservedFrame, chain_poses, observe_window, t
 from mining.sources import open_source
 from mining.sources.base import Source
 from mining.types import SequencePlan, Window
-
-CACHE = "cache/obs"
-
-
-def cache_path(w: Window) -> str:
-    return f"{CACHE}/dataset={w.dataset}/sequence={w.sequence}/{w.name}.pkl"
-
-
-def done_path(dataset: str, sequence: str) -> str:
-    """The marker a finalized sequence leaves: which windows its catalogue holds."""
-    return f"catalog/_sequences/dataset={dataset}/sequence={sequence}.json"
-
 
 @dataclass
 class StepResult:
@@ -136,7 +125,7 @@ def write_manifest(job: Job, window: Window, status: str, started: datetime | No
                    seconds_observe: float | None = None, seconds_tubes: float | None = None,
                    n_pieces: int | None = None, context_complete: bool | None = None) -> None:
     store = job.store()
-    path = store.manifest_path(window.dataset, window.sequence, window.name)
+    path = manifest_path(window.dataset, window.sequence, window.name)
     attempts = 1
     if store.exists(path):
         attempts += int(store.read_table(path, ["attempts"]).column(0)[0].as_py())
@@ -187,21 +176,10 @@ class Track:
             row["window"] = window.name
             tubes.append(row)
             tframes.extend(frame_rows(mt, pid, cam_from_world.get, core_frames.__contains__, window.name))
-        frows = []
-        for f, (pose, segment) in zip(frames, poses):
-            if f.index not in core_frames:
-                continue
-            frows.append({"frame": f.index, "position": f.position, "t_ns": f.t_ns, "segment": segment,
-                          "pose": pose.ravel().tolist(), "egomotion_ok": f.egomotion_ok,
-                          "egomotion_inliers": f.egomotion_inliers,
-                          "egomotion_rmse_px": None if not np.isfinite(f.egomotion_rmse_px) else f.egomotion_rmse_px,
-                          "ground_ok": f.ground_ok, "ground_age": f.ground_age, "n_proposals": f.n_proposals,
-                          "n_observations": len(f.observations),
-                          "T_cur_prev": None if f.T_cur_prev is None else f.T_cur_prev.ravel().tolist()})
+        frows = [frames_row(f, pose, segment) for f, (pose, segment) in zip(frames, poses) if f.index in core_frames]
         d, s = window.dataset, window.sequence
-        store.write_table(store.part_path("tubes", d, s, window.name), to_table(tubes, "tubes", part=True))
-        store.write_table(store.part_path("tube_frames", d, s, window.name), to_table(tframes, "tube_frames", part=True))
-        store.write_table(store.part_path("frames", d, s, window.name), to_table(frows, "frames", part=True))
+        for table, rows in {"tubes": tubes, "tube_frames": tframes, "frames": frows}.items():
+            store.write_table(part_path(table, d, s, window.name), to_table(rows, table, part=True))
         return len(tubes)
 
 
@@ -215,15 +193,15 @@ class Finalize:
         d = job.cfg.source.dataset
         ws = [w for w in windows if w.name in set(done)]
         parts = {}
-        for table in ("tubes", "tube_frames", "frames"):
-            tabs = [store.read_table(store.part_path(table, d, sequence, w.name)) for w in ws]
+        for table in PART_TABLES:
+            tabs = [store.read_table(part_path(table, d, sequence, w.name)) for w in ws]
             parts[table] = pa.concat_tables(tabs) if tabs else to_table([], table, part=True)
         out = stitch_sequence(ws, parts["tubes"], parts["tube_frames"], parts["frames"], job.cfg,
                               job.run_info(sequence))
         for table, data in out.items():
             write_sequence(store, table, d, sequence, data)
-        rows = [store.read_table(store.manifest_path(d, sequence, w.name)) for w in windows
-                if store.exists(store.manifest_path(d, sequence, w.name))]
+        rows = [store.read_table(manifest_path(d, sequence, w.name)) for w in windows
+                if store.exists(manifest_path(d, sequence, w.name))]
         if rows:
             write_sequence(store, "windows", d, sequence, pa.concat_tables(rows))
         marker = {"params_hash": job.params_hash, "run_id": job.run_id, "windows": sorted(done),

@@ -25,12 +25,12 @@ import numpy as np
 import pyarrow as pa
 from scipy.optimize import linear_sum_assignment
 
-from mining.catalog.rows import RunInfo, frame_rows, to_table, tube_row
+from mining.catalog.rows import RunInfo, frame_rows, part_tube_frame, to_table, tube_row
 from mining.catalog.schema import file_schema
 from mining.config import JobConfig
-from mining.pipeline.mine import judge
 from mining.pipeline.frames import chain
-from mining.types import Tube, TubeFrame, Window
+from mining.pipeline.mine import judge
+from mining.types import Tube, Window
 
 
 @dataclass
@@ -130,24 +130,6 @@ def _chains(windows: list[Window], piece_window: dict[str, str], keys: dict[str,
     return chains
 
 
-def _tube_frame(r: dict, poses: SequencePoses) -> TubeFrame:
-    pose = poses.pose[r["frame"]]
-    R, t = pose[:3, :3], pose[:3, 3]
-    nan = float("nan")
-    return TubeFrame(
-        frame=r["frame"], t_ns=r["t_ns"], observed=r["observed"], obs_index=r["obs_index"],
-        rle={"size": [r["rle_h"], r["rle_w"]], "counts": r["rle_counts"].encode("ascii")},
-        box=np.asarray(r["bbox"], np.float64),
-        footpoint_world=R @ np.asarray(r["footpoint_cam"], np.float64) + t,
-        velocity_world=R @ np.asarray(r["velocity_cam"], np.float64),
-        size=np.asarray(r["size"], np.float64), position_cam=np.asarray(r["position_cam"], np.float64),
-        objectness=nan if r["objectness"] is None else r["objectness"],
-        mask_iou=nan if r["mask_iou"] is None else r["mask_iou"],
-        motion_density=nan if r["motion_density"] is None else r["motion_density"],
-        posterior=None if r["posterior"] is None else np.asarray(r["posterior"], np.float64),
-    )
-
-
 def stitch_sequence(windows: list[Window], tubes: pa.Table, tube_frames: pa.Table, frames: pa.Table,
                     cfg: JobConfig, run: RunInfo) -> dict[str, pa.Table]:
     """The catalogue tables of one sequence from its windows' parts."""
@@ -166,7 +148,8 @@ def stitch_sequence(windows: list[Window], tubes: pa.Table, tube_frames: pa.Tabl
         if not rows:
             continue  # owned by no window's core: a neighbour's tube seen from the context
         windows_of.append(len({r["window"] for r in rows}))
-        tubes.append(Tube(tube_id=0, segment=poses.segment[rows[0]["frame"]], frames=[_tube_frame(r, poses) for r in rows]))
+        tframes = [part_tube_frame(r, poses.pose[r["frame"]]) for r in rows]
+        tubes.append(Tube(tube_id=0, segment=poses.segment[rows[0]["frame"]], frames=tframes))
     # Judged again (score, category, co-selection) over the whole sequence's stitched tubes:
     # a window chose among tubes cut at its context's ends, whose scores (sums over frames)
     # were cut with them.

@@ -1,5 +1,10 @@
 """``mine submit``: plan windows, run the steps on an executor, report.
 
+``open_job`` plans the windows, records the job (``job.json``) and reads what earlier
+runs left; the ``Schedule`` (``schedule.py``) orders the steps; ``run_job`` is the loop
+that hands them to an executor (``executors.py``: this process, or Ray) and writes what
+a step that could not run leaves behind. ``mine_job`` does all of it in one call.
+
 Scheduling: a window is *tracked* once the observe steps of every window its context
 touches have finished, so tracking starts while later windows are still being
 observed; a sequence is *finalized* (stitched, compacted) once all its windows are
@@ -7,29 +12,28 @@ settled. Resubmitting resumes: windows whose manifest row says done (same params
 skipped, and a sequence whose catalogue already holds exactly its done windows is not
 rewritten. A finished job resubmitted does nothing.
 
-With ``--address http://HOST:8265`` the same command line is handed to the cluster
-through Ray Jobs and runs there (``--address auto`` on the head node; relative --config,
---root and --out are made absolute here and read on the cluster); with any other address
-the scheduler runs here and the steps run on that cluster.
+``mine_on_ray`` is ``mine submit`` without a Ray Jobs address (that one is
+``rayjobs.py``): the scheduler runs here and the steps run on a Ray of its own, or on
+the cluster at ``--address``.
 """
 
 from __future__ import annotations
 
-import argparse
-import bisect
 import json
 import os
-import shlex
 import sys
 import time
 import uuid
-from collections import defaultdict, deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
+from mining.catalog.layout import PART_TABLES, JobRecord, cache_path, done_path, manifest_path, part_path
 from mining.catalog.store import Store
 from mining.config import JobConfig
-from mining.errors import ConfigError
-from mining.pipeline.steps import Job, StepResult, cache_path, done_path, job_source
+from mining.pipeline.executors import Executor, RayExecutor
+from mining.pipeline.schedule import Resume, Schedule, Task
+from mining.pipeline.steps import Job, StepResult, job_source, write_manifest
 from mining.types import Window, plan_windows
 
 
@@ -56,29 +60,21 @@ class Summary:
             out.append(f"FAILED {w}: {e.strip().splitlines()[0] if e.strip() else 'unknown error'}")
         return out
 
-
-def neighbours(window: Window, windows: list[Window]) -> list[Window]:
-    """The windows whose core frames lie in ``window``'s context (itself included)."""
-    a, b = window.context
-    return [w for w in windows if w.sequence == window.sequence and w.core[0] < b and w.core[1] > a]
-
-
-def neighbour_map(windows: list[Window]) -> dict[str, list[Window]]:
-    """``neighbours`` of every window, by a sweep over each sequence's sorted cores
-    (a recording of hours has thousands of windows: no scan over all of them per window)."""
-    out: dict[str, list[Window]] = {}
-    by_seq: dict[str, list[Window]] = defaultdict(list)
-    for w in windows:
-        by_seq[w.sequence].append(w)
-    for ws in by_seq.values():
-        ws = sorted(ws, key=lambda w: w.core[0])
-        starts = [w.core[0] for w in ws]
-        for w in ws:
-            a, b = w.context
-            lo = max(0, bisect.bisect_right(starts, a) - 1)
-            hi = bisect.bisect_left(starts, b)
-            out[w.name] = [n for n in ws[lo:hi] if n.core[0] < b and n.core[1] > a]
-    return out
+    def count(self, task: Task, result: StepResult, dataset: str) -> None:
+        """Add the result of a track or finalize task."""
+        if task.step == "track":
+            self.frames += result.frames
+            if result.ok:
+                self.ok += 1
+            else:
+                self.failed[task.target.name] = result.error
+        elif task.step == "finalize":
+            if not result.ok:
+                self.failed[f"{dataset}/{task.target} (stitching)"] = result.error
+                return
+            self.sequences_written += 1
+            for k in ("tubes", "candidates", "known", "unknown"):
+                setattr(self, k, getattr(self, k) + result.extra[k])
 
 
 def plan_job(cfg: JobConfig, sequences: list[str] | None, frames: tuple[int, int | None]) -> tuple[dict, list[Window]]:
@@ -93,55 +89,51 @@ def plan_job(cfg: JobConfig, sequences: list[str] | None, frames: tuple[int, int
     return plans, windows
 
 
-def _job_record(store: Store, cfg: JobConfig, windows: list[Window]) -> str:
-    """Write (or check) ``job.json``; returns the job's run id."""
-    if store.exists("job.json"):
-        old = json.loads(store.read_bytes("job.json"))
-        if old["params_hash"] != cfg.params_hash:
-            raise ConfigError(f"{store.uri} holds a catalogue made with params {old['params_hash']}; this job has "
-                              f"{cfg.params_hash}. Use another --out, or the same config to resume.")
-        run_id = old["run_id"]
-        known = {w["window"] for w in old["windows"]}
-    else:
-        run_id, known, old = uuid.uuid4().hex[:12], set(), {"windows": []}
-    planned = old["windows"] + [{"dataset": w.dataset, "sequence": w.sequence, "window": w.name,
-                                 "core": list(w.core), "context": list(w.context)}
-                                for w in windows if w.name not in known]
-    record = {"run_id": run_id, "params_hash": cfg.params_hash, "config": cfg.to_dict(), "windows": planned}
-    if planned != old["windows"]:  # a resubmission of the same job changes nothing
-        store.write_bytes("job.json", json.dumps(record, indent=1, default=str).encode())
-    return run_id
+def record_job(store: Store, cfg: JobConfig, windows: list[Window]) -> JobRecord:
+    """Write (or check and extend) ``job.json``: refuses other params, keeps the run id,
+    adds the windows not planned before."""
+    old = JobRecord.load(store)
+    if old is not None:
+        old.check(cfg.params_hash, store.uri)
+    prior = old.windows if old is not None else []
+    known = {w.name for w in prior}
+    record = JobRecord(old.run_id if old is not None else uuid.uuid4().hex[:12], cfg.params_hash, cfg.to_dict(),
+                       prior + [w for w in windows if w.name not in known])
+    if record.windows != prior:  # a resubmission of the same job changes nothing
+        record.save(store)
+    return record
 
 
-def done_windows(store: Store, windows: list[Window], params_hash: str) -> dict[str, bool]:
-    """Windows whose manifest row says done with these params and whose parts all exist,
-    each with whether its context was complete when it was tracked."""
+def read_resume(store: Store, dataset: str, windows: list[Window], params_hash: str) -> Resume:
+    """What earlier runs left: windows whose manifest row says done with these params and
+    whose parts all exist (each with whether its context was complete when it was
+    tracked), and the sequences finalized with these params (the windows each holds)."""
     done = {}
     for w in windows:
-        m = store.manifest_path(w.dataset, w.sequence, w.name)
+        m = manifest_path(w.dataset, w.sequence, w.name)
         if not store.exists(m):
             continue
         row = store.read_table(m).to_pylist()[0]
         if row["status"] == "done" and row["params_hash"] == params_hash and all(
-                store.exists(store.part_path(t, w.dataset, w.sequence, w.name)) for t in ("tubes", "tube_frames", "frames")):
+                store.exists(part_path(t, w.dataset, w.sequence, w.name)) for t in PART_TABLES):
             done[w.name] = row.get("context_complete") is not False
-    return done
+    finalized = {}
+    for seq in dict.fromkeys(w.sequence for w in windows):
+        if store.exists(done_path(dataset, seq)):
+            marker = json.loads(store.read_bytes(done_path(dataset, seq)))
+            if marker["params_hash"] == params_hash:
+                finalized[seq] = frozenset(marker["windows"])
+    return Resume(done, finalized)
 
 
-def finalized(store: Store, dataset: str, sequence: str, done: set[str], params_hash: str) -> bool:
-    if not store.exists(done_path(dataset, sequence)):
-        return False
-    marker = json.loads(store.read_bytes(done_path(dataset, sequence)))
-    return marker["params_hash"] == params_hash and set(marker["windows"]) == done
-
-
-def _drop_served_caches(store: Store, served: list[Window], users: dict[str, list[Window]], ok: set[str]) -> None:
-    """Remove the observation caches no track needs any more: a window's cache serves the
-    windows whose context holds its core, and is kept while any of them is not done (it
-    may run again). Caches are about 0.5 MB a frame: they must not pile up over hours."""
-    for n in served:
-        if all(m.name in ok for m in users[n.name]) and store.exists(cache_path(n)):
-            store.remove(cache_path(n))
+def open_job(cfg: JobConfig, out: str, sequences: list[str] | None = None,
+             frames: tuple[int, int | None] = (0, None)) -> tuple[Job, Schedule]:
+    """Plan the job, record it in ``out``'s ``job.json`` and schedule what is left to do."""
+    store = Store(out)
+    plans, windows = plan_job(cfg, sequences, frames)
+    record = record_job(store, cfg, windows)
+    job = Job(cfg, out, record.run_id, plans)
+    return job, Schedule(windows, read_resume(store, cfg.source.dataset, windows, job.params_hash))
 
 
 class Progress:
@@ -165,231 +157,94 @@ class Progress:
             sys.stderr.write("\n")
 
 
-def run_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frames: tuple[int, int | None] = (0, None),
-            executor: str = "ray", workers: int | None = None, progress: bool = False,
-            keep_cache: bool = False, connect=None) -> Summary:
-    """Mine the job into the catalogue at ``out``.
+def system_failure(task: Task, error: BaseException, max_retries: int) -> StepResult:
+    """The failed result of a step that could not run (its worker died and retries are spent)."""
+    if task.step == "observe":
+        return StepResult(task.target.name, False, f"system failure: {error}")
+    if task.step == "track":
+        return StepResult(task.target.name, False, f"system failure after {max_retries} retries: {error}")
+    return StepResult(task.target, False, str(error))
 
-    ``executor="ray"`` runs the steps on Ray: ``connect()`` is called first when there is
-    work (it initialises Ray), unless Ray is initialised already. ``keep_cache`` keeps the
-    observation cache of complete sequences (benchmarks, the sharding test).
+
+def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = False,
+            keep_cache: bool = False) -> Summary:
+    """Run ``schedule``'s tasks on ``executor`` until none is left.
+
+    ``keep_cache`` keeps the observation caches no track needs any more (benchmarks, the
+    sharding test); otherwise they are removed at once (about 0.5 MB a frame).
     """
     t0 = time.perf_counter()
-    store = Store(out)
-    plans, windows = plan_job(cfg, sequences, frames)
-    run_id = _job_record(store, cfg, windows)
-    job = Job(cfg, out, run_id, plans)
-    dataset = cfg.source.dataset
-    by_seq: dict[str, list[Window]] = defaultdict(list)
-    for w in windows:
-        by_seq[w.sequence].append(w)
-
-    complete = done_windows(store, windows, job.params_hash)
-    done = set(complete)
-    # A window tracked while a neighbour had failed saw less context; once that neighbour
-    # runs again, track it again too (its observations are cached), so a repaired job ends
-    # as a clean run would.
-    nbrs = neighbour_map(windows)
-    users: dict[str, list[Window]] = defaultdict(list)  # the windows whose context holds a window's core
-    for w in windows:
-        for n in nbrs[w.name]:
-            users[n.name].append(w)
-    rerun = {w.name for w in windows if w.name not in done}
-    for w in windows:
-        if w.name in done and not complete[w.name]:
-            if any(n.name in rerun for n in nbrs[w.name]):
-                done.discard(w.name)
-    todo = [w for w in windows if w.name not in done]
-    summary = Summary(windows=len(windows), skipped=len(done))
-    to_finalize = {s for s, ws in by_seq.items()
-                   if any(w.name not in done for w in ws) or not finalized(store, dataset, s, done & {w.name for w in ws}, job.params_hash)}
-    if not todo and not to_finalize:
-        summary.seconds = time.perf_counter() - t0
-        return summary
-
-    need_obs = {n.name for w in todo for n in nbrs[w.name]}
-    obs_queue = deque(w for w in windows if w.name in need_obs)
-    todo_names = {w.name for w in todo}
-    waiting = {w.name: len(nbrs[w.name]) for w in todo}  # observe results a track still waits for
-    ready: deque[Window] = deque()
-    obs_result: dict[str, StepResult] = {}
-    ok_windows: dict[str, set[str]] = {s: {w.name for w in ws if w.name in done} for s, ws in by_seq.items()}
-    left = {s: sum(1 for w in ws if w.name not in done) for s, ws in by_seq.items()}
-    fin_queue = deque(s for s in sorted(to_finalize) if left[s] == 0)
-    kinds: dict = {}
-
-    if executor == "ray":
-        from mining.pipeline.executors import RayExecutor
-
-        import ray
-        if not ray.is_initialized():
-            (connect or ray.init)()
-        n = workers or max(1, int(ray.available_resources().get("CPU", 1)))
-        ex = RayExecutor(job, n, cfg.run.max_retries)
-    else:
-        from mining.pipeline.executors import LocalExecutor
-
-        ex = LocalExecutor(job)
-    bar = Progress(len(todo), progress)
+    store, dataset = job.store(), job.cfg.source.dataset
+    summary = Summary(windows=len(schedule.windows), skipped=schedule.skipped)
+    bar = Progress(len(schedule.todo), progress)
+    running: dict[Any, Task] = {}
     try:
-        while obs_queue or ready or any(waiting.values()) or fin_queue or ex.pending():
-            while ex.free():
-                # Tracks first (they write the parts), then observes (tracks wait on them);
-                # a sequence's stitching has no dependents, so it fills otherwise idle workers.
-                if ready:
-                    w = ready.popleft()
-                    nb = nbrs[w.name]
-                    kinds[ex.submit("track", w, nb, [obs_result[n.name] for n in nb])] = ("track", w)
-                elif obs_queue:
-                    w = obs_queue.popleft()
-                    kinds[ex.submit("observe", w)] = ("observe", w)
-                elif fin_queue:
-                    seq = fin_queue.popleft()
-                    kinds[ex.submit("finalize", seq, by_seq[seq], sorted(ok_windows[seq]))] = ("finalize", seq)
-                else:
-                    break
-            if not ex.pending():
+        while schedule.outstanding or executor.pending():
+            while executor.free() and (task := schedule.next_task()) is not None:
+                running[executor.submit(task.step, *task.args)] = task
+            if not executor.pending():
                 continue
-            ref, result, err = ex.wait()
-            kind, what = kinds.pop(ref)
-            if kind == "observe":
-                obs_result[what.name] = result if err is None else StepResult(what.name, False, f"system failure: {err}")
-                for u in users[what.name]:
-                    if u.name in todo_names:
-                        waiting[u.name] -= 1
-                        if waiting[u.name] == 0:
-                            ready.append(u)
-            elif kind == "track":
-                if err is not None:
-                    result = StepResult(what.name, False, f"system failure after {cfg.run.max_retries} retries: {err}")
-                    from mining.pipeline.steps import write_manifest
-
-                    write_manifest(job, what, "failed", None, result.error)
+            ref, result, err = executor.wait()
+            task = running.pop(ref)
+            if err is not None:
+                result = system_failure(task, err, job.cfg.run.max_retries)
+                if task.step == "track":  # the step wrote no manifest row
+                    write_manifest(job, task.target, "failed", None, result.error)
+            served = schedule.on_result(task, result)
+            if task.step == "track":
                 bar.update(result.ok, result.frames)
-                summary.frames += result.frames
-                if result.ok:
-                    summary.ok += 1
-                    ok_windows[what.sequence].add(what.name)
-                    if not keep_cache:
-                        _drop_served_caches(store, nbrs[what.name], users, ok_windows[what.sequence])
-                else:
-                    summary.failed[what.name] = result.error
-                left[what.sequence] -= 1
-                if left[what.sequence] == 0 and what.sequence in to_finalize:
-                    fin_queue.append(what.sequence)
-            else:
-                if err is not None or not result.ok:
-                    summary.failed[f"{dataset}/{what} (stitching)"] = str(err) if err is not None else result.error
-                    continue
-                summary.sequences_written += 1
-                for k in ("tubes", "candidates", "known", "unknown"):
-                    setattr(summary, k, getattr(summary, k) + result.extra[k])
+            summary.count(task, result, dataset)
+            if not keep_cache:
+                for w in served:
+                    if store.exists(cache_path(w)):
+                        store.remove(cache_path(w))
     finally:
         bar.close()
-        ex.shutdown()
     summary.seconds = time.perf_counter() - t0
     return summary
 
 
-# Options of ``mine submit`` that name a local path. On the cluster the job runs in a
-# working directory of Ray's, so relative paths are made absolute here before the command
-# line travels; they are then read *on the cluster*, which is right when the head is this
-# machine or mounts the same files at the same place (URIs such as s3://... pass as they are).
-_PATH_OPTIONS = ("--config", "--root", "--out")
+def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frames: tuple[int, int | None] = (0, None),
+             *, executor: Callable[[Job], Executor], progress: bool = False, keep_cache: bool = False) -> Summary:
+    """Mine the job into the catalogue at ``out`` on ``executor(job)`` (``LocalExecutor``,
+    ``RayExecutor`` on an initialised Ray, or any maker of one), which is made only when
+    there is work and shut down at the end."""
+    t0 = time.perf_counter()
+    job, schedule = open_job(cfg, out, sequences, frames)
+    if schedule.nothing_to_do:
+        summary = Summary(windows=len(schedule.windows), skipped=schedule.skipped)
+    else:
+        ex = executor(job)
+        try:
+            summary = run_job(job, schedule, ex, progress, keep_cache)
+        finally:
+            ex.shutdown()
+    summary.seconds = time.perf_counter() - t0
+    return summary
 
 
-def _absolute(path: str) -> str:
-    return path if "://" in path else os.path.abspath(path)
-
-
-def _forwarded_argv(argv: list[str], out: str) -> list[str]:
-    """The command line for the cluster: no ``--address``, paths absolute, ``--out`` explicit.
-
-    ``argv`` is what followed ``mine`` (``submit`` first); ``out`` is the catalogue the
-    command line means, named explicitly so that the default lands where it would here.
-    """
-    fwd: list[str] = []
-    it = iter(argv)
-    for a in it:
-        opt, eq, value = a.partition("=")
-        if opt == "--address":
-            if not eq:
-                next(it, None)
-            continue
-        if opt in _PATH_OPTIONS:
-            value = value if eq else next(it, "")
-            fwd += [opt, _absolute(value)]
-            continue
-        fwd.append(a)
-    if "--out" not in fwd:
-        fwd += ["--out", _absolute(out)]
-    return fwd
-
-
-def submit_ray_job(address: str, argv: list[str], out: str, poll_s: float = 1.0) -> int:
-    """Hand the command line to a cluster through Ray Jobs, print its logs as they come, and
-    return its driver's exit status (1 when the job failed without one, e.g. it was stopped).
-
-    The entrypoint is ``mine ... --address auto``: ``mine`` must be on the PATH the cluster's
-    Ray was started with, and the driver joins that cluster (Ray Jobs sets RAY_ADDRESS).
-    """
-    try:
-        from ray.job_submission import JobStatus, JobSubmissionClient
-    except ImportError as e:
-        raise ConfigError(f"--address {address} needs Ray Jobs: pip install '.[cluster]' ({e})") from None
-    try:
-        client = JobSubmissionClient(address)
-    except ConnectionError as e:
-        raise ConfigError(f"no Ray Jobs server at --address {address}: {e}") from None
-    entry = shlex.join(["mine", *_forwarded_argv(argv, out), "--address", "auto", "--no-progress"])
-    job_id = client.submit_job(entrypoint=entry)
-    print(f"submitted Ray job {job_id}: {entry}", file=sys.stderr)
-    shown = 0
-    try:
-        while True:
-            status = client.get_job_status(job_id)  # before the logs: a finished job's logs are complete
-            logs = client.get_job_logs(job_id)
-            sys.stdout.write(logs[shown:])
-            sys.stdout.flush()
-            shown = len(logs)
-            if status.is_terminal():
-                break
-            time.sleep(poll_s)
-    except KeyboardInterrupt:
-        print(f"\nstopped following; the job goes on (stop it with: ray job stop --address {address} {job_id})",
-              file=sys.stderr)
-        return 130
-    if status == JobStatus.SUCCEEDED:
-        return 0
-    info = client.get_job_info(job_id)
-    reason = (info.message or "").strip().splitlines()[:1]  # the rest repeats the logs shown above
-    print(f"Ray job {job_id} {status.value}: {''.join(reason)}".rstrip(), file=sys.stderr)
-    code = getattr(info, "driver_exit_code", None)
-    return code if code else 1
-
-
-def submit_from_args(args: argparse.Namespace, cfg: JobConfig) -> int:
-    address = args.address
-    if address and address.startswith("http"):
-        return submit_ray_job(address, args.argv, args.out)
+def mine_on_ray(cfg: JobConfig, out: str, sequences: list[str] | None = None,
+                frames: tuple[int, int | None] = (0, None), address: str | None = None,
+                workers: int | None = None, progress: bool = True) -> Summary:
+    """``mine submit`` here: the steps on the running cluster at ``address`` (or
+    ``RAY_ADDRESS``), which decides the CPUs, or else on a Ray of its own with ``workers``
+    CPUs (never one that happens to run on this machine). Ray starts only when there is
+    work, and is shut down at the end."""
     import ray
 
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     address = address or os.environ.get("RAY_ADDRESS")
 
-    def connect() -> None:
-        if address:  # join a running cluster (e.g. as a Ray job's entrypoint): it decides the CPUs
-            ray.init(address=address, log_to_driver=False)
-        else:  # "local": a Ray of our own, never one that happens to run on this machine
-            ray.init(address="local", num_cpus=args.workers, include_dashboard=False, log_to_driver=False)
+    def on_ray(job: Job) -> RayExecutor:
+        if not ray.is_initialized():
+            if address:  # join a running cluster (e.g. as a Ray job's entrypoint)
+                ray.init(address=address, log_to_driver=False)
+            else:
+                ray.init(address="local", num_cpus=workers, include_dashboard=False, log_to_driver=False)
+        return RayExecutor(job, workers if not address else None)
 
     try:
-        summary = run_job(cfg, args.out, args.sequences, args.frames, "ray",
-                          workers=args.workers if not address else None, progress=not args.no_progress,
-                          connect=connect)
+        return mine_job(cfg, out, sequences, frames, executor=on_ray, progress=progress)
     finally:
         if ray.is_initialized():
             ray.shutdown()
-    for line in summary.lines():
-        print(line)
-    return 1 if summary.failed else 0

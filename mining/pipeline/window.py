@@ -13,7 +13,7 @@ window that owns them as core frames:
    starting at the context's first frame; a failed egomotion, a missing neighbour or a
    recording gap starts a new pose segment, and tubes never cross one.
 
-Neither step knows about Ray: the executors in ``mining/pipeline/submit.py`` call them.
+Neither step knows about Ray: the executors in ``mining/pipeline/executors.py`` call them.
 """
 
 from __future__ import annotations
