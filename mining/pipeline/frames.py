@@ -9,9 +9,12 @@ windows' observe step, the benchmarks and the tests), so the rules below hold ev
   (never replaced by the identity) and a frame that does not follow the one before it:
   a recording gap (``SequencePlan.gaps``: a RobotCar chunk not downloaded, a dropped MCAP
   frame) or a missing window.
-* **Recording gaps** also reset the geometry state (``GeometryStage.reset``): no
-  features are matched and no egomotion is estimated across a gap, and nothing measured
-  before it (flow, ground plane, frame interval) is carried over it.
+* **Geometry state.** Both breaks drop what links a frame to the ones before it: the
+  motion prior that guides matching (``GeometryStage``), the carried ground plane, and
+  flow (velocities need a trusted egomotion). A recording gap resets the geometry stage
+  altogether (``GeometryStage.reset``): no features are matched and no egomotion is
+  estimated across it. After a failed egomotion the previous frame's features stay: the
+  next frame is matched to them afresh, with no prior.
 * **Ground.** A frame whose ground plane failed uses the last good plane moved by the
   egomotion (``ground_age`` counts the frames since it was measured); with no plane at
   all the frame's proposals cannot be placed on the ground and are dropped.
