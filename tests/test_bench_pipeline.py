@@ -9,6 +9,8 @@ pytest.importorskip("ray")
 from mining.bench.pipeline import bench_job, growth, measure_run  # noqa: E402
 from mining.config import JobConfig  # noqa: E402
 
+pytestmark = pytest.mark.slow  # the pipeline benchmark on 1 and 2 Ray workers
+
 
 def test_measure_run_numbers_are_sane(tmp_path):
     cfg = bench_job(JobConfig(), n_frames=8, sequences=["0000"], core=4)

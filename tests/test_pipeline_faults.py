@@ -31,6 +31,8 @@ import pytest
 from mining.catalog.views import connect
 from conftest import REPO
 
+pytestmark = pytest.mark.slow  # `mine submit` processes on local Rays, killed and resumed
+
 pytest.importorskip("ray")
 
 N_FRAMES = 30

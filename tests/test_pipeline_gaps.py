@@ -68,22 +68,22 @@ def test_robotcar_missing_chunk_no_tube_crosses_the_gap(robotcar_gap, shared_dat
 
 
 def test_synthetic_forced_gap_in_a_windowed_job(tmp_path):
-    """Frames 22-29 dropped; 12-frame windows (the gap falls inside a window core and in the
+    """Frames 16-21 dropped; 8-frame windows (the gap falls inside a window core and in the
     warm-up and context of its neighbours)."""
     cfg = load_config(REPO / "jobs" / "synthetic.toml", [
-        "source.options.n_frames=60", "source.options.width=621", "source.options.height=188",
-        "source.options.fx=360.77", "source.options.drop_frames=[[22, 30]]",
-        "window.core=12", "window.context_before=6", "window.context_after=6"])
+        "source.options.n_frames=46", "source.options.width=621", "source.options.height=188",
+        "source.options.fx=360.77", "source.options.drop_frames=[[16, 22]]",
+        "window.core=8", "window.context_before=4", "window.context_after=4"])
     out = tmp_path / "catalog"
     summary = mine_job(cfg, str(out), executor=LocalExecutor)
     assert not summary.failed and summary.ok == 5
     frames = pq.read_table(out / "catalog" / "frames").to_pylist()
     frames.sort(key=lambda r: r["position"])
-    at_gap = next(r for r in frames if r["frame"] == 30)
-    assert at_gap["position"] == 22 and at_gap["egomotion_ok"] is None  # none estimated across the gap
-    before = next(r for r in frames if r["frame"] == 21)
+    at_gap = next(r for r in frames if r["frame"] == 22)
+    assert at_gap["position"] == 16 and at_gap["egomotion_ok"] is None  # none estimated across the gap
+    before = next(r for r in frames if r["frame"] == 15)
     assert at_gap["segment"] == before["segment"] + 1
-    assert all(r["egomotion_ok"] for r in frames if r["frame"] not in (0, 30))
+    assert all(r["egomotion_ok"] for r in frames if r["frame"] not in (0, 22))
     segment = {r["frame"]: r["segment"] for r in frames}
     tf = pq.read_table(out / "catalog" / "tube_frames", columns=["tube_id", "frame"]).to_pylist()
     by_tube: dict[str, set[int]] = {}
@@ -92,5 +92,5 @@ def test_synthetic_forced_gap_in_a_windowed_job(tmp_path):
     assert len(by_tube) > 5
     assert all(len(s) == 1 for s in by_tube.values()), "no tube spans the gap"
     sides = {next(iter(s)) for s in by_tube.values()}
-    assert sides == {segment[21], segment[30]}, "tubes are made on both sides"
+    assert sides == {segment[15], segment[22]}, "tubes are made on both sides"
     assert json.loads((out / "job.json").read_text())["params_hash"] == cfg.params_hash

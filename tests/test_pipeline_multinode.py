@@ -24,6 +24,8 @@ from mining.config import JobConfig  # noqa: E402
 from mining.pipeline.executors import RayExecutor  # noqa: E402
 from mining.pipeline.submit import mine_job  # noqa: E402
 
+pytestmark = pytest.mark.slow  # a three-node Ray cluster
+
 N_FRAMES = 20
 JOB_TIMEOUT_S = 300  # a hung job (a step waiting for an actor that never restarts) fails here
 

@@ -27,6 +27,8 @@ from mining.sources.synthetic import SyntheticSource
 from mining.testing.sharding import AGREE_IOU, selected_tube_masks, tube_agreement
 from mining.types import Window
 
+pytestmark = pytest.mark.slow  # 500 frames at full resolution on a local Ray
+
 REPO = Path(__file__).resolve().parents[1]
 
 

@@ -26,6 +26,8 @@ import pytest
 
 from mining.catalog.views import connect
 
+pytestmark = pytest.mark.slow  # a Ray head with a dashboard, jobs through Ray Jobs
+
 BIN = Path(sys.executable).parent  # the venv's bin: ``ray`` and ``mine`` (the job's entrypoint) live here
 START_TIMEOUT_S = 180  # a loaded 2-core machine takes about a minute to bring a head up
 JOB_TIMEOUT_S = 300
