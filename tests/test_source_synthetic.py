@@ -258,3 +258,16 @@ def test_shading_band_height_changes_no_bit(src):
     b = render.shade(cam, atlas, ids, invz, tab, light, sky, strip=cam.h)
     assert np.array_equal(a, b)
     assert np.array_equal(a[ids < 0], sky[ids < 0]) and a[ids >= 0].std() > 10
+
+
+def test_module_writes_frames_for_a_look(tmp_path):
+    from mining.sources.synthetic.__main__ import main
+
+    main(["--seq", "0000", "--frames", "3:4", "--n-frames", "10", "--out", str(tmp_path)])
+    stem = tmp_path / "0000_000003"
+    left = cv2.imread(f"{stem}_left.png")
+    expect = SyntheticSource(n_frames=10).read_frame(SyntheticSource(n_frames=10).plan("0000"), 3)
+    assert np.array_equal(left[:, :, ::-1], expect.left)  # the rendered frame, bit for bit
+    for kind in ("right", "depth", "inst"):
+        img = cv2.imread(f"{stem}_{kind}.png")
+        assert img.shape == expect.left.shape and img.any()

@@ -1,0 +1,51 @@
+"""``mine status`` on a real (tiny) catalogue: done, failed and pending windows."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from mining.catalog.layout import JobRecord
+from mining.catalog.store import Store
+from mining.config import load_config
+from mining.errors import InputError
+from mining.pipeline.executors import LocalExecutor
+from mining.pipeline.status import job_status, print_status
+from mining.pipeline.submit import mine_job
+from mining.types import Window
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _cfg():
+    return load_config(REPO / "jobs" / "synthetic.toml", [
+        "source.options.n_frames=12", "source.options.width=320", "source.options.height=96",
+        "source.options.fx=186.0", "window.core=6", "window.context_before=2", "window.context_after=2"])
+
+
+def test_status_of_a_finished_job_and_of_a_window_planned_later(tmp_path, capsys):
+    out = str(tmp_path / "cat")
+    summary = mine_job(_cfg(), out, executor=LocalExecutor)
+    assert summary.ok == 2 and not summary.failed
+    rows = job_status(out)
+    assert [(r.window, r.status, r.attempts) for r in rows] == [
+        ("0000-0000000-0000006", "done", 1), ("0000-0000006-0000012", "done", 1)]
+    assert print_status(out) == 0
+    assert "2 windows: 2 done, 0 failed, 0 pending" in capsys.readouterr().out
+
+    # A window planned but never run (e.g. a job interrupted before it started) is pending.
+    store = Store(out)
+    record = JobRecord.load(store)
+    record.windows.append(Window("synthetic", "0000", (12, 18), (10, 18)))
+    record.save(store)
+    assert [r.status for r in job_status(out)] == ["done", "done", "pending"]
+    assert print_status(out) == 0
+    shown = capsys.readouterr().out
+    assert "1 pending" in shown and "pending  synthetic/0000-0000012-0000018" in shown
+
+
+def test_status_without_a_job_names_the_folder(tmp_path):
+    with pytest.raises(InputError) as e:
+        job_status(str(tmp_path))
+    assert "job.json" in str(e.value) and str(tmp_path) in str(e.value)
