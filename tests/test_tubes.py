@@ -255,3 +255,35 @@ def test_co_selection_group_by_group_equals_one_dense_qubo(kitti_tracking_root, 
     grouped = coselect.co_select(tubes, scores, cfg.select)
     np.testing.assert_array_equal(dense, grouped)
     assert dense.any() and not dense.all()
+
+
+def test_a_fast_object_without_flow_starts_a_tube():
+    """A car overtaking close by at 24 m/s (the ego drives 10 m/s): 1.4 m a frame relative to
+    the camera, no scene flow. The prior cannot reach it; the displacement hypotheses do."""
+    def run(hypotheses: int):
+        gen = TubeGenerator(TubeConfig(start_hypotheses=hypotheses), lambda t: score_tube(t, ScoreConfig()).total)
+        for k in range(12):
+            gen.step(_frame(k, 1.0 * k, [(3.0, 6.0 + 2.4 * k)]))
+        return gen.finish()
+
+    assert not run(0), "without the hypotheses no tube starts (the failure this guards)"
+    tubes = run(3)
+    assert len(tubes) == 1 and tubes[0].n_inliers >= 9
+    assert tubes[0].frames[-1].velocity_world[2] == pytest.approx(24.0, abs=1.0)
+
+
+def test_displacement_hypotheses_respect_the_speed_bound_and_the_interval():
+    from mining.tubes.probe import displacement_hypotheses
+    from mining.tubes.world import WorldObservations
+
+    prev = WorldObservations.of(_frame(0, 0.0, [(3.0, 20.0), (-2.0, 20.0), (3.0, 40.0)]))
+    cur = WorldObservations.of(_frame(1, 0.0, [(3.0, 22.0)]))
+    cfg = TubeConfig(start_max_speed_mps=40.0)
+    rows, vel, cov = displacement_hypotheses(cur, np.array([0]), prev, cfg)
+    # 0.1 s: (3, 20) is 2 m away (20 m/s), (-2, 20) 5.4 m (54 m/s: out of reach), (3, 40) 18 m.
+    assert rows.tolist() == [0] and vel[0, 2] == pytest.approx(20.0, abs=1.5) and abs(vel[0, 0]) < 1.5
+    assert cov[0, 2, 2] > cov[0, 0, 0] > 0  # depth is the uncertain axis of stereo
+    # The same displacement over a longer interval is a slower, reachable object.
+    slow = TrackingFrame(1, 300_000_000, CALIB, _pose(0.0), 0, cur.frame.observations, None)
+    rows, vel, _ = displacement_hypotheses(WorldObservations.of(slow), np.array([0]), prev, cfg)
+    assert len(rows) == 2 and vel[0, 2] == pytest.approx(2.0 / 0.3, abs=0.5)

@@ -14,6 +14,29 @@ Frame by frame (REFERENCE.md "Tube generation"):
    at the earliest inlier and replay forwards. Duplicates of existing tubes are dropped.
 4. **Tube NMS** among tubes older than four frames.
 
+The start model. A probe needs a velocity to predict where the object was. The first
+hypothesis is the observation's own motion: its scene flow, or without flow the prior
+(zero mean, variance along the camera's lateral and depth axes). That prior cannot reach
+an object that moves fast across the image (a car overtaking close by moves ~1.4 m a
+frame): the warped box misses its last position, and no tube would ever start where
+flow is missing. So a start must not depend on flow: for each observation the first
+hypothesis could not start, a small set of velocity hypotheses comes from its
+displacement to the observations of the frame before (multiple-hypothesis starts, as in
+MHT):
+
+    v_jk = (f_j − f_k) / Δt,   Σ_v = (Σ_j + Σ_k) / Δt²,   |v_jk| ≤ v_max
+
+on the ground plane (f: footpoints, Σ: their triangulation covariances), at most
+``start_hypotheses`` per observation, the slowest first. The speed bound v_max is
+physical (``start_max_speed_mps``), so the search radius v_max·Δt scales with the frame
+interval. Each hypothesis runs the same backward probe under the same gates and needs
+the same back-step inliers: constant velocity must hold over four frames, which random
+pairings do not. Of a candidate's surviving hypotheses the one that reached furthest
+back wins; the probe's filtered velocity seeds the forward replay (where the earliest
+inlier has no flow of its own), and from then on the tube's filter carries the
+object's own motion into every box and mask prediction, so a fast object is gated and
+scored against where it is going, not where it was.
+
 Tubes never cross a segment border (a failed egomotion): nothing relates the poses on
 either side of it.
 """
@@ -32,7 +55,7 @@ from mining.masks import areas, mask_iou
 from mining.tubes.config import TubeConfig
 from mining.tubes.gating import GROUND, best_pairs
 from mining.tubes.kalman import POS, SIZE, TubeFilter, prior_velocity_cov
-from mining.tubes.probe import probe_back
+from mining.tubes.probe import displacement_hypotheses, probe_back
 from mining.tubes.warp import MaskPoints, predict_box, predict_mask
 from mining.tubes.world import WorldObservations
 from mining.types import TrackingFrame, Tube, TubeFrame
@@ -212,12 +235,21 @@ class TubeGenerator:
 
     # --- start ----------------------------------------------------------------------
 
-    def _new_tube(self, world: WorldObservations, j: int) -> LiveTube | None:
+    def _new_tube(self, world: WorldObservations, j: int,
+                  motion: tuple[np.ndarray, np.ndarray] | None = None) -> LiveTube | None:
+        """A tube started at observation j. Its velocity: the observation's scene flow where
+        it has one, else ``motion`` (a probe's ground velocity (2,) and covariance (2, 2)),
+        else the prior."""
         frame, obs = world.frame, world.frame.observations
         pts = world.points(j)
         if pts is None:
             return None
-        kf = TubeFilter(world.footpoint[j], world.covariance[j], obs.size[j], *world.velocity_or_none(j),
+        vel, vel_cov = world.velocity_or_none(j)
+        if vel is None and motion is not None:
+            vel, vel_cov = np.zeros(3), np.zeros((3, 3))
+            vel[GROUND] = motion[0]
+            vel_cov[np.ix_(GROUND, GROUND)] = motion[1]
+        kf = TubeFilter(world.footpoint[j], world.covariance[j], obs.size[j], vel, vel_cov,
                         self.cfg.kalman, frame.pose[:3, :3])
         tube = LiveTube(Tube(tube_id=-1, segment=frame.segment), kf, pts, frame.t_ns)
         tube.tube.frames.append(self._tube_frame(tube, frame, j, np.nan, np.nan))
@@ -228,22 +260,24 @@ class TubeGenerator:
             return
         cands = np.array([j for j in np.flatnonzero(world.usable) if int(j) not in taken], np.int64)
         # Starts that would fail their first backward step's footpoint gate end here.
+        everyone = cands
         cands = cands[self._may_step_back(world, cands, self.history[-1])]
         past = list(self.history)[::-1]  # newest first
         if self.cfg.probe_with_boxes:
             starts = probe_back(world, cands, past, self.cfg)
         else:
             starts = [self._probe_one(world, int(j), past, box_only=False) for j in cands]
+        # (earliest inlier, its observation, the motion to replay from; None: the observation's own)
+        found = [(w, j, None) for w, j in (s for s in starts if s is not None)]
+        found += self._start_from_displacements(world, everyone, cands[[s is not None for s in starts]], past)
         new: list[LiveTube] = []
         # Candidates whose probes end at the same inlier replay to the same tube: replay once.
-        replayed: dict[tuple[int, int], LiveTube | None] = {}
-        for start in starts:
-            if start is None:
-                continue
-            key = (start[0].frame.index, start[1])
+        replayed: dict[tuple[int, int, bool], LiveTube | None] = {}
+        for w0, j0, motion in found:
+            key = (w0.frame.index, j0, motion is None)
             seen = key in replayed
             if not seen:
-                replayed[key] = self._replay(world, *start)
+                replayed[key] = self._replay(world, w0, j0, motion)
             tube = replayed[key]
             if tube is None or self._duplicate(tube.tube, [t.tube for t in self.live + new]):
                 continue
@@ -276,9 +310,30 @@ class TubeGenerator:
             earliest = (w, int(choice[0]))
         return earliest
 
-    def _replay(self, world: WorldObservations, w0: WorldObservations, j0: int) -> LiveTube | None:
+    def _start_from_displacements(self, world: WorldObservations, cands: np.ndarray, started: np.ndarray,
+                                  past: list[WorldObservations]) -> list[tuple[WorldObservations, int, tuple]]:
+        """Starts of candidates the observation's own motion could not start: the backward
+        probe from each velocity hypothesis (``displacement_hypotheses``), the same required
+        back-step inliers. Per candidate, the hypothesis whose probe reached furthest back
+        (then the slowest); its filtered ground velocity seeds the forward replay."""
+        left = np.setdiff1d(cands, started)
+        rows, vel, vel_cov = displacement_hypotheses(world, left, past[0], self.cfg)
+        if rows.size == 0:
+            return []
+        starts, v, v_cov = probe_back(world, left[rows], past, self.cfg, vel, vel_cov, states=True)
+        best: dict[int, tuple[int, int]] = {}  # candidate → (depth of its earliest inlier, hypothesis)
+        for h, (r, s) in enumerate(zip(rows, starts)):
+            if s is None:
+                continue
+            depth = -1 if s[0] is world else next(k for k, w in enumerate(past) if w is s[0])
+            if int(r) not in best or depth > best[int(r)][0]:  # hypotheses come slowest first: ties keep it
+                best[int(r)] = (depth, h)
+        return [(starts[h][0], starts[h][1], (v[h], v_cov[h])) for _, h in (best[r] for r in sorted(best))]
+
+    def _replay(self, world: WorldObservations, w0: WorldObservations, j0: int,
+                motion: tuple[np.ndarray, np.ndarray] | None = None) -> LiveTube | None:
         """Re-initialise at the earliest inlier (w0, j0) and replay forwards up to now."""
-        tube = self._new_tube(w0, j0)
+        tube = self._new_tube(w0, j0, motion)
         if tube is None:
             return None
         replay = [w for w in self.history if w.frame.index > w0.frame.index] + [world]

@@ -14,23 +14,32 @@ import numpy as np
 
 from mining.boxes import box_gates, paired_box_iou
 from mining.tubes.config import TubeConfig
-from mining.tubes.gating import best_pairs
-from mining.tubes.kalman import POS, initial_states, predict_states, update_states
+from mining.tubes.gating import GROUND, best_pairs
+from mining.tubes.kalman import POS, VEL, initial_states, predict_states, update_states
 from mining.tubes.warp import predict_boxes
 from mining.tubes.world import WorldObservations
 
 
 def probe_back(world: WorldObservations, cands: np.ndarray, past: list[WorldObservations],
-               cfg: TubeConfig) -> list[tuple[WorldObservations, int] | None]:
+               cfg: TubeConfig, velocity: np.ndarray | None = None, velocity_cov: np.ndarray | None = None,
+               states: bool = False):
     """Earliest inlier (frame, observation) of each start candidate ``cands`` (observations
     of ``world``), probing ``past`` newest first; None where a required back-step has none
-    or the candidate's mask has too few points to warp."""
+    or the candidate's mask has too few points to warp.
+
+    ``velocity`` (C, 3) and ``velocity_cov`` (C, 3, 3), world frame, start the filters from
+    a velocity hypothesis instead of the observations' own (flow, or the prior). With
+    ``states`` the filters' final ground velocity (C, 2) and its covariance (C, 2, 2) come
+    back too: the motion the probe found, for the forward replay to start from.
+    """
     n = len(cands)
     pts = [world.points(int(j)) for j in cands]
     alive = np.array([p is not None for p in pts], bool)
     size = world.frame.observations.size
-    x, P = initial_states(world.footpoint[cands], world.covariance[cands], size[cands], world.velocity[cands],
-                          world.velocity_covariance[cands], cfg.kalman, world.frame.pose[:3, :3])
+    if velocity is None:
+        velocity, velocity_cov = world.velocity[cands], world.velocity_covariance[cands]
+    x, P = initial_states(world.footpoint[cands], world.covariance[cands], size[cands], velocity,
+                          velocity_cov, cfg.kalman, world.frame.pose[:3, :3])
     last_t = np.full(n, world.frame.t_ns, np.int64)  # when each probe's points were observed
     earliest_k = np.full(n, -1)  # back-step of the earliest inlier (−1: the candidate itself)
     earliest_j = np.asarray(cands, np.int64).copy()
@@ -65,5 +74,44 @@ def probe_back(world: WorldObservations, cands: np.ndarray, past: list[WorldObse
             if p is not None:  # a mask too small to warp keeps the older points
                 pts[c_i], last_t[c_i] = p, w.frame.t_ns
         earliest_k[m], earliest_j[m] = k, obs
-    return [None if not alive[i] else ((world if earliest_k[i] < 0 else past[earliest_k[i]]), int(earliest_j[i]))
-            for i in range(n)]
+    starts = [None if not alive[i] else ((world if earliest_k[i] < 0 else past[earliest_k[i]]), int(earliest_j[i]))
+              for i in range(n)]
+    if states:
+        return starts, x[:, VEL].copy(), P[:, VEL, VEL].copy()
+    return starts
+
+
+def displacement_hypotheses(world: WorldObservations, cands: np.ndarray, prev: WorldObservations,
+                            cfg: TubeConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Velocity hypotheses of start candidates from their displacement to the frame before.
+
+    For candidate j and each usable observation k of ``prev`` within reach,
+    v = (f_j − f_k) / Δt on the ground plane, with covariance (Σ_j + Σ_k) / Δt² (the two
+    footpoints' triangulation covariances; their correlation with the position is left
+    out). Within reach: |v| ≤ ``start_max_speed_mps`` — a bound on speed, so the search
+    radius grows with the frame interval. At most ``start_hypotheses`` per candidate, the
+    slowest first (objects are more often slow than fast). Returns (rows into ``cands``,
+    velocity (H, 3), velocity covariance (H, 3, 3)), world frame, y = 0.
+    """
+    dt = (world.frame.t_ns - prev.frame.t_ns) / 1e9
+    usable = np.flatnonzero(prev.usable)
+    empty = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3, 3)))
+    if dt <= 0 or usable.size == 0 or cands.size == 0 or cfg.start_hypotheses <= 0:
+        return empty
+    d = world.footpoint[cands][:, None, GROUND] - prev.footpoint[usable][None, :, GROUND]  # (C, U, 2)
+    speed = np.linalg.norm(d, axis=2) / dt
+    reach = speed <= cfg.start_max_speed_mps
+    order = np.argsort(np.where(reach, speed, np.inf), axis=1, kind="stable")[:, :cfg.start_hypotheses]
+    rows = np.repeat(np.arange(cands.size), order.shape[1])
+    cols = order.ravel()
+    keep = reach[rows, cols]
+    rows, cols = rows[keep], cols[keep]
+    if rows.size == 0:
+        return empty
+    vel = np.zeros((rows.size, 3))
+    vel[:, GROUND] = d[rows, cols] / dt
+    cov = np.zeros((rows.size, 3, 3))
+    both = world.covariance[cands[rows]] + prev.covariance[usable[cols]]
+    cov[:, 0, 0], cov[:, 0, 2] = both[:, 0, 0], both[:, 0, 2]
+    cov[:, 2, 0], cov[:, 2, 2] = both[:, 2, 0], both[:, 2, 2]
+    return rows, vel, cov / (dt * dt)
