@@ -9,6 +9,7 @@ frames at half resolution. The mining results of the scenarios (the "before" num
 from __future__ import annotations
 
 from functools import cache
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -235,3 +236,32 @@ def test_stop_and_go():
     assert all(10 < o.center_cam[2] < 26 for o in vis[car].values())
     assert person in vis and {30, 40} <= set(vis[person])  # in view while it stands
 
+
+def test_bench_harness_on_a_short_scenario():
+    """The harness end to end on 30 half-resolution frames of ``border`` (plumbing, not targets)."""
+    from mining.bench.scenarios import (
+        FLOW_OFF_SAMPLES,
+        flow_configs,
+        format_scenarios,
+        run_scenario,
+    )
+    from mining.cli import build_parser
+    from mining.config import load_config
+
+    cfg = load_config(Path(__file__).resolve().parents[1] / "jobs" / "synthetic.toml")
+    cfgs = flow_configs(cfg)
+    assert cfgs["off"].localise.min_flow_samples == FLOW_OFF_SAMPLES and cfgs["on"] is cfg
+    assert cfg.localise.min_flow_samples != FLOW_OFF_SAMPLES
+    r = run_scenario("border", cfg, n_frames=30, half=True)
+    assert r["resolution"] == "621x188" and r["frames"] == 30 and r["egomotion_failures"] == 0
+    (tid,) = roles("border")  # the same world at any resolution
+    assert r["targets"][tid]["role"] == "moving" and 13 < r["targets"][tid]["speed"] < 15
+    for m in ("on", "off"):
+        x = r["modes"][m]
+        assert x["roles"]["moving"]["tracks"] == 1 and x["roles"]["parked"]["tracks"] >= 1
+        assert 0 <= x["HOTA"] <= 1 and x["tubes"] >= x["clutter"]
+    assert r["flow"]["moving"]["frames"] > 0 and 0 <= r["flow"]["moving"]["flow_enough"] <= 1
+    text = format_scenarios([r])
+    assert "border" in text and "overtaking" in text
+    args = build_parser().parse_args(["bench", "scenarios", "--half", "--scenarios", "border", "stopgo"])
+    assert args.half and args.scenarios == ["border", "stopgo"] and args.config.endswith("jobs/synthetic.toml")
