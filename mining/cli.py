@@ -204,6 +204,12 @@ def cmd_bench_tracking(args: argparse.Namespace) -> int:
     return run_tracking_bench(Path(args.data), _job_config(args), args.sequences)
 
 
+def cmd_bench_scenarios(args: argparse.Namespace) -> int:
+    from mining.bench.scenarios import run_scenarios_bench
+
+    return run_scenarios_bench(_job_config(args), args.scenarios, args.frames, args.sequence, args.half, args.json)
+
+
 def cmd_bench_pipeline(args: argparse.Namespace) -> int:
     from mining.bench.pipeline import run_pipeline_bench
 
@@ -323,6 +329,19 @@ def build_parser() -> argparse.ArgumentParser:
     bpip.add_argument("--dir", help="where the bench catalogues go (default: the system temporary folder)")
     bpip.add_argument("--json", help="also write the results as JSON here")
     bpip.set_defaults(func=cmd_bench_pipeline)
+
+    bscn = bsub.add_parser("scenarios", help="staged synthetic scenarios (one failure mode each), scene flow on and "
+                                             "off: tube recall, IDSW per track, HOTA, flow on the targets")
+    _add_job_options(bscn)
+    synthetic_job = Path(__file__).resolve().parents[1] / "jobs" / "synthetic.toml"
+    if synthetic_job.is_file():
+        bscn.set_defaults(config=str(synthetic_job))
+    bscn.add_argument("--scenarios", nargs="+", default=None, help="default: all (mining/sources/synthetic/scenarios.py)")
+    bscn.add_argument("--frames", type=int, default=None, help="frames per scenario (default: the scenario's, 80)")
+    bscn.add_argument("--sequence", default="0000", help="seeds the world around the staged objects")
+    bscn.add_argument("--half", action="store_true", help="render at 621x188 (fx 360.77) instead of 1242x375")
+    bscn.add_argument("--json", help="also write the results as JSON here")
+    bscn.set_defaults(func=cmd_bench_scenarios)
 
     track = sub.add_parser("track", help="tubes → score → select over one sequence, written as KITTI tracking txt")
     tsub = track.add_subparsers(dest="mode", required=True)

@@ -128,6 +128,13 @@ def test_small_objects_are_ignored():
     assert r["unknown"]["FN"] == 3 and r["unknown"]["tube_recall"] == 0 and r["all"]["MOTA"] == pytest.approx(0.5)
 
 
+def test_frame_without_objects_counts_its_detections_as_false_positives():
+    truths = {0: truth(obj(1, "car", True, CAR)), 1: truth()}  # the car has left the view in frame 1
+    r = evaluate_synthetic([mined(1, [(0, CAR), (1, CAR)])], truths)
+    assert (r["all"]["TP"], r["all"]["FP"], r["all"]["FN"]) == (1, 1, 0)
+    assert (r["known"]["TP"], r["known"]["FP"]) == (1, 1) and r["tubes"]["ignored_dets"] == 0
+
+
 def test_partial_overlap_below_threshold_is_a_miss_and_predicted_frames_optional():
     truths = {0: truth(obj(1, "car", True, CAR)), 1: truth(obj(1, "car", True, CAR))}
     half = rect(2, 5, 12, 25)  # IoU 0.5 with CAR

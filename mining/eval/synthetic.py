@@ -169,6 +169,14 @@ def _prepare(tubes: Sequence[MinedTube], truths: Mapping[int, FrameTruth | GtFra
     return out
 
 
+def _of_match(values: np.ndarray, match: np.ndarray) -> np.ndarray:
+    """``values`` of each detection's matched gt row; unmatched rows (−1) get any value, so
+    callers mask with ``match >= 0`` (a frame without ground truth has no row to index)."""
+    if len(values) == 0:
+        return np.zeros(len(match), values.dtype)
+    return values[np.maximum(match, 0)]
+
+
 def _tube_splits(frames: list[_Frame]) -> dict[int, str]:
     """Step 4: each matched tube's split, by the IoU it collected on known / unknown objects."""
     weight: dict[int, np.ndarray] = {}
@@ -195,10 +203,10 @@ def _split_inputs(frames: list[_Frame], split: str, tube_split: dict[int, str]):
             g_keep &= f.gt.known == (split == "known")
         matched = f.det_match >= 0
         # rule 3: detections matched to ignored gt are removed everywhere
-        d_keep = ~(matched & ~f.evaluated[np.maximum(f.det_match, 0)])
+        d_keep = ~(matched & ~_of_match(f.evaluated, f.det_match))
         if split != "all":
             own = np.array([tube_split.get(int(t)) == split for t in f.det_tubes], bool)
-            other = matched & (f.gt.known[np.maximum(f.det_match, 0)] != (split == "known"))
+            other = matched & (_of_match(f.gt.known, f.det_match) != (split == "known"))
             d_keep &= own & ~other
         gt_ids.append(f.gt.track_ids[g_keep])
         tr_ids.append(f.det_tubes[d_keep])
@@ -279,7 +287,7 @@ def evaluate_synthetic(mined: Sequence[MinedTube], truths: Mapping[int, FrameTru
         gt_ids, tr_ids, sims = _split_inputs(frames, split, tube_split)
         results[split] = _score(gt_ids, tr_ids, sims, iou_threshold) | _recall(gt_ids, tr_ids, sims, iou_threshold,
                                                                              track_cover)
-    ignored = sum(int(np.sum((f.det_match >= 0) & ~f.evaluated[np.maximum(f.det_match, 0)])) for f in frames)
+    ignored = sum(int(np.sum((f.det_match >= 0) & ~_of_match(f.evaluated, f.det_match))) for f in frames)
     results["tubes"] = {
         "evaluated": len(tubes),
         "known": sum(1 for s in tube_split.values() if s == "known"),

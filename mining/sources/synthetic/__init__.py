@@ -3,7 +3,9 @@
 Sequence names are integers ("0000", "17", ...); name and ``seed_base`` fix the world. Any
 frame renders the same bits whatever was rendered before (random access, nothing carried
 between calls except pure caches). See ``scene.py`` for the world and the object
-categories, ``render.py`` for the rasteriser, ``textures.py`` for the materials.
+categories, ``render.py`` for the rasteriser, ``textures.py`` for the materials, and
+``scenarios.py`` for the staged scenarios (option ``scenario``) that replace the random
+traffic by one failure mode at a time.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import numpy as np
 from mining.errors import InputError
 from mining.sources.base import Source
 from mining.sources.synthetic.render import Camera, inverse_depth_planes, rasterize, shade, texture_tables, to_camera
+from mining.sources.synthetic.scenarios import get_scenario
 from mining.sources.synthetic.scene import KNOWN, R_N, R_OBJ, R_TINT, Scene, frame_faces
 from mining.sources.synthetic.textures import build_atlas
 from mining.types import FrameTruth, ObjectTruth, SequencePlan, StereoCalib, StereoFrame
@@ -35,9 +38,12 @@ class SyntheticSource(Source):
 
     def __init__(self, root: str | None = None, n_frames: int = 500, width: int = 1242, height: int = 375,
                  fx: float = 721.5377, baseline_m: float = 0.5327, hz: float = 10.0, seed_base: int = 0,
-                 sequences: list[str] | None = None, drop_frames: list[list[int]] | None = None):
+                 sequences: list[str] | None = None, drop_frames: list[list[int]] | None = None,
+                 scenario: str | None = None):
         """``drop_frames``: ranges [a, b) of frames left out of every plan, as if never recorded
-        (each is a recording gap, ``SequencePlan.gaps``); the world goes on moving through them."""
+        (each is a recording gap, ``SequencePlan.gaps``); the world goes on moving through them.
+        ``scenario``: stage one of ``scenarios.SCENARIOS`` in every sequence instead of the random
+        traffic (the sequence name still seeds the rest of the world)."""
         if n_frames <= 0 or width < 16 or height < 16 or hz <= 0:
             raise InputError(f"bad synthetic options n_frames={n_frames} size={width}x{height} hz={hz}")
         self.dropped: set[int] = set()
@@ -46,6 +52,7 @@ class SyntheticSource(Source):
                 raise InputError(f"bad synthetic option drop_frames={drop_frames}: ranges [a, b) with 0 <= a < b <= n_frames")
             self.dropped.update(range(int(r[0]), int(r[1])))
         self.n_frames, self.hz, self.seed_base = int(n_frames), float(hz), int(seed_base)
+        self.scenario = get_scenario(scenario) if scenario else None
         self.calib = StereoCalib(fx, fx, width * CX_FRAC, height * CY_FRAC, baseline_m, width, height)
         self._names = list(sequences) if sequences else [f"{i:04d}" for i in range(4)]
         self._atlas = None
@@ -74,7 +81,7 @@ class SyntheticSource(Source):
             self._atlas = build_atlas(self.seed_base)
         if sequence not in self._scenes:
             seed = self.seed_base * 1_000_003 + self._seed(sequence)
-            self._scenes[sequence] = Scene(seed, self.n_frames / self.hz + 1.0, self._atlas)
+            self._scenes[sequence] = Scene(seed, self.n_frames / self.hz + 1.0, self._atlas, self.scenario)
             while len(self._scenes) > SCENES_CACHED:
                 self._scenes.popitem(last=False)
         return self._scenes[sequence]

@@ -1,4 +1,5 @@
-"""Write rendered frames for a look: ``python -m mining.sources.synthetic --seq 0000 --frames 0:5 --out DIR``."""
+"""Write rendered frames for a look: ``python -m mining.sources.synthetic --seq 0000 --frames 0:5 --out DIR``
+(``--scenario border`` stages a scenario)."""
 
 from __future__ import annotations
 
@@ -17,11 +18,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--frames", default="0:5", help="start:stop plan positions")
     ap.add_argument("--out", required=True)
     ap.add_argument("--n-frames", type=int, default=500)
+    ap.add_argument("--scenario", default=None, help="a staged scenario (scenarios.py), e.g. border")
     a = ap.parse_args(argv)
     start, stop = (int(x) for x in a.frames.split(":"))
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    src = SyntheticSource(n_frames=a.n_frames)
+    src = SyntheticSource(n_frames=a.n_frames, scenario=a.scenario)
     plan = src.plan(a.seq)
     for fr in src.read(plan, start, stop):
         stem = out / f"{a.seq}_{fr.index:06d}"

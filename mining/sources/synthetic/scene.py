@@ -18,10 +18,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from mining.sources.synthetic.textures import LANE_M, PARKING_M, Atlas, Tile
+
+if TYPE_CHECKING:
+    from mining.sources.synthetic.scenarios import Scenario
 
 CAMERA_HEIGHT_M = 1.65  # ours: KITTI's camera height above the road
 SIDEWALK_M = 4.5  # ours: sidewalk width
@@ -42,8 +46,10 @@ DOWN = np.array([0.0, 1.0, 0.0])
 class FaceList:
     """Accumulates faces; ``arrays()`` packs them for the renderer."""
 
-    def __init__(self, atlas: Atlas):
+    def __init__(self, atlas: Atlas, material: str | None = None):
+        """``material``: every face takes this material instead of its own (a textureless object)."""
         self.atlas = atlas
+        self.material = material
         self.verts: list[np.ndarray] = []
         self.rows: list[np.ndarray] = []  # per face: normal(3) O(3) U(3) V(3) tile(4) tint(3) obj skey part
 
@@ -51,7 +57,7 @@ class FaceList:
             skey: float = 0.0, part: int = 0, offset=(0.0, 0.0), extent=None) -> None:
         """One face. ``u_dir``/``v_dir`` are unit texture axes; ``extent`` (u, v metres) stretches a
         stretch material over the face, else the material's texels-per-metre apply."""
-        tile: Tile = self.atlas.tiles[material]
+        tile: Tile = self.atlas.tiles[self.material or material]
         if tile.metres_w == 0:
             ext = extent if extent is not None else (1.0, 1.0)
             du, dv = tile.w / max(ext[0], 1e-3), tile.h / max(ext[1], 1e-3)
@@ -138,11 +144,12 @@ def rot_z(a: float) -> np.ndarray:
 
 
 class Road:
-    """Centreline as heading θ(s) integrated from a smooth random curvature profile."""
+    """Centreline as heading θ(s) integrated from a smooth random curvature profile.
+    ``turns=False`` keeps the gentle bends only (a staged scenario's road)."""
 
     DS = 0.5  # ours: sampling step of the centreline, metres
 
-    def __init__(self, rng: np.random.Generator, s_min: float, s_max: float):
+    def __init__(self, rng: np.random.Generator, s_min: float, s_max: float, turns: bool = True):
         self.s = np.arange(s_min, s_max + self.DS, self.DS)
         n = len(self.s)
         kappa = np.zeros(n)
@@ -150,7 +157,7 @@ class Road:
         for _ in range(3):
             kappa += rng.uniform(-0.0012, 0.0012) * np.sin(2 * np.pi * self.s / rng.uniform(150, 600) + rng.uniform(0, 6.3))
         # turns: raised-cosine curvature bumps of radius 25–60 m turning 40–90°
-        pos = rng.uniform(60, 160)
+        pos = rng.uniform(60, 160) if turns else np.inf
         while pos < s_max:
             radius = rng.uniform(25, 60)
             angle = np.radians(rng.uniform(40, 90))
@@ -234,6 +241,33 @@ def ego_speed_profile(rng: np.random.Generator, road: Road, duration_s: float, d
     return s, v
 
 
+def speed_arc(times, speeds, t: float) -> float:
+    """∫₀ᵗ v dt for a speed piecewise linear through the knots (times, speeds), constant before
+    the first knot and after the last (exact: each piece integrates as a trapezoid)."""
+    times, speeds = np.asarray(times, float), np.asarray(speeds, float)
+    cum = np.concatenate([[0.0], np.cumsum(0.5 * (speeds[1:] + speeds[:-1]) * np.diff(times))])
+
+    def arc_from_first_knot(x: float) -> float:
+        if x <= times[0]:
+            return float(speeds[0] * (x - times[0]))
+        i = int(np.searchsorted(times, x, side="right")) - 1
+        if i >= len(times) - 1:
+            return float(cum[-1] + speeds[-1] * (x - times[-1]))
+        h = x - times[i]
+        slope = (speeds[i + 1] - speeds[i]) / (times[i + 1] - times[i])
+        return float(cum[i] + speeds[i] * h + 0.5 * slope * h * h)
+
+    return arc_from_first_knot(t) - arc_from_first_knot(0.0)
+
+
+def knot_speed_profile(times, speeds, duration_s: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Arc length and speed of the ego on the fine time grid for a fixed speed profile (knots)."""
+    n = int(np.ceil(duration_s / dt)) + 2
+    grid = np.arange(n) * dt
+    s = np.array([speed_arc(times, speeds, t) for t in grid])
+    return s, np.interp(grid, times, speeds)
+
+
 # --------------------------------------------------------------------------- objects
 
 
@@ -241,15 +275,16 @@ def ego_speed_profile(rng: np.random.Generator, road: Road, duration_s: float, d
 class Motion:
     """How an object moves in road coordinates (arc length s, lateral offset d)."""
 
-    kind: str  # "static", "lane", "follow", "path"
+    kind: str  # "static", "lane", "follow", "path", "speed"
     s0: float = 0.0
     d: float = 0.0
     v: float = 0.0  # lane: signed speed along s
-    yaw: float = 0.0  # relative to the road heading (static, lane, follow)
+    yaw: float = 0.0  # relative to the road heading (static, lane, follow, speed)
     gap: tuple[float, float, float] = (15.0, 5.0, 0.1)  # follow: mean, amplitude, rad/s
-    times: np.ndarray | None = None  # path waypoints
+    times: np.ndarray | None = None  # path waypoints; speed: the profile's knots
     ss: np.ndarray | None = None
     dd: np.ndarray | None = None
+    vs: np.ndarray | None = None  # speed: signed speed along s at the knots (one sign), linear between
 
 
 @dataclass
@@ -262,31 +297,46 @@ class Obj:
     seed: int
     tint2: tuple[float, float, float] = (1, 1, 1)
     faces: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+    material: str | None = None  # every face of this material (e.g. "flat": textureless); None: the category's own
 
 
 class Scene:
     """The whole world of one sequence."""
 
-    def __init__(self, seed: int, duration_s: float, atlas: Atlas):
+    def __init__(self, seed: int, duration_s: float, atlas: Atlas, scenario: Scenario | None = None):
+        """``scenario`` (``scenarios.py``) stages its objects and the ego's speed instead of the
+        random traffic and drive; without one, the world is exactly the seed's random one."""
         self.seed = seed
         self.atlas = atlas
+        self.scenario = scenario
         rng = np.random.default_rng([seed, 1])
         self.lanes = int(rng.choice([1, 2], p=[0.6, 0.4]))
+        if scenario is not None:
+            self.lanes = scenario.lanes
         self.half = self.lanes * LANE_M + PARKING_M  # curb offset from the centreline
         self.road_tile = "road1" if self.lanes == 1 else "road2"
         self.duration = duration_s
-        self.road = Road(rng, -200.0, duration_s * MAX_SPEED + 600.0)
+        self.road = Road(rng, -200.0, duration_s * MAX_SPEED + 600.0, turns=scenario is None)
         self.dt = 0.02
-        self.ego_s, self.ego_v = ego_speed_profile(np.random.default_rng([seed, 2]), self.road, duration_s + 1.0, self.dt)
+        if scenario is None:
+            self.ego_s, self.ego_v = ego_speed_profile(np.random.default_rng([seed, 2]), self.road, duration_s + 1.0, self.dt)
+        else:
+            self.ego_s, self.ego_v = knot_speed_profile(*scenario.ego_speed, duration_s + 1.0, self.dt)
         self.ego_d = LANE_M / 2 + (LANE_M if self.lanes == 2 and rng.random() < 0.5 else 0.0)
+        if scenario is not None:
+            self.ego_d = LANE_M / 2 + LANE_M * scenario.ego_lane
         self.wobble = rng.uniform(0, 6.3, 6)
         sun_az, sun_el = rng.uniform(0, 2 * np.pi), np.radians(rng.uniform(25, 60))
         self.sun = np.array([np.cos(sun_el) * np.sin(sun_az), -np.sin(sun_el), np.cos(sun_el) * np.cos(sun_az)])
         self.exposure = (rng.uniform(0.9, 1.1), rng.uniform(0.05, 0.15), rng.uniform(20, 60), rng.uniform(0, 6.3))
         self.right_gain = rng.uniform(0.96, 1.04, 3)
         self.objects: list[Obj] = []
+        self.roles: dict = {}  # track id → scenarios.Role (staged scenarios only)
         self._build_static(np.random.default_rng([seed, 3]))
-        self._build_objects(np.random.default_rng([seed, 4]))
+        if scenario is None:
+            self._build_objects(np.random.default_rng([seed, 4]))
+        else:
+            self.roles = scenario.build(self, np.random.default_rng([seed, 4]))
         self.M0_inv = np.linalg.inv(self.camera_map(0.0))
 
     # ----- ego
@@ -419,6 +469,10 @@ class Scene:
             row[R_SKEY] = s
 
     # ----- objects
+
+    def add_object(self, rng: np.random.Generator, category: str, motion: Motion, size=None) -> Obj:
+        """One more object (its track id is the next free one); size, tint and mesh seed from ``rng``."""
+        return self._new(rng, category, motion, size)
 
     def _new(self, rng, category: str, motion: Motion, size=None) -> Obj:
         if size is None:
@@ -565,6 +619,9 @@ class Scene:
             g = m.gap
             s = self.ego_arc(t) + g[0] + g[1] * np.sin(g[2] * t)
             d, walked = m.d, 0.0
+        elif m.kind == "speed":
+            s, d = m.s0 + speed_arc(m.times, m.vs, t), m.d
+            walked = abs(s - m.s0)
         else:
             if t < m.times[0] or t > m.times[-1]:
                 return None
@@ -604,7 +661,7 @@ def person_faces(fl: FaceList, h: float, obj: int, shirt, trousers, skin, seated
 
 
 def build_mesh(o: Obj, atlas: Atlas) -> tuple[np.ndarray, np.ndarray]:
-    fl = FaceList(atlas)
+    fl = FaceList(atlas, o.material)
     rng = np.random.default_rng(o.seed)
     w, h, l = o.size
     I = np.eye(3)

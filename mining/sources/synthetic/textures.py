@@ -351,6 +351,13 @@ def _tile_specs() -> dict[str, tuple[int, int, float, float]]:
     return specs
 
 
+# Tiles packed after the main ones, on shelves of their own below them: adding one moves no
+# main tile and draws no random number of theirs, so the worlds drawn before stay bit-identical.
+EXTRA_TILES = {
+    "flat": (64, 64, 1.0, 1.0),  # ours: one uniform grey, a textureless surface (scenario "textureless")
+}
+
+
 def _mult8(x: float) -> int:
     return int(round(x / 8.0)) * 8
 
@@ -424,6 +431,8 @@ def make_tile(name: str, rng: np.random.Generator, w: int, h: int) -> np.ndarray
         return mottled(rng, h, w)
     if name == "clouds":
         return sky_clouds(rng, h, w)
+    if name == "flat":
+        return np.full((h, w, 3), 0.75, np.float32)
     raise KeyError(name)
 
 
@@ -447,6 +456,16 @@ def build_atlas(seed: int) -> Atlas:
         pos[name] = (x, y)
         x += w
         shelf_h = max(shelf_h, h)
+    x, y, shelf_h = 0, _mult8(y + shelf_h + 8), 0
+    for i, (name, (w, h, _, _)) in enumerate(sorted(EXTRA_TILES.items())):
+        img = make_tile(name, np.random.default_rng([seed, 1000 + i, 7771]), w, h)
+        tiles_img[name] = np.clip(img, 0, 1).astype(np.float32)
+        if x + w + 2 * PAD > ATLAS_W:
+            x, y, shelf_h = 0, y + shelf_h, 0
+        pos[name] = (x, y)
+        x += w + 2 * PAD
+        shelf_h = max(shelf_h, h + 2 * PAD)
+    specs = specs | EXTRA_TILES
     total_h = _mult8(y + shelf_h + 8)
     levels = []
     for lev in range(NLEV):
