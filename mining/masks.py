@@ -158,6 +158,14 @@ def mask_iou(a: list[dict], b: list[dict]) -> np.ndarray:
     return np.asarray(mask_utils.iou(a, b, [0] * len(b)), np.float64).reshape(len(a), len(b))
 
 
+def mask_ioa(a: list[dict], b: list[dict]) -> np.ndarray:
+    """(len(a), len(b)) intersection over the area of each mask of ``a`` (rows): pycocotools'
+    crowd rule, one batched call."""
+    if not a or not b:
+        return np.zeros((len(a), len(b)))
+    return np.asarray(mask_utils.iou(a, b, [1] * len(b)), np.float64).reshape(len(a), len(b))
+
+
 def rle_box(rle: dict) -> np.ndarray:
     """x1, y1, x2, y2 of a mask (pycocotools gives x, y, w, h)."""
     x, y, w, h = mask_utils.toBbox(rle)

@@ -287,3 +287,31 @@ def test_displacement_hypotheses_respect_the_speed_bound_and_the_interval():
     slow = TrackingFrame(1, 300_000_000, CALIB, _pose(0.0), 0, cur.frame.observations, None)
     rows, vel, _ = displacement_hypotheses(WorldObservations.of(slow), np.array([0]), prev, cfg)
     assert len(rows) == 2 and vel[0, 2] == pytest.approx(2.0 / 0.3, abs=0.5)
+
+
+def test_no_displacement_hypotheses_for_parts_of_a_tracked_object():
+    """A car overtaking at 24 m/s (no flow), proposed whole and, from frame 5 on, also as its
+    lower half. The whole car's tube takes the whole-car proposal; the half is part of a
+    tracked object and gets no velocity hypotheses (its tube would only compete with the
+    car's own in co-selection)."""
+    def frames():
+        for k in range(14):
+            f = _frame(k, 1.0 * k, [(3.0, 6.0 + 2.4 * k)])
+            props = f.observations.proposals
+            if k >= 5:
+                x1, y1, x2, y2 = props.boxes[0]
+                half = np.array([x1, (y1 + y2) / 2, x2, y2], np.float32)
+                props = Proposals(k, props.rles + [box_rle(half.astype(float), CALIB.height, CALIB.width)],
+                                  np.vstack([props.boxes, half[None]]), np.full(2, 0.9, np.float32),
+                                  posterior=_posterior(2), proposer=["test"] * 2)
+            obs = localise(props, f.depth, CALIB, GROUND, None, None, f.t_ns, LocaliseConfig())
+            yield TrackingFrame(k, f.t_ns, CALIB, f.pose, 0, obs, f.depth)
+
+    def n_tubes(part_ioa: float) -> int:
+        gen = TubeGenerator(TubeConfig(start_part_ioa=part_ioa), lambda t: score_tube(t, ScoreConfig()).total)
+        for f in frames():
+            gen.step(f)
+        return len([t for t in gen.finish() if t.n_inliers >= 4])
+
+    assert n_tubes(0.5) == 1  # the car
+    assert n_tubes(1.01) == 2  # 1.01: no mask is ever "part" of another, and the half gets its own tube

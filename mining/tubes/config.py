@@ -37,6 +37,7 @@ class TubeConfig:
     backward_steps: int = 5  # REFERENCE: run the filter backwards up to 5 frames
     backward_required: int = 3  # REFERENCE: require an inlier in each of the first 3 back-steps
     start_hypotheses: int = 3  # ours: velocity hypotheses (displacements to the frame before) per observation the own-motion start missed; 0 = none
+    start_part_ioa: float = 0.5  # ours: a mask at least half inside one a tube took is part of a tracked object: no displacement hypotheses
     start_max_speed_mps: float = 40.0  # ours: fastest object a displacement hypothesis may start (144 km/h on a motorway)
     probe_with_boxes: bool = True  # ours: the backward probe gates on warped boxes (box IoU for mask IoU); the forward replay uses masks
     duplicate_box_iou: float = 0.9  # REFERENCE: new tubes with the same inliers and box IoU ≥ 0.9 throughout are dropped

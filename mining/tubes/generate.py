@@ -31,7 +31,9 @@ on the ground plane (f: footpoints, Σ: their triangulation covariances), at mos
 physical (``start_max_speed_mps``), so the search radius v_max·Δt scales with the frame
 interval. Each hypothesis runs the same backward probe under the same gates and needs
 the same back-step inliers: constant velocity must hold over four frames, which random
-pairings do not. Of a candidate's surviving hypotheses the one that reached furthest
+pairings do not. An observation lying mostly inside one a tube took this frame is part of
+a tracked object and gets no hypotheses (its tube would only compete with the object's
+own in co-selection). Of a candidate's surviving hypotheses the one that reached furthest
 back wins; the probe's filtered velocity seeds the forward replay (where the earliest
 inlier has no flow of its own), and from then on the tube's filter carries the
 object's own motion into every box and mask prediction, so a fast object is gated and
@@ -50,8 +52,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mining.boxes import box_gates, paired_box_iou
-from mining.masks import areas, mask_iou
+from mining.boxes import box_gates, box_ioa, paired_box_iou
+from mining.masks import areas, mask_ioa, mask_iou
 from mining.tubes.config import TubeConfig
 from mining.tubes.gating import GROUND, best_pairs
 from mining.tubes.kalman import POS, SIZE, TubeFilter, prior_velocity_cov
@@ -269,7 +271,7 @@ class TubeGenerator:
             starts = [self._probe_one(world, int(j), past, box_only=False) for j in cands]
         # (earliest inlier, its observation, the motion to replay from; None: the observation's own)
         found = [(w, j, None) for w, j in (s for s in starts if s is not None)]
-        found += self._start_from_displacements(world, everyone, cands[[s is not None for s in starts]], past)
+        found += self._start_from_displacements(world, everyone, cands[[s is not None for s in starts]], past, taken)
         new: list[LiveTube] = []
         # Candidates whose probes end at the same inlier replay to the same tube: replay once.
         replayed: dict[tuple[int, int, bool], LiveTube | None] = {}
@@ -311,12 +313,17 @@ class TubeGenerator:
         return earliest
 
     def _start_from_displacements(self, world: WorldObservations, cands: np.ndarray, started: np.ndarray,
-                                  past: list[WorldObservations]) -> list[tuple[WorldObservations, int, tuple]]:
+                                  past: list[WorldObservations], taken: set[int]) -> list[tuple[WorldObservations, int, tuple]]:
         """Starts of candidates the observation's own motion could not start: the backward
         probe from each velocity hypothesis (``displacement_hypotheses``), the same required
         back-step inliers. Per candidate, the hypothesis whose probe reached furthest back
-        (then the slowest); its filtered ground velocity seeds the forward replay."""
+        (then the slowest); its filtered ground velocity seeds the forward replay.
+
+        A candidate whose mask lies mostly inside a mask a tube took this frame is a part
+        of a tracked object (a proposal of its lower half, say): a tube of that part only
+        competes with the object's own tube in co-selection, so it gets no hypotheses."""
         left = np.setdiff1d(cands, started)
+        left = left[~self._part_of_taken(world, left, taken)]
         rows, vel, vel_cov = displacement_hypotheses(world, left, past[0], self.cfg)
         if rows.size == 0:
             return []
@@ -329,6 +336,20 @@ class TubeGenerator:
             if int(r) not in best or depth > best[int(r)][0]:  # hypotheses come slowest first: ties keep it
                 best[int(r)] = (depth, h)
         return [(starts[h][0], starts[h][1], (v[h], v_cov[h])) for _, h in (best[r] for r in sorted(best))]
+
+    def _part_of_taken(self, world: WorldObservations, cands: np.ndarray, taken: set[int]) -> np.ndarray:
+        """Which candidates' masks lie at least ``start_part_ioa`` inside a taken observation's mask."""
+        out = np.zeros(cands.size, bool)
+        took = np.array(sorted(taken), np.int64)
+        if cands.size == 0 or took.size == 0:
+            return out
+        near = box_ioa(world.boxes[cands], world.boxes[took]) >= self.cfg.start_part_ioa  # masks inside need boxes inside
+        rows = np.flatnonzero(near.any(axis=1))
+        if rows.size:
+            rles = world.frame.observations.proposals.rles
+            ioa = mask_ioa([rles[j] for j in cands[rows]], [rles[j] for j in took])
+            out[rows] = ((ioa >= self.cfg.start_part_ioa) & near[rows]).any(axis=1)
+        return out
 
     def _replay(self, world: WorldObservations, w0: WorldObservations, j0: int,
                 motion: tuple[np.ndarray, np.ndarray] | None = None) -> LiveTube | None:
