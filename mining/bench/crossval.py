@@ -283,13 +283,13 @@ def _pct(x: float) -> str:
 
 def format_report(result: CrossvalResult, settings: Sequence[Setting]) -> list[str]:
     lines = ["Per fold: chosen on the training folds (mean of Car and Pedestrian HOTA), scored on the held-out fold",
-             f"  {'fold':<4} {'held out':<15} {'chosen setting':<52} {'train':>5} | "
-             f"{'HOTA C':>6} {'HOTA P':>6} {'MOTA C':>6} {'MOTA P':>6} {'IDSW C':>6} {'IDSW P':>6} | "
-             f"{'IoU C':>5} {'IoU P':>5} {'marg C':>6} {'marg P':>6} | {'REF':>5} {'rank':>4} {'elig':>4}"]
+             (f"  {'fold':<4} {'held out':<15} {'chosen setting':<62} {'train':>5} | "
+              f"{'HOTA C':>6} {'HOTA P':>6} {'MOTA C':>6} {'MOTA P':>6} {'IDSW C':>6} {'IDSW P':>6} | "
+              f"{'IoU C':>5} {'IoU P':>5} {'marg C':>6} {'marg P':>6} | {'REF':>5} {'rank':>4} {'elig':>4}")]
     for n, r in enumerate(result.folds, start=1):
         h, b = r.held_out_metrics, r.baseline_metrics
         lines.append(
-            f"  {n:<4} {','.join(r.held_out):<15} {r.setting.label:<52} {_pct(r.training_score)} | "
+            f"  {n:<4} {','.join(r.held_out):<15} {r.setting.label:<62} {_pct(r.training_score)} | "
             f"{_pct(h['Car']['HOTA']):>6} {_pct(h['Pedestrian']['HOTA']):>6} "
             f"{_pct(h['Car']['MOTA']):>6} {_pct(h['Pedestrian']['MOTA']):>6} "
             f"{h['Car']['IDSW']:6d} {h['Pedestrian']['IDSW']:6d} | "
