@@ -210,6 +210,14 @@ def cmd_bench_scenarios(args: argparse.Namespace) -> int:
     return run_scenarios_bench(_job_config(args), args.scenarios, args.frames, args.sequence, args.half, args.json)
 
 
+def cmd_bench_crossval(args: argparse.Namespace) -> int:
+    from mining.bench.crossval import parse_grid, run_crossval_bench
+
+    return run_crossval_bench(Path(args.data), args.config, args.set, k=args.folds,
+                              grid=parse_grid(args.grid) if args.grid else None, sequences=args.sequences,
+                              json_out=args.json)
+
+
 def cmd_bench_pipeline(args: argparse.Namespace) -> int:
     from mining.bench.pipeline import run_pipeline_bench
 
@@ -317,6 +325,19 @@ def build_parser() -> argparse.ArgumentParser:
     btrk.add_argument("--data", default=default_data, help="the shared real-data folder (default: ../shared/data)")
     btrk.add_argument("--sequences", nargs="+", default=None, help="default: the twelve training sequences")
     btrk.set_defaults(func=cmd_bench_tracking)
+
+    bcv = bsub.add_parser("crossval", help="choose the detections-only settings by leave-sequences-out "
+                                           "cross-validation over the KITTI training sequences; report every fold")
+    bcv.add_argument("--config", default="jobs/kitti-detections.toml", help="job config TOML the grid overrides")
+    bcv.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config value")
+    bcv.add_argument("--data", default=default_data, help="the shared real-data folder (default: ../shared/data)")
+    bcv.add_argument("--folds", type=int, default=4, help="number of folds (default 4)")
+    bcv.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2,...",
+                     help="a grid axis, REFERENCE value first; repeat for more (default: mining/bench/crossval.py "
+                          "DEFAULT_GRID)")
+    bcv.add_argument("--sequences", nargs="+", default=None, help="default: the twelve training sequences")
+    bcv.add_argument("--json", help="also write the results as JSON here")
+    bcv.set_defaults(func=cmd_bench_crossval)
 
     bpip = bsub.add_parser("pipeline", help="end-to-end frames/s on 1 and 2 workers, Ray overhead, worker memory, "
                                             "catalogue size and query times (synthetic 1242×375)")

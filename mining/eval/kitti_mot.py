@@ -64,12 +64,17 @@ class KittiMotProtocol:
 
 
 class KittiMotResults(dict):
-    """Combined metrics, ``results[class][metric]``, plus ``per_sequence[seq][class][metric]``."""
+    """Combined metrics, ``results[class][metric]``, plus ``per_sequence[seq][class][metric]``.
 
-    def __init__(self, combined: dict, per_sequence: dict, seconds: float):
+    ``sums[seq][class]`` keeps each sequence's summable counts, so that any subset of the
+    sequences can be combined later (``combine_kitti_mot``) without evaluating again.
+    """
+
+    def __init__(self, combined: dict, per_sequence: dict, seconds: float, sums: dict | None = None):
         super().__init__(combined)
         self.per_sequence = per_sequence
         self.seconds = seconds  # wall time of the evaluation
+        self.sums = sums or {}
 
 
 @dataclass
@@ -214,7 +219,7 @@ def evaluate_kitti_mot(gt_dir_or_files: str | Path | Mapping[str, str | Path], r
         if cls.lower() not in NEIGHBOUR_CLASS:
             raise InputError(f"class {cls!r} cannot be evaluated; KITTI MOT evaluates {tuple(NEIGHBOUR_CLASS)}")
 
-    sums = {cls: {"hota": [], "clear": [], "ident": [], "counts": []} for cls in classes}
+    sums: dict[str, dict[str, dict]] = {}
     per_sequence: dict[str, dict[str, dict[str, float]]] = {}
     for seq in sequences:
         if isinstance(gt_dir_or_files, Mapping):
@@ -235,7 +240,7 @@ def evaluate_kitti_mot(gt_dir_or_files: str | Path | Mapping[str, str | Path], r
         else:
             n_frames = 1 + int(max(gt.frame.max(initial=-1), res.frame.max(initial=-1)))
 
-        per_sequence[seq] = {}
+        per_sequence[seq], sums[seq] = {}, {}
         for cls in classes:
             data = preprocess_class(gt, res, cls, n_frames, protocol)
             args = (data.gt_ids, data.tracker_ids, data.similarity)
@@ -246,16 +251,27 @@ def evaluate_kitti_mot(gt_dir_or_files: str | Path | Mapping[str, str | Path], r
                 "GT_IDs": len(np.unique(np.concatenate(data.gt_ids))) if n_frames else 0,
                 "IDs": len(np.unique(np.concatenate(data.tracker_ids))) if n_frames else 0,
             }
-            for key, value in (("hota", h), ("clear", c), ("ident", i), ("counts", counts)):
-                sums[cls][key].append(value)
+            sums[seq][cls] = {"hota": h, "clear": c, "ident": i, "counts": counts}
             per_sequence[seq][cls] = _metrics(h, c, i, counts)
 
+    combined = combine_kitti_mot([sums[seq] for seq in sequences], classes)
+    return KittiMotResults(combined, per_sequence, time.perf_counter() - start, sums)
+
+
+def combine_kitti_mot(per_sequence_sums: Sequence[Mapping[str, Mapping[str, dict]]],
+                      classes: Sequence[str] = ("Car", "Pedestrian")) -> dict[str, dict[str, float]]:
+    """Metrics per class over several sequences from their ``KittiMotResults.sums[seq]``.
+
+    Counts add up over sequences (as the benchmark combines them), so combining the sums of
+    separately evaluated sequences gives the same numbers as evaluating them together.
+    """
     combined = {}
-    for cls, s in sums.items():
-        counts = {k: sum(x[k] for x in s["counts"]) for k in ("GT_Dets", "Dets", "GT_IDs", "IDs")}
-        combined[cls] = _metrics(combine_hota_sums(s["hota"]), combine_clear_sums(s["clear"]),
-                                 combine_identity_sums(s["ident"]), counts)
-    return KittiMotResults(combined, per_sequence, time.perf_counter() - start)
+    for cls in classes:
+        s = [x[cls] for x in per_sequence_sums]
+        counts = {k: sum(x["counts"][k] for x in s) for k in ("GT_Dets", "Dets", "GT_IDs", "IDs")}
+        combined[cls] = _metrics(combine_hota_sums([x["hota"] for x in s]), combine_clear_sums([x["clear"] for x in s]),
+                                 combine_identity_sums([x["ident"] for x in s]), counts)
+    return combined
 
 
 TABLE_COLUMNS = ("HOTA", "DetA", "AssA", "LocA", "MOTA", "MOTP", "IDF1", "IDSW", "Frag", "MT", "PT", "ML",

@@ -48,6 +48,12 @@ def track_detections(kitti_root: str | Path, sequence: str, detections: str | Pa
                      cfg: JobConfig, out_txt: str | Path | None = None) -> list[MinedTube]:
     mined = mine_tubes(detection_frames(kitti_root, sequence, detections, poses_path, cfg), cfg)
     if out_txt is not None:
-        kcalib = KittiTrackingSource(str(kitti_root)).kitti_calib(sequence)
-        write_tubes_kitti(out_txt, mined, rect0_from_cam2=kcalib.cam2_to_rect0, observed_only=cfg.export.observed_only)
+        write_detection_tubes(kitti_root, sequence, mined, cfg, out_txt)
     return mined
+
+
+def write_detection_tubes(kitti_root: str | Path, sequence: str, mined: list[MinedTube], cfg: JobConfig,
+                          out_txt: str | Path) -> None:
+    """A sequence's mined tubes as KITTI tracking txt (3D fields in rectified camera 0)."""
+    kcalib = KittiTrackingSource(str(kitti_root)).kitti_calib(sequence)
+    write_tubes_kitti(out_txt, mined, rect0_from_cam2=kcalib.cam2_to_rect0, observed_only=cfg.export.observed_only)
