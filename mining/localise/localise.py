@@ -201,6 +201,32 @@ def localise_detections(proposals: Proposals, calib: StereoCalib, t_ns: int, cfg
                         np.where(np.isfinite(position).all(axis=1), cfg.min_points, 0))
 
 
+FILTER_CLAUSES = ("box_area", "objectness", "no_3d", "abs_x", "z_range", "height")  # the filter's tests, in order
+
+
+def filter_clauses(obs: Observations, ground: GroundPlane | None, cfg: ProposalFilterConfig) -> dict[str, np.ndarray]:
+    """Per clause of the geometric filter (``FILTER_CLAUSES``), which observations pass it.
+
+    A clause that cannot be evaluated for a row (no footpoint) passes there: ``no_3d``
+    speaks for it. The height clause passes everywhere when no plane is known.
+    """
+    b = obs.proposals.boxes
+    area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    foot = obs.footpoint
+    finite = np.isfinite(foot).all(axis=1)
+    ok = {"box_area": area >= cfg.min_box_area_px, "objectness": obs.proposals.objectness >= cfg.min_objectness,
+          "no_3d": finite}
+    with np.errstate(invalid="ignore"):
+        ok["abs_x"] = ~finite | (np.abs(foot[:, 0]) <= cfg.max_abs_x_m)
+        ok["z_range"] = ~finite | ((foot[:, 2] > cfg.z_range_m[0]) & (foot[:, 2] < cfg.z_range_m[1]))
+        if ground is not None and ground.ok:
+            height = ground.height(obs.position)
+            ok["height"] = ~finite | ((height > cfg.height_range_m[0]) & (height < cfg.height_range_m[1]))
+        else:
+            ok["height"] = np.ones(len(obs), bool)
+    return ok
+
+
 def geometric_filter(obs: Observations, ground: GroundPlane | None, cfg: ProposalFilterConfig) -> np.ndarray:
     """Indices of observations that pass REFERENCE.md's proposal filter, best objectness first.
 
@@ -208,16 +234,7 @@ def geometric_filter(obs: Observations, ground: GroundPlane | None, cfg: Proposa
     (0, 60) m; height above the ground outside (0.1, 5.0) m (when a plane is known).
     At most 300 are kept.
     """
-    b = obs.proposals.boxes
-    area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
-    keep = (area >= cfg.min_box_area_px) & (obs.proposals.objectness >= cfg.min_objectness)
-    foot = obs.footpoint
-    keep &= np.isfinite(foot).all(axis=1)
-    with np.errstate(invalid="ignore"):
-        keep &= (np.abs(foot[:, 0]) <= cfg.max_abs_x_m) & (foot[:, 2] > cfg.z_range_m[0]) & (foot[:, 2] < cfg.z_range_m[1])
-        if ground is not None and ground.ok:
-            height = ground.height(obs.position)
-            keep &= (height > cfg.height_range_m[0]) & (height < cfg.height_range_m[1])
+    keep = np.logical_and.reduce(list(filter_clauses(obs, ground, cfg).values()))
     idx = np.flatnonzero(keep)
     order = np.argsort(-obs.proposals.objectness[idx], kind="stable")
     return idx[order][: cfg.max_proposals]
