@@ -11,16 +11,21 @@ import dataclasses
 
 import numpy as np
 import pytest
+from conftest import MODELS
 from pycocotools import mask as mask_utils
 
-from conftest import MODELS
 from mining.boxes import box_iou
 from mining.config import load_config
 from mining.formats.kitti_tracking import read_kitti_tracking
 from mining.geometry.config import GeometryConfig
 from mining.geometry.stage import GeometryStage
 from mining.localise.config import LocaliseConfig
-from mining.localise.localise import filter_clauses, geometric_filter, localise, triangulation_covariance
+from mining.localise.localise import (
+    filter_clauses,
+    geometric_filter,
+    localise,
+    triangulation_covariance,
+)
 from mining.pipeline.frames import FrameLoop
 from mining.proposals.config import ProposalFilterConfig
 from mining.sources import open_source

@@ -44,7 +44,13 @@ import numpy as np
 from mining.boxes import box_iou
 from mining.config import JobConfig
 from mining.formats.kitti_tracking import read_kitti_tracking
-from mining.localise.localise import FILTER_CLAUSES, filter_clauses, geometric_filter, localise, triangulation_covariance
+from mining.localise.localise import (
+    FILTER_CLAUSES,
+    filter_clauses,
+    geometric_filter,
+    localise,
+    triangulation_covariance,
+)
 from mining.pipeline.frames import FrameRecord, frame_records
 from mining.sources import open_source
 
@@ -250,8 +256,8 @@ def error_table(rows: list[GtRow], stereo_only: bool = False) -> str:
     triangulation covariance without its prior (synthetic only).
     """
     loc = [r for r in rows if r.matched and r.localised and (not stereo_only or np.isfinite(r.perfect).all())]
-    out = [f"  {'Z bin m':>8} {'n':>5} {'|e| med':>7} {'dZ med':>6} {'dZ std':>6} {'σZ med':>6} {'dZ/σ':>5} "
-           f"{'dX/σ':>5} {'dY/σ':>5} {'dh med':>6} {'dh std':>6} {'σh med':>6} {'dh/σ':>5}"]
+    out = [(f"  {'Z bin m':>8} {'n':>5} {'|e| med':>7} {'dZ med':>6} {'dZ std':>6} {'σZ med':>6} {'dZ/σ':>5} "
+            f"{'dX/σ':>5} {'dY/σ':>5} {'dh med':>6} {'dh std':>6} {'σh med':>6} {'dh/σ':>5}")]
     b = _bin_of(np.array([r.z_true for r in loc])) if loc else np.zeros(0, int)
     for i, name in _bins():
         sel = [r for r, bi in zip(loc, b) if bi == i]
