@@ -43,7 +43,7 @@ class ProposalFilterConfig:
     # lies beyond them by more than this many of its own standard deviations (the observation's
     # triangulation covariance: σ_Z grows as Z², σ_h = √(nᵀΣn)). For |X| and Z the test is on the
     # nearest point of the viewing ray within that many disparity stds (disparity noise is
-    # Gaussian, depth noise is not): with 0.5 px pixel noise an estimate is dropped beyond
+    # Gaussian, depth noise is not): on KITTI, with 0.5 px pixel noise, an estimate is dropped beyond
     # Z ≈ 77 m, not 60 m. 0 = the hard limits on the estimate.
     noise_sigmas: float = 2.0  # ours: 2 std (≤ 2.3 % of objects at a limit dropped); synthetic 0000 + KITTI 0005, `mine bench range`
     max_proposals: int = 300  # REFERENCE: sorted by score, at most 300 kept (authors advise ≤ 500)
