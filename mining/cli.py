@@ -198,6 +198,14 @@ def cmd_bench_tubes(args: argparse.Namespace) -> int:
     return run_tubes_bench(Path(args.data), _job_config(args), repeats=args.repeats)
 
 
+def cmd_bench_range(args: argparse.Namespace) -> int:
+    from mining.bench.range import run_range_bench
+
+    return run_range_bench(Path(args.data), _job_config(args), args.sources, kitti_frames=args.kitti_frames,
+                           synthetic_sequence=args.synthetic_sequence, synthetic_n_frames=args.synthetic_n_frames,
+                           synthetic_frames=args.synthetic_frames, verbose=args.verbose)
+
+
 def cmd_bench_tracking(args: argparse.Namespace) -> int:
     from mining.bench.tracking import run_tracking_bench
 
@@ -319,6 +327,19 @@ def build_parser() -> argparse.ArgumentParser:
     btub.add_argument("--data", default=default_data, help="the shared real-data folder (default: ../shared/data)")
     btub.add_argument("--repeats", type=int, default=3)
     btub.set_defaults(func=cmd_bench_tubes)
+
+    brng = bsub.add_parser("range", help="proposal survival and localisation error against distance "
+                                         "(KITTI 0005 labels, synthetic truth)")
+    _add_job_options(brng)
+    brng.add_argument("--data", default=default_data, help="the shared real-data folder (default: ../shared/data)")
+    brng.add_argument("--sources", nargs="+", choices=["kitti", "synthetic", "kitti-raw"],
+                      default=["kitti", "synthetic", "kitti-raw"])
+    brng.add_argument("--kitti-frames", type=_frames, default=(0, 16), metavar="A:B", help="KITTI 0005 frames [A, B)")
+    brng.add_argument("--synthetic-sequence", default="0000")
+    brng.add_argument("--synthetic-n-frames", type=int, default=200, help="length of the synthetic world")
+    brng.add_argument("--synthetic-frames", type=_frames, default=(0, 100), metavar="A:B", help="synthetic frames [A, B)")
+    brng.add_argument("--verbose", action="store_true", help="also list every dropped object")
+    brng.set_defaults(func=cmd_bench_range)
 
     btrk = bsub.add_parser("tracking", help="detections-only tubes vs a 2D-IoU Hungarian baseline, KITTI MOT metrics")
     _add_job_options(btrk)

@@ -201,23 +201,56 @@ def localise_detections(proposals: Proposals, calib: StereoCalib, t_ns: int, cfg
                         np.where(np.isfinite(position).all(axis=1), cfg.min_points, 0))
 
 
-def geometric_filter(obs: Observations, ground: GroundPlane | None, cfg: ProposalFilterConfig) -> np.ndarray:
-    """Indices of observations that pass REFERENCE.md's proposal filter, best objectness first.
+FILTER_CLAUSES = ("box_area", "objectness", "no_3d", "abs_x", "z_range", "height")  # the filter's tests, in order
 
-    Dropped: box area < 100 px²; no 3D position; footpoint |X| > 50 m or Z outside
-    (0, 60) m; height above the ground outside (0.1, 5.0) m (when a plane is known).
-    At most 300 are kept.
+
+def filter_clauses(obs: Observations, ground: GroundPlane | None, cfg: ProposalFilterConfig,
+                   stereo_noise: bool = True) -> dict[str, np.ndarray]:
+    """Per clause of the geometric filter (``FILTER_CLAUSES``), which observations pass it.
+
+    The limits are on the object's true place. With ``stereo_noise`` an observation is
+    dropped only when it lies beyond a limit by more than ``cfg.noise_sigmas`` of its own
+    standard deviations (its covariance is stereo triangulation's): |X| and Z are tested at
+    the nearest point of the footpoint's viewing ray within that many disparity stds —
+    depth Z / (1 + k·σ_Z / Z), i.e. disparity d + k·σ_d — and the height above the plane as
+    h ± k·√(nᵀΣn). Without it (positions that do not come from stereo, e.g. LiDAR 3D
+    boxes in detections-only mode) the limits apply to the estimate as it is.
+
+    A clause that cannot be evaluated for a row (no footpoint) passes there: ``no_3d``
+    speaks for it. The height clause passes everywhere when no plane is known.
     """
     b = obs.proposals.boxes
     area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
-    keep = (area >= cfg.min_box_area_px) & (obs.proposals.objectness >= cfg.min_objectness)
     foot = obs.footpoint
-    keep &= np.isfinite(foot).all(axis=1)
-    with np.errstate(invalid="ignore"):
-        keep &= (np.abs(foot[:, 0]) <= cfg.max_abs_x_m) & (foot[:, 2] > cfg.z_range_m[0]) & (foot[:, 2] < cfg.z_range_m[1])
+    finite = np.isfinite(foot).all(axis=1)
+    ok = {"box_area": area >= cfg.min_box_area_px, "objectness": obs.proposals.objectness >= cfg.min_objectness,
+          "no_3d": finite}
+    k = cfg.noise_sigmas if stereo_noise else 0.0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sigma_z = np.sqrt(obs.covariance[:, 2, 2]) if k > 0 else np.zeros(len(obs))
+        near = foot / (1.0 + k * sigma_z / obs.position[:, 2])[:, None] if k > 0 else foot
+        ok["abs_x"] = ~finite | (np.abs(near[:, 0]) <= cfg.max_abs_x_m)
+        ok["z_range"] = ~finite | ((foot[:, 2] > cfg.z_range_m[0]) & (near[:, 2] < cfg.z_range_m[1]))
         if ground is not None and ground.ok:
             height = ground.height(obs.position)
-            keep &= (height > cfg.height_range_m[0]) & (height < cfg.height_range_m[1])
+            n = ground.normal
+            tol = k * np.sqrt(np.einsum("i,nij,j->n", n, obs.covariance, n)) if k > 0 else 0.0
+            ok["height"] = ~finite | ((height + tol > cfg.height_range_m[0]) & (height - tol < cfg.height_range_m[1]))
+        else:
+            ok["height"] = np.ones(len(obs), bool)
+    return ok
+
+
+def geometric_filter(obs: Observations, ground: GroundPlane | None, cfg: ProposalFilterConfig,
+                     stereo_noise: bool = True) -> np.ndarray:
+    """Indices of observations that pass REFERENCE.md's proposal filter, best objectness first.
+
+    Dropped: box area < 100 px²; no 3D position; footpoint |X| > 50 m or Z outside
+    (0, 60) m; height above the ground outside (0.1, 5.0) m (when a plane is known) —
+    with ``stereo_noise``, only where the estimate lies beyond a limit by more than its
+    stereo noise allows (``filter_clauses``). At most 300 are kept.
+    """
+    keep = np.logical_and.reduce(list(filter_clauses(obs, ground, cfg, stereo_noise).values()))
     idx = np.flatnonzero(keep)
     order = np.argsort(-obs.proposals.objectness[idx], kind="stable")
     return idx[order][: cfg.max_proposals]
