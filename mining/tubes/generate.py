@@ -261,8 +261,8 @@ class TubeGenerator:
         if len(self.history) < self.cfg.backward_required:
             return
         cands = np.array([j for j in np.flatnonzero(world.usable) if int(j) not in taken], np.int64)
-        # Starts that would fail their first backward step's footpoint gate end here.
-        everyone = cands
+        everyone = cands  # the displacement hypotheses consider every candidate the probe below misses
+        # Own-motion starts that would fail their first backward step's footpoint gate end here.
         cands = cands[self._may_step_back(world, cands, self.history[-1])]
         past = list(self.history)[::-1]  # newest first
         if self.cfg.probe_with_boxes:
