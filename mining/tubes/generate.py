@@ -20,7 +20,7 @@ hypothesis is the observation's own motion: its scene flow, or without flow the 
 an object that moves fast across the image (a car overtaking close by moves ~1.4 m a
 frame): the warped box misses its last position, and no tube would ever start where
 flow is missing. So a start must not depend on flow: for each observation the first
-hypothesis could not start, a small set of velocity hypotheses comes from its
+hypothesis could not start and that has no flow, a small set of velocity hypotheses comes from its
 displacement to the observations of the frame before (multiple-hypothesis starts, as in
 MHT):
 
@@ -319,10 +319,13 @@ class TubeGenerator:
         back-step inliers. Per candidate, the hypothesis whose probe reached furthest back
         (then the slowest); its filtered ground velocity seeds the forward replay.
 
-        A candidate whose mask lies mostly inside a mask a tube took this frame is a part
-        of a tracked object (a proposal of its lower half, say): a tube of that part only
-        competes with the object's own tube in co-selection, so it gets no hypotheses."""
+        No hypotheses for a candidate with scene flow of its own (its probe started from a
+        measured velocity: flow sharpens a start, the hypotheses stand in where it is
+        missing), nor for one whose mask lies mostly inside a mask a tube took this frame:
+        a part of a tracked object (a proposal of its lower half, say), whose tube would
+        only compete with the object's own in co-selection."""
         left = np.setdiff1d(cands, started)
+        left = left[~np.isfinite(world.velocity[left]).all(axis=1)]
         left = left[~self._part_of_taken(world, left, taken)]
         rows, vel, vel_cov = displacement_hypotheses(world, left, past[0], self.cfg)
         if rows.size == 0:

@@ -89,8 +89,9 @@ def displacement_hypotheses(world: WorldObservations, cands: np.ndarray, prev: W
     v = (f_j − f_k) / Δt on the ground plane, with covariance (Σ_j + Σ_k) / Δt² (the two
     footpoints' triangulation covariances; their correlation with the position is left
     out). Within reach: |v| ≤ ``start_max_speed_mps`` — a bound on speed, so the search
-    radius grows with the frame interval. At most ``start_hypotheses`` per candidate, the
-    slowest first (objects are more often slow than fast). Returns (rows into ``cands``,
+    radius grows with the frame interval; and box sizes that agree once scaled by the depth
+    ratio (a pre-check of the probe's own size gate). At most ``start_hypotheses`` per
+    candidate, the slowest first (objects are more often slow than fast). Returns (rows into ``cands``,
     velocity (H, 3), velocity covariance (H, 3, 3)), world frame, y = 0.
     """
     dt = (world.frame.t_ns - prev.frame.t_ns) / 1e9
@@ -101,6 +102,16 @@ def displacement_hypotheses(world: WorldObservations, cands: np.ndarray, prev: W
     d = world.footpoint[cands][:, None, GROUND] - prev.footpoint[usable][None, :, GROUND]  # (C, U, 2)
     speed = np.linalg.norm(d, axis=2) / dt
     reach = speed <= cfg.start_max_speed_mps
+    # The same object seen at depth z_k looks z_j / z_k times as large: a pair whose boxes'
+    # sizes disagree beyond that fails the probe's first size gate, so it is not probed (the
+    # gate here is looser, squared, since a box cut at the image border does not scale).
+    bj, bk = world.boxes[cands], prev.boxes[usable]
+    scale = world.frame.observations.position[cands, 2][:, None] / prev.frame.observations.position[usable, 2][None, :]
+    wj, hj = (bj[:, 2] - bj[:, 0])[:, None] * scale, (bj[:, 3] - bj[:, 1])[:, None] * scale
+    wk, hk = (bk[:, 2] - bk[:, 0])[None, :], (bk[:, 3] - bk[:, 1])[None, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sim = np.minimum(wj, wk) / np.maximum(wj, wk) * np.minimum(hj, hk) / np.maximum(hj, hk)
+    reach &= sim > cfg.gate_size_similarity**2
     order = np.argsort(np.where(reach, speed, np.inf), axis=1, kind="stable")[:, :cfg.start_hypotheses]
     rows = np.repeat(np.arange(cands.size), order.shape[1])
     cols = order.ravel()
