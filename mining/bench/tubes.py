@@ -18,7 +18,7 @@ import numpy as np
 
 from mining.bench.geometry import pin_one_core
 from mining.config import JobConfig
-from mining.pipeline.frames import FrameLoop, plan_frames
+from mining.pipeline.frames import FrameLoop, plan_geometry
 from mining.pipeline.mine import judge, tube_generator
 from mining.proposals.precomputed import JsonProposals
 from mining.sources import open_source
@@ -30,13 +30,7 @@ def _geometry(data: Path, cfg: JobConfig, n_frames: int):
     """(frame, geometry, after_gap) of KITTI 0005's first frames, computed once (not timed)."""
     source = open_source("kitti", str(data / "kitti_tracking"))
     plan = source.plan("0005")
-    loop = FrameLoop(cfg)
-    out = []
-    for _, frame, after_gap in plan_frames(source, plan, 0, n_frames):
-        if after_gap:
-            loop.recording_gap()
-        out.append((frame, loop.geometry(frame), after_gap))
-    return out
+    return [(frame, g, after_gap) for _, frame, g, after_gap in plan_geometry(source, plan, 0, n_frames, cfg.geometry)]
 
 
 def bench_setting(geoms, proposals: JsonProposals, limit: int | None, cfg: JobConfig) -> dict[str, float]:

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mining.config import JobConfig
+from mining.geometry.config import GeometryConfig
 from mining.geometry.stage import GeometryStage
 from mining.localise.localise import geometric_filter, localise
 from mining.proposals.make import Proposer, make_proposer
@@ -165,6 +166,19 @@ def plan_frames(source: Source, plan: SequencePlan, start: int, stop: int) -> It
     gaps = set(plan.gaps)
     for position, frame in enumerate(source.read(plan, start, stop), start=max(0, start)):
         yield position, frame, position in gaps and position > start
+
+
+def plan_geometry(source: Source, plan: SequencePlan, start: int, stop: int,
+                  cfg: GeometryConfig) -> Iterator[tuple[int, StereoFrame, FrameGeometry, bool]]:
+    """(position, frame, geometry, after_gap) over plan positions [start, stop): the geometry
+    stage alone, reset at every recording gap (nothing is matched across one)."""
+    stage: GeometryStage | None = None
+    for position, frame, after_gap in plan_frames(source, plan, start, stop):
+        if stage is None:
+            stage = GeometryStage(frame.calib, cfg)
+        if after_gap:
+            stage.reset()
+        yield position, frame, stage.run(frame), after_gap
 
 
 def frame_records(source: Source, plan: SequencePlan, start: int, stop: int, cfg: JobConfig,

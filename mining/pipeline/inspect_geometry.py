@@ -28,8 +28,7 @@ from mining.formats.disparity import write_disparity_png
 from mining.formats.poses import write_poses
 from mining.geometry.config import GeometryConfig
 from mining.geometry.egomotion import chain_egomotion
-from mining.geometry.stage import GeometryStage
-from mining.pipeline.frames import plan_frames
+from mining.pipeline.frames import plan_geometry
 from mining.sources.base import Source
 from mining.types import FrameGeometry
 
@@ -77,17 +76,11 @@ def inspect_geometry(
     (out / "disparity").mkdir(parents=True, exist_ok=True)
     plan = source.plan(sequence)
     stop = len(plan) if stop is None else min(stop, len(plan))
-    stage: GeometryStage | None = None
     frames: list[dict[str, Any]] = []
     transforms: list[np.ndarray | None] = []
     error = None
     try:
-        for _, frame, after_gap in plan_frames(source, plan, start, stop):
-            if stage is None:
-                stage = GeometryStage(frame.calib, cfg)
-            if after_gap:  # nothing is matched across a recording gap: the chain breaks there
-                stage.reset()
-            g = stage.run(frame)
+        for _, _, g, _ in plan_geometry(source, plan, start, stop, cfg):  # a recording gap breaks the chain
             _atomic(out / "disparity" / f"{g.index:06d}.png", lambda p: write_disparity_png(p, g.disparity))
             frames.append(frame_quality(g))
             transforms.append(None if g.egomotion is None or not g.egomotion.ok else g.egomotion.T_cur_prev)

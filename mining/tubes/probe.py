@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mining.boxes import box_gates, paired_box_iou
+from mining.boxes import box_gates, paired_box_iou, size_similarity
 from mining.tubes.config import TubeConfig
 from mining.tubes.gating import GROUND, best_pairs
 from mining.tubes.kalman import POS, VEL, initial_states, predict_states, update_states
@@ -105,13 +105,8 @@ def displacement_hypotheses(world: WorldObservations, cands: np.ndarray, prev: W
     # The same object seen at depth z_k looks z_j / z_k times as large: a pair whose boxes'
     # sizes disagree beyond that fails the probe's first size gate, so it is not probed (the
     # gate here is looser, squared, since a box cut at the image border does not scale).
-    bj, bk = world.boxes[cands], prev.boxes[usable]
-    scale = world.frame.observations.position[cands, 2][:, None] / prev.frame.observations.position[usable, 2][None, :]
-    wj, hj = (bj[:, 2] - bj[:, 0])[:, None] * scale, (bj[:, 3] - bj[:, 1])[:, None] * scale
-    wk, hk = (bk[:, 2] - bk[:, 0])[None, :], (bk[:, 3] - bk[:, 1])[None, :]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        sim = np.minimum(wj, wk) / np.maximum(wj, wk) * np.minimum(hj, hk) / np.maximum(hj, hk)
-    reach &= sim > cfg.gate_size_similarity**2
+    # Boxes scaled by their own depth compare as the depth-ratio-scaled boxes do.
+    reach &= size_similarity(_at_unit_depth(world, cands), _at_unit_depth(prev, usable)) > cfg.gate_size_similarity**2
     order = np.argsort(np.where(reach, speed, np.inf), axis=1, kind="stable")[:, :cfg.start_hypotheses]
     rows = np.repeat(np.arange(cands.size), order.shape[1])
     cols = order.ravel()
@@ -126,3 +121,9 @@ def displacement_hypotheses(world: WorldObservations, cands: np.ndarray, prev: W
     cov[:, 0, 0], cov[:, 0, 2] = both[:, 0, 0], both[:, 0, 2]
     cov[:, 2, 0], cov[:, 2, 2] = both[:, 2, 0], both[:, 2, 2]
     return rows, vel, cov / (dt * dt)
+
+
+def _at_unit_depth(w: WorldObservations, idx: np.ndarray) -> np.ndarray:
+    """Boxes of observations ``idx`` scaled by their camera depth (their size at 1 m, in px·m)."""
+    b, z = w.boxes[idx], w.frame.observations.position[idx, 2]
+    return np.stack([np.zeros_like(z), np.zeros_like(z), (b[:, 2] - b[:, 0]) * z, (b[:, 3] - b[:, 1]) * z], axis=1)
