@@ -226,6 +226,15 @@ def cmd_bench_crossval(args: argparse.Namespace) -> int:
                               json_out=args.json)
 
 
+def cmd_bench_crossval_scenarios(args: argparse.Namespace) -> int:
+    from mining.bench.crossval import parse_grid
+    from mining.bench.crossval_scenarios import run_crossval_scenarios
+
+    return run_crossval_scenarios(args.config, args.set, grid=parse_grid(args.grid) if args.grid else None,
+                                  seeds=args.seeds, names=args.scenarios, n_frames=args.frames, half=not args.full,
+                                  json_out=args.json)
+
+
 def cmd_bench_pipeline(args: argparse.Namespace) -> int:
     from mining.bench.pipeline import run_pipeline_bench
 
@@ -359,6 +368,21 @@ def build_parser() -> argparse.ArgumentParser:
     bcv.add_argument("--sequences", nargs="+", default=None, help="default: the twelve training sequences")
     bcv.add_argument("--json", help="also write the results as JSON here")
     bcv.set_defaults(func=cmd_bench_crossval)
+
+    bcvs = bsub.add_parser("crossval-scenarios", help="choose the image pipeline's added settings by leave-one-seed-out "
+                                                      "cross-validation over the synthetic scenarios; report every fold")
+    bcvs.add_argument("--config", default=None, help="job config TOML the grid overrides (default: jobs/synthetic.toml)")
+    bcvs.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config value")
+    bcvs.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2,...",
+                      help="a grid axis, REFERENCE value first (default: mining/bench/crossval_scenarios.py DEFAULT_GRID)")
+    bcvs.add_argument("--seeds", nargs="+", default=["0000", "0001", "0002", "0003"], help="synthetic seeds, one fold each")
+    bcvs.add_argument("--scenarios", nargs="+", default=None, help="default: all")
+    bcvs.add_argument("--frames", type=int, default=60, help="frames per scenario (default 60)")
+    bcvs.add_argument("--full", action="store_true", help="render at 1242x375 instead of half size")
+    bcvs.add_argument("--json", help="also write the results as JSON here")
+    bcvs.set_defaults(func=cmd_bench_crossval_scenarios)
+    if (Path(__file__).resolve().parents[1] / "jobs" / "synthetic.toml").is_file():
+        bcvs.set_defaults(config=str(Path(__file__).resolve().parents[1] / "jobs" / "synthetic.toml"))
 
     bpip = bsub.add_parser("pipeline", help="end-to-end frames/s on 1 and 2 workers, Ray overhead, worker memory, "
                                             "catalogue size and query times (synthetic 1242×375)")

@@ -187,3 +187,40 @@ def test_crossval_on_real_sequences_matches_track_detections(shared_data, tmp_pa
         best = max(range(len(settings)), key=lambda i: (truth[i], -i))
         assert r.setting == settings[best]
         assert r.training_score == pytest.approx(truth[best], abs=1e-12)
+
+
+# --- the image pipeline's settings over synthetic seeds (mine bench crossval-scenarios) ------
+
+def _with_hota(result: dict, hota: float) -> dict:
+    return result | {"modes": {m: v | {"HOTA": hota} for m, v in result["modes"].items()}}
+
+
+def test_scenario_crossval_never_reads_the_held_out_seed():
+    from mining.bench.crossval_scenarios import cross_validate_seeds, scenario_score
+    from mining.bench.scenarios import run_scenario
+
+    real = run_scenario("far", load_config(REPO / "jobs" / "synthetic.toml"), n_frames=6, sequence="0000", half=True)
+    assert scenario_score([real]) == pytest.approx((real["modes"]["on"]["HOTA"] + real["modes"]["off"]["HOTA"]) / 2)
+    ref, new = Setting(("tubes.start_hypotheses=0",)), Setting(("tubes.start_hypotheses=3",))
+    seeds = ("0000", "0001", "0002")
+    # new is better on 0000 and 0001, worse on 0002
+    scores = {ref: {s: [_with_hota(real, 0.5)] for s in seeds},
+              new: {"0000": [_with_hota(real, 0.6)], "0001": [_with_hota(real, 0.6)], "0002": [_with_hota(real, 0.4)]}}
+    res = cross_validate_seeds(scores, seeds)
+    by_seed = {f["held_out"]: f for f in res["folds"]}
+    # held out 0002: chosen on 0000+0001 → new, which then loses on 0002 → not eligible
+    assert by_seed["0002"]["setting"] == new and not by_seed["0002"]["eligible"]
+    assert by_seed["0002"]["held_out_score"] == pytest.approx(0.4) and by_seed["0002"]["reference"] == pytest.approx(0.5)
+    # held out 0000: training 0001+0002 → new 0.5 vs ref 0.5, a tie keeps the grid's first (REFERENCE)
+    assert by_seed["0000"]["setting"] == ref and by_seed["0000"]["eligible"]
+    assert by_seed["0001"]["setting"] == ref
+    assert res["final"] == ref and res["cv"][new] == pytest.approx((0.6 + 0.6 + 0.4) / 3)
+    # changing only the held-out seed's numbers never changes that fold's choice
+    scores[new]["0002"] = [_with_hota(real, 0.99)]
+    again = {f["held_out"]: f for f in cross_validate_seeds(scores, seeds)["folds"]}
+    assert again["0002"]["setting"] == new and again["0002"]["eligible"]
+    # a setting that is better only on the seed held out is never chosen: REFERENCE stays
+    worse = {ref: {s: [_with_hota(real, 0.5)] for s in seeds}, new: {s: [_with_hota(real, 0.5)] for s in seeds}}
+    worse[new]["0000"] = [_with_hota(real, 0.9)]
+    worse[new]["0001"] = [_with_hota(real, 0.1)]
+    assert cross_validate_seeds(worse, seeds)["final"] == ref
