@@ -9,6 +9,7 @@ from pathlib import Path
 
 from mining.config import JobConfig, load_config, parse_override
 from mining.errors import ConfigError, MiningError
+from mining.proposals.make import classifiers_line
 
 
 def _frames(text: str) -> tuple[int, int | None]:
@@ -107,9 +108,11 @@ def cmd_track_images(args: argparse.Namespace) -> int:
     n = write_tubes_kitti(out, mined, to_rect0, observed_only=cfg.export.observed_only,
                           unclassified_as=cfg.export.unclassified_as)
     sel = [m for m in mined if m.selected]
-    known = sum(m.category.known for m in sel)
+    known = sum(m.category.known is True for m in sel)
+    unknown = sum(m.category.known is False for m in sel)
     print(f"{args.sequence} frames {start}:{stop}: {len(mined)} tubes, {len(sel)} selected "
-          f"({known} known, {len(sel) - known} unknown), {n} rows → {out}")
+          f"({known} known, {unknown} unknown, {len(sel) - known - unknown} unclassified), {n} rows → {out}")
+    print(classifiers_line(cfg.proposals.proposer))
     return 0
 
 

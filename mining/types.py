@@ -248,6 +248,16 @@ class Proposals:
     proposer: list[str] = field(default_factory=list)  # which proposer made each row
     position: np.ndarray | None = None  # (N, 3) camera metres where the proposer measures 3D (e.g. LiDAR boxes), NaN rows otherwise
     size: np.ndarray | None = None  # (N, 3) width, height, length metres where known, NaN rows otherwise
+    class_weight: np.ndarray | None = None  # (N,) how much a row's posterior counts toward its tube's class; None = 1 per classified row
+
+    def class_weights(self) -> np.ndarray:
+        """(N,) evidence weight of each row's posterior: 0 where no classifier looked (no or NaN
+        posterior), else ``class_weight`` (1 when unset: the classifier's own rows)."""
+        if self.posterior is None:
+            return np.zeros(len(self), np.float32)
+        looked = np.isfinite(self.posterior).all(axis=1)
+        w = np.ones(len(self), np.float32) if self.class_weight is None else np.asarray(self.class_weight, np.float32)
+        return np.where(looked, w, 0.0).astype(np.float32)
 
     def __len__(self) -> int:
         return len(self.rles)
@@ -268,6 +278,7 @@ class Proposals:
             proposer=[self.proposer[i] for i in idx] if self.proposer else [],
             position=rows(self.position),
             size=rows(self.size),
+            class_weight=rows(self.class_weight),
         )
 
     @staticmethod
@@ -296,6 +307,8 @@ class Proposals:
             proposer=[name for p in parts for name in p.proposer],
             position=_stack_rows([p.position for p in parts], n, 3),
             size=_stack_rows([p.size for p in parts], n, 3),
+            class_weight=None if all(p.class_weight is None for p in parts)
+            else np.concatenate([p.class_weights() for p in parts]).astype(np.float32),
         )
 
     @staticmethod
@@ -387,7 +400,8 @@ class TubeFrame:
     objectness: float  # the proposal's score; NaN when predicted
     mask_iou: float  # IoU(predicted mask, observed mask); NaN for a tube's first inlier and in gaps
     motion_density: float  # Gaussian density of the observed footpoint under the prediction; NaN likewise
-    posterior: np.ndarray | None = None  # the observation's 81-way class posterior
+    posterior: np.ndarray | None = None  # the observation's 81-way class posterior; None where no classifier looked
+    class_weight: float = 1.0  # how much ``posterior`` counts (Proposals.class_weights); ignored without a posterior
 
 
 @dataclass
@@ -441,13 +455,20 @@ class TubeScore:
 
 @dataclass
 class TubeCategory:
-    """What the tube is: its averaged class posterior, the category and whether it is known."""
+    """What the tube is, from the frames where a classifier looked (``mining.tubes.category``).
 
-    posterior: np.ndarray | None  # (81,) mean over observed frames, or None without classes
-    category: str  # COCO class name, or "unknown"
-    probability: float  # posterior mass of ``category`` (NaN without classes)
-    known: bool
-    best_known: str  # the most probable of the 80 classes, even when the tube is unknown (or "unknown" without classes)
+    ``known`` is True (one of the 80 COCO classes), False (classified, and none of them:
+    *unknown*) or None (*unclassified*: no classifier looked, or too little evidence);
+    ``category`` is the COCO class, "unknown", or None when unclassified.
+    """
+
+    posterior: np.ndarray | None  # (81,) evidence-weighted mean over the classified frames, or None
+    category: str | None  # COCO class name, "unknown", or None (unclassified)
+    probability: float  # posterior mass of ``category`` (NaN when unclassified)
+    known: bool | None
+    best_known: str | None  # the most probable of the 80 classes, even when the tube is unknown (None when unclassified)
+    classified_frames: int = 0  # observed frames whose posterior counted (weight > 0)
+    evidence: float = 0.0  # the sum of those frames' weights (frame-equivalents of a classifier's own rows)
 
 
 @dataclass

@@ -2,7 +2,7 @@
 
 Tubes come from the detections-only pipeline (real PointRCNN detections, real ORB-SLAM3
 egoposes, the project's tube generator, scorer and co-selection), converted into rows of
-schema v1 by the pipeline's own ``mining/catalog/rows.py``. The 16 frames are the ones whose images are in shared/data, so crops can be exported.
+schema v2 by the pipeline's own ``mining/catalog/rows.py``. The 16 frames are the ones whose images are in shared/data, so crops can be exported.
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ def mined_kitti_0005(kitti_tracking_root: Path):
 
 
 def tube_rows(mined, params_hash: str) -> tuple[pa.Table, pa.Table]:
-    """(tubes, tube_frames) rows of schema v1 (with partition columns) from mined tubes."""
+    """(tubes, tube_frames) rows of schema v2 (with partition columns) from mined tubes."""
     run = RunInfo(DATASET, SEQUENCE, RUN_ID, params_hash)
     tubes, tf = [], []
     for m in mined:

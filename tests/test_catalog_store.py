@@ -93,10 +93,10 @@ def test_write_sequence_rejects_schema_mismatch(tmp_path, catalogue):
     with pytest.raises(ValueError, match="column n_frames has type int64"):
         i = tubes.schema.get_field_index("n_frames")
         write_sequence(store, "tubes", DATASET, SEQUENCE, tubes.set_column(i, "n_frames", tubes["n_frames"].cast(pa.int64())))
-    with pytest.raises(ValueError, match="column category has 1 nulls"):
-        i = tubes.schema.get_field_index("category")
-        cats = pa.array([None] + tubes["category"].to_pylist()[1:], pa.string())
-        write_sequence(store, "tubes", DATASET, SEQUENCE, tubes.set_column(i, pa.field("category", pa.string()), cats))
+    with pytest.raises(ValueError, match="column run_id has 1 nulls"):
+        i = tubes.schema.get_field_index("run_id")
+        ids = pa.array([None] + tubes["run_id"].to_pylist()[1:], pa.string())
+        write_sequence(store, "tubes", DATASET, SEQUENCE, tubes.set_column(i, pa.field("run_id", pa.string()), ids))
     with pytest.raises(ValueError, match="expected only 'other'"):
         write_sequence(store, "tubes", DATASET, "other", tubes)
     with pytest.raises(ValueError, match=r"unexpected columns \['window'\]"):
@@ -106,7 +106,7 @@ def test_write_sequence_rejects_schema_mismatch(tmp_path, catalogue):
 
 
 def test_schema_json_is_generated_from_schema_py():
-    """schemas/v1/*.json cannot drift from mining/catalog/schema.py."""
+    """schemas/v2/*.json cannot drift from mining/catalog/schema.py."""
     r = subprocess.run([sys.executable, str(REPO / "schemas" / "generate.py"), "--check"], capture_output=True, text=True)
     assert r.returncode == 0, r.stdout + r.stderr
     sys.path.insert(0, str(REPO / "schemas"))

@@ -34,4 +34,6 @@ def test_rows_in_frame_order_bottom_centre_in_rect0_and_placeholders(tmp_path):
 def test_kitti_type():
     assert kitti_type("car", True) == "Car" and kitti_type("bus", True) == "Truck"
     assert kitti_type("dog", True) == "Misc"
-    assert kitti_type(None, False, "Car") == "Car"
+    # the type follows the known flag: an unknown tube is Misc even when its best guess is car
+    assert kitti_type("unknown", False) == "Misc" and kitti_type("unknown", False, "Car") == "Misc"
+    assert kitti_type(None, None, "Car") == "Car" and kitti_type(None, None) == "Misc"

@@ -133,6 +133,7 @@ def _sequence_tables(rng: np.random.Generator, masks, dataset: str, sequence: st
         "selected": pa.array(rng.random(m) > 0.5), "known": pa.array(known),
         "category": pa.array(np.where(known, best, "unknown")), "category_prob": pa.array(rng.random(m), pa.float32()),
         "best_known": pa.array(best), "class_posterior": pa.array(list(post), pa.list_(pa.float32())),
+        "classified_frames": pa.array(lengths_a, pa.int32()), "class_evidence": pa.array(lengths_a, pa.float32()),
         "segment": pa.array(np.zeros(m, np.int32)), "mean_position": vec(f32(m, 3) * 50),
         "size": vec(np.abs(f32(m, 3)) + 1), "path_length": pa.array(np.abs(f32(m)) * 20),
         "speed": pa.array(np.abs(f32(m)) * 5), "n_windows": pa.array(np.ones(m, np.int16)),

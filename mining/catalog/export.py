@@ -99,7 +99,7 @@ def _export_settings(job: dict) -> tuple[bool, str]:
 def _result_tracks(seq_tubes: list[dict], per_tube: dict[str, list[dict]], unclassified_as: str):
     """A sequence's tubes as tracking results; track ids 0, 1, … in catalogue order."""
     for track_id, t in enumerate(seq_tubes):
-        kind = kitti_type(t["best_known"], t["class_posterior"] is not None, unclassified_as)
+        kind = kitti_type(t["category"], t["known"], unclassified_as)
         frames = [ResultFrame(f["frame"], f["observed"], f["bbox"], f["size"], f["position_cam"])
                   for f in per_tube.get(t["tube_id"], [])]
         yield ResultTrack(track_id, kind, t["score"], frames)
@@ -118,9 +118,10 @@ def export_kitti(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path) -> in
 
 
 def _mots_class(tube: dict, unclassified_as: str) -> int:
-    if tube["class_posterior"] is None:
+    """The MOTS class by the same rule as ``known``: a known tube's category, an unknown one ignored."""
+    if tube["known"] is None:
         return {"Car": 1, "Pedestrian": 2}.get(unclassified_as, MOTS_IGNORE)
-    return MOTS_CLASS.get(tube["best_known"], MOTS_IGNORE)
+    return MOTS_CLASS.get(tube["category"], MOTS_IGNORE) if tube["known"] else MOTS_IGNORE
 
 
 def disjoint_masks(rles: list[dict], scores: list[float]) -> list[dict | None]:

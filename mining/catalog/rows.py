@@ -1,4 +1,4 @@
-"""Mined tubes and observed frames → Arrow tables of catalogue schema v1, and back.
+"""Mined tubes and observed frames → Arrow tables of catalogue schema v2, and back.
 
 Encoders: ``tube_row`` and ``frame_rows`` fill a window's parts (window-local worlds,
 with the part-only columns) and the stitched catalogue (one world per pose segment of
@@ -72,9 +72,10 @@ def tube_row(mt: MinedTube, tube_id: str, run: RunInfo, n_windows: int = 1) -> d
         "n_frames": len(t.frames), "n_observed": t.n_inliers,
         "score": float(mt.score.total), "score_motion": float(mt.score.motion),
         "score_mask": float(mt.score.mask), "score_objectness": float(mt.score.objectness),
-        "selected": bool(mt.selected), "known": bool(c.known), "category": c.category,
+        "selected": bool(mt.selected), "known": None if c.known is None else bool(c.known), "category": c.category,
         "category_prob": _opt(c.probability), "best_known": c.best_known,
         "class_posterior": None if c.posterior is None else _vec(c.posterior),
+        "classified_frames": int(c.classified_frames), "class_evidence": float(c.evidence),
         "segment": int(t.segment),
         **tube_summary(mt),
         "n_windows": n_windows,
@@ -105,6 +106,7 @@ def frame_rows(mt: MinedTube, tube_id: str, cam_from_world: Callable[[int], np.n
             row["window"] = window
             row["core"] = bool(core(f.frame))
             row["posterior"] = None if f.posterior is None else _vec(f.posterior)
+            row["class_weight"] = float(f.class_weight)
             row["footpoint_cam"] = _vec(T[:3, :3] @ f.footpoint_world + T[:3, 3])
             row["velocity_cam"] = _vec(T[:3, :3] @ f.velocity_world)
         rows.append(row)
@@ -127,6 +129,7 @@ def part_tube_frame(r: dict, pose: np.ndarray) -> TubeFrame:
         mask_iou=nan if r["mask_iou"] is None else r["mask_iou"],
         motion_density=nan if r["motion_density"] is None else r["motion_density"],
         posterior=None if r["posterior"] is None else np.asarray(r["posterior"], np.float64),
+        class_weight=float(r["class_weight"]),
     )
 
 

@@ -1,8 +1,8 @@
-"""Catalogue schema v1: the Arrow schemas of the four tables (DESIGN.md "Catalogue").
+"""Catalogue schema v2: the Arrow schemas of the four tables (DESIGN.md "Catalogue").
 
 The catalogue is Parquet, hive-partitioned by ``dataset`` and ``sequence``; those two
 columns live in the folder names, not in the files, so the file schemas below leave
-them out and readers add them back (``FILE_SCHEMAS`` vs ``SCHEMAS``). ``schemas/v1/``
+them out and readers add them back (``FILE_SCHEMAS`` vs ``SCHEMAS``). ``schemas/v2/``
 holds the same schemas as JSON and the DuckDB views over them.
 
 Per-window *parts* (written by each window before stitching) use the same tables plus
@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import pyarrow as pa
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # v2: known / category nullable (unclassified), classified_frames, class_evidence
 PARTITION = ("dataset", "sequence")
 
 vec3 = pa.list_(pa.float32(), 3)
@@ -35,11 +35,15 @@ TUBES = pa.schema([
     pa.field("score_mask", pa.float64(), False),
     pa.field("score_objectness", pa.float64(), False),
     pa.field("selected", pa.bool_(), False),  # chosen by co-selection
-    pa.field("known", pa.bool_(), False),
-    pa.field("category", pa.string(), False),  # COCO class or "unknown"
-    pa.field("category_prob", pa.float32()),  # null without classes
-    pa.field("best_known", pa.string(), False),  # most probable of the 80 classes, even when unknown
-    pa.field("class_posterior", pa.list_(pa.float32())),  # 81 floats (80 COCO + unknown), null without classes
+    # Known / unknown / unclassified (mining/tubes/category.py): known is null where no classifier
+    # looked (or too little evidence); category is then null too.
+    pa.field("known", pa.bool_()),  # true: a COCO class; false: classified and none of the 80 (unknown); null: unclassified
+    pa.field("category", pa.string()),  # COCO class, "unknown", or null (unclassified)
+    pa.field("category_prob", pa.float32()),  # posterior mass of category; null when unclassified
+    pa.field("best_known", pa.string()),  # most probable of the 80 classes, even when unknown; null when unclassified
+    pa.field("class_posterior", pa.list_(pa.float32())),  # 81 floats (80 COCO + unknown), evidence-weighted mean; null when unclassified
+    pa.field("classified_frames", pa.int32(), False),  # observed frames where a classifier looked
+    pa.field("class_evidence", pa.float32(), False),  # Σ of those frames' evidence weights (frame-equivalents)
     pa.field("segment", pa.int32(), False),  # egomotion segment: world coordinates are per segment
     pa.field("mean_position", vec3, False),  # world metres, mean footpoint
     pa.field("size", vec3, False),  # metres (width, height, length), median over observed frames
@@ -119,6 +123,7 @@ PART_EXTRA = {
         pa.field("window", pa.string(), False),
         pa.field("core", pa.bool_(), False),  # the frame is in the window's core (the window owns it)
         pa.field("posterior", pa.list_(pa.float32())),  # the observation's 81-way posterior
+        pa.field("class_weight", pa.float32(), False),  # how much it counts (Proposals.class_weights)
         pa.field("footpoint_cam", vec3, False),  # filtered footpoint in this frame's camera (worlds differ per window)
         pa.field("velocity_cam", vec3, False),  # filtered velocity in this frame's camera
     ],

@@ -186,11 +186,11 @@ def conform(table: str, data: pa.Table, dataset: str | None = None, sequence: st
             continue
         col = data.column(f.name)
         if col.type != f.type:
-            problems.append(f"column {f.name} has type {col.type}, schema v1 says {f.type}")
+            problems.append(f"column {f.name} has type {col.type}, schema v2 says {f.type}")
         elif not f.nullable and col.null_count:
             problems.append(f"column {f.name} has {col.null_count} nulls but is not nullable")
     if problems:
-        raise ValueError(f"{table}: does not match catalogue schema v1: " + "; ".join(problems))
+        raise ValueError(f"{table}: does not match catalogue schema v2: " + "; ".join(problems))
     return data.select(schema.names).cast(schema)
 
 

@@ -1,4 +1,4 @@
-"""A read-only DuckDB over a catalogue: the four tables and the views of schemas/v1.
+"""A read-only DuckDB over a catalogue: the four tables and the views of schemas/v2.
 
 Tables (all columns of ``schema.SCHEMAS``, partition columns ``dataset`` / ``sequence``
 read back from the hive folder names, as VARCHAR so "0005" stays "0005"):
@@ -30,7 +30,7 @@ from mining.catalog.schema import PARTITION, SCHEMAS, file_schema
 from mining.catalog.store import Store
 from mining.errors import InputError
 
-VIEWS_SQL = Path(__file__).resolve().parents[2] / "schemas" / "v1" / "views.sql"
+VIEWS_SQL = Path(__file__).resolve().parents[2] / "schemas" / "v2" / "views.sql"
 READ_STATEMENTS = {duckdb.StatementType.SELECT}
 
 
@@ -82,7 +82,7 @@ def connect(out: str | Path, native: bool | None = None) -> duckdb.DuckDBPyConne
     if not store.root_exists():
         raise InputError("catalogue folder not found", out)
     if not VIEWS_SQL.is_file():
-        raise InputError("the catalogue views are missing (schemas/v1/views.sql ships with the source tree)", VIEWS_SQL)
+        raise InputError("the catalogue views are missing (schemas/v2/views.sql ships with the source tree)", VIEWS_SQL)
     native = store.local if native is None else native
     if native and not store.local:
         raise InputError("DuckDB's own reader needs a local catalogue; use pyarrow datasets", out)

@@ -174,11 +174,13 @@ def write_kitti_tracking(path: str | Path, rows: KittiTrackingRows, with_score: 
 # -- mined tubes as tracking results ----------------------------------------------------
 
 
-def kitti_type(best_known: str | None, classified: bool, unclassified_as: str = "Misc") -> str:
-    """The KITTI type of a tube: its best known COCO class mapped by KITTI_TYPE, or
-    ``unclassified_as`` for a tube without class information (a class-agnostic proposer)."""
-    # A KITTI result names the detector's best class; known-ness is a separate question.
-    return KITTI_TYPE.get(best_known, "Misc") if classified else unclassified_as
+def kitti_type(category: str | None, known: bool | None, unclassified_as: str = "Misc") -> str:
+    """The KITTI type of a tube, by the same rule as its ``known`` flag: a known tube's COCO
+    category mapped by KITTI_TYPE (other COCO classes: Misc), an unknown tube "Misc" (KITTI's
+    type for objects outside its classes), an unclassified one ``unclassified_as``."""
+    if known is None:
+        return unclassified_as
+    return KITTI_TYPE.get(category, "Misc") if known else "Misc"
 
 
 class ResultFrame(NamedTuple):

@@ -2,7 +2,7 @@
 
 The file format and its writer live in ``mining/formats/kitti_tracking.py``; this module
 only says which tubes and fields go in: the selected tubes, each under its tube id, typed
-by its category, scored by its total score.
+by its category (the same rule as its known flag), scored by its total score.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ def result_tracks(mined: Iterable[MinedTube], unclassified_as: str = "Misc") -> 
     for m in mined:
         if not m.selected:
             continue
-        kind = kitti_type(m.category.best_known, m.category.posterior is not None, unclassified_as)
+        kind = kitti_type(m.category.category, m.category.known, unclassified_as)
         frames = (ResultFrame(f.frame, f.observed, f.box, f.size, f.position_cam) for f in m.tube.frames)
         yield ResultTrack(m.tube.tube_id, kind, m.score.total, frames)
 

@@ -24,7 +24,7 @@ def judge(tubes: list[Tube], score_cfg: ScoreConfig, select_cfg: SelectConfig) -
     """Each tube's unary score and category, and the co-selection over all of them."""
     scores = [score_tube(t, score_cfg) for t in tubes]
     selected = co_select(tubes, np.array([s.total for s in scores]), select_cfg)
-    return [MinedTube(t, s, tube_category(t, score_cfg.known_threshold), bool(m))
+    return [MinedTube(t, s, tube_category(t, score_cfg.known_log_margin, score_cfg.min_class_evidence), bool(m))
             for t, s, m in zip(tubes, scores, selected)]
 
 

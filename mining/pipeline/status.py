@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from mining.catalog.layout import JOB, JobRecord, manifest_path
 from mining.catalog.store import Store
 from mining.errors import InputError
+from mining.proposals.make import classifiers_line
 
 
 @dataclass
@@ -41,6 +42,10 @@ def print_status(out: str) -> int:
     rows = job_status(out)
     counts = {s: sum(r.status == s for r in rows) for s in ("done", "failed", "pending")}
     print(f"{out}: {len(rows)} windows: {counts['done']} done, {counts['failed']} failed, {counts['pending']} pending")
+    job = JobRecord.load(Store(out))
+    proposer = (job.config.get("proposals") or {}).get("proposer") if job else None
+    if proposer:
+        print(classifiers_line(str(proposer)))
     for r in rows:
         line = f"{r.status:8s} {r.dataset}/{r.window}  attempts {r.attempts}"
         if r.error:

@@ -209,7 +209,9 @@ class Finalize:
         store.write_bytes(done_path(d, sequence), json.dumps(marker, indent=1).encode())
         tubes = out["tubes"]
         sel = np.asarray(tubes.column("selected").to_pylist(), bool)
-        known = np.asarray(tubes.column("known").to_pylist(), bool)
+        known = tubes.column("known").to_pylist()  # True, False or None (unclassified)
         return StepResult(sequence, True, seconds=time.perf_counter() - t0,
                           extra={"tubes": int(sel.sum()), "candidates": len(sel),
-                                 "known": int((sel & known).sum()), "unknown": int((sel & ~known).sum())})
+                                 "known": sum(bool(s) and k is True for s, k in zip(sel, known)),
+                                 "unknown": sum(bool(s) and k is False for s, k in zip(sel, known)),
+                                 "unclassified": sum(bool(s) and k is None for s, k in zip(sel, known))})

@@ -34,6 +34,7 @@ from mining.config import JobConfig
 from mining.pipeline.executors import Executor, RayExecutor
 from mining.pipeline.schedule import Resume, Schedule, Task
 from mining.pipeline.steps import Job, StepResult, job_source, write_manifest
+from mining.proposals.make import classifiers_line
 from mining.types import Window, plan_windows
 
 
@@ -48,13 +49,16 @@ class Summary:
     candidates: int = 0
     known: int = 0
     unknown: int = 0
+    unclassified: int = 0
     seconds: float = 0.0
     sequences_written: int = 0
+    classifiers: str = ""  # which proposers classified (proposals.make.classifiers_line)
 
     def lines(self) -> list[str]:
         out = [f"windows: {self.ok} ok, {len(self.failed)} failed, {self.skipped} already done (of {self.windows})",
-               f"tubes written this run: {self.tubes} selected ({self.known} known, {self.unknown} unknown) "
-               f"of {self.candidates} candidates, in {self.sequences_written} sequence(s)",
+               f"tubes written this run: {self.tubes} selected ({self.known} known, {self.unknown} unknown, "
+               f"{self.unclassified} unclassified) of {self.candidates} candidates, in {self.sequences_written} sequence(s)",
+               *([self.classifiers] if self.classifiers else []),
                f"time: {self.seconds:.1f} s, {self.frames / max(self.seconds, 1e-9):.2f} frames/s"]
         for w, e in sorted(self.failed.items()):
             out.append(f"FAILED {w}: {e.strip().splitlines()[0] if e.strip() else 'unknown error'}")
@@ -73,7 +77,7 @@ class Summary:
                 self.failed[f"{dataset}/{task.target} (stitching)"] = result.error
                 return
             self.sequences_written += 1
-            for k in ("tubes", "candidates", "known", "unknown"):
+            for k in ("tubes", "candidates", "known", "unknown", "unclassified"):
                 setattr(self, k, getattr(self, k) + result.extra[k])
 
 
@@ -220,6 +224,7 @@ def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frame
         finally:
             ex.shutdown()
     summary.seconds = time.perf_counter() - t0
+    summary.classifiers = classifiers_line(cfg.proposals.proposer)
     return summary
 
 

@@ -82,6 +82,13 @@ class UnionConfig:
     """Several proposers' outputs merged into one set per frame."""
 
     mask_iou: float = 0.5  # ours: same object above it; 0005 box vs YOLO masks: same 0.56–0.86, other < 0.4
+    # A class-agnostic proposal no classifier covers counts toward "unknown" with weight
+    # 1 / (1 + exp(−(ln h − ln detect_h50_px) / detect_log_scale)), h its box height (union.py).
+    detect_h50_px: float = 20.0  # ours: box height at which the learned proposer finds half the COCO objects; `mine bench classify`
+    detect_log_scale: float = 0.3  # ours: spread of that curve in ln(height); same fit
+    better_mask: bool = True  # ours: a merged pair keeps the mask that agrees better with the object's depth
+    depth_band_m: float = 2.5  # ours: depth extent of an object around its median (half a car's length + margin)
+    band_noise_px: float = 1.0  # ours: disparity noise allowed on top of that band (2 × SGBM's ~0.5 px)
 
 
 @dataclass

@@ -15,6 +15,25 @@ from mining.types import FrameGeometry, Proposals, StereoFrame
 
 Proposer = Callable[[StereoFrame, FrameGeometry], Proposals]
 NAMES = ("stereo", "onnx", "json")
+# Proposers that give each proposal an 81-way class posterior (a classifier looked); "json"
+# does when its files carry ``second_posterior`` or COCO category ids.
+CLASSIFYING = ("onnx", "torch", "json")
+
+
+def proposer_names(proposer: str) -> list[str]:
+    """The proposers of a ``proposals.proposer`` setting ("onnx+stereo" → ["onnx", "stereo"])."""
+    return [n.strip() for n in proposer.split("+") if n.strip()]
+
+
+def classifiers_line(proposer: str) -> str:
+    """Which of the configured proposers classify, in words (for summaries and ``mine status``)."""
+    names = proposer_names(proposer)
+    cls = [n for n in names if n in CLASSIFYING]
+    if not cls:
+        return f"classes: no classifier ran (proposer {proposer}): every tube is unclassified (known is null)"
+    what = " and ".join(cls) + (" (if its files carry classes)" if cls == ["json"] else "")
+    return (f"classes: {what} classified (proposer {proposer}); tubes only other proposers saw are unclassified"
+            if len(cls) < len(names) else f"classes: {what} classified (proposer {proposer})")
 
 
 def _one(name: str, cfg: ProposalConfig, frame_size: tuple[int, int]) -> Proposer:
@@ -38,10 +57,11 @@ def _one(name: str, cfg: ProposalConfig, frame_size: tuple[int, int]) -> Propose
 
 def make_proposer(cfg: ProposalConfig, frame_size: tuple[int, int]) -> Proposer:
     """``frame_size`` is (height, width)."""
-    names = [n.strip() for n in cfg.proposer.split("+") if n.strip()]
+    names = proposer_names(cfg.proposer)
     if not names:
         raise ConfigError("proposals.proposer is empty")
     parts = [_one(n, cfg, frame_size) for n in names]
     if len(parts) == 1:
         return parts[0]
-    return lambda frame, geometry: union([p(frame, geometry) for p in parts], cfg.union.mask_iou)
+    return lambda frame, geometry: union([p(frame, geometry) for p in parts], cfg.union.mask_iou, cfg.union,
+                                         geometry.disparity, geometry.depth)

@@ -23,8 +23,9 @@ Two inputs:
   image). The scores are unbounded, so objectness is a logistic map
   1 / (1 + exp(−(score − score_offset) / score_scale)); the defaults are fitted on PointRCNN
   against label_02 (KittiDetectionsConfig). The raw score stays available through
-  ``raw_scores(frame)``. Posterior: objectness on the detector's class mapped to COCO
-  (KITTI_TYPE_TO_COCO), 1 − objectness on unknown. 3D: KITTI locations are box *bottom*
+  ``raw_scores(frame)``. Posterior: one-hot on the detector's class mapped to COCO
+  (KITTI_TYPE_TO_COCO; "unknown" for a class outside COCO): the class is the detector's
+  decision given that the detection exists, and existence is the objectness. 3D: KITTI locations are box *bottom*
   centres in rectified camera 0; position = location − (0, h/2, 0) moved into the image_02
   frame, size = (w, h, l). Detections without 3D (Regionlets' −1/−1000 placeholders) get NaN rows.
 """
@@ -263,11 +264,13 @@ class KittiDetections:
         xywh = np.column_stack([box[:, :2], box[:, 2:] - box[:, :2]])
         rles = mask_utils.frPyObjects(xywh, self.height, self.width)
         obj = self._objectness[idx]
+        # The class is the detector's own decision (given that the detection exists, which is
+        # what objectness says): one-hot on it; a class outside COCO is unknown.
         posterior = np.zeros((idx.size, N_CLASSES))
         cls = self._cls[idx]
         known = cls >= 0
-        posterior[known, cls[known]] = obj[known]
-        posterior[:, UNKNOWN_CLASS] = np.where(known, 1.0 - obj, 1.0)
+        posterior[known, cls[known]] = 1.0
+        posterior[~known, UNKNOWN_CLASS] = 1.0
         return Proposals(
             frame=frame, rles=rles, boxes=box.astype(np.float32), objectness=obj.astype(np.float32),
             posterior=posterior.astype(np.float32), proposer=[self.name] * idx.size,

@@ -13,4 +13,6 @@ class ScoreConfig:
     alpha: float = 0.5  # REFERENCE: score = β·(α·motion + (1−α)·mask) + (1−β)·objectness
     beta: float = 0.5  # REFERENCE: as above
     floor: float = 1e-6  # ours: a term's x is clipped here so ln(0) cannot occur
-    known_threshold: float = 0.5  # ours: a tube is known when its averaged posterior's best COCO class reaches this
+    # Known / unknown / unclassified (mining/tubes/category.py).
+    known_log_margin: float = 0.0  # paper: argmax over the 81 entries (ln P[best class] − ln P[unknown] > 0); `mine bench classify`
+    min_class_evidence: float = 1.0  # ours: classified only with ≥ one frame-equivalent of classifier evidence

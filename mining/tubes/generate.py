@@ -227,12 +227,15 @@ class TubeGenerator:
     def _tube_frame(self, tube: LiveTube, frame: TrackingFrame, j: int, iou: float, dens: float) -> TubeFrame:
         obs = frame.observations
         x = tube.kf.x
-        post = None if obs.proposals.posterior is None else obs.proposals.posterior[j]
+        p = obs.proposals
+        post = None if p.posterior is None else p.posterior[j]
+        weight = 1.0 if p.class_weight is None else float(p.class_weight[j])
         return TubeFrame(
             frame=frame.index, t_ns=frame.t_ns, observed=True, obs_index=int(j), rle=obs.proposals.rles[j],
             box=np.asarray(obs.proposals.boxes[j], np.float64), footpoint_world=x[POS].copy(),
             velocity_world=np.array([x[3], 0.0, x[4]]), size=x[SIZE].copy(), position_cam=obs.position[j].copy(),
             objectness=float(obs.proposals.objectness[j]), mask_iou=iou, motion_density=dens, posterior=post,
+            class_weight=weight,
         )
 
     # --- start ----------------------------------------------------------------------

@@ -1,13 +1,23 @@
--- Catalogue schema v1: DuckDB views over the base tables tubes, tube_frames, frames, windows.
+-- Catalogue schema v2: DuckDB views over the base tables tubes, tube_frames, frames, windows.
 -- `mine query` (mining/catalog/views.py) creates the base tables, then runs this file.
 
 -- Tubes chosen by co-selection: the mined result.
 CREATE VIEW selected_tubes AS
 SELECT * FROM tubes WHERE selected;
 
--- Selected tubes the class posterior could not name: the discovery candidates.
+-- Selected tubes a classifier looked at and found none of the 80 COCO classes in: the
+-- discovery candidates. (`NOT known` is null for unclassified tubes, so they are not here.)
 CREATE VIEW unknown_tubes AS
-SELECT * FROM tubes WHERE selected AND NOT known;
+SELECT * FROM tubes WHERE selected AND known = false;
+
+-- Selected tubes that are one of the 80 COCO classes (category names which).
+CREATE VIEW known_tubes AS
+SELECT * FROM tubes WHERE selected AND known = true;
+
+-- Selected tubes no classifier looked at (a class-agnostic proposer alone, or too little
+-- classifier evidence): neither known nor unknown.
+CREATE VIEW unclassified_tubes AS
+SELECT * FROM tubes WHERE selected AND known IS NULL;
 
 -- A tube's score and its components: re-ranking by another weighting is one SELECT, e.g.
 --   SELECT tube_id, 0.5 * score_motion + 2 * score_mask + score_objectness AS s
@@ -15,7 +25,7 @@ SELECT * FROM tubes WHERE selected AND NOT known;
 CREATE VIEW tube_scores AS
 SELECT tube_id, dataset, sequence, n_frames, n_observed,
        score, score_motion, score_mask, score_objectness,
-       selected, known, category, category_prob
+       selected, known, category, category_prob, classified_frames, class_evidence
 FROM tubes;
 
 -- Every frame of every tube with the tube's class and selection (the 3D track per tube).
