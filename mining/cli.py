@@ -191,7 +191,7 @@ def cmd_eval_synthetic(args: argparse.Namespace) -> int:
     protocol = {"max_depth_m": args.max_depth_m}
     if args.min_visible_px is not None:
         protocol["min_visible_px"] = args.min_visible_px
-    return run_synthetic_eval(args.sequence, args.n_frames, load_config(args.config, args.set), save=args.save,
+    return run_synthetic_eval(args.sequence, args.n_frames, load_config(args.config, args.set), json_out=args.json,
                               **protocol)
 
 
@@ -236,6 +236,13 @@ def cmd_bench_crossval_scenarios(args: argparse.Namespace) -> int:
     return run_crossval_scenarios(args.config, args.set, grid=parse_grid(args.grid) if args.grid else None,
                                   seeds=args.seeds, names=args.scenarios, n_frames=args.frames, half=not args.full,
                                   json_out=args.json)
+
+
+def cmd_bench_classify(args: argparse.Namespace) -> int:
+    from mining.bench.classify import run_classify_bench
+
+    return run_classify_bench(Path(args.data), _job_config(args), train_seeds=args.train_seeds, test_seed=args.test_seed,
+                              n_frames=args.frames, train_frames=args.train_frames, json_out=args.json)
 
 
 def cmd_bench_pipeline(args: argparse.Namespace) -> int:
@@ -387,6 +394,17 @@ def build_parser() -> argparse.ArgumentParser:
     if (Path(__file__).resolve().parents[1] / "jobs" / "synthetic.toml").is_file():
         bcvs.set_defaults(config=str(Path(__file__).resolve().parents[1] / "jobs" / "synthetic.toml"))
 
+    bcls = bsub.add_parser("classify", help="known/unknown: fit detectability, calibrate the known margin on training "
+                                            "seeds, measure on a held-out seed and KITTI 0005 (needs the ONNX model)")
+    _add_job_options(bcls)
+    bcls.add_argument("--data", default=default_data, help="the shared real-data folder (default: ../shared/data)")
+    bcls.add_argument("--train-seeds", nargs="+", default=["0000", "0001", "0002"], help="synthetic training seeds")
+    bcls.add_argument("--train-frames", type=int, default=100, help="frames per training seed")
+    bcls.add_argument("--test-seed", default="0007", help="the held-out synthetic seed")
+    bcls.add_argument("--frames", type=int, default=200, help="frames of the held-out seed")
+    bcls.add_argument("--json", help="also write the results as JSON here")
+    bcls.set_defaults(func=cmd_bench_classify)
+
     bpip = bsub.add_parser("pipeline", help="end-to-end frames/s on 1 and 2 workers, Ray overhead, worker memory, "
                                             "catalogue size and query times (synthetic 1242×375)")
     _add_job_options(bpip)
@@ -458,7 +476,8 @@ def build_parser() -> argparse.ArgumentParser:
     esyn.add_argument("--min-visible-px", type=int, default=None,
                       help="ignore objects with fewer visible pixels (default: the protocol's)")
     esyn.add_argument("--max-depth-m", type=float, default=None)
-    esyn.add_argument("--save", default=None, help="pickle (mined, results) here for re-evaluation")
+    esyn.add_argument("--json", default=None, metavar="PATH", help="also write the results (metrics, tube counts, "
+                                                                   "known/unknown calls) as JSON here")
     esyn.set_defaults(func=cmd_eval_synthetic)
     return parser
 

@@ -47,12 +47,37 @@ def test_views(catalogue):
     assert by_tube == {t["tube_id"]: t["n_frames"] for t in tubes if t["selected"]}
 
 
+def test_known_unknown_and_unclassified_views_partition_the_selected_tubes(catalogue, tmp_path):
+    """known_tubes / unknown_tubes / unclassified_tubes: known true / false / null, nothing in two."""
+    import pyarrow as pa
+
+    from mining.catalog.store import Store, write_sequence
+
+    _, tables = catalogue
+    tubes = tables["tubes"]
+    n = tubes.num_rows
+    known = [(True, False, None)[i % 3] for i in range(n)]
+    category = ["car" if k else "unknown" if k is False else None for k in known]
+    tubes = tubes.set_column(tubes.schema.get_field_index("known"), SCHEMAS["tubes"].field("known"), pa.array(known, pa.bool_()))
+    tubes = tubes.set_column(tubes.schema.get_field_index("category"), SCHEMAS["tubes"].field("category"),
+                             pa.array(category, pa.string()))
+    write_sequence(Store(tmp_path), "tubes", DATASET, SEQUENCE, tubes)
+    con = connect(tmp_path)
+    sel = {t["tube_id"]: k for t, k in zip(tubes.to_pylist(), known) if t["selected"]}
+    views = {v: {r[0] for r in con.sql(f"SELECT tube_id FROM {v}").fetchall()}
+             for v in ("known_tubes", "unknown_tubes", "unclassified_tubes")}
+    assert views["known_tubes"] == {t for t, k in sel.items() if k is True}
+    assert views["unknown_tubes"] == {t for t, k in sel.items() if k is False}
+    assert views["unclassified_tubes"] == {t for t, k in sel.items() if k is None}
+    assert all(views.values()) and sum(map(len, views.values())) == len(sel)
+
+
 def test_empty_catalogue_has_every_table_and_view(tmp_path):
     con = connect(tmp_path)
     for table in ("tubes", "tube_frames", "frames", "windows"):
         assert con.sql(f"SELECT * FROM {table}").fetchall() == []
         assert con.sql(f"SELECT * FROM {table}").columns == SCHEMAS[table].names
-    for view in ("selected_tubes", "unknown_tubes", "tube_scores", "tube_tracks"):
+    for view in ("selected_tubes", "unknown_tubes", "known_tubes", "unclassified_tubes", "tube_scores", "tube_tracks"):
         assert con.sql(f"SELECT count(*) FROM {view}").fetchone()[0] == 0
 
 

@@ -183,13 +183,45 @@ def test_known_and_unknown():
     car = np.full(81, 0.01 / 80)
     car[2] = 0.99
     t = _tube(0, [0, 1, 2], (0, 0, 10, 10), posterior=car / car.sum())
-    c = tube_category(t, 0.5)
-    assert c.category == "car" and c.known and c.posterior.shape == (81,)
+    c = tube_category(t)
+    assert c.category == "car" and c.known is True and c.posterior.shape == (81,)
+    assert c.classified_frames == 3 and c.evidence == pytest.approx(3.0)
     unsure = np.full(81, 0.0)
     unsure[UNKNOWN_CLASS], unsure[2] = 0.7, 0.3
-    c = tube_category(_tube(1, [0, 1], (0, 0, 10, 10), posterior=unsure), 0.5)
-    assert c.category == "unknown" and not c.known and c.best_known == "car"
-    assert tube_category(_tube(2, [0, 1], (0, 0, 10, 10)), 0.5).posterior is None
+    c = tube_category(_tube(1, [0, 1], (0, 0, 10, 10), posterior=unsure))
+    assert c.category == "unknown" and c.known is False and c.best_known == "car"
+    assert c.probability == pytest.approx(0.7)
+    # the margin: ln(0.3 / 0.7) = −0.85, so a margin below that calls it car
+    assert tube_category(_tube(1, [0, 1], (0, 0, 10, 10), posterior=unsure), log_margin=-1.0).known is True
+
+
+def test_no_classifier_means_unclassified_not_unknown():
+    c = tube_category(_tube(2, [0, 1], (0, 0, 10, 10)))
+    assert c.known is None and c.category is None and c.best_known is None and c.posterior is None
+    assert c.classified_frames == 0 and np.isnan(c.probability)
+
+
+def test_posterior_is_the_evidence_weighted_mean():
+    car = np.zeros(81)
+    car[2] = 1.0
+    unknown = np.zeros(81)
+    unknown[UNKNOWN_CLASS] = 1.0
+    t = _tube(3, [0, 1, 2, 3], (0, 0, 10, 10), posterior=car)
+    # frames 2 and 3: a stereo proposal nobody covered, the detector would have seen it with p = 0.2
+    for f in t.frames[2:]:
+        f.posterior, f.class_weight = unknown, 0.2
+    c = tube_category(t)
+    assert c.classified_frames == 4 and c.evidence == pytest.approx(2.4)
+    assert c.posterior[2] == pytest.approx(2 / 2.4) and c.posterior[UNKNOWN_CLASS] == pytest.approx(0.4 / 2.4)
+    assert c.known is True
+    # with full weight the same frames outvote nothing: a tie goes to unknown (ln 1 = 0 is not > 0)
+    for f in t.frames[2:]:
+        f.class_weight = 1.0
+    assert tube_category(t).known is False
+    # too little evidence: unclassified
+    for f in t.frames:
+        f.class_weight = 0.2
+    assert tube_category(t).known is None and tube_category(t, min_evidence=0.5).known is False
 
 
 def test_detections_only_kitti_0005(kitti_tracking_root, tmp_path):

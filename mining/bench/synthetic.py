@@ -7,15 +7,19 @@ frame's ground truth compactly, and hands both to ``evaluate_synthetic``.
 
 from __future__ import annotations
 
-import pickle
+import json
 import time
 from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
 
 from mining.config import JobConfig
 from mining.errors import InputError
 from mining.eval.synthetic import GtFrame, evaluate_synthetic, format_synthetic, gt_frame
 from mining.pipeline.frames import frame_records
 from mining.pipeline.mine import mine_tubes
+from mining.proposals.make import classifiers_line
 from mining.sources import open_source
 from mining.types import MinedTube, TrackingFrame
 
@@ -53,13 +57,23 @@ def run_synthetic(sequence: str, n_frames: int, cfg: JobConfig, start: int = 0, 
     return mined, results
 
 
-def run_synthetic_eval(sequence: str, n_frames: int, cfg: JobConfig, save: str | None = None, **protocol) -> int:
-    """`mine eval synthetic`: run, print the table, optionally pickle (mined, results) to ``save``."""
+def run_synthetic_eval(sequence: str, n_frames: int, cfg: JobConfig, json_out: str | None = None, **protocol) -> int:
+    """`mine eval synthetic`: run, print the table, optionally write the results as JSON to ``json_out``."""
     mined, results = run_synthetic(sequence, n_frames, cfg, **protocol)
     print(f"synthetic {sequence}, {n_frames} frames, proposer {cfg.proposals.proposer}: "
           f"mined in {results['seconds']['mine']:.0f} s")
     print(format_synthetic(results))
-    if save:
-        with open(save, "wb") as fh:
-            pickle.dump((mined, results), fh)
+    print(classifiers_line(cfg.proposals.proposer))
+    if json_out:
+        doc = {k: v for k, v in results.items() if k != "truths"}
+        doc |= {"proposer": cfg.proposals.proposer, "n_frames": n_frames}
+        Path(json_out).write_text(json.dumps(doc, indent=1, default=_plain))
     return 0
+
+
+def _plain(x):
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    raise TypeError(type(x).__name__)

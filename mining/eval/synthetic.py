@@ -293,12 +293,20 @@ def evaluate_synthetic(mined: Sequence[MinedTube], truths: Mapping[int, FrameTru
         "known": sum(1 for s in tube_split.values() if s == "known"),
         "unknown": sum(1 for s in tube_split.values() if s == "unknown"),
         "clutter": len({m.tube.tube_id for m in tubes} - set(tube_split)),
-        # how the miner's own known/unknown call (TubeCategory.known) agrees with the split
-        "known_called_known": sum(1 for m in tubes if tube_split.get(m.tube.tube_id) == "known" and m.category.known),
-        "unknown_called_unknown": sum(1 for m in tubes
-                                      if tube_split.get(m.tube.tube_id) == "unknown" and not m.category.known),
         "ignored_dets": ignored,
     }
+    results["tube_split"] = {m.tube.tube_id: tube_split.get(m.tube.tube_id, "clutter") for m in tubes}
+    # how the miner's own call (TubeCategory.known: True, False or None = unclassified) agrees with the split
+    calls = {"known": True, "unknown": False, "unclassified": None}
+    t = results["tubes"]
+    for split in ("known", "unknown"):
+        on = [m for m in tubes if tube_split.get(m.tube.tube_id) == split]
+        for call, value in calls.items():
+            t[f"{split}_called_{call}"] = sum(1 for m in on if m.category.known is value)
+        t[f"{split}_called_{split}_share"] = t[f"{split}_called_{split}"] / len(on) if on else float("nan")
+    t["clutter_share"] = t["clutter"] / len(tubes) if tubes else float("nan")
+    t["clutter_called"] = {call: sum(1 for m in tubes if m.tube.tube_id not in tube_split and m.category.known is value)
+                           for call, value in calls.items()}
     return results
 
 
@@ -317,4 +325,14 @@ def format_synthetic(results: dict) -> str:
                  f"({t.get('known_called_known')} called known), {t.get('unknown')} on unknown objects "
                  f"({t.get('unknown_called_unknown')} called unknown), {t.get('clutter')} clutter; "
                  f"{t.get('ignored_dets')} detections on ignored objects")
+    if "known_called_unclassified" in t:
+        def pct(x):
+            return "—" if x != x else f"{100 * x:.0f} %"
+        lines.append("the miner's call per object kind (known / unknown / unclassified):")
+        for kind, n in (("known", t["known"]), ("unknown", t["unknown"]), ("clutter", t["clutter"])):
+            c = t["clutter_called"] if kind == "clutter" else {k: t[f"{kind}_called_{k}"] for k in ("known", "unknown", "unclassified")}
+            share = t["clutter_share"] if kind == "clutter" else t[f"{kind}_called_{kind}_share"]
+            what = "of the evaluated tubes" if kind == "clutter" else f"called {kind}"
+            lines.append(f"  on {kind + ' objects' if kind != 'clutter' else 'nothing (clutter)'}: {n} tubes → "
+                         f"{c['known']} / {c['unknown']} / {c['unclassified']}; {pct(share)} {what}")
     return "\n".join(lines)
