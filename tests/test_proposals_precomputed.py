@@ -456,3 +456,72 @@ def test_filter_by_box_area_and_count(top500):
         big = p.objectness[area(p.boxes) >= cfg.min_box_area_px]
         np.testing.assert_array_equal(q.objectness, np.sort(big)[::-1][: cfg.max_proposals])
         assert q.posterior.shape == (len(q), N_CLASSES)
+
+
+def test_union_gives_uncovered_agnostic_rows_unknown_weighted_by_detectability(top20, pointrcnn, json_root, tmp_path):
+    """onnx+stereo's rule on real proposals: class-agnostic JSON rows + the PointRCNN classifier."""
+    from mining.proposals.config import UnionConfig
+    from mining.proposals.union import detectability
+    from mining.types import UNKNOWN_CLASS
+
+    raw = json.loads((json_root / "top20" / "000002.json").read_text())
+    for r in raw:
+        del r["second_posterior"]
+    (tmp_path / "000002.json").write_text(json.dumps(raw))
+    agnostic = read_proposal_json(tmp_path / "000002.json", 2)
+    cfg = UnionConfig()
+    det = pointrcnn(2)
+    u = union([det, agnostic], 0.5, cfg)
+    rows = np.array(u.proposer) == JSON_PROPOSER
+    assert rows.any() and (~rows).any()
+    # uncovered agnostic rows: all mass on unknown, weight = P(the detector finds an object that tall)
+    assert (u.posterior[rows, UNKNOWN_CLASS] == 1).all() and (u.posterior[rows, :UNKNOWN_CLASS] == 0).all()
+    h = u.boxes[rows, 3] - u.boxes[rows, 1]
+    np.testing.assert_allclose(u.class_weight[rows], detectability(h, cfg), rtol=1e-6)
+    # the classifier's own rows keep their posterior at full weight
+    np.testing.assert_array_equal(u.class_weight[~rows], 1.0)
+    np.testing.assert_allclose(u.posterior[~rows].sum(axis=1), 1.0, atol=1e-6)
+    # detectability rises with size, through 1/2 at detect_h50_px
+    assert detectability(np.array([cfg.detect_h50_px]), cfg)[0] == pytest.approx(0.5)
+    assert np.all(np.diff(detectability(np.array([5.0, 10, 20, 40, 80]), cfg)) > 0)
+    # without a classifier in the union nothing is classified
+    alone = union([agnostic, agnostic.take(np.arange(0))], 0.5, cfg)
+    assert np.isnan(alone.posterior).all() if alone.posterior is not None else True
+    assert (alone.class_weights() == 0).all()
+
+
+def test_union_keeps_the_mask_that_agrees_with_the_objects_depth():
+    """Renderer truth: a learned mask bleeding onto the background loses to the exact one."""
+    import cv2
+    from pycocotools import mask as mask_utils
+
+    from mining.proposals.config import UnionConfig
+    from mining.proposals.union import depth_agreement
+    from mining.sources import open_source
+    from mining.types import Proposals
+
+    src = open_source("synthetic", None, n_frames=5)
+    plan = src.plan("0000")
+    frame = src.read_frame(plan, 2)
+    truth = frame.truth
+    obj = max((o for o in truth.objects if o.known), key=lambda o: o.mask.sum())
+    bf = plan.calib.fx * plan.calib.baseline_m
+    disparity = (bf / truth.depth).astype(np.float32)
+    exact = obj.mask.astype(np.uint8)
+    bleed = cv2.dilate(exact, np.ones((25, 25), np.uint8))  # spills onto whatever lies behind
+    rle = lambda m: mask_utils.encode(np.asfortranarray(m))  # noqa: E731
+    a, b = depth_agreement(rle(bleed), rle(exact), disparity, UnionConfig(), bf)
+    assert b > a
+    box = lambda m: np.array(mask_utils.toBbox(rle(m)), np.float32) @ np.array([[1, 0, 1, 0], [0, 1, 0, 1], [0, 0, 1, 0], [0, 0, 0, 1]], np.float32)  # noqa: E731  xywh → x1y1x2y2
+    post = np.zeros((1, 81), np.float32)
+    post[0, 2] = 1
+    learned = Proposals(frame.index, [rle(bleed)], box(bleed)[None], np.array([0.9], np.float32), post, ["onnx"])
+    stereo = Proposals(frame.index, [rle(exact)], box(exact)[None], np.array([0.5], np.float32), None, ["stereo"])
+    u = union([learned, stereo], 0.3, UnionConfig(), disparity, truth.depth)
+    assert len(u) == 1 and u.proposer == ["onnx"] and u.posterior[0, 2] == 1  # the learned row's class stands...
+    assert mask_utils.iou([u.rles[0]], [rle(exact)], [0])[0, 0] == pytest.approx(1.0)  # ...with the better mask
+    # and the other way round: an exact learned mask is kept over a stereo mask that bled
+    learned2 = Proposals(frame.index, [rle(exact)], box(exact)[None], np.array([0.9], np.float32), post, ["onnx"])
+    stereo2 = Proposals(frame.index, [rle(bleed)], box(bleed)[None], np.array([0.5], np.float32), None, ["stereo"])
+    u2 = union([learned2, stereo2], 0.3, UnionConfig(), disparity, truth.depth)
+    assert mask_utils.iou([u2.rles[0]], [rle(exact)], [0])[0, 0] == pytest.approx(1.0)
