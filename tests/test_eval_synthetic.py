@@ -39,14 +39,15 @@ def truth(*objects: ObjectTruth) -> FrameTruth:
 
 
 def mined(tube_id: int, entries: list[tuple[int, np.ndarray]], selected: bool = True,
-          observed: bool = True) -> MinedTube:
+          observed: bool = True, known: bool | None = False) -> MinedTube:
     frames = []
     for f, m in entries:
         rle = encode(m)
         x, y, w, h = mask_utils.toBbox(rle)
         frames.append(TubeFrame(f, f * 100_000_000, observed, 0 if observed else -1, rle, np.array([x, y, x + w, y + h]),
                                 np.zeros(3), np.zeros(3), np.ones(3), np.zeros(3), 0.5, np.nan, np.nan))
-    cat = TubeCategory(None, "unknown", float("nan"), False, "unknown")
+    cat = TubeCategory(None, {True: "car", False: "unknown", None: None}[known], float("nan"), known,
+                       None if known is None else "car")
     return MinedTube(Tube(tube_id, 0, frames), TubeScore(0.0, 0.0, 0.0, 1.0), cat, selected)
 
 
@@ -64,8 +65,21 @@ def test_perfect_tubes_score_one():
         assert s["HOTA"] == pytest.approx(1) and s["MOTA"] == pytest.approx(1) and s["IDF1"] == pytest.approx(1)
         assert (s["TP"], s["FP"], s["FN"], s["IDSW"], s["gt_dets"]) == (n, 0, 0, 0, n)
         assert s["tube_recall"] == 1 and s["frame_recall"] == 1
-    assert r["tubes"] == {"evaluated": 2, "known": 1, "unknown": 1, "clutter": 0, "ignored_dets": 0,
-                          "known_called_known": 0, "unknown_called_unknown": 1}  # the test tubes have no classes
+    t = r["tubes"]
+    assert {k: t[k] for k in ("evaluated", "known", "unknown", "clutter", "ignored_dets")} == \
+        {"evaluated": 2, "known": 1, "unknown": 1, "clutter": 0, "ignored_dets": 0}
+    # both test tubes are called unknown: the car's is wrong, the cone's right
+    assert (t["known_called_known"], t["known_called_unknown"], t["known_called_unclassified"]) == (0, 1, 0)
+    assert (t["unknown_called_unknown"], t["unknown_called_known"], t["unknown_called_unclassified"]) == (1, 0, 0)
+    assert t["known_called_known_share"] == 0 and t["unknown_called_unknown_share"] == 1 and t["clutter_share"] == 0
+    assert r["tube_split"] == {7: "known", 9: "unknown"}
+    # the miner's calls: known / unknown / unclassified each counted where they fall
+    calls = evaluate_synthetic([mined(7, [(t, CAR) for t in range(4)], known=True),
+                                mined(9, [(t, CONE) for t in range(4)], known=None),
+                                mined(11, [(t, EMPTY) for t in range(4)], known=False)], truths)["tubes"]
+    assert (calls["known_called_known"], calls["unknown_called_unclassified"], calls["clutter"]) == (1, 1, 1)
+    assert calls["clutter_called"] == {"known": 0, "unknown": 1, "unclassified": 0}
+    assert calls["clutter_share"] == pytest.approx(1 / 3)
     text = format_synthetic(r)
     assert "unknown" in text and "1.000" in text
     # unselected tubes are not tracker output unless asked for

@@ -32,7 +32,9 @@ def test_status_of_a_finished_job_and_of_a_window_planned_later(tmp_path, capsys
     assert [(r.window, r.status, r.attempts) for r in rows] == [
         ("0000-0000000-0000006", "done", 1), ("0000-0000006-0000012", "done", 1)]
     assert print_status(out) == 0
-    assert "2 windows: 2 done, 0 failed, 0 pending" in capsys.readouterr().out
+    shown = capsys.readouterr().out
+    assert "2 windows: 2 done, 0 failed, 0 pending" in shown
+    assert "no classifier ran (proposer stereo)" in shown  # status says which proposers classified
 
     # A window planned but never run (e.g. a job interrupted before it started) is pending.
     store = Store(out)
@@ -49,3 +51,23 @@ def test_status_without_a_job_names_the_folder(tmp_path):
     with pytest.raises(InputError) as e:
         job_status(str(tmp_path))
     assert "job.json" in str(e.value) and str(tmp_path) in str(e.value)
+
+
+def test_a_stereo_only_job_labels_no_tube_known_or_unknown(tmp_path):
+    from mining.catalog.views import connect
+
+    cfg = load_config(REPO / "jobs" / "synthetic.toml", [
+        "source.options.n_frames=24", "source.options.width=621", "source.options.height=188",
+        "source.options.fx=360.77", "window.core=12", "window.context_before=4", "window.context_after=4"])
+    out = str(tmp_path / "cat")
+    summary = mine_job(cfg, out, executor=LocalExecutor)
+    assert summary.candidates > 0 and summary.tubes > 0
+    assert summary.known == summary.unknown == 0 and summary.unclassified == summary.tubes
+    assert any("no classifier ran (proposer stereo)" in line for line in summary.lines())
+    con = connect(out)
+    assert con.sql("SELECT count(*) FROM tubes").fetchone()[0] == summary.candidates
+    assert con.sql("SELECT count(*) FROM tubes WHERE known IS NOT NULL OR category IS NOT NULL "
+                   "OR classified_frames > 0").fetchone()[0] == 0
+    assert con.sql("SELECT count(*) FROM unknown_tubes").fetchone()[0] == 0
+    assert con.sql("SELECT count(*) FROM known_tubes").fetchone()[0] == 0
+    assert con.sql("SELECT count(*) FROM unclassified_tubes").fetchone()[0] == summary.tubes
