@@ -154,3 +154,29 @@ def test_bad_predicates(catalogue, tmp_path, capsys):
     assert not (out / "x.csv").exists()
     assert run_export(str(out), "false", "kitti", str(tmp_path / "c")) == 0
     assert not list((tmp_path / "c").iterdir())
+
+
+def test_exports_type_tubes_by_the_known_flag(catalogue, tmp_path):
+    """KITTI and KITTI-MOTS classes follow `known`: a known tube's category, Misc / ignore for unknown
+    ones even when their best guess is car, the unclassified setting for unclassified ones."""
+    out, tables = catalogue
+    tubes, tf = tables["tubes"], tables["tube_frames"]
+    rows = tubes.to_pylist()
+    for i, r in enumerate(r for r in rows if r["selected"]):  # each kind gets selected tubes
+        r["known"] = (True, False, None)[i % 3]
+        r["category"] = {True: "car", False: "unknown", None: None}[r["known"]]
+        assert r["best_known"] == "car"  # PointRCNN cars: the best guess is car for all three kinds
+    assert sum(r["selected"] for r in rows) >= 3
+    cat = tmp_path / "cat"
+    store = Store(cat)
+    write_sequence(store, "tubes", DATASET, SEQUENCE, pa.Table.from_pylist(rows, schema=SCHEMAS["tubes"]))
+    write_sequence(store, "tube_frames", DATASET, SEQUENCE, tf)
+    for where, want, mots in (("known = true", {"Car"}, {1}), ("known = false", {"Misc"}, {10}),
+                              ("known IS NULL", {"Misc"}, {10})):
+        dest = tmp_path / where.replace(" ", "_")
+        assert run_export(str(cat), f"selected AND {where}", "kitti", str(dest)) == 0
+        got = read_kitti_tracking(dest / f"{SEQUENCE}.txt", require_score=True)
+        assert len(got) > 0 and set(got.type) == want, where
+        assert run_export(str(cat), f"selected AND {where}", "kitti-mots", str(dest / "mots")) == 0
+        classes = {int(line.split()[2]) for line in (dest / "mots" / f"{SEQUENCE}.txt").read_text().splitlines()}
+        assert classes <= mots, where
