@@ -87,6 +87,7 @@ class UnionConfig:
     detect_h50_px: float = 20.0  # ours: box height at which the learned proposer finds half the COCO objects; `mine bench classify`
     detect_log_scale: float = 0.3  # ours: spread of that curve in ln(height); same fit
     better_mask: bool = True  # ours: a merged pair keeps the mask that agrees better with the object's depth
+    better_mask_margin: float = 0.2  # ours: the later mask must agree better by this much (IoU with the depth region); `mine bench classify`
     depth_band_m: float = 2.5  # ours: depth extent of an object around its median (half a car's length + margin)
     band_noise_px: float = 1.0  # ours: disparity noise allowed on top of that band (2 × SGBM's ~0.5 px)
 

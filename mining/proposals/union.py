@@ -23,7 +23,7 @@ merged row keeps it (with the earlier row's objectness and posterior). With no m
 at run time, "better" is agreement with the object's own depth: R = the pixels of either
 mask whose disparity lies within the object's depth band around the median disparity of
 the pixels both masks share (an object ``depth_band_m`` deep, plus ``band_noise_px`` of
-disparity noise); the mask with the higher IoU with R wins. A learned mask that bleeds
+disparity noise); the later mask wins when its IoU with R is higher by ``better_mask_margin``. A learned mask that bleeds
 onto background, or a stereo mask that lost half the object, loses against the other.
 
 Fields one proposer lacks: posterior — NaN rows, "no class information" (a stereo-only
@@ -66,11 +66,13 @@ def depth_agreement(a: dict, b: dict, disparity: np.ndarray, cfg: UnionConfig, b
     band = d0 * d0 * cfg.depth_band_m / bf + cfg.band_noise_px
     either = ma | mb
     d = np.where(either, disparity, np.nan)
+    valid = np.isfinite(d) & (d > 0)  # pixels without disparity say nothing either way
     with np.errstate(invalid="ignore"):
-        region = np.abs(d - d0) <= band
+        region = valid & (np.abs(d - d0) <= band)
     nr = region.sum()
 
     def iou(m):
+        m = m & valid
         inter = (m & region).sum()
         return float(inter / (m.sum() + nr - inter)) if (m.sum() + nr - inter) else 0.0
     return iou(ma), iou(mb)
@@ -158,7 +160,7 @@ def _keep_better_masks(out: Proposals, merged: Proposals, keep: np.ndarray, part
         if j < 0:
             continue
         a, b = depth_agreement(merged.rles[i], merged.rles[j], disparity, cfg, bf)
-        if b > a:
+        if b > a + cfg.better_mask_margin:
             out.rles[row] = merged.rles[j]
             out.boxes[row] = merged.boxes[j]
 
