@@ -14,7 +14,7 @@ from mining.proposals.union import union
 from mining.types import FrameGeometry, Proposals, StereoFrame
 
 Proposer = Callable[[StereoFrame, FrameGeometry], Proposals]
-NAMES = ("stereo", "onnx", "json")
+NAMES = ("stereo", "onnx", "torch", "json")
 
 
 def _one(name: str, cfg: ProposalConfig, frame_size: tuple[int, int]) -> Proposer:
@@ -28,6 +28,11 @@ def _one(name: str, cfg: ProposalConfig, frame_size: tuple[int, int]) -> Propose
 
         model = OnnxProposer(cfg.onnx, frame_size=frame_size)
         return lambda frame, geometry: model(frame.index, frame.left)
+    if name == "torch":
+        from mining.proposals.mprcnn_torch import TorchProposer  # a ConfigError naming the extra without torch
+
+        mprcnn = TorchProposer(cfg.torch)
+        return lambda frame, geometry: mprcnn(frame.index, frame.left)
     if name == "json":
         from mining.proposals.precomputed import JsonProposals
 
