@@ -10,6 +10,7 @@ frame downscaled by the config's min_size/max_size (128×424) so that the tests 
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import subprocess
 import sys
@@ -297,3 +298,21 @@ def test_torch_and_stereo_through_the_image_pipeline(kitti_tracking_root, checkp
         assert np.isnan(r.proposals.posterior[~torch_rows]).all()
         assert np.isfinite(r.localised.position[torch_rows]).all(axis=1).any()  # placed in 3D from stereo depth
     mine_tubes((r.tracking for r in records), cfg)  # tubes → score → select take them (3 frames start no tube)
+
+
+def test_bench_proposals_times_the_torch_proposer(shared_data, tmp_path, capsys):
+    from mining.cli import main
+
+    settings = ['proposals.proposer="torch"'] + [f"proposals.torch.{k}={v!r}".replace("'", '"')
+                                                 for k, v in {**SMALL, "batch_size": 2}.items()]
+    args = ["bench", "proposals", "--data", str(shared_data), "--frames", "0:3", "--random-weights",
+            "--json", str(tmp_path / "bench.json")]
+    for s in settings:
+        args += ["--set", s]
+    assert main(args) == 0
+    assert "frames/s" in capsys.readouterr().out
+    rows = json.loads((tmp_path / "bench.json").read_text())["rows"]
+    assert [r["mode"] for r in rows] == ["per frame", "batch 2"]
+    for r in rows:
+        assert r["frames"] == 2 and r["fps"] > 0 and 0 < r["proposals_per_frame"] <= SMALL["max_proposals"]
+    assert set(rows[1]["ms_per_frame"]) == {"backbone_rpn", "box_head_nms", "mask_head", "paste_encode"}
