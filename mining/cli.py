@@ -245,6 +245,13 @@ def cmd_bench_classify(args: argparse.Namespace) -> int:
                               n_frames=args.frames, train_frames=args.train_frames, json_out=args.json)
 
 
+def cmd_bench_proposals(args: argparse.Namespace) -> int:
+    from mining.bench.proposals import run_proposals_bench
+
+    return run_proposals_bench(Path(args.data), _job_config(args), frames=args.frames,
+                               random_weights=args.random_weights, json_path=args.json)
+
+
 def cmd_bench_pipeline(args: argparse.Namespace) -> int:
     from mining.bench.pipeline import run_pipeline_bench
 
@@ -404,6 +411,17 @@ def build_parser() -> argparse.ArgumentParser:
     bcls.add_argument("--frames", type=int, default=200, help="frames of the held-out seed")
     bcls.add_argument("--json", help="also write the results as JSON here")
     bcls.set_defaults(func=cmd_bench_classify)
+
+    bprp = bsub.add_parser("proposals", help="frames/s of the configured proposer on KITTI 0005 (per frame; "
+                                             "batched for torch)")
+    _add_job_options(bprp)
+    bprp.add_argument("--data", default=default_data, help="the shared real-data folder (default: ../shared/data)")
+    bprp.add_argument("--frames", type=_frames, default=(0, 9), metavar="A:B", help="KITTI 0005 frames [A, B), "
+                                                                               "the first warms up")
+    bprp.add_argument("--random-weights", action="store_true",
+                      help="torch without proposals.torch.model_path: random initial weights (speed only)")
+    bprp.add_argument("--json", help="also write the results as JSON here")
+    bprp.set_defaults(func=cmd_bench_proposals)
 
     bpip = bsub.add_parser("pipeline", help="end-to-end frames/s on 1 and 2 workers, Ray overhead, worker memory, "
                                             "catalogue size and query times (synthetic 1242×375)")

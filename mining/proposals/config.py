@@ -30,6 +30,34 @@ class OnnxConfig:
 
 
 @dataclass
+class TorchConfig:
+    """MP R-CNN (the paper's proposer) on torchvision's Mask R-CNN ResNet-50 FPN (extra ``torch``).
+
+    The project ships no weights: ``model_path`` is always the user's, a state dict in
+    torchvision's maskrcnn_resnet50_fpn COCO layout or MP R-CNN's two-head layout
+    (mining/proposals/mprcnn_torch.py). Frames are resized as torchvision's transform does:
+    the short side to ``min_size`` unless the long side would pass ``max_size``.
+    """
+
+    model_path: str = ""  # ours: user-given state dict (weights are neither bundled nor downloaded)
+    device: str = "auto"  # ours: "auto" = CUDA when present, else the CPU; or "cpu", "cuda", "cuda:N"
+    batch_size: int = 4  # ours: frames per forward pass in propose_batch
+    min_size: int = 800  # torchvision MaskRCNN default: short side resized to 800...
+    max_size: int = 1333  # torchvision MaskRCNN default: ...long side at most 1333 (KITTI 1242×375 → 1333×402)
+    rpn_pre_nms_top_n: int = 1000  # torchvision default rpn_pre_nms_top_n_test: anchors per FPN level before RPN NMS
+    rpn_post_nms_top_n: int = 1000  # torchvision default rpn_post_nms_top_n_test: RoIs per frame the box head scores
+    score_threshold: float = 0.05  # torchvision box_score_thresh (Mask R-CNN's test cut): low, proposals live on recall
+    nms_iou: float = 0.5  # torchvision box_nms_thresh (Mask R-CNN's test NMS), here class-agnostic
+    max_proposals: int = 300  # REFERENCE: sorted by score, at most 300 kept
+    mask_threshold: float = 0.5  # torchvision / Mask R-CNN: mask probability ≥ 0.5 is the object
+    # "background": the class head's p(background) is the unknown mass (the original's second_posterior[0]);
+    # "none": the 80 class probabilities renormalised, unknown 0.
+    unknown_mass: str = "background"  # original implementation (see above); "none" is ours
+    batch_norm_eps: float = 0.0  # torchvision: runs its COCO Mask R-CNN weights with frozen batch norm eps 0
+    num_threads: int = 1  # ours: CPU threads per proposer, as onnx (Ray parallelises over actors); 0 = torch's default
+
+
+@dataclass
 class ProposalFilterConfig:
     """Geometric filters applied once proposals are localised in 3D (a later stage)."""
 
@@ -94,8 +122,9 @@ class UnionConfig:
 
 @dataclass
 class ProposalConfig:
-    proposer: str = "stereo"  # ours: "stereo" (weight-free default), "onnx", "json", or a union such as "onnx+stereo"
+    proposer: str = "stereo"  # ours: "stereo" (weight-free default), "onnx", "torch", "json", or a union: "onnx+stereo"
     onnx: OnnxConfig = field(default_factory=OnnxConfig)
+    torch: TorchConfig = field(default_factory=TorchConfig)
     filters: ProposalFilterConfig = field(default_factory=ProposalFilterConfig)
     json: JsonProposalsConfig = field(default_factory=JsonProposalsConfig)
     kitti_detections: KittiDetectionsConfig = field(default_factory=KittiDetectionsConfig)

@@ -14,7 +14,7 @@ from mining.proposals.union import union
 from mining.types import FrameGeometry, Proposals, StereoFrame
 
 Proposer = Callable[[StereoFrame, FrameGeometry], Proposals]
-NAMES = ("stereo", "onnx", "json")
+NAMES = ("stereo", "onnx", "torch", "json")
 # Proposers that give each proposal an 81-way class posterior (a classifier looked); "json"
 # does when its files carry ``second_posterior`` or COCO category ids.
 CLASSIFYING = ("onnx", "torch", "json")
@@ -32,7 +32,8 @@ def classifiers_line(proposer: str) -> str:
     if not cls:
         return f"classes: no classifier ran (proposer {proposer}): every tube is unclassified (known is null)"
     what = " and ".join(cls) + (" (if its files carry classes)" if cls == ["json"] else "")
-    return (f"classes: {what} classified (proposer {proposer}); tubes only other proposers saw are unclassified"
+    return (f"classes: {what} classified (proposer {proposer}); the other proposers' proposals it did not cover "
+            f"count toward unknown, by how likely it would have found a COCO object that size"
             if len(cls) < len(names) else f"classes: {what} classified (proposer {proposer})")
 
 
@@ -47,6 +48,11 @@ def _one(name: str, cfg: ProposalConfig, frame_size: tuple[int, int]) -> Propose
 
         model = OnnxProposer(cfg.onnx, frame_size=frame_size)
         return lambda frame, geometry: model(frame.index, frame.left)
+    if name == "torch":
+        from mining.proposals.mprcnn_torch import TorchProposer  # a ConfigError naming the extra without torch
+
+        mprcnn = TorchProposer(cfg.torch)
+        return lambda frame, geometry: mprcnn(frame.index, frame.left)
     if name == "json":
         from mining.proposals.precomputed import JsonProposals
 
