@@ -293,9 +293,12 @@ def test_torch_and_stereo_through_the_image_pipeline(kitti_tracking_root, checkp
         names = set(r.proposals.proposer)
         assert names == {"torch", "stereo"}, names
         torch_rows = np.array([n == "torch" for n in r.proposals.proposer])
-        # Learned rows carry their posterior into the union, stereo rows have none (NaN).
+        # Learned rows carry their posterior into the union at full weight; stereo rows the
+        # network did not cover count toward unknown, weighted by detectability (union.py).
         np.testing.assert_allclose(r.proposals.posterior[torch_rows].sum(1), 1.0, atol=1e-5)
-        assert np.isnan(r.proposals.posterior[~torch_rows]).all()
+        assert (r.proposals.class_weights()[torch_rows] == 1).all()
+        assert (r.proposals.posterior[~torch_rows, 80] == 1).all()
+        assert ((r.proposals.class_weights()[~torch_rows] > 0) & (r.proposals.class_weights()[~torch_rows] < 1)).all()
         assert np.isfinite(r.localised.position[torch_rows]).all(axis=1).any()  # placed in 3D from stereo depth
     mine_tubes((r.tracking for r in records), cfg)  # tubes → score → select take them (3 frames start no tube)
 
