@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from mining.catalog.identity import legacy_identity
-from mining.errors import InputError
+from mining.errors import ConfigError, InputError
 from mining.types import Window
 
 if TYPE_CHECKING:
@@ -105,12 +105,19 @@ class JobRecord:
         try:
             d = json.loads(store.read_bytes(JOB))
             windows = [Window(w["dataset"], w["sequence"], tuple(w["core"]), tuple(w["context"])) for w in d["windows"]]
-            identity = d.get("identity") or legacy_identity(d["config"])
+            identity = d["identity"] if "identity" in d else legacy_identity(d["config"])
             if not isinstance(identity, dict):
                 raise TypeError("identity is not a mapping")
             return cls(d["run_id"], d["params_hash"], d["config"], windows, identity)
         except (ValueError, KeyError, TypeError, AttributeError) as e:
             raise InputError(f"job.json is not a job record ({e})", store.full(JOB)) from None
+
+    def check(self, params_hash: str, out: str) -> None:
+        """Refuse a job of other params than the catalogue at ``out`` was made with (the
+        identity names the keys: ``identity.check_resubmit``; this is the last guard)."""
+        if self.params_hash != params_hash:
+            raise ConfigError(f"{out} holds a catalogue made with params {self.params_hash}; this job has "
+                              f"{params_hash}. Use another --out, or the same config to resume.")
 
     def save(self, store: Store) -> None:
         record = {"run_id": self.run_id, "params_hash": self.params_hash, "identity": self.identity,

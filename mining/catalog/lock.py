@@ -101,6 +101,16 @@ def read_holder(store: Store) -> dict:
     return {}
 
 
+def current_writer(store: Store) -> dict:
+    """The holder named in ``store``'s lock when it is plausibly writing now: on this host
+    its pid is alive; on another host it cannot be checked and is returned as named. {}
+    when nobody is named. Reads only (no lock is tried: a probe could refuse a submit)."""
+    holder = read_holder(store)
+    if holder and holder.get("host") == socket.gethostname() and not _pid_alive(holder.get("pid")):
+        return {}
+    return holder
+
+
 class OutputLock:
     """``with OutputLock(store, wait_s):`` — hold ``store``'s writer lock (module docstring)."""
 

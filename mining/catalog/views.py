@@ -60,11 +60,14 @@ def _damaged_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, dama
     more = f" and {len(damage) - 5} more" if len(damage) > 5 else ""
     msg = (f"table {table} is damaged: {files}{more}. `mine status --out {store.uri}` lists all; resubmitting "
            "the job recomputes them; the other tables can be queried")
-    schema = _as_read(SCHEMAS[table])
-    row = pa.Table.from_arrays([pa.nulls(1, f.type) for f in schema], names=schema.names)  # one row: error() runs
-    con.register(f"_damaged_{table}", row)
-    cols = ", ".join(f'"{n}"' for n in schema.names)
-    con.execute(f"CREATE VIEW {table} AS SELECT {cols} FROM _damaged_{table} WHERE error({_sql_string(msg)})")
+    # Every column is the error, and so is the filter: the optimizer can prune neither, so
+    # any query that reads a row of the table (joins, counts, views over it) raises.
+    con.register(f"_schema_{table}", _as_read(SCHEMAS[table]).empty_table())
+    types = con.sql(f"DESCRIBE _schema_{table}").fetchall()
+    con.unregister(f"_schema_{table}")
+    err = f"error({_sql_string(msg)})"
+    cols = ", ".join(f'CAST({err} AS {t}) AS "{n}"' for n, t, *_ in types)
+    con.execute(f"CREATE VIEW {table} AS SELECT {cols} FROM range(1) WHERE {err}")
 
 
 def _base_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, native: bool,

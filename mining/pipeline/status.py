@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 from mining.catalog.integrity import Damage, sequence_damage, window_damage
 from mining.catalog.layout import JOB, JobRecord, manifest_path
+from mining.catalog.lock import current_writer, describe
 from mining.catalog.store import Store
 from mining.errors import InputError
 from mining.proposals.make import classifiers_line
@@ -85,6 +86,9 @@ def print_status(out: str, verify: bool = False) -> int:
             line += "  " + r.error.strip().splitlines()[0]
         if r.status != "done":
             print(line)
+    writer = current_writer(Store(out))
+    if writer:
+        print(f"being written now by {describe(writer)}: files of steps in flight may show as damaged below")
     damage = job_damage(out, rows, verify)
     for d in damage:
         print(f"damaged  {d.path}: {d.reason} (a resubmission {_repair(d)})")

@@ -151,9 +151,7 @@ def record_job(store: Store, cfg: JobConfig, windows: list[Window], identity: di
         old = None
     if old is not None:
         check_resubmit(old.identity, identity, store.uri, mode)
-        if old.params_hash != cfg.params_hash:  # every config key is in the identity: a bug if reached
-            raise ConfigError(f"{store.uri} holds a catalogue made with params {old.params_hash}; this job has "
-                              f"{cfg.params_hash}")
+        old.check(cfg.params_hash, store.uri)  # every config key is in the identity: never reached
         _retire(store, old.windows, windows)
     record = JobRecord(old.run_id if old is not None else uuid.uuid4().hex[:12], cfg.params_hash, cfg.to_dict(),
                        list(windows), identity)
