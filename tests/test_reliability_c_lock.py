@@ -83,6 +83,9 @@ def test_a_second_submit_on_one_out_is_refused_naming_the_holder_or_waits(tmp_pa
     assert f"is being written by pid {first.pid} on host {socket.gethostname()} since {holder['started']}" in err, err
     assert "--lock-wait" in err and "Traceback" not in err
     assert first.poll() is None, "the first job ended before the second was refused: the test proved nothing"
+    status = subprocess.run([sys.executable, "-m", "mining.cli", "status", "--out", str(out)], cwd=REPO, env=_env(),
+                            capture_output=True, text=True, timeout=60)
+    assert f"being written now by pid {first.pid} on host" in status.stdout, status.stdout + status.stderr
 
     waiting = _submit(out, "--lock-wait", str(JOB_TIMEOUT_S), logs=tmp_path / "waiting")
     rc1, stdout1, err1 = _finish(first, tmp_path / "first")

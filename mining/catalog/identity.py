@@ -114,7 +114,7 @@ def _extends(key: str, old: Any, new: Any, old_id: Mapping[str, Any]) -> bool:
         (a0, b0), (a1, b1) = _range(old), _range(new)
         return a1 <= a0 and b1 >= b0
     if key.startswith("recording."):
-        seq = key.split(".")[1]
+        seq = key[len("recording."):].rsplit(".", 1)[0]  # sequence names may hold dots
         return old == ABSENT and f"frames.{seq}" not in old_id  # a new sequence's fingerprint
     return False
 
