@@ -13,8 +13,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import pytest
-
 from mining.cli import main
 from _reliability_c import SEQ, base_catalogue, copy_of, mine, tables  # noqa: F401 - a fixture
 
