@@ -10,8 +10,6 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-import pytest
-
 from mining.catalog.views import connect
 from mining.config import JobConfig, load_config
 from mining.pipeline.executors import LocalExecutor
@@ -50,17 +48,7 @@ def tables(out: Path) -> dict[str, list[tuple]]:
         con.close()
 
 
-@pytest.fixture(scope="session")
-def base_catalogue(tmp_path_factory) -> tuple[Path, dict]:
-    """The small job over frames 0:16, mined once: (folder, its tables). Tests copy it."""
-    out = tmp_path_factory.mktemp("reliability_c") / "base"
-    s = mine(out)
-    assert s.ok == 2 and not s.failed, s.lines()
-    t = tables(out)
-    assert t["tubes"] and len(t["frames"]) == 16, "the base job found no tubes: comparisons would be empty"
-    return out, t
-
-
 def copy_of(base: tuple[Path, dict], dst: Path) -> Path:
+    """A copy of ``base_catalogue`` (``_reliability_c_fixtures.py``) to damage or resubmit to."""
     shutil.copytree(base[0], dst)
     return dst

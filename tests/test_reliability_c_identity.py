@@ -22,7 +22,9 @@ from mining.errors import ConfigError
 from mining.pipeline.executors import LocalExecutor
 from mining.pipeline.status import job_status
 from mining.pipeline.submit import mine_job
-from _reliability_c import BASE_FRAMES, SEQ, base_catalogue, copy_of, mine, tables  # noqa: F401 - a fixture
+from _reliability_c import SEQ, copy_of, mine, small_cfg, tables
+
+pytest_plugins = ["_reliability_c_fixtures"]  # base_catalogue: one base job for all three files
 
 KITTI_CORE = ["window.core=4", "window.context_before=2", "window.context_after=2", 'proposals.proposer="stereo"']
 
@@ -70,7 +72,6 @@ def test_another_recording_on_the_same_out_is_refused_naming_every_differing_key
 
 def test_a_config_change_is_refused_naming_the_key(base_catalogue, tmp_path):
     out = copy_of(base_catalogue, tmp_path / "out")
-    from _reliability_c import small_cfg
 
     with pytest.raises(ConfigError, match=r"(?m)^  config\.geometry\.stereo\.num_disparities: 128 → 96$"):
         mine(out, cfg=small_cfg("geometry.stereo.num_disparities=96"))

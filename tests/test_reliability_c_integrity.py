@@ -14,7 +14,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from mining.cli import main
-from _reliability_c import SEQ, base_catalogue, copy_of, mine, tables  # noqa: F401 - a fixture
+from _reliability_c import SEQ, copy_of, mine, tables
+
+pytest_plugins = ["_reliability_c_fixtures"]  # base_catalogue: one base job for all three files
 
 D = f"dataset=synthetic/sequence={SEQ}"
 TUBES = f"catalog/tubes/{D}/part-0.parquet"

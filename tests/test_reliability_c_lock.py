@@ -26,7 +26,9 @@ import pytest
 
 from mining.catalog.lock import LockedError, OutputLock, read_holder
 from mining.catalog.store import Store
-from _reliability_c import CLI_SMALL, REPO, base_catalogue, copy_of, mine, tables  # noqa: F401 - a fixture
+from _reliability_c import CLI_SMALL, REPO, copy_of, mine, tables
+
+pytest_plugins = ["_reliability_c_fixtures"]  # base_catalogue: one base job for all three files
 
 JOB_TIMEOUT_S = 420  # a hung job fails the test, not the run
 SUMMARY = re.compile(r"windows: (\d+) ok, (\d+) failed, (\d+) already done \(of (\d+)\)")
