@@ -262,14 +262,17 @@ def cmd_bench_pipeline(args: argparse.Namespace) -> int:
 
 def cmd_submit(args: argparse.Namespace) -> int:
     cfg = _job_config(args)
+    if args.new_run and args.extend:
+        raise ConfigError("--new-run and --extend exclude each other")
     if args.address and args.address.startswith("http"):
         from mining.pipeline.rayjobs import submit_ray_job
 
         return submit_ray_job(args.address, args.argv, args.out)
     from mining.pipeline.submit import mine_on_ray
 
+    mode = "new" if args.new_run else "extend" if args.extend else "resume"
     summary = mine_on_ray(cfg, args.out, args.sequences, args.frames, address=args.address, workers=args.workers,
-                          progress=not args.no_progress)
+                          progress=not args.no_progress, mode=mode, verify=args.verify, lock_wait=args.lock_wait)
     for line in summary.lines():
         print(line)
     return 1 if summary.failed else 0
@@ -278,7 +281,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
 def cmd_status(args: argparse.Namespace) -> int:
     from mining.pipeline.status import print_status
 
-    return print_status(args.out)
+    return print_status(args.out, verify=args.verify)
 
 
 def cmd_query(args: argparse.Namespace) -> int:
@@ -309,10 +312,23 @@ def build_parser() -> argparse.ArgumentParser:
                                        "default: start a local Ray on this machine")
     smt.add_argument("--workers", type=int, help="local Ray only: CPUs to use (default: all)")
     smt.add_argument("--no-progress", action="store_true", help="no progress bar (logs and CI)")
+    smt.add_argument("--extend", action="store_true",
+                     help="--out holds this job with a narrower --frames or fewer --sequences: widen it (what differs "
+                          "from a clean run of the new range is recomputed); anything else that differs is refused")
+    smt.add_argument("--new-run", action="store_true",
+                     help="--out holds another job: move its catalogue aside (to OUT/_replaced/<run id>-<time>/, "
+                          "local folders only) and start a new one")
+    smt.add_argument("--verify", action="store_true",
+                     help="check every recorded checksum before resuming (default: sizes only); damaged files are "
+                          "recomputed")
+    smt.add_argument("--lock-wait", type=float, default=0.0, metavar="SECONDS",
+                     help="another submit is writing --out: wait up to this long for it (default: refuse at once)")
     smt.set_defaults(func=cmd_submit)
 
     sts = sub.add_parser("status", help="windows done, failed (with the error) and pending")
     sts.add_argument("--out", default="out/catalog", help="catalogue folder or URI")
+    sts.add_argument("--verify", action="store_true",
+                     help="also check every file's sha256 against the manifest (reads the whole catalogue)")
     sts.set_defaults(func=cmd_status)
 
     qry = sub.add_parser("query", help="read-only SQL (DuckDB) over the catalogue's tables and views")

@@ -147,7 +147,7 @@ def snapshot(out: Path) -> dict[str, tuple[str, int, int]]:
 
     return {str(p.relative_to(out)): (hashlib.sha256(p.read_bytes()).hexdigest(), p.stat().st_size,
                                       p.stat().st_mtime_ns)
-            for p in sorted(out.rglob("*")) if p.is_file()}
+            for p in sorted(out.rglob("*")) if p.is_file() and p.name != ".mine.lock"}  # the writer's lock, not the catalogue
 
 
 def catalogue(out: Path) -> dict:

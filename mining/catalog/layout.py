@@ -4,22 +4,28 @@ One owner for every relative path a mining job reads or writes (``schemas/README
 draws the same tree); ``store.py`` does the I/O on them::
 
     job.json                                                  the job record (JobRecord)
+    .mine.lock                                                the writer's lock (lock.py): who holds it
     catalog/<table>/dataset=D/sequence=S/part-<k>.parquet     compacted tables (tubes, tube_frames, frames, windows)
-    catalog/_sequences/dataset=D/sequence=S.json              a finalized sequence: which windows its catalogue holds
+    catalog/_sequences/dataset=D/sequence=S.json              a finalized sequence: which windows its catalogue holds,
+                                                              and the size and sha256 of each of its compacted files
     manifest/dataset=D/sequence=S/<window>.parquet            the windows table, one row per window
+    manifest/dataset=D/sequence=S/<window>.files.json         size and sha256 of the window's parts (integrity.py)
     parts/<table>/dataset=D/sequence=S/<window>.parquet       a window's parts before stitching
     cache/obs/dataset=D/sequence=S/<window>.pkl               a window's observations, until no track needs them
 
-``job.json`` records the resolved config, its ``params_hash``, the run id and every
-window planned so far; a job with other params is refused (``JobRecord.check``).
+``job.json`` records the resolved config, its ``params_hash``, the job's identity
+(``identity.py``: config, source root, recording fingerprint, sequences, frame ranges),
+the run id and the windows of the job; a resubmission of another identity is refused
+(``identity.check_resubmit``). ``REPLACED`` holds catalogues a ``--new-run`` moved aside.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
+from mining.catalog.identity import legacy_identity
 from mining.errors import ConfigError, InputError
 from mining.types import Window
 
@@ -31,6 +37,10 @@ CATALOG = "catalog"
 MANIFEST = "manifest"
 PARTS = "parts"
 CACHE = "cache/obs"
+LOCK = ".mine.lock"  # a dot name: every reader skips it (store.is_temporary)
+REPLACED = "_replaced"  # catalogues moved aside by --new-run, one folder each
+# What a job writes under --out (a --new-run moves exactly these aside).
+JOB_ENTRIES = (JOB, CATALOG, MANIFEST, PARTS, "cache")
 PART_TABLES = ("tubes", "tube_frames", "frames")  # what a tracked window writes, and a sequence stitches
 # The folder of each table a query reads: the compacted tables, and the manifest as ``windows``.
 TABLE_DIRS = {"tubes": f"{CATALOG}/tubes", "tube_frames": f"{CATALOG}/tube_frames", "frames": f"{CATALOG}/frames",
@@ -45,6 +55,11 @@ def part_path(table: str, dataset: str, sequence: str, window: str) -> str:
 def manifest_path(dataset: str, sequence: str, window: str) -> str:
     """A window's manifest row (its row of the ``windows`` table)."""
     return f"{MANIFEST}/dataset={dataset}/sequence={sequence}/{window}.parquet"
+
+
+def files_path(dataset: str, sequence: str, window: str) -> str:
+    """Size and sha256 of a window's parts, written before its manifest row says done."""
+    return f"{MANIFEST}/dataset={dataset}/sequence={sequence}/{window}.files.json"
 
 
 def catalog_dir(table: str, dataset: str, sequence: str) -> str:
@@ -79,7 +94,8 @@ class JobRecord:
     run_id: str
     params_hash: str
     config: dict  # the resolved JobConfig, as JobConfig.to_dict()
-    windows: list[Window]  # every window planned for this catalogue, in planning order
+    windows: list[Window]  # the job's windows, in planning order
+    identity: dict[str, Any] = field(default_factory=dict)  # identity.job_identity; legacy_identity for old records
 
     @classmethod
     def load(cls, store: Store) -> JobRecord | None:
@@ -89,17 +105,21 @@ class JobRecord:
         try:
             d = json.loads(store.read_bytes(JOB))
             windows = [Window(w["dataset"], w["sequence"], tuple(w["core"]), tuple(w["context"])) for w in d["windows"]]
-            return cls(d["run_id"], d["params_hash"], d["config"], windows)
-        except (ValueError, KeyError, TypeError) as e:
+            identity = d["identity"] if "identity" in d else legacy_identity(d["config"])
+            if not isinstance(identity, dict):
+                raise TypeError("identity is not a mapping")
+            return cls(d["run_id"], d["params_hash"], d["config"], windows, identity)
+        except (ValueError, KeyError, TypeError, AttributeError) as e:
             raise InputError(f"job.json is not a job record ({e})", store.full(JOB)) from None
 
     def check(self, params_hash: str, out: str) -> None:
-        """Refuse a job of other params than the catalogue at ``out`` was made with."""
+        """Refuse a job of other params than the catalogue at ``out`` was made with (the
+        identity names the keys: ``identity.check_resubmit``; this is the last guard)."""
         if self.params_hash != params_hash:
             raise ConfigError(f"{out} holds a catalogue made with params {self.params_hash}; this job has "
                               f"{params_hash}. Use another --out, or the same config to resume.")
 
     def save(self, store: Store) -> None:
-        record = {"run_id": self.run_id, "params_hash": self.params_hash, "config": self.config,
-                  "windows": [_window_entry(w) for w in self.windows]}
+        record = {"run_id": self.run_id, "params_hash": self.params_hash, "identity": self.identity,
+                  "config": self.config, "windows": [_window_entry(w) for w in self.windows]}
         store.write_bytes(JOB, json.dumps(record, indent=1, default=str).encode())

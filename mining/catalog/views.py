@@ -7,7 +7,10 @@ read back from the hive folder names, as VARCHAR so "0005" stays "0005"):
 * ``windows`` — the manifest, ``OUT/manifest/dataset=D/sequence=S/*.parquet``
 
 A table without files is an empty view with the right columns, so queries work on a
-fresh catalogue. A local catalogue is read by DuckDB's own Parquet reader (projection
+fresh catalogue. A table with a damaged file (missing, truncated, of another size than
+its sequence's finished marker records, or whose Parquet footer does not read:
+``integrity.py``) is a view that fails every query that reads it, naming the file; the
+other tables answer as usual. A local catalogue is read by DuckDB's own Parquet reader (projection
 and row-group pushdown); any other pyarrow filesystem through registered pyarrow datasets.
 
 Read-only, in two layers: the connection may touch no file outside the catalogue folder
@@ -25,6 +28,7 @@ import duckdb
 import pyarrow as pa
 import pyarrow.dataset as ds
 
+from mining.catalog.integrity import Damage, catalogue_damage, unreadable_parquet
 from mining.catalog.layout import TABLE_DIRS
 from mining.catalog.schema import PARTITION, SCHEMAS, file_schema
 from mining.catalog.store import Store
@@ -50,7 +54,39 @@ def _as_read(schema: pa.Schema) -> pa.Schema:
     return pa.schema([f.with_type(plain(f.type)) for f in schema])
 
 
-def _base_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, native: bool) -> None:
+def _damaged_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, damage: list[Damage]) -> None:
+    """``table`` as a view with its columns that raises, naming the damaged files, when read."""
+    files = "; ".join(f"{store.full(d.path)} ({d.reason})" for d in damage[:5])
+    more = f" and {len(damage) - 5} more" if len(damage) > 5 else ""
+    msg = (f"table {table} is damaged: {files}{more}. `mine status --out {store.uri}` lists all; resubmitting "
+           "the job recomputes them; the other tables can be queried")
+    # Every column is the error, and so is the filter: the optimizer can prune neither, so
+    # any query that reads a row of the table (joins, counts, views over it) raises.
+    con.register(f"_schema_{table}", _as_read(SCHEMAS[table]).empty_table())
+    types = con.sql(f"DESCRIBE _schema_{table}").fetchall()
+    con.unregister(f"_schema_{table}")
+    err = f"error({_sql_string(msg)})"
+    cols = ", ".join(f'CAST({err} AS {t}) AS "{n}"' for n, t, *_ in types)
+    con.execute(f"CREATE VIEW {table} AS SELECT {cols} FROM range(1) WHERE {err}")
+
+
+def _base_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, native: bool,
+               damage: list[Damage] | None = None) -> None:
+    if damage:
+        _damaged_view(con, store, table, damage)
+        return
+    try:
+        _files_view(con, store, table, native)
+    except (duckdb.Error, pa.ArrowInvalid, OSError) as e:
+        # A file the markers do not vouch for (a manifest row, a sequence not finalized)
+        # broke the view: find which, and make this table fail alone.
+        bad = unreadable_parquet(store, store.list(TABLE_DIRS[table]))
+        damage = [Damage(rel, reason, "") for rel, reason in bad] or [Damage(TABLE_DIRS[table], str(e), "")]
+        con.execute(f"DROP VIEW IF EXISTS {table}")
+        _damaged_view(con, store, table, damage)
+
+
+def _files_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, native: bool) -> None:
     cols = ", ".join(f'"{n}"' for n in SCHEMAS[table].names)
     folder = TABLE_DIRS[table]
     if not store.list(folder):
@@ -87,8 +123,9 @@ def connect(out: str | Path, native: bool | None = None) -> duckdb.DuckDBPyConne
     if native and not store.local:
         raise InputError("DuckDB's own reader needs a local catalogue; use pyarrow datasets", out)
     con = duckdb.connect(":memory:")
+    damage = catalogue_damage(store)
     for table in SCHEMAS:
-        _base_view(con, store, table, native)
+        _base_view(con, store, table, native, damage.get(table))
     con.execute(VIEWS_SQL.read_text())
     # From here on: no file access outside the catalogue, and no way to turn that back on.
     allowed = [store.root + "/"] if native else []

@@ -22,7 +22,8 @@ from datetime import datetime, timezone
 import numpy as np
 import pyarrow as pa
 
-from mining.catalog.layout import PART_TABLES, cache_path, done_path, manifest_path, part_path
+from mining.catalog.integrity import sequence_files, window_files
+from mining.catalog.layout import PART_TABLES, cache_path, done_path, files_path, manifest_path, part_path
 from mining.catalog.rows import RunInfo, frame_rows, frames_row, to_table, tube_row
 from mining.catalog.store import Store, write_sequence
 from mining.config import JobConfig
@@ -128,7 +129,10 @@ def write_manifest(job: Job, window: Window, status: str, started: datetime | No
     path = manifest_path(window.dataset, window.sequence, window.name)
     attempts = 1
     if store.exists(path):
-        attempts += int(store.read_table(path, ["attempts"]).column(0)[0].as_py())
+        try:
+            attempts += int(store.read_table(path, ["attempts"]).column(0)[0].as_py())
+        except (InputError, IndexError, TypeError):
+            pass  # a damaged row: this attempt's row replaces it
     row = {"run_id": job.run_id, "window": window.name, "core_start": window.core[0], "core_end": window.core[1],
            "context_start": window.context[0], "context_end": window.context[1], "status": status,
            "attempts": attempts, "started": started, "finished": _now(), "seconds_observe": seconds_observe,
@@ -180,6 +184,9 @@ class Track:
         d, s = window.dataset, window.sequence
         for table, rows in {"tubes": tubes, "tube_frames": tframes, "frames": frows}.items():
             store.write_table(part_path(table, d, s, window.name), to_table(rows, table, part=True))
+        # Sizes and checksums of the parts, before the manifest row says done (integrity.py).
+        record = {"window": window.name, "files": window_files(store, window)}
+        store.write_bytes(files_path(d, s, window.name), json.dumps(record, indent=1).encode())
         return len(tubes)
 
 
@@ -198,14 +205,19 @@ class Finalize:
             parts[table] = pa.concat_tables(tabs) if tabs else to_table([], table, part=True)
         out = stitch_sequence(ws, parts["tubes"], parts["tube_frames"], parts["frames"], job.cfg,
                               job.run_info(sequence))
+        written = []
         for table, data in out.items():
-            write_sequence(store, table, d, sequence, data)
+            written += write_sequence(store, table, d, sequence, data)
         rows = [store.read_table(manifest_path(d, sequence, w.name)) for w in windows
                 if store.exists(manifest_path(d, sequence, w.name))]
         if rows:
-            write_sequence(store, "windows", d, sequence, pa.concat_tables(rows))
-        marker = {"params_hash": job.params_hash, "run_id": job.run_id, "windows": sorted(done),
-                  "planned": len(windows), "finished": _now().isoformat()}
+            written += write_sequence(store, "windows", d, sequence, pa.concat_tables(rows))
+        # The marker comes last and records what it vouches for: the windows stitched, the
+        # context of each, and the size and sha256 of every compacted file (integrity.py).
+        marker = {"params_hash": job.params_hash, "run_id": job.run_id, "dataset": d, "sequence": sequence,
+                  "windows": sorted(done), "contexts": {w.name: list(w.context) for w in ws},
+                  "planned": len(windows), "finished": _now().isoformat(),
+                  "files": sequence_files(store, written)}
         store.write_bytes(done_path(d, sequence), json.dumps(marker, indent=1).encode())
         tubes = out["tubes"]
         sel = np.asarray(tubes.column("selected").to_pylist(), bool)

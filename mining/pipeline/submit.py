@@ -8,9 +8,14 @@ a step that could not run leaves behind. ``mine_job`` does all of it in one call
 Scheduling: a window is *tracked* once the observe steps of every window its context
 touches have finished, so tracking starts while later windows are still being
 observed; a sequence is *finalized* (stitched, compacted) once all its windows are
-settled. Resubmitting resumes: windows whose manifest row says done (same params) are
-skipped, and a sequence whose catalogue already holds exactly its done windows is not
-rewritten. A finished job resubmitted does nothing.
+settled. Resubmitting resumes: windows whose manifest row says done (same params, same
+core and context) and whose parts are as recorded are skipped, and a sequence whose
+catalogue already holds exactly its done windows, in files as recorded, is not rewritten.
+A finished job resubmitted does nothing; a damaged file is recomputed by what owns it.
+
+One writer: ``mine_job`` holds the catalogue's lock (``catalog/lock.py``) from planning to
+the last result. A resubmission must be the same job (``catalog/identity.py``), an
+extension of it (``mode="extend"``) or a new run (``mode="new"``).
 
 ``mine_on_ray`` is ``mine submit`` without a Ray Jobs address (that one is
 ``rayjobs.py``): the scheduler runs here and the steps run on a Ray of its own, or on
@@ -19,7 +24,6 @@ the cluster at ``--address``.
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 import time
@@ -28,9 +32,16 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from mining.catalog.layout import PART_TABLES, JobRecord, cache_path, done_path, manifest_path, part_path
+import pyarrow.fs as pafs
+
+from mining.catalog.identity import check_resubmit, job_identity
+from mining.catalog.integrity import marker_damage, read_json, window_damage
+from mining.catalog.layout import (JOB_ENTRIES, PART_TABLES, REPLACED, JobRecord, cache_path, done_path, files_path,
+                                   manifest_path, part_path)
+from mining.catalog.lock import OutputLock
 from mining.catalog.store import Store
 from mining.config import JobConfig
+from mining.errors import ConfigError, InputError
 from mining.pipeline.executors import Executor, RayExecutor
 from mining.pipeline.schedule import Resume, Schedule, Task
 from mining.pipeline.steps import Job, StepResult, job_source, write_manifest
@@ -93,51 +104,110 @@ def plan_job(cfg: JobConfig, sequences: list[str] | None, frames: tuple[int, int
     return plans, windows
 
 
-def record_job(store: Store, cfg: JobConfig, windows: list[Window]) -> JobRecord:
-    """Write (or check and extend) ``job.json``: refuses other params, keeps the run id,
-    adds the windows not planned before."""
+def _retire(store: Store, prior: list[Window], windows: list[Window]) -> None:
+    """Remove what the windows of ``prior`` that are no longer the job's left behind (an
+    extension re-cuts the windows at the old range's end): their manifest rows, parts,
+    integrity records and caches. A window of the same name stays (it is resumed or, when
+    its context changed, runs again and overwrites them)."""
+    names = {w.name for w in windows}
+    for w in prior:
+        if w.name in names:
+            continue
+        d, q = w.dataset, w.sequence
+        for rel in (manifest_path(d, q, w.name), files_path(d, q, w.name), cache_path(w),
+                    *(part_path(t, d, q, w.name) for t in PART_TABLES)):
+            store.remove(rel)
+
+
+def _move_aside(store: Store, old: JobRecord) -> str:
+    """``--new-run``: move the old catalogue's files into ``REPLACED/<run id>-<UTC time>/``
+    inside ``--out`` (a rename each; readers never look there). Only a local folder can:
+    object stores have no rename, so there the old catalogue must be removed by hand."""
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+    dest = f"{REPLACED}/{old.run_id}-{stamp}"
+    present = [e for e in JOB_ENTRIES if store.fs.get_file_info(store.full(e)).type != pafs.FileType.NotFound]
+    if not store.local:
+        raise ConfigError(f"{store.uri}: --new-run cannot move the old catalogue (run {old.run_id}) aside on this "
+                          f"filesystem (no rename); delete {', '.join(present)} there, or use another --out")
+    store.fs.create_dir(store.full(dest), recursive=True)
+    for e in present:
+        store.fs.move(store.full(e), store.full(f"{dest}/{e}"))
+    return dest
+
+
+def record_job(store: Store, cfg: JobConfig, windows: list[Window], identity: dict, mode: str = "resume") -> JobRecord:
+    """Write (or check and update) ``job.json``.
+
+    ``mode`` (``identity.MODES``): ``resume`` refuses another identity, naming every
+    differing key; ``extend`` admits wider frame ranges and added sequences, and retires
+    the old windows the new cut does not have; ``new`` moves an old catalogue aside and
+    starts a new run. The run id is kept across resumes and extensions.
+    """
     old = JobRecord.load(store)
+    if old is not None and mode == "new":
+        dest = _move_aside(store, old)
+        print(f"mine: --new-run: the old catalogue (run {old.run_id}) is now {store.full(dest)}; "
+              "delete it when it is no longer needed", file=sys.stderr)
+        old = None
     if old is not None:
-        old.check(cfg.params_hash, store.uri)
-    prior = old.windows if old is not None else []
-    known = {w.name for w in prior}
+        check_resubmit(old.identity, identity, store.uri, mode)
+        old.check(cfg.params_hash, store.uri)  # every config key is in the identity: never reached
+        _retire(store, old.windows, windows)
     record = JobRecord(old.run_id if old is not None else uuid.uuid4().hex[:12], cfg.params_hash, cfg.to_dict(),
-                       prior + [w for w in windows if w.name not in known])
-    if record.windows != prior:  # a resubmission of the same job changes nothing
-        record.save(store)
+                       list(windows), identity)
+    if old is None or record.windows != old.windows or record.identity != old.identity:
+        record.save(store)  # a resubmission of the same job changes nothing
     return record
 
 
-def read_resume(store: Store, dataset: str, windows: list[Window], params_hash: str) -> Resume:
+def _row(store: Store, rel: str) -> dict | None:
+    """A window's manifest row, or None when it is missing or unreadable."""
+    if not store.exists(rel):
+        return None
+    try:
+        rows = store.read_table(rel).to_pylist()
+    except InputError:
+        return None
+    return rows[0] if rows else None
+
+
+def read_resume(store: Store, dataset: str, windows: list[Window], params_hash: str, verify: bool = False) -> Resume:
     """What earlier runs left: windows whose manifest row says done with these params and
-    whose parts all exist (each with whether its context was complete when it was
-    tracked), and the sequences finalized with these params (the windows each holds)."""
+    this window's core and context, and whose parts are all there as recorded (sizes;
+    checksums too with ``verify``), each with whether its context was complete when it was
+    tracked; and the sequences finalized with these params whose compacted files are all
+    there as recorded (the windows each holds). Anything else is recomputed: a window with
+    a damaged part runs again, a sequence with a damaged compacted file is stitched again."""
     done = {}
     for w in windows:
-        m = manifest_path(w.dataset, w.sequence, w.name)
-        if not store.exists(m):
-            continue
-        row = store.read_table(m).to_pylist()[0]
-        if row["status"] == "done" and row["params_hash"] == params_hash and all(
-                store.exists(part_path(t, w.dataset, w.sequence, w.name)) for t in PART_TABLES):
+        row = _row(store, manifest_path(w.dataset, w.sequence, w.name))
+        if (row is not None and row["status"] == "done" and row["params_hash"] == params_hash
+                and (row["core_start"], row["core_end"]) == w.core
+                and (row["context_start"], row["context_end"]) == w.context
+                and not window_damage(store, w, verify)):
             done[w.name] = row.get("context_complete") is not False
     finalized = {}
+    contexts = {w.name: list(w.context) for w in windows}
     for seq in dict.fromkeys(w.sequence for w in windows):
-        if store.exists(done_path(dataset, seq)):
-            marker = json.loads(store.read_bytes(done_path(dataset, seq)))
-            if marker["params_hash"] == params_hash:
-                finalized[seq] = frozenset(marker["windows"])
+        marker = read_json(store, done_path(dataset, seq))
+        if (marker is not None and marker.get("params_hash") == params_hash
+                and all(contexts.get(n) == c for n, c in (marker.get("contexts") or {}).items())
+                and not marker_damage(store, marker, verify, dataset, seq)):
+            finalized[seq] = frozenset(marker.get("windows") or ())
     return Resume(done, finalized)
 
 
 def open_job(cfg: JobConfig, out: str, sequences: list[str] | None = None,
-             frames: tuple[int, int | None] = (0, None)) -> tuple[Job, Schedule]:
-    """Plan the job, record it in ``out``'s ``job.json`` and schedule what is left to do."""
+             frames: tuple[int, int | None] = (0, None), mode: str = "resume",
+             verify: bool = False) -> tuple[Job, Schedule]:
+    """Plan the job, record it in ``out``'s ``job.json`` (``record_job``: ``mode`` says what
+    a differing identity may do) and schedule what is left to do; call it holding the
+    catalogue's lock (``mine_job`` does)."""
     store = Store(out)
     plans, windows = plan_job(cfg, sequences, frames)
-    record = record_job(store, cfg, windows)
+    record = record_job(store, cfg, windows, job_identity(cfg, plans, frames), mode)
     job = Job(cfg, out, record.run_id, plans)
-    return job, Schedule(windows, read_resume(store, cfg.source.dataset, windows, job.params_hash))
+    return job, Schedule(windows, read_resume(store, cfg.source.dataset, windows, job.params_hash, verify))
 
 
 class Progress:
@@ -209,20 +279,27 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
 
 
 def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frames: tuple[int, int | None] = (0, None),
-             *, executor: Callable[[Job], Executor], progress: bool = False, keep_cache: bool = False) -> Summary:
+             *, executor: Callable[[Job], Executor], progress: bool = False, keep_cache: bool = False,
+             mode: str = "resume", verify: bool = False, lock_wait: float = 0.0) -> Summary:
     """Mine the job into the catalogue at ``out`` on ``executor(job)`` (``LocalExecutor``,
     ``RayExecutor`` on an initialised Ray, or any maker of one), which is made only when
-    there is work and shut down at the end."""
+    there is work and shut down at the end.
+
+    The catalogue's lock (``catalog/lock.py``) is held throughout, waiting up to
+    ``lock_wait`` seconds for another writer; ``mode`` is ``record_job``'s, ``verify``
+    checks every recorded checksum before resuming (``read_resume``).
+    """
     t0 = time.perf_counter()
-    job, schedule = open_job(cfg, out, sequences, frames)
-    if schedule.nothing_to_do:
-        summary = Summary(windows=len(schedule.windows), skipped=schedule.skipped)
-    else:
-        ex = executor(job)
-        try:
-            summary = run_job(job, schedule, ex, progress, keep_cache)
-        finally:
-            ex.shutdown()
+    with OutputLock(Store(out), lock_wait):
+        job, schedule = open_job(cfg, out, sequences, frames, mode, verify)
+        if schedule.nothing_to_do:
+            summary = Summary(windows=len(schedule.windows), skipped=schedule.skipped)
+        else:
+            ex = executor(job)
+            try:
+                summary = run_job(job, schedule, ex, progress, keep_cache)
+            finally:
+                ex.shutdown()
     summary.seconds = time.perf_counter() - t0
     summary.classifiers = classifiers_line(cfg.proposals.proposer)
     return summary
@@ -230,7 +307,8 @@ def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frame
 
 def mine_on_ray(cfg: JobConfig, out: str, sequences: list[str] | None = None,
                 frames: tuple[int, int | None] = (0, None), address: str | None = None,
-                workers: int | None = None, progress: bool = True) -> Summary:
+                workers: int | None = None, progress: bool = True, mode: str = "resume", verify: bool = False,
+                lock_wait: float = 0.0) -> Summary:
     """``mine submit`` here: the steps on the running cluster at ``address`` (or
     ``RAY_ADDRESS``), which decides the CPUs, or else on a Ray of its own with ``workers``
     CPUs (never one that happens to run on this machine). Ray starts only when there is
@@ -249,7 +327,8 @@ def mine_on_ray(cfg: JobConfig, out: str, sequences: list[str] | None = None,
         return RayExecutor(job, workers if not address else None)
 
     try:
-        return mine_job(cfg, out, sequences, frames, executor=on_ray, progress=progress)
+        return mine_job(cfg, out, sequences, frames, executor=on_ray, progress=progress, mode=mode, verify=verify,
+                        lock_wait=lock_wait)
     finally:
         if ray.is_initialized():
             ray.shutdown()

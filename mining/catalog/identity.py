@@ -1,0 +1,159 @@
+"""The identity of a mining job: everything a catalogue under ``--out`` was made from.
+
+A catalogue is only meaningful as the result of one job, so ``job.json`` records the
+job's identity as a flat mapping of named keys, and a resubmission to the same ``--out``
+must have the same one (``check_resubmit``):
+
+* ``config.<section>.<key>`` — every result-changing config value (``run.*``, how a
+  result is reached, is left out; ``source.root`` and ``source.sequences`` have keys of
+  their own);
+* ``source.root`` — the dataset root, as an absolute path (URIs as given);
+* ``sequences`` — the sequences mined (sorted: planning order changes no result);
+* ``frames.<sequence>`` — the plan positions ``a:b`` mined, after clipping to the recording;
+* ``recording.<sequence>.frames`` / ``.stamps`` / ``.calib`` — a cheap fingerprint of the
+  recording from its plan (no image is decoded): the frame count, a hash of the frame
+  indices, timestamps and gaps, and the calibration. Image contents are not part of it
+  on purpose: repairing a damaged frame and resubmitting resumes the job (the windows
+  that failed on it run again).
+
+A difference is refused naming every differing key (old → new), unless the caller asks
+for an *extension* (``--extend``: frame ranges widened, sequences added, nothing else
+changed; its windows that differ from a clean run's are recomputed, so the result equals
+a clean run of the new range) or a *new run* (``--new-run``: the old catalogue is moved
+aside, see ``submit.open_job``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from mining.config import JobConfig
+from mining.errors import ConfigError
+from mining.types import SequencePlan
+
+MODES = ("resume", "extend", "new")  # what a resubmission to an --out holding a catalogue may do
+ABSENT = "(absent)"  # how a key one side lacks is written in a difference
+
+
+def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> None:
+    if isinstance(value, Mapping) and value:
+        for k in sorted(value):
+            _flatten(f"{prefix}.{k}", value[k], out)
+    else:
+        out[prefix] = json.loads(json.dumps(value, default=str))  # plain JSON values: compare as stored
+
+
+def root_key(root: str) -> str:
+    """The dataset root as the identity records it: absolute (symlinks resolved), URIs as given."""
+    if not root or "://" in root:
+        return root
+    return str(Path(root).expanduser().resolve())
+
+
+def recording_fingerprint(plan: SequencePlan) -> dict[str, Any]:
+    """A cheap fingerprint of one recording, from its plan (no image is read)."""
+    h = hashlib.sha256()
+    h.update(json.dumps([list(plan.frames), list(plan.t_ns), list(plan.gaps)]).encode())
+    c = plan.calib
+    calib = (f"fx={c.fx:.6g} fy={c.fy:.6g} cx={c.cx:.6g} cy={c.cy:.6g} baseline={c.baseline_m:.6g} "
+             f"size={c.width}x{c.height}")
+    return {"frames": len(plan), "stamps": h.hexdigest()[:16], "calib": calib}
+
+
+def frame_range(plan: SequencePlan, frames: tuple[int, int | None]) -> tuple[int, int]:
+    """The plan positions ``[a, b)`` of ``--frames`` on this recording (as ``plan_windows`` cuts them)."""
+    n = len(plan) if frames[1] is None else min(frames[1], len(plan))
+    return max(0, frames[0]), n
+
+
+def job_identity(cfg: JobConfig, plans: Mapping[str, SequencePlan], frames: tuple[int, int | None]) -> dict[str, Any]:
+    """The flat identity of a job (module docstring): key → JSON value."""
+    out: dict[str, Any] = {}
+    d = cfg.to_dict()
+    d.pop("run")  # retries change how a result is reached, not the result (as params_hash)
+    d["source"] = {k: v for k, v in d["source"].items() if k not in ("root", "sequences")}
+    _flatten("config", d, out)
+    out["source.root"] = root_key(cfg.source.root)
+    out["sequences"] = sorted(plans)
+    for seq, plan in plans.items():
+        a, b = frame_range(plan, frames)
+        out[f"frames.{seq}"] = f"{a}:{b}"
+        for k, v in recording_fingerprint(plan).items():
+            out[f"recording.{seq}.{k}"] = v
+    return out
+
+
+def differences(old: Mapping[str, Any], new: Mapping[str, Any]) -> list[tuple[str, Any, Any]]:
+    """Every key whose value differs, as (key, old, new); a key one side lacks is ``ABSENT`` there."""
+    return [(k, old.get(k, ABSENT), new.get(k, ABSENT)) for k in sorted(old.keys() | new.keys())
+            if old.get(k, ABSENT) != new.get(k, ABSENT)]
+
+
+def _show(v: Any) -> str:
+    return v if isinstance(v, str) else json.dumps(v)
+
+
+def _range(text: str) -> tuple[int, int]:
+    a, b = text.split(":")
+    return int(a), int(b)
+
+
+def _extends(key: str, old: Any, new: Any, old_id: Mapping[str, Any]) -> bool:
+    """Whether this one difference is something ``--extend`` may do."""
+    if key == "sequences":
+        return isinstance(old, list) and isinstance(new, list) and set(old) <= set(new)
+    if key.startswith("frames."):
+        if old == ABSENT:
+            return True  # a sequence added
+        if new == ABSENT:
+            return False
+        (a0, b0), (a1, b1) = _range(old), _range(new)
+        return a1 <= a0 and b1 >= b0
+    if key.startswith("recording."):
+        seq = key[len("recording."):].rsplit(".", 1)[0]  # sequence names may hold dots
+        return old == ABSENT and f"frames.{seq}" not in old_id  # a new sequence's fingerprint
+    return False
+
+
+def check_resubmit(old: Mapping[str, Any], new: Mapping[str, Any], out: str, mode: str = "resume") -> None:
+    """Refuse a resubmission whose identity differs from the catalogue's, naming every
+    differing key; ``mode="extend"`` admits wider frame ranges and added sequences only.
+    A record from before identities (``legacy_identity``: no ``sequences`` key) is
+    compared on the keys it has."""
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    complete = "sequences" in old
+    diffs = [(k, o, n) for k, o, n in differences(old, new) if complete or o != ABSENT]
+    if not diffs or mode == "new":
+        return
+    lines = "\n".join(f"  {k}: {_show(o)} → {_show(n)}" for k, o, n in diffs)
+    if mode == "extend":
+        bad = [k for k, o, n in diffs if not _extends(k, o, n, old)]
+        if not bad:
+            return
+        raise ConfigError(
+            f"{out}: --extend only widens frame ranges and adds sequences; this job also changes "
+            f"{', '.join(bad)}. Every difference from the catalogue's job:\n{lines}\n"
+            "Use --new-run to start a new catalogue there (the old one is moved aside), or another --out.")
+    raise ConfigError(
+        f"{out} holds the catalogue of another job; this one differs in {len(diffs)} key(s):\n{lines}\n"
+        "Resubmit the same job to resume it; --extend to widen its frame ranges or add sequences "
+        "(the result equals a clean run of the new range); --new-run to start a new catalogue there "
+        "(the old one is moved aside); or use another --out.")
+
+
+def legacy_identity(config: Mapping[str, Any]) -> dict[str, Any]:
+    """What a ``job.json`` without an identity still tells: its config keys and source root."""
+    d = {k: v for k, v in config.items() if k != "run"}
+    src = dict(d.get("source") or {})
+    root = src.pop("root", "")
+    src.pop("sequences", None)
+    d["source"] = src
+    out: dict[str, Any] = {}
+    _flatten("config", d, out)
+    out["source.root"] = root_key(root)
+    return out

@@ -1,0 +1,184 @@
+"""Integrity of a catalogue: the size and sha256 of every file as written, against what is there.
+
+Each output a later step or a reader trusts is recorded when it is written:
+
+* a window's parts (``parts/<table>/…/<window>.parquet``) in ``manifest/…/<window>.files.json``,
+  written after the parts and before the window's manifest row says done;
+* a sequence's compacted files (``catalog/<table>/…/part-<k>.parquet``, all four tables) in
+  its finished marker ``catalog/_sequences/…``, written after them.
+
+Checking costs a listing and a ``stat`` per file (sizes: a deleted or truncated file), or
+reads every byte with ``verify`` (checksums: a file damaged in place). Three callers:
+resume (``submit.read_resume``: a window with a damaged part runs again, a sequence with a
+damaged compacted file is stitched again from its parts), ``mine status`` (names every
+damaged file and what a resubmission recomputes) and the query views (``views.connect``:
+a table with a damaged file refuses queries, naming it; the other tables answer).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+
+import pyarrow.fs as pafs
+
+from mining.catalog.layout import CATALOG, PART_TABLES, catalog_dir, done_path, files_path, part_path
+from mining.catalog.store import Store, is_temporary
+from mining.types import Window
+
+CHUNK = 1 << 20  # ours: bytes read per step while hashing
+TABLES = ("tubes", "tube_frames", "frames", "windows")  # the compacted tables a finalize writes
+MARKERS = f"{CATALOG}/_sequences"
+
+
+@dataclass(frozen=True)
+class Damage:
+    """One file that is not as recorded."""
+
+    path: str  # relative to the catalogue root
+    reason: str  # "missing", "1200 bytes, 5310 recorded", …
+    owner: str  # what recomputes it: "window W" (runs again) or "sequence S" (stitched again)
+
+    @property
+    def table(self) -> str:
+        """The table a compacted file belongs to ("" for other files)."""
+        parts = self.path.split("/")
+        return parts[1] if len(parts) > 2 and parts[0] == CATALOG and parts[1] in TABLES else ""
+
+
+def digest(store: Store, rel: str) -> dict:
+    """``{"size", "sha256"}`` of one file, read back from the store."""
+    h, size = hashlib.sha256(), 0
+    with store.fs.open_input_stream(store.full(rel)) as f:
+        while chunk := f.read(CHUNK):
+            h.update(chunk)
+            size += len(chunk)
+    return {"size": size, "sha256": h.hexdigest()}
+
+
+def record_files(store: Store, rels: Iterable[str]) -> dict[str, dict]:
+    """``digest`` of each file: the record a manifest keeps."""
+    return {rel: digest(store, rel) for rel in rels}
+
+
+def read_json(store: Store, rel: str) -> dict | None:
+    """A JSON record, or None when it is missing or unreadable (a damaged record proves nothing)."""
+    try:
+        with store.fs.open_input_stream(store.full(rel)) as f:
+            d = json.loads(f.read())
+    except (FileNotFoundError, OSError, ValueError):
+        return None
+    return d if isinstance(d, dict) else None
+
+
+def _sizes(store: Store, rels: list[str]) -> dict[str, int | None]:
+    """Size of each file; None when it is not a file."""
+    infos = store.fs.get_file_info([store.full(r) for r in rels]) if rels else []
+    return {r: (i.size if i.type == pafs.FileType.File else None) for r, i in zip(rels, infos)}
+
+
+def check_files(store: Store, recorded: Mapping[str, Mapping], owner: str, verify: bool = False) -> list[Damage]:
+    """The recorded files that are missing, of another size or (``verify``) of another checksum."""
+    out = []
+    for rel, size in _sizes(store, sorted(recorded)).items():
+        want = recorded[rel]
+        if size is None:
+            out.append(Damage(rel, "missing", owner))
+        elif size != want.get("size"):
+            out.append(Damage(rel, f"{size} bytes, {want.get('size')} recorded", owner))
+        elif verify:
+            try:
+                got = digest(store, rel)["sha256"]
+            except OSError as e:
+                out.append(Damage(rel, f"unreadable: {e}", owner))
+                continue
+            if got != want.get("sha256"):
+                out.append(Damage(rel, f"sha256 {got[:12]}…, {str(want.get('sha256'))[:12]}… recorded", owner))
+    return out
+
+
+def window_files(store: Store, window: Window) -> dict[str, dict]:
+    """The parts a window's tracking wrote, with their digests (for ``files_path``)."""
+    return record_files(store, [part_path(t, window.dataset, window.sequence, window.name) for t in PART_TABLES])
+
+
+def window_damage(store: Store, window: Window, verify: bool = False) -> list[Damage]:
+    """The damaged or missing parts of a window its manifest row says is done."""
+    owner = f"window {window.name}"
+    rel = files_path(window.dataset, window.sequence, window.name)
+    record = read_json(store, rel)
+    files = record.get("files") if record else None
+    if not isinstance(files, dict):
+        return [Damage(rel, "missing or unreadable: the window's parts cannot be checked", owner)]
+    want = {part_path(t, window.dataset, window.sequence, window.name) for t in PART_TABLES}
+    out = [Damage(r, "missing", owner) for r in sorted(want - files.keys())]
+    return out + check_files(store, files, owner, verify)
+
+
+def sequence_files(store: Store, written: Iterable[str]) -> dict[str, dict]:
+    """The compacted files a finalize wrote, with their digests (for the finished marker)."""
+    return record_files(store, written)
+
+
+def marker_damage(store: Store, marker: Mapping, verify: bool = False, dataset: str | None = None,
+                  sequence: str | None = None) -> list[Damage]:
+    """The damaged, missing or unexpected compacted files of a finalized sequence (its
+    ``dataset`` and ``sequence`` as the marker records them, unless given)."""
+    dataset, sequence = dataset or marker.get("dataset"), sequence or marker.get("sequence")
+    owner = f"sequence {sequence}"
+    files = marker.get("files")
+    if not isinstance(files, dict) or not isinstance(dataset, str) or not isinstance(sequence, str):
+        where = done_path(dataset, sequence) if isinstance(dataset, str) and isinstance(sequence, str) else MARKERS
+        return [Damage(where, "records no file sizes (written before integrity records)", owner)]
+    out = check_files(store, files, owner, verify)
+    for table in TABLES:  # a file no finalize recorded is read by every query: a left-over
+        for rel in store.list(catalog_dir(table, dataset, sequence)):
+            if rel not in files:
+                out.append(Damage(rel, "not recorded by the sequence's last finalize (left over)", owner))
+    return out
+
+
+def sequence_damage(store: Store, dataset: str, sequence: str, verify: bool = False) -> list[Damage] | None:
+    """``marker_damage`` of one sequence; None when it has no (readable) finished marker."""
+    marker = read_json(store, done_path(dataset, sequence))
+    return None if marker is None else marker_damage(store, marker, verify, dataset, sequence)
+
+
+def markers(store: Store) -> list[dict]:
+    """Every readable finished marker of the catalogue."""
+    out = []
+    for rel in store.list(MARKERS, ".json"):
+        m = read_json(store, rel)
+        if m is not None:
+            out.append(m)
+    return out
+
+
+def catalogue_damage(store: Store, verify: bool = False) -> dict[str, list[Damage]]:
+    """Damaged compacted files by table, over every finalized sequence (what queries read)."""
+    out: dict[str, list[Damage]] = {}
+    for m in markers(store):
+        if not isinstance(m.get("files"), dict):
+            continue  # a marker from before integrity records: nothing to check against
+        for d in marker_damage(store, m, verify):
+            out.setdefault(d.table, []).append(d)
+    return out
+
+
+def unreadable_parquet(store: Store, rels: Iterable[str]) -> list[tuple[str, str]]:
+    """The files among ``rels`` whose Parquet footer does not read, with the reason."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    out = []
+    for rel in rels:
+        if is_temporary(rel):
+            continue
+        try:
+            with store.fs.open_input_file(store.full(rel)) as f:
+                pq.ParquetFile(f).metadata  # noqa: B018 - reading the footer is the check
+        except (pa.ArrowInvalid, OSError) as e:
+            out.append((rel, str(e)))
+    return out

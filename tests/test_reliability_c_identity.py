@@ -1,0 +1,148 @@
+"""A job's identity is complete (issue 11, item 4): config, source root, recording, sequences, frames.
+
+A resubmission to an ``--out`` that holds another job's catalogue is refused naming every
+key that differs (old → new), before any work; ``--extend`` widens the frame range and
+gives exactly the catalogue of a clean run of the wide range; ``--new-run`` moves the
+old catalogue aside and starts again. Real files, real DuckDB, a small synthetic job and
+real KITTI frames, mined in this process (``LocalExecutor``).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import pytest
+
+from mining.catalog.views import connect
+from mining.config import load_config
+from mining.errors import ConfigError
+from mining.pipeline.executors import LocalExecutor
+from mining.pipeline.status import job_status
+from mining.pipeline.submit import mine_job
+from _reliability_c import SEQ, copy_of, mine, small_cfg, tables
+
+pytest_plugins = ["_reliability_c_fixtures"]  # base_catalogue: one base job for all three files
+
+KITTI_CORE = ["window.core=4", "window.context_before=2", "window.context_after=2", 'proposals.proposer="stereo"']
+
+
+def _kitti_recording(src: Path, dst: Path, frames: range) -> Path:
+    """Real KITTI 0005 frames ``frames``, renumbered from 0, in the tracking layout."""
+    for cam in ("image_02", "image_03"):
+        d = dst / "training" / cam / "0005"
+        d.mkdir(parents=True)
+        for i, f in enumerate(frames):
+            shutil.copyfile(src / "training" / cam / "0005" / f"{f:06d}.png", d / f"{i:06d}.png")
+    (dst / "training" / "calib").mkdir()
+    shutil.copyfile(src / "training" / "calib" / "0005.txt", dst / "training" / "calib" / "0005.txt")
+    return dst
+
+
+def _kitti_cfg(root: Path):
+    return load_config(None, ['source.dataset="kitti"', f'source.root="{root.as_posix()}"', *KITTI_CORE])
+
+
+def _files(out: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(out)): p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()}
+
+
+def test_another_recording_on_the_same_out_is_refused_naming_every_differing_key(kitti_tracking_root, tmp_path):
+    a = _kitti_recording(kitti_tracking_root, tmp_path / "a", range(0, 4))
+    b = _kitti_recording(kitti_tracking_root, tmp_path / "b", range(8, 14))  # another recording: 6 frames
+    out = tmp_path / "out"
+    s = mine_job(_kitti_cfg(a), str(out), ["0005"], (0, None), executor=LocalExecutor)
+    assert s.ok == 1 and not s.failed, s.lines()
+    before = _files(out)
+
+    with pytest.raises(ConfigError) as e:
+        mine_job(_kitti_cfg(b), str(out), ["0005"], (0, None), executor=LocalExecutor)
+    msg = str(e.value)
+    named = dict(re.findall(r"^  (\S+): (.+)$", msg, re.M))
+    assert named.keys() == {"source.root", "frames.0005", "recording.0005.frames", "recording.0005.stamps"}, msg
+    assert named["source.root"] == f"{a.resolve()} → {b.resolve()}"
+    assert named["frames.0005"] == "0:4 → 0:6" and named["recording.0005.frames"] == "4 → 6"
+    assert "--new-run" in msg and "--extend" in msg
+    assert _files(out) == before, "the refused job wrote into the catalogue"
+    # The catalogue still holds the first recording only, and job.json names it.
+    assert json.loads((out / "job.json").read_text())["identity"]["source.root"] == str(a.resolve())
+
+
+def test_a_config_change_is_refused_naming_the_key(base_catalogue, tmp_path):
+    out = copy_of(base_catalogue, tmp_path / "out")
+
+    with pytest.raises(ConfigError, match=r"(?m)^  config\.geometry\.stereo\.num_disparities: 128 → 96$"):
+        mine(out, cfg=small_cfg("geometry.stereo.num_disparities=96"))
+
+
+def test_widened_frames_are_refused_without_extend(base_catalogue, tmp_path):
+    out = copy_of(base_catalogue, tmp_path / "out")
+    before = _files(out)
+    with pytest.raises(ConfigError, match=r"(?m)^  frames\.0000: 0:16 → 0:24$"):
+        mine(out, (0, 24))
+    assert _files(out) == before
+
+
+def test_narrowed_frames_are_refused_even_with_extend(base_catalogue, tmp_path):
+    out = copy_of(base_catalogue, tmp_path / "out")
+    before = _files(out)
+    with pytest.raises(ConfigError, match=r"(?m)^  frames\.0000: 0:16 → 0:8$"):
+        mine(out, (0, 8))
+    with pytest.raises(ConfigError, match=r"--extend only widens.*changes frames\.0000"):
+        mine(out, (0, 8), mode="extend")
+    assert _files(out) == before
+    assert [r.status for r in job_status(str(out))] == ["done", "done"]  # no frame or tube was dropped
+    assert tables(out) == base_catalogue[1]
+
+
+def test_extend_gives_the_catalogue_of_a_clean_run_of_the_wide_range(base_catalogue, tmp_path):
+    wide = (0, 24)
+    extended = copy_of(base_catalogue, tmp_path / "extended")
+    s = mine(extended, wide, mode="extend")
+    # [0, 8) keeps its context and is resumed; [8, 16) has a wider context now and runs
+    # again; [16, 24) is new.
+    assert (s.skipped, s.ok, s.failed) == (1, 2, {}), s.lines()
+    clean = tmp_path / "clean"
+    assert mine(clean, wide).ok == 3
+    got, want = tables(extended), tables(clean)
+    for k in want:
+        assert got[k] == want[k], f"{k}: extended {len(got[k])} rows, clean {len(want[k])}"
+
+    def windows(out):
+        con = connect(out)
+        try:
+            return con.sql('SELECT "window", core_start, core_end, context_start, context_end, status '
+                           'FROM windows ORDER BY "window"').fetchall()
+        finally:
+            con.close()
+    assert windows(extended) == windows(clean)
+    assert len(windows(clean)) == 3
+    con = connect(clean)
+    try:  # the comparison covers tubes stitched across the re-cut border
+        assert con.sql("SELECT count(*) FROM tubes WHERE n_windows > 1 AND frame_end >= 16").fetchone()[0] > 0
+    finally:
+        con.close()
+    # And the extended job is now the wide one: resubmitting it does nothing.
+    again = mine(extended, wide)
+    assert (again.skipped, again.ok) == (3, 0)
+
+
+def test_new_run_moves_the_old_catalogue_aside(base_catalogue, tmp_path, capsys):
+    out = copy_of(base_catalogue, tmp_path / "out")
+    old = _files(out)
+    old_run = json.loads((out / "job.json").read_text())["run_id"]
+    s = mine(out, (0, 8), mode="new")
+    assert s.ok == 1 and s.skipped == 0, s.lines()
+    moved = list((out / "_replaced").iterdir())
+    assert len(moved) == 1 and moved[0].name.startswith(old_run + "-")
+    assert str(moved[0]) in capsys.readouterr().err
+    # Everything the old job wrote is there, byte for byte.
+    kept = {k.split("/", 2)[2]: v for k, v in _files(out).items() if k.startswith("_replaced/")}
+    assert kept == {k: v for k, v in old.items() if k != ".mine.lock"}
+    # The new catalogue holds frames 0:8 only, and a new run id.
+    record = json.loads((out / "job.json").read_text())
+    assert record["run_id"] != old_run and record["identity"][f"frames.{SEQ}"] == "0:8"
+    assert len(tables(out)["frames"]) == 8
+    assert [r.window for r in job_status(str(out))] == [f"{SEQ}-0000000-0000008"]

@@ -1,0 +1,147 @@
+"""Damage is found and repaired (issue 11, item 5).
+
+The manifest records every output file's size and sha256. ``mine status`` names a
+damaged or missing file and exits non-zero (sizes always; checksums with ``--verify``);
+``mine query`` refuses the damaged table, naming the file, and answers the others; a
+resubmission recomputes exactly what owns the file: a compacted catalogue file is stitched
+again from its sequence's parts (no window runs), or, with the parts gone too, their
+windows run again; a damaged part runs its window again. Every repair ends with the
+catalogue of the undamaged job. Real files, real DuckDB, ``LocalExecutor``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from mining.cli import main
+from _reliability_c import SEQ, copy_of, mine, tables
+
+pytest_plugins = ["_reliability_c_fixtures"]  # base_catalogue: one base job for all three files
+
+D = f"dataset=synthetic/sequence={SEQ}"
+TUBES = f"catalog/tubes/{D}/part-0.parquet"
+TUBE_FRAMES = f"catalog/tube_frames/{D}/part-0.parquet"
+FRAMES = f"catalog/frames/{D}/part-0.parquet"
+W0, W1 = f"{SEQ}-0000000-0000008", f"{SEQ}-0000008-0000016"
+
+
+def _cli(capsys, *argv: str) -> tuple[int, str, str]:
+    capsys.readouterr()
+    rc = main(list(argv))
+    got = capsys.readouterr()
+    return rc, got.out, got.err
+
+
+def _status(capsys, out: Path, *extra: str) -> tuple[int, str]:
+    rc, o, e = _cli(capsys, "status", "--out", str(out), *extra)
+    return rc, o + e
+
+
+def _count(capsys, out: Path, table: str) -> tuple[int, str, str]:
+    return _cli(capsys, "query", f"SELECT count(*) AS n FROM {table}", "--out", str(out), "--format", "csv")
+
+
+def _truncate(path: Path) -> None:
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+
+
+def test_a_deleted_compacted_file_is_named_and_re_stitched_from_its_parts(base_catalogue, tmp_path, capsys):
+    out = copy_of(base_catalogue, tmp_path / "out")
+    n_frames = len(base_catalogue[1]["frames"])
+    (out / TUBES).unlink()
+
+    rc, text = _status(capsys, out)
+    assert rc != 0 and f"damaged  {TUBES}: missing (a resubmission stitches sequence {SEQ} again)" in text, text
+    rc, o, e = _count(capsys, out, "tubes")
+    assert rc == 2 and str(out / TUBES) in e and "missing" in e, o + e  # not "0 rows"
+    rc, o, e = _count(capsys, out, "frames")
+    assert rc == 0 and o.split()[1:] == [str(n_frames)], o + e
+
+    s = mine(out)
+    assert (s.ok, s.skipped, s.sequences_written) == (0, 2, 1), s.lines()  # no window ran: stitched again
+    assert tables(out) == base_catalogue[1]
+    assert _status(capsys, out)[0] == 0
+
+
+def test_a_truncated_compacted_file_breaks_only_its_table(base_catalogue, tmp_path, capsys):
+    out = copy_of(base_catalogue, tmp_path / "out")
+    _truncate(out / TUBE_FRAMES)
+
+    rc, text = _status(capsys, out)
+    assert rc != 0 and f"damaged  {TUBE_FRAMES}: " in text and "bytes," in text and "recorded" in text, text
+    rc, o, e = _count(capsys, out, "tube_frames")
+    assert rc == 2 and str(out / TUBE_FRAMES) in e, o + e
+    rc, o, e = _cli(capsys, "query", "SELECT count(*) FROM tube_tracks", "--out", str(out))  # a view over it
+    assert rc == 2 and str(out / TUBE_FRAMES) in e, o + e
+    for table, n in (("tubes", len(base_catalogue[1]["tubes"])), ("frames", len(base_catalogue[1]["frames"])),
+                     ("windows", 2), ("selected_tubes", None)):
+        rc, o, e = _count(capsys, out, table)
+        assert rc == 0, f"{table}: {o + e}"
+        assert n is None or o.split()[1:] == [str(n)], o
+
+    s = mine(out)
+    assert (s.ok, s.skipped, s.sequences_written) == (0, 2, 1), s.lines()
+    assert tables(out) == base_catalogue[1]
+
+
+def test_status_verify_finds_a_file_damaged_in_place(base_catalogue, tmp_path, capsys):
+    out = copy_of(base_catalogue, tmp_path / "out")
+    path = out / FRAMES
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0xFF  # one flipped byte: the size is as recorded
+    path.write_bytes(bytes(data))
+
+    rc, text = _status(capsys, out)
+    assert rc == 0 and "integrity: 0 damaged" in text, text  # sizes alone cannot see it
+    rc, text = _status(capsys, out, "--verify")
+    assert rc != 0 and f"damaged  {FRAMES}: sha256 " in text and "integrity: 1 damaged" in text, text
+
+    s = mine(out)  # sizes only: nothing seen, nothing done
+    assert (s.ok, s.sequences_written) == (0, 0)
+    s = mine(out, verify=True)
+    assert (s.ok, s.skipped, s.sequences_written) == (0, 2, 1), s.lines()
+    assert path.read_bytes() != bytes(data)
+    assert tables(out) == base_catalogue[1]
+    assert _status(capsys, out, "--verify")[0] == 0
+
+
+def test_a_damaged_part_runs_its_window_again(base_catalogue, tmp_path, capsys):
+    out = copy_of(base_catalogue, tmp_path / "out")
+    part = f"parts/tube_frames/{D}/{W1}.parquet"
+    _truncate(out / part)
+
+    rc, text = _status(capsys, out)
+    assert rc != 0 and f"damaged  {part}: " in text and f"runs window {W1} again" in text, text
+    s = mine(out)
+    assert (s.ok, s.skipped, s.sequences_written) == (1, 1, 1), s.lines()  # that window, then the stitch
+    assert tables(out) == base_catalogue[1]
+    assert _status(capsys, out, "--verify")[0] == 0
+
+
+def test_a_damaged_compacted_file_without_its_parts_runs_their_windows_again(base_catalogue, tmp_path, capsys):
+    out = copy_of(base_catalogue, tmp_path / "out")
+    _truncate(out / TUBES)
+    for p in (out / "parts").rglob("*.parquet"):
+        p.unlink()
+
+    rc, text = _status(capsys, out)
+    assert rc != 0 and TUBES in text and f"runs window {W0} again" in text and f"runs window {W1} again" in text
+    s = mine(out)
+    assert (s.ok, s.skipped, s.sequences_written) == (2, 0, 1), s.lines()
+    assert tables(out) == base_catalogue[1]
+
+
+def test_an_unreadable_manifest_row_is_named_and_its_window_runs_again(base_catalogue, tmp_path, capsys):
+    out = copy_of(base_catalogue, tmp_path / "out")
+    row = f"manifest/{D}/{W0}.parquet"
+    (out / row).write_bytes(b"not parquet")
+
+    rc, text = _status(capsys, out)
+    assert rc != 0 and f"damaged  {row}: unreadable" in text, text
+    rc, o, e = _count(capsys, out, "tubes")
+    assert rc == 0, o + e
+    s = mine(out)
+    assert (s.ok, s.skipped) == (1, 1), s.lines()
+    assert tables(out) == base_catalogue[1]
+    assert _status(capsys, out)[0] == 0
