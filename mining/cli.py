@@ -296,8 +296,17 @@ def cmd_export(args: argparse.Namespace) -> int:
     return run_export(args.out, args.where, args.format, args.dest)
 
 
+def _version_text() -> str:
+    """The package version, and the catalogue schema it writes."""
+    from mining import __version__
+    from mining.catalog.schema import SCHEMA_VERSION
+
+    return f"mine (tube-miner) {__version__}, catalogue schema v{SCHEMA_VERSION}"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mine", description="Tube Miner: mine generic object tubes from stereo video.")
+    parser.add_argument("--version", action="version", version=_version_text())
     sub = parser.add_subparsers(dest="command", required=True)
 
     smt = sub.add_parser("submit", help="plan windows and mine them on Ray (local, or a cluster with --address)")
