@@ -74,8 +74,9 @@ def listed_frames(left_dir: Path, right_dir: Path, digits: int) -> tuple[tuple[i
         return {int(m.group(1)): n for n in _names(d) if (m := pattern.fullmatch(n))}
 
     left, right = listing(left_dir), listing(right_dir)
-    if not left and not right:
-        raise InputError("no images found", left_dir)
+    for d, names in ((left_dir, left), (right_dir, right)):
+        if not names:
+            raise InputError("no images found", d)
     frames = tuple(range(min(left.keys() | right.keys()), max(left.keys() | right.keys()) + 1))
     problems = {}
     for idx in frames:

@@ -229,11 +229,12 @@ class McapSource(Source):
         for topic, msgs in ((lt, left), (rt, right)):
             if repeats[topic] and self.duplicate_stamps == "error":
                 k = repeats[topic][0]
+                by_log = self.time_source == "header" and msgs[k - 1][1] != msgs[k][1]
                 raise InputError(
                     f"image topic {topic}: {len(repeats[topic])} message(s) repeat the stamp of an earlier one "
                     f"(first: stamp {msgs[k][0]} ns, log times {msgs[k - 1][1]} and {msgs[k][1]}); pairing would "
                     "drop frames silently. Pass duplicate_stamps='gap' to keep the first of each stamp and drop "
-                    "the repeats as recording gaps" + (", or time_source='log'" if self.time_source == "header" else ""),
+                    f"the repeats as recording gaps{', or time_source=log (their log times differ)' if by_log else ''}",
                     path,
                 )
         partner = _pair(left, right, self.max_pair_dt_ns, set(repeats[lt]), set(repeats[rt]))
