@@ -26,6 +26,7 @@ import pyarrow.parquet as pq
 from pycocotools import mask as mask_utils
 
 from mining.catalog.layout import JobRecord
+from mining.catalog.predicate import tubes_query
 from mining.catalog.store import Store
 from mining.catalog.views import connect, execute_read_only
 from mining.errors import InputError, MiningError
@@ -47,17 +48,18 @@ def read_job(store: Store) -> dict:
 
 
 def selected_rows(con: duckdb.DuckDBPyConnection, where: str) -> tuple[pa.Table, pa.Table]:
-    """(tubes, tube_frames) of the tubes matching ``where``, frames in (tube, frame) order."""
-    tubes_sql = f"SELECT * FROM tubes WHERE ({where})"
+    """(tubes, tube_frames) of the tubes matching ``where``, frames in (tube, frame) order.
+
+    ``where`` is parsed as one expression (``predicate.tubes_query``) and both queries run
+    through the read-only checks on ``con`` (a ``views.connect`` connection)."""
+    tubes_sql = tubes_query(where)
     try:
-        if len(duckdb.extract_statements(tubes_sql)) != 1:
-            raise InputError(f"--where must be one SQL predicate, got {where!r}")
-        tubes = execute_read_only(con, tubes_sql + " ORDER BY dataset, sequence, t_start, tube_id").to_arrow_table()
+        tubes = execute_read_only(con, f"SELECT * FROM ({tubes_sql}) ORDER BY dataset, sequence, t_start, tube_id")
+        frames = execute_read_only(con, f"SELECT f.* FROM tube_frames AS f SEMI JOIN ({tubes_sql}) AS t "
+                                        "USING (dataset, sequence, tube_id) ORDER BY f.dataset, f.sequence, f.tube_id, f.frame")
+        return tubes.to_arrow_table(), frames.to_arrow_table()
     except duckdb.Error as e:
         raise InputError(f"bad --where predicate {where!r}: {e}") from None
-    frames = con.sql(f"SELECT f.* FROM tube_frames AS f SEMI JOIN ({tubes_sql}) AS t USING (dataset, sequence, tube_id) "
-                     "ORDER BY f.dataset, f.sequence, f.tube_id, f.frame").to_arrow_table()
-    return tubes, frames
 
 
 def _by_sequence(tubes: pa.Table) -> dict[tuple[str, str], list[dict]]:

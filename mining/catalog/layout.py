@@ -87,6 +87,29 @@ def _window_entry(w: Window) -> dict:
             "context": list(w.context)}
 
 
+def _record_problem(d: object) -> str | None:
+    """What makes parsed JSON not a job record (the key and what it holds), or None."""
+    if not isinstance(d, dict):
+        return f"expected a JSON object, got {type(d).__name__}"
+    for key, kind in (("run_id", str), ("params_hash", str), ("config", dict), ("windows", list)):
+        if key not in d:
+            return f"key {key!r} is missing"
+        if not isinstance(d[key], kind):
+            return f"key {key!r} holds {type(d[key]).__name__}, expected {kind.__name__}"
+    for i, w in enumerate(d["windows"]):
+        if not isinstance(w, dict):
+            return f"windows[{i}] holds {type(w).__name__}, expected an object"
+        for key in ("dataset", "sequence"):
+            if not isinstance(w.get(key), str):
+                return f"windows[{i}].{key} is {w.get(key)!r}, expected a name"
+        for key in ("core", "context"):
+            v = w.get(key)
+            if not (isinstance(v, list) and len(v) == 2 and all(isinstance(x, int) and not isinstance(x, bool)
+                                                                  and x >= 0 for x in v) and v[0] < v[1]):
+                return f"windows[{i}].{key} is {v!r}, expected [start, end] frame positions"
+    return None
+
+
 @dataclass
 class JobRecord:
     """``job.json``: the job a catalogue belongs to."""
@@ -104,13 +127,18 @@ class JobRecord:
             return None
         try:
             d = json.loads(store.read_bytes(JOB))
-            windows = [Window(w["dataset"], w["sequence"], tuple(w["core"]), tuple(w["context"])) for w in d["windows"]]
-            identity = d["identity"] if "identity" in d else legacy_identity(d["config"])
-            if not isinstance(identity, dict):
-                raise TypeError("identity is not a mapping")
-            return cls(d["run_id"], d["params_hash"], d["config"], windows, identity)
-        except (ValueError, KeyError, TypeError, AttributeError) as e:
-            raise InputError(f"job.json is not a job record ({e})", store.full(JOB)) from None
+        except ValueError as e:  # not UTF-8, not JSON (a truncated or overwritten file)
+            raise InputError(f"job.json is not a job record: not valid JSON ({e}); move it away to start afresh",
+                             store.full(JOB)) from None
+        if (problem := _record_problem(d)) is not None:
+            raise InputError(f"job.json is not a job record: {problem}; move it away to start afresh",
+                             store.full(JOB))
+        identity = d["identity"] if "identity" in d else legacy_identity(d["config"])
+        if not isinstance(identity, dict):
+            raise InputError("job.json is not a job record: key 'identity' is not a mapping; move it away to start "
+                             "afresh", store.full(JOB))
+        windows = [Window(w["dataset"], w["sequence"], tuple(w["core"]), tuple(w["context"])) for w in d["windows"]]
+        return cls(d["run_id"], d["params_hash"], d["config"], windows, identity)
 
     def check(self, params_hash: str, out: str) -> None:
         """Refuse a job of other params than the catalogue at ``out`` was made with (the

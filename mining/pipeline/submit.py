@@ -1,7 +1,9 @@
 """``mine submit``: plan windows, run the steps on an executor, report.
 
-``open_job`` plans the windows, records the job (``job.json``) and reads what earlier
-runs left; the ``Schedule`` (``schedule.py``) orders the steps; ``run_job`` is the loop
+``open_job`` runs the preflight (``preflight.py``: config, frame range, output, every
+sequence's plan and calibration, the proposer — all before job.json is written or Ray
+starts; a sequence that cannot be planned is reported and the others run), records the
+job (``job.json``) and reads what earlier runs left; the ``Schedule`` (``schedule.py``) orders the steps; ``run_job`` is the loop
 that hands them to an executor (``executors.py``: this process, or Ray) and writes what
 a step that could not run leaves behind. ``mine_job`` does all of it in one call.
 
@@ -43,10 +45,11 @@ from mining.catalog.store import Store
 from mining.config import JobConfig
 from mining.errors import ConfigError, InputError
 from mining.pipeline.executors import Executor, RayExecutor
+from mining.pipeline.preflight import preflight
 from mining.pipeline.schedule import Resume, Schedule, Task
-from mining.pipeline.steps import Job, StepResult, job_source, write_manifest
+from mining.pipeline.steps import Job, StepResult, write_manifest
 from mining.proposals.make import classifiers_line
-from mining.types import Window, plan_windows
+from mining.types import Window
 
 
 @dataclass
@@ -55,6 +58,7 @@ class Summary:
     skipped: int = 0
     ok: int = 0
     failed: dict[str, str] = field(default_factory=dict)  # window → error
+    unplanned: dict[str, str] = field(default_factory=dict)  # "dataset/sequence" left out by the preflight → why
     frames: int = 0
     tubes: int = 0
     candidates: int = 0
@@ -73,6 +77,11 @@ class Summary:
                f"time: {self.seconds:.1f} s, {self.frames / max(self.seconds, 1e-9):.2f} frames/s"]
         for w, e in sorted(self.failed.items()):
             out.append(f"FAILED {w}: {e.strip().splitlines()[0] if e.strip() else 'unknown error'}")
+        if self.unplanned:
+            out.append(f"sequences left out: {len(self.unplanned)} could not be planned (the others ran); "
+                       "fix them and rerun the same command")
+        for seq, e in sorted(self.unplanned.items()):
+            out.append(f"FAILED {seq} (planning): {e.strip().splitlines()[0] if e.strip() else 'unknown error'}")
         return out
 
     def count(self, task: Task, result: StepResult, dataset: str) -> None:
@@ -90,18 +99,6 @@ class Summary:
             self.sequences_written += 1
             for k in ("tubes", "candidates", "known", "unknown", "unclassified"):
                 setattr(self, k, getattr(self, k) + result.extra[k])
-
-
-def plan_job(cfg: JobConfig, sequences: list[str] | None, frames: tuple[int, int | None]) -> tuple[dict, list[Window]]:
-    source = job_source(Job(cfg, "", "", {}))
-    seqs = sequences or cfg.source.sequences or source.sequences()
-    plans, windows = {}, []
-    for seq in seqs:
-        plan = source.plan(seq)
-        plans[seq] = plan
-        w = cfg.window
-        windows += plan_windows(plan, w.core, w.context_before, w.context_after, frames[0], frames[1])
-    return plans, windows
 
 
 def _retire(store: Store, prior: list[Window], windows: list[Window]) -> None:
@@ -199,15 +196,17 @@ def read_resume(store: Store, dataset: str, windows: list[Window], params_hash: 
 
 def open_job(cfg: JobConfig, out: str, sequences: list[str] | None = None,
              frames: tuple[int, int | None] = (0, None), mode: str = "resume",
-             verify: bool = False) -> tuple[Job, Schedule]:
-    """Plan the job, record it in ``out``'s ``job.json`` (``record_job``: ``mode`` says what
-    a differing identity may do) and schedule what is left to do; call it holding the
+             verify: bool = False) -> tuple[Job, Schedule, dict[str, str]]:
+    """Preflight and plan the job, record it in ``out``'s ``job.json`` (``record_job``:
+    ``mode`` says what a differing identity may do) and schedule what is left to do; also the
+    sequences left out (sequence → why they cannot be mined). Call it holding the
     catalogue's lock (``mine_job`` does)."""
     store = Store(out)
-    plans, windows = plan_job(cfg, sequences, frames)
-    record = record_job(store, cfg, windows, job_identity(cfg, plans, frames), mode)
-    job = Job(cfg, out, record.run_id, plans)
-    return job, Schedule(windows, read_resume(store, cfg.source.dataset, windows, job.params_hash, verify))
+    pf = preflight(cfg, out, sequences, frames)
+    record = record_job(store, cfg, pf.windows, job_identity(cfg, pf.plans, frames), mode)
+    job = Job(cfg, out, record.run_id, pf.plans)
+    return (job, Schedule(pf.windows, read_resume(store, cfg.source.dataset, pf.windows, job.params_hash, verify)),
+            pf.failed)
 
 
 class Progress:
@@ -291,7 +290,7 @@ def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frame
     """
     t0 = time.perf_counter()
     with OutputLock(Store(out), lock_wait):
-        job, schedule = open_job(cfg, out, sequences, frames, mode, verify)
+        job, schedule, unplanned = open_job(cfg, out, sequences, frames, mode, verify)
         if schedule.nothing_to_do:
             summary = Summary(windows=len(schedule.windows), skipped=schedule.skipped)
         else:
@@ -302,6 +301,7 @@ def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frame
                 ex.shutdown()
     summary.seconds = time.perf_counter() - t0
     summary.classifiers = classifiers_line(cfg.proposals.proposer)
+    summary.unplanned = {f"{cfg.source.dataset}/{seq}": error for seq, error in unplanned.items()}
     return summary
 
 

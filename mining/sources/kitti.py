@@ -59,13 +59,11 @@ def read_stereo_pair(left_path: Path, right_path: Path, frame: int, calib: Stere
     return left, right
 
 
-def paired_frames(left_dir: Path, right_dir: Path, digits: int) -> tuple[int, ...]:
-    """Frame indices whose image (``<digits-wide index>.png``) exists in both folders.
-
-    Indices must be consecutive from the first. A frame present on one side only, or a
-    hole in the numbering, raises InputError naming the missing file, from the directory
-    listing alone.
-    """
+def listed_frames(left_dir: Path, right_dir: Path, digits: int) -> tuple[tuple[int, ...], dict[int, str]]:
+    """Frame indices from the first to the last image (``<digits-wide index>.png``) in
+    either folder, and the unreadable ones among them: index → message naming the missing
+    file and the frame (present on one side only, or a hole in the numbering). From the
+    directory listing alone."""
     for d in (left_dir, right_dir):
         if not d.is_dir():
             raise InputError("image folder is missing", d)
@@ -76,20 +74,36 @@ def paired_frames(left_dir: Path, right_dir: Path, digits: int) -> tuple[int, ..
         return {int(m.group(1)): n for n in _names(d) if (m := pattern.fullmatch(n))}
 
     left, right = listing(left_dir), listing(right_dir)
-    if only_left := sorted(left.keys() - right.keys()):
-        idx = only_left[0]
-        raise InputError("right image is missing for this frame", right_dir / left[idx], idx)
-    if only_right := sorted(right.keys() - left.keys()):
-        idx = only_right[0]
-        raise InputError("left image is missing for this frame", left_dir / right[idx], idx)
-    frames = sorted(left)
-    if not frames:
-        raise InputError("no images found", left_dir)
-    for prev, cur in zip(frames, frames[1:]):
-        if cur != prev + 1:
-            missing = left_dir / f"{prev + 1:0{digits}d}.png"
-            raise InputError(f"image is missing: frame numbering jumps from {prev} to {cur}", missing, prev + 1)
-    return tuple(frames)
+    for d, names in ((left_dir, left), (right_dir, right)):
+        if not names:
+            raise InputError("no images found", d)
+    frames = tuple(range(min(left.keys() | right.keys()), max(left.keys() | right.keys()) + 1))
+    problems = {}
+    for idx in frames:
+        name = f"{idx:0{digits}d}.png"
+        if idx in left and idx not in right:
+            problems[idx] = str(InputError("right image is missing for this frame", right_dir / name, idx))
+        elif idx in right and idx not in left:
+            problems[idx] = str(InputError("left image is missing for this frame", left_dir / name, idx))
+        elif idx not in left:
+            prev = max(i for i in left if i < idx)
+            nxt = min(i for i in left if i > idx)
+            problems[idx] = str(InputError(f"image is missing: frame numbering jumps from {prev} to {nxt}",
+                                           left_dir / name, idx))
+    return frames, problems
+
+
+def paired_frames(left_dir: Path, right_dir: Path, digits: int) -> tuple[int, ...]:
+    """Frame indices whose image (``<digits-wide index>.png``) exists in both folders.
+
+    Indices must be consecutive from the first. A frame present on one side only, or a
+    hole in the numbering, raises InputError naming the missing file, from the directory
+    listing alone.
+    """
+    frames, problems = listed_frames(left_dir, right_dir, digits)
+    if problems:
+        raise InputError(problems[min(problems)])
+    return frames
 
 
 def _names(d: Path) -> list[str]:
@@ -211,13 +225,18 @@ class KittiTrackingSource(Source):
 
     # -- Source interface -----------------------------------------------------------
 
-    def plan(self, sequence: str) -> SequencePlan:
+    def survey(self, sequence: str) -> SequencePlan:
         kc = self.kitti_calib(sequence)
         left_dir, right_dir = self._image_dirs(sequence)
-        frames = paired_frames(left_dir, right_dir, 6)
-        calib = self._checked_stereo(kc, left_dir / f"{frames[0]:06d}.png")
+        frames, problems = listed_frames(left_dir, right_dir, 6)
+        first = next((i for i in frames if i not in problems), None)
+        if first is None:
+            raise InputError("no frame has both its left and right image", left_dir)
+        calib = self._checked_stereo(kc, left_dir / f"{first:06d}.png")
         t_ns = tuple(i * KITTI_FRAME_PERIOD_NS for i in frames)
-        return SequencePlan(self.dataset, sequence, calib, frames, t_ns)
+        pos = {idx: k for k, idx in enumerate(frames)}
+        return SequencePlan(self.dataset, sequence, calib, frames, t_ns,
+                            problems=tuple((pos[i], msg) for i, msg in sorted(problems.items())))
 
     def read_frame(self, plan: SequencePlan, position: int) -> StereoFrame:
         idx = plan.frames[position]
