@@ -40,6 +40,8 @@ def _job_config(args: argparse.Namespace) -> JobConfig:
         overrides.append(f"source.dataset={args.dataset!r}".replace("'", '"'))
     if args.root:
         overrides.append(f'source.root="{Path(args.root).as_posix()}"')
+    if getattr(args, "host", None):
+        overrides.append(f"run.bind_host={args.host!r}".replace("'", '"'))
     cfg = load_config(args.config, overrides)
     for o in args.option:
         for k, v in parse_override(o).items():
@@ -301,6 +303,9 @@ def build_parser() -> argparse.ArgumentParser:
                                        "HOST:PORT or auto: run the scheduler here, the work on that cluster; "
                                        "default: start a local Ray on this machine")
     smt.add_argument("--workers", type=int, help="local Ray only: CPUs to use (default: all)")
+    smt.add_argument("--host", metavar="IP", help="local Ray only: the interface every Ray port listens on (default: "
+                                                  "the config's run.bind_host, 127.0.0.1). Ray's ports run code "
+                                                  "unauthenticated: another interface only on a network you trust")
     smt.add_argument("--no-progress", action="store_true", help="no progress bar (logs and CI)")
     smt.set_defaults(func=cmd_submit)
 

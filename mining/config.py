@@ -51,6 +51,9 @@ class WindowConfig:
 @dataclass
 class RunConfig:
     max_retries: int = 3  # ours: Ray retries of a window's task after a system failure (a dead worker or node)
+    # ours: the interface a local Ray of the job's own binds every port to (pipeline/localray.py);
+    # loopback unless the user names another (`mine submit --host`); 0.0.0.0 = Ray's own choice
+    bind_host: str = "127.0.0.1"
 
 
 @dataclass

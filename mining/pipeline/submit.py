@@ -32,6 +32,7 @@ from mining.catalog.layout import PART_TABLES, JobRecord, cache_path, done_path,
 from mining.catalog.store import Store
 from mining.config import JobConfig
 from mining.pipeline.executors import Executor, RayExecutor
+from mining.pipeline.localray import init_local_ray, prepare_local_ray
 from mining.pipeline.schedule import Resume, Schedule, Task
 from mining.pipeline.steps import Job, StepResult, job_source, write_manifest
 from mining.proposals.make import classifiers_line
@@ -233,19 +234,21 @@ def mine_on_ray(cfg: JobConfig, out: str, sequences: list[str] | None = None,
                 workers: int | None = None, progress: bool = True) -> Summary:
     """``mine submit`` here: the steps on the running cluster at ``address`` (or
     ``RAY_ADDRESS``), which decides the CPUs, or else on a Ray of its own with ``workers``
-    CPUs (never one that happens to run on this machine). Ray starts only when there is
-    work, and is shut down at the end."""
-    import ray
-
+    CPUs (never one that happens to run on this machine), listening on
+    ``cfg.run.bind_host`` only (``localray.py``). Ray starts only when there is work, and
+    is shut down at the end."""
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     address = address or os.environ.get("RAY_ADDRESS")
+    if not address:
+        prepare_local_ray(cfg.run.bind_host)  # before `import ray`; a bad --host fails before planning
+    import ray
 
     def on_ray(job: Job) -> RayExecutor:
         if not ray.is_initialized():
             if address:  # join a running cluster (e.g. as a Ray job's entrypoint)
                 ray.init(address=address, log_to_driver=False)
-            else:
-                ray.init(address="local", num_cpus=workers, include_dashboard=False, log_to_driver=False)
+            else:  # every port on run.bind_host (loopback by default)
+                init_local_ray(workers, cfg.run.bind_host)
         return RayExecutor(job, workers if not address else None)
 
     try:
