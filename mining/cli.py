@@ -12,6 +12,9 @@ from mining.errors import ConfigError, MiningError
 from mining.proposals.make import classifiers_line
 
 
+INTERRUPTED = 130  # the shell's exit status for a process ended by SIGINT (128 + 2)
+
+
 def _frames(text: str) -> tuple[int, int | None]:
     """``a:b`` → (a, b); ``a:`` → (a, None); ``a`` → (a, a + 1)."""
     try:
@@ -497,6 +500,10 @@ def main(argv: list[str] | None = None) -> int:
     except (MiningError, ConfigError) as e:
         print(f"mine: error: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C: one line, no traceback (Ray's included); 130 = 128 + SIGINT
+        resume = " — rerun the same command to resume" if args.command == "submit" else ""
+        print(f"interrupted{resume}", file=sys.stderr)
+        return INTERRUPTED
 
 
 if __name__ == "__main__":

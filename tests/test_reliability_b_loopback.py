@@ -14,7 +14,6 @@ import sys
 import time
 
 import pytest
-
 from _reliability_b import TINY, Mine, is_loopback, listening_sockets, session_pids
 from conftest import REPO
 

@@ -7,6 +7,8 @@ draws the same tree); ``store.py`` does the I/O on them::
     catalog/<table>/dataset=D/sequence=S/part-<k>.parquet     compacted tables (tubes, tube_frames, frames, windows)
     catalog/_sequences/dataset=D/sequence=S.json              a finalized sequence: which windows its catalogue holds
     manifest/dataset=D/sequence=S/<window>.parquet            the windows table, one row per window
+    manifest/dataset=D/sequence=S/stitch.parquet              a sequence whose stitch failed (its row, until one succeeds)
+    running/dataset=D/sequence=S/<window>.json                a window a driver has started and not finished
     parts/<table>/dataset=D/sequence=S/<window>.parquet       a window's parts before stitching
     cache/obs/dataset=D/sequence=S/<window>.pkl               a window's observations, until no track needs them
 
@@ -31,6 +33,8 @@ CATALOG = "catalog"
 MANIFEST = "manifest"
 PARTS = "parts"
 CACHE = "cache/obs"
+RUNNING = "running"
+STITCH_ROW = "stitch"  # the ``window`` of a sequence's failed-stitch row (no window is named so: windows are S-start-end)
 PART_TABLES = ("tubes", "tube_frames", "frames")  # what a tracked window writes, and a sequence stitches
 # The folder of each table a query reads: the compacted tables, and the manifest as ``windows``.
 TABLE_DIRS = {"tubes": f"{CATALOG}/tubes", "tube_frames": f"{CATALOG}/tube_frames", "frames": f"{CATALOG}/frames",
@@ -45,6 +49,16 @@ def part_path(table: str, dataset: str, sequence: str, window: str) -> str:
 def manifest_path(dataset: str, sequence: str, window: str) -> str:
     """A window's manifest row (its row of the ``windows`` table)."""
     return f"{MANIFEST}/dataset={dataset}/sequence={sequence}/{window}.parquet"
+
+
+def stitch_path(dataset: str, sequence: str) -> str:
+    """The manifest row of a sequence whose stitch (finalize) failed; removed when one succeeds."""
+    return f"{MANIFEST}/dataset={dataset}/sequence={sequence}/{STITCH_ROW}.parquet"
+
+
+def running_path(dataset: str, sequence: str, window: str) -> str:
+    """The marker of a window a driver has started (its observe or track step) and not finished."""
+    return f"{RUNNING}/dataset={dataset}/sequence={sequence}/{window}.json"
 
 
 def catalog_dir(table: str, dataset: str, sequence: str) -> str:

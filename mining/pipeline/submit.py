@@ -32,9 +32,11 @@ from mining.catalog.layout import PART_TABLES, JobRecord, cache_path, done_path,
 from mining.catalog.store import Store
 from mining.config import JobConfig
 from mining.pipeline.executors import Executor, RayExecutor
+from mining.pipeline.failures import describe
 from mining.pipeline.localray import init_local_ray, prepare_local_ray
+from mining.pipeline.running import RunningMarkers
 from mining.pipeline.schedule import Resume, Schedule, Task
-from mining.pipeline.steps import Job, StepResult, job_source, write_manifest
+from mining.pipeline.steps import Job, StepResult, job_source, write_manifest, write_stitch_failure
 from mining.proposals.make import classifiers_line
 from mining.types import Window, plan_windows
 
@@ -163,12 +165,10 @@ class Progress:
 
 
 def system_failure(task: Task, error: BaseException, max_retries: int) -> StepResult:
-    """The failed result of a step that could not run (its worker died and retries are spent)."""
-    if task.step == "observe":
-        return StepResult(task.target.name, False, f"system failure: {error}")
-    if task.step == "track":
-        return StepResult(task.target.name, False, f"system failure after {max_retries} retries: {error}")
-    return StepResult(task.target, False, str(error))
+    """The failed result of a step that raised, or whose worker died with its retries spent:
+    the step, the exception's type and message first (``failures.describe``)."""
+    name = task.target if task.step == "finalize" else task.target.name
+    return StepResult(name, False, describe(error, task.step, max_retries))
 
 
 def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = False,
@@ -183,9 +183,14 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
     summary = Summary(windows=len(schedule.windows), skipped=schedule.skipped)
     bar = Progress(len(schedule.todo), progress)
     running: dict[Any, Task] = {}
+    markers = RunningMarkers(store, job.run_id, job.params_hash)
+    todo = {w.name for w in schedule.todo}
+    markers.sweep(todo)
     try:
         while schedule.outstanding or executor.pending():
             while executor.free() and (task := schedule.next_task()) is not None:
+                if task.step != "finalize" and task.target.name in todo:
+                    markers.mark(task.target, task.step)
                 running[executor.submit(task.step, *task.args)] = task
             if not executor.pending():
                 continue
@@ -195,8 +200,11 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
                 result = system_failure(task, err, job.cfg.run.max_retries)
                 if task.step == "track":  # the step wrote no manifest row
                     write_manifest(job, task.target, "failed", None, result.error)
+            if task.step == "finalize" and not result.ok:  # a row in the manifest, for `mine status`
+                write_stitch_failure(job, task.target, schedule.by_seq[task.target], result.error)
             served = schedule.on_result(task, result)
             if task.step == "track":
+                markers.clear(task.target)
                 bar.update(result.ok, result.frames)
             summary.count(task, result, dataset)
             if not keep_cache:
@@ -205,6 +213,7 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
                         store.remove(cache_path(w))
     finally:
         bar.close()
+        markers.clear_all()  # stopped early (an error, Ctrl-C): what was under way is pending again
     summary.seconds = time.perf_counter() - t0
     return summary
 
