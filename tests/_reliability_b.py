@@ -33,6 +33,7 @@ def mine_cmd(*args: str) -> list[str]:
 def env() -> dict[str, str]:
     e = dict(os.environ, RAY_USAGE_STATS_ENABLED="0", PYTHONPATH=str(REPO))
     e.pop("RAY_ADDRESS", None)  # always a fresh local Ray of the job's own
+    e.pop("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", None)  # conftest's: `mine submit` must keep Ray on loopback itself
     return e
 
 

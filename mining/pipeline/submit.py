@@ -3,7 +3,9 @@
 ``open_job`` plans the windows, records the job (``job.json``) and reads what earlier
 runs left; the ``Schedule`` (``schedule.py``) orders the steps; ``run_job`` is the loop
 that hands them to an executor (``executors.py``: this process, or Ray) and writes what
-a step that could not run leaves behind. ``mine_job`` does all of it in one call.
+a step that could not run leaves behind: the window's manifest row, or the sequence's
+``stitch`` row, with why (``failures.py``); it also keeps the running-window markers
+(``running.py``). ``mine_job`` does all of it in one call.
 
 Scheduling: a window is *tracked* once the observe steps of every window its context
 touches have finished, so tracking starts while later windows are still being
