@@ -12,6 +12,9 @@ from mining.errors import ConfigError, MiningError
 from mining.proposals.make import classifiers_line
 
 
+INTERRUPTED = 130  # the shell's exit status for a process ended by SIGINT (128 + 2)
+
+
 def _frames(text: str) -> tuple[int, int | None]:
     """``a:b`` → (a, b); ``a:`` → (a, None); ``a`` → (a, a + 1). An empty range is an error."""
     try:
@@ -48,6 +51,8 @@ def _job_config(args: argparse.Namespace) -> JobConfig:
         overrides.append(f"source.dataset={args.dataset!r}".replace("'", '"'))
     if args.root:
         overrides.append(f'source.root="{Path(args.root).as_posix()}"')
+    if getattr(args, "host", None):
+        overrides.append(f"run.bind_host={args.host!r}".replace("'", '"'))
     cfg = load_config(args.config, overrides)
     for o in args.option:
         for k, v in parse_override(o).items():
@@ -333,6 +338,9 @@ def build_parser() -> argparse.ArgumentParser:
                                        "HOST:PORT or auto: run the scheduler here, the work on that cluster; "
                                        "default: start a local Ray on this machine")
     smt.add_argument("--workers", type=int, help="local Ray only: CPUs to use (default: all)")
+    smt.add_argument("--host", metavar="IP", help="local Ray only: the interface every Ray port listens on (default: "
+                                                  "the config's run.bind_host, 127.0.0.1). Ray's ports run code "
+                                                  "unauthenticated: another interface only on a network you trust")
     smt.add_argument("--no-progress", action="store_true", help="no progress bar (logs and CI)")
     smt.add_argument("--extend", action="store_true",
                      help="--out holds this job with a narrower --frames or fewer --sequences: widen it (what differs "
@@ -553,6 +561,10 @@ def main(argv: list[str] | None = None) -> int:
     except (MiningError, ConfigError) as e:
         print(f"mine: error: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C: one line, no traceback (Ray's included); 130 = 128 + SIGINT
+        resume = " — rerun the same command to resume" if args.command == "submit" else ""
+        print(f"interrupted{resume}", file=sys.stderr)
+        return INTERRUPTED
 
 
 if __name__ == "__main__":

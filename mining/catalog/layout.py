@@ -10,6 +10,8 @@ draws the same tree); ``store.py`` does the I/O on them::
                                                               and the size and sha256 of each of its compacted files
     manifest/dataset=D/sequence=S/<window>.parquet            the windows table, one row per window
     manifest/dataset=D/sequence=S/<window>.files.json         size and sha256 of the window's parts (integrity.py)
+    manifest/dataset=D/sequence=S/stitch.parquet              a sequence whose stitch failed (its row, until one succeeds)
+    running/dataset=D/sequence=S/<window>.json                a window a driver has started and not finished
     parts/<table>/dataset=D/sequence=S/<window>.parquet       a window's parts before stitching
     cache/obs/dataset=D/sequence=S/<window>.pkl               a window's observations, until no track needs them
 
@@ -41,6 +43,8 @@ LOCK = ".mine.lock"  # a dot name: every reader skips it (store.is_temporary)
 REPLACED = "_replaced"  # catalogues moved aside by --new-run, one folder each
 # What a job writes under --out (a --new-run moves exactly these aside).
 JOB_ENTRIES = (JOB, CATALOG, MANIFEST, PARTS, "cache")
+RUNNING = "running"
+STITCH_ROW = "stitch"  # the ``window`` of a sequence's failed-stitch row (no window is named so: windows are S-start-end)
 PART_TABLES = ("tubes", "tube_frames", "frames")  # what a tracked window writes, and a sequence stitches
 # The folder of each table a query reads: the compacted tables, and the manifest as ``windows``.
 TABLE_DIRS = {"tubes": f"{CATALOG}/tubes", "tube_frames": f"{CATALOG}/tube_frames", "frames": f"{CATALOG}/frames",
@@ -60,6 +64,14 @@ def manifest_path(dataset: str, sequence: str, window: str) -> str:
 def files_path(dataset: str, sequence: str, window: str) -> str:
     """Size and sha256 of a window's parts, written before its manifest row says done."""
     return f"{MANIFEST}/dataset={dataset}/sequence={sequence}/{window}.files.json"
+def stitch_path(dataset: str, sequence: str) -> str:
+    """The manifest row of a sequence whose stitch (finalize) failed; removed when one succeeds."""
+    return f"{MANIFEST}/dataset={dataset}/sequence={sequence}/{STITCH_ROW}.parquet"
+
+
+def running_path(dataset: str, sequence: str, window: str) -> str:
+    """The marker of a window a driver has started (its observe or track step) and not finished."""
+    return f"{RUNNING}/dataset={dataset}/sequence={sequence}/{window}.json"
 
 
 def catalog_dir(table: str, dataset: str, sequence: str) -> str:

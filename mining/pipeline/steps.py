@@ -23,7 +23,8 @@ import numpy as np
 import pyarrow as pa
 
 from mining.catalog.integrity import sequence_files, window_files
-from mining.catalog.layout import PART_TABLES, cache_path, done_path, files_path, manifest_path, part_path
+from mining.catalog.layout import (PART_TABLES, STITCH_ROW, cache_path, done_path, files_path, manifest_path, part_path,
+                                   stitch_path)
 from mining.catalog.rows import RunInfo, frame_rows, frames_row, to_table, tube_row
 from mining.catalog.store import Store, write_sequence
 from mining.config import JobConfig
@@ -122,24 +123,38 @@ def load_context(store: Store, window: Window, neighbours: list[Window]) -> list
     return frames
 
 
-def write_manifest(job: Job, window: Window, status: str, started: datetime | None, error: str = "",
-                   seconds_observe: float | None = None, seconds_tubes: float | None = None,
-                   n_pieces: int | None = None, context_complete: bool | None = None) -> None:
+def _write_row(job: Job, path: str, name: str, core: tuple[int, int], context: tuple[int, int], status: str,
+               started: datetime | None, error: str, **measures) -> None:
     store = job.store()
-    path = manifest_path(window.dataset, window.sequence, window.name)
     attempts = 1
     if store.exists(path):
         try:
             attempts += int(store.read_table(path, ["attempts"]).column(0)[0].as_py())
         except (InputError, IndexError, TypeError):
             pass  # a damaged row: this attempt's row replaces it
-    row = {"run_id": job.run_id, "window": window.name, "core_start": window.core[0], "core_end": window.core[1],
-           "context_start": window.context[0], "context_end": window.context[1], "status": status,
-           "attempts": attempts, "started": started, "finished": _now(), "seconds_observe": seconds_observe,
-           "seconds_tubes": seconds_tubes, "n_pieces": n_pieces,
-           "context_complete": context_complete, "error": error or None,
-           "params_hash": job.params_hash}
+    row = {"run_id": job.run_id, "window": name, "core_start": core[0], "core_end": core[1],
+           "context_start": context[0], "context_end": context[1], "status": status,
+           "attempts": attempts, "started": started, "finished": _now(), "seconds_observe": None,
+           "seconds_tubes": None, "n_pieces": None, "context_complete": None, "error": error or None,
+           "params_hash": job.params_hash} | measures
     store.write_table(path, to_table([row], "windows"))
+
+
+def write_manifest(job: Job, window: Window, status: str, started: datetime | None, error: str = "",
+                   seconds_observe: float | None = None, seconds_tubes: float | None = None,
+                   n_pieces: int | None = None, context_complete: bool | None = None) -> None:
+    _write_row(job, manifest_path(window.dataset, window.sequence, window.name), window.name, window.core,
+               window.context, status, started, error, seconds_observe=seconds_observe,
+               seconds_tubes=seconds_tubes, n_pieces=n_pieces, context_complete=context_complete)
+
+
+def write_stitch_failure(job: Job, sequence: str, windows: list[Window], error: str,
+                         started: datetime | None = None) -> None:
+    """The manifest row of a sequence whose stitch failed: window ``stitch``, status failed,
+    the sequence's planned range as core and context. ``Finalize`` removes it once a stitch
+    of the sequence succeeds."""
+    span = (min(w.core[0] for w in windows), max(w.core[1] for w in windows)) if windows else (0, 0)
+    _write_row(job, stitch_path(job.cfg.source.dataset, sequence), STITCH_ROW, span, span, "failed", started, error)
 
 
 class Track:
@@ -212,6 +227,7 @@ class Finalize:
                 if store.exists(manifest_path(d, sequence, w.name))]
         if rows:
             written += write_sequence(store, "windows", d, sequence, pa.concat_tables(rows))
+        store.remove(stitch_path(d, sequence))  # a failed stitch before this one is repaired
         # The marker comes last and records what it vouches for: the windows stitched, the
         # context of each, and the size and sha256 of every compacted file (integrity.py).
         marker = {"params_hash": job.params_hash, "run_id": job.run_id, "dataset": d, "sequence": sequence,

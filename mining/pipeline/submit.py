@@ -5,7 +5,9 @@ sequence's plan and calibration, the proposer — all before job.json is written
 starts; a sequence that cannot be planned is reported and the others run), records the
 job (``job.json``) and reads what earlier runs left; the ``Schedule`` (``schedule.py``) orders the steps; ``run_job`` is the loop
 that hands them to an executor (``executors.py``: this process, or Ray) and writes what
-a step that could not run leaves behind. ``mine_job`` does all of it in one call.
+a step that could not run leaves behind: the window's manifest row, or the sequence's
+``stitch`` row, with why (``failures.py``); it also keeps the running-window markers
+(``running.py``). ``mine_job`` does all of it in one call.
 
 Scheduling: a window is *tracked* once the observe steps of every window its context
 touches have finished, so tracking starts while later windows are still being
@@ -45,9 +47,12 @@ from mining.catalog.store import Store
 from mining.config import JobConfig
 from mining.errors import ConfigError, InputError
 from mining.pipeline.executors import Executor, RayExecutor
+from mining.pipeline.failures import describe
+from mining.pipeline.localray import init_local_ray, prepare_local_ray
 from mining.pipeline.preflight import preflight
+from mining.pipeline.running import RunningMarkers
 from mining.pipeline.schedule import Resume, Schedule, Task
-from mining.pipeline.steps import Job, StepResult, write_manifest
+from mining.pipeline.steps import Job, StepResult, write_manifest, write_stitch_failure
 from mining.proposals.make import classifiers_line
 from mining.types import Window
 
@@ -231,12 +236,10 @@ class Progress:
 
 
 def system_failure(task: Task, error: BaseException, max_retries: int) -> StepResult:
-    """The failed result of a step that could not run (its worker died and retries are spent)."""
-    if task.step == "observe":
-        return StepResult(task.target.name, False, f"system failure: {error}")
-    if task.step == "track":
-        return StepResult(task.target.name, False, f"system failure after {max_retries} retries: {error}")
-    return StepResult(task.target, False, str(error))
+    """The failed result of a step that raised, or whose worker died with its retries spent:
+    the step, the exception's type and message first (``failures.describe``)."""
+    name = task.target if task.step == "finalize" else task.target.name
+    return StepResult(name, False, describe(error, task.step, max_retries))
 
 
 def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = False,
@@ -251,9 +254,14 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
     summary = Summary(windows=len(schedule.windows), skipped=schedule.skipped)
     bar = Progress(len(schedule.todo), progress)
     running: dict[Any, Task] = {}
+    markers = RunningMarkers(store, job.run_id, job.params_hash)
+    todo = {w.name for w in schedule.todo}
+    markers.sweep(todo)
     try:
         while schedule.outstanding or executor.pending():
             while executor.free() and (task := schedule.next_task()) is not None:
+                if task.step != "finalize" and task.target.name in todo:
+                    markers.mark(task.target, task.step)
                 running[executor.submit(task.step, *task.args)] = task
             if not executor.pending():
                 continue
@@ -263,8 +271,11 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
                 result = system_failure(task, err, job.cfg.run.max_retries)
                 if task.step == "track":  # the step wrote no manifest row
                     write_manifest(job, task.target, "failed", None, result.error)
+            if task.step == "finalize" and not result.ok:  # a row in the manifest, for `mine status`
+                write_stitch_failure(job, task.target, schedule.by_seq[task.target], result.error)
             served = schedule.on_result(task, result)
             if task.step == "track":
+                markers.clear(task.target)
                 bar.update(result.ok, result.frames)
             summary.count(task, result, dataset)
             if not keep_cache:
@@ -273,6 +284,7 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
                         store.remove(cache_path(w))
     finally:
         bar.close()
+        markers.clear_all()  # stopped early (an error, Ctrl-C): what was under way is pending again
     summary.seconds = time.perf_counter() - t0
     return summary
 
@@ -311,19 +323,21 @@ def mine_on_ray(cfg: JobConfig, out: str, sequences: list[str] | None = None,
                 lock_wait: float = 0.0) -> Summary:
     """``mine submit`` here: the steps on the running cluster at ``address`` (or
     ``RAY_ADDRESS``), which decides the CPUs, or else on a Ray of its own with ``workers``
-    CPUs (never one that happens to run on this machine). Ray starts only when there is
-    work, and is shut down at the end."""
-    import ray
-
+    CPUs (never one that happens to run on this machine), listening on
+    ``cfg.run.bind_host`` only (``localray.py``). Ray starts only when there is work, and
+    is shut down at the end."""
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     address = address or os.environ.get("RAY_ADDRESS")
+    if not address:
+        prepare_local_ray(cfg.run.bind_host)  # before `import ray`; a bad --host fails before planning
+    import ray
 
     def on_ray(job: Job) -> RayExecutor:
         if not ray.is_initialized():
             if address:  # join a running cluster (e.g. as a Ray job's entrypoint)
                 ray.init(address=address, log_to_driver=False)
-            else:
-                ray.init(address="local", num_cpus=workers, include_dashboard=False, log_to_driver=False)
+            else:  # every port on run.bind_host (loopback by default)
+                init_local_ray(workers, cfg.run.bind_host)
         return RayExecutor(job, workers if not address else None)
 
     try:

@@ -424,7 +424,7 @@ def decode_image(msg: Any, kind: str, path: Path, frame: int, topic: str) -> np.
     if kind == "compressed":
         if "compresseddepth" in msg.format.lower():
             raise InputError(f"{topic}: compressedDepth images are not colour images", path, frame)
-        img = cv2.imdecode(buf, cv2.IMREAD_COLOR)
+        img = cv2.imdecode(buf, cv2.IMREAD_COLOR) if buf.size else None  # an empty buffer raises cv2.error
         if img is None:
             raise InputError(f"{topic}: cannot decode CompressedImage ({msg.format!r})", path, frame)
         return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)

@@ -297,7 +297,12 @@ class OxfordSource(Source):
         data = np.fromfile(path, np.uint8) if path.is_file() else None
         if data is None:
             raise InputError("stereo image not found", path, index)
-        raw = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+        if data.size == 0:  # cv2.imdecode raises a bare cv2.error on an empty buffer
+            raise InputError("stereo image is empty (0 bytes): an incomplete download or copy", path, index)
+        try:
+            raw = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+        except cv2.error as e:
+            raise InputError(f"cannot decode PNG ({str(e).strip()})", path, index) from None
         if raw is None:
             raise InputError("cannot decode PNG (truncated or corrupt)", path, index)
         if raw.ndim != 2 or raw.dtype != np.uint8:
