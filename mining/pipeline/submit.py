@@ -208,7 +208,7 @@ def open_job(cfg: JobConfig, out: str, sequences: list[str] | None = None,
     catalogue's lock (``mine_job`` does)."""
     store = Store(out)
     pf = preflight(cfg, out, sequences, frames)
-    record = record_job(store, cfg, pf.windows, job_identity(cfg, pf.plans, frames), mode)
+    record = record_job(store, cfg, pf.windows, job_identity(cfg, pf.plans, frames, list(pf.failed)), mode)
     job = Job(cfg, out, record.run_id, pf.plans)
     return (job, Schedule(pf.windows, read_resume(store, cfg.source.dataset, pf.windows, job.params_hash, verify)),
             pf.failed)
