@@ -28,9 +28,19 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from mining.catalog.layout import PART_TABLES, JobRecord, cache_path, done_path, manifest_path, part_path
+from mining.catalog.layout import (
+    LEGACY_CACHE_SUFFIX,
+    PART_TABLES,
+    JobRecord,
+    cache_path,
+    done_path,
+    manifest_path,
+    part_path,
+)
 from mining.catalog.store import Store
 from mining.config import JobConfig
+from mining.errors import InputError
+from mining.names import check_name
 from mining.pipeline.executors import Executor, RayExecutor
 from mining.pipeline.schedule import Resume, Schedule, Task
 from mining.pipeline.steps import Job, StepResult, job_source, write_manifest
@@ -81,9 +91,31 @@ class Summary:
                 setattr(self, k, getattr(self, k) + result.extra[k])
 
 
-def plan_job(cfg: JobConfig, sequences: list[str] | None, frames: tuple[int, int | None]) -> tuple[dict, list[Window]]:
+def job_sequences(cfg: JobConfig, sequences: list[str] | None, source) -> tuple[list[str], dict[str, str]]:
+    """The job's sequence names, and (name → reason) the names of the source's own listing
+    that are not safe names. A name the user gave (``--sequences``, the config's
+    ``source.sequences``) that is not safe stops the job: InputError naming it."""
+    given, origin = (sequences, "--sequences") if sequences else (cfg.source.sequences, "the config's source.sequences")
+    if given:
+        return [check_name(s, "sequence", origin) for s in given], {}
+    listing = f"the {cfg.source.dataset} source's listing of {cfg.source.root or 'its root'}"
+    names, refused = [], {}
+    for seq in source.sequences():
+        try:
+            names.append(check_name(seq, "sequence", listing))
+        except InputError as e:
+            refused[seq] = str(e)
+    return names, refused
+
+
+def plan_job(cfg: JobConfig, sequences: list[str] | None, frames: tuple[int, int | None],
+             refused: dict[str, str] | None = None) -> tuple[dict, list[Window]]:
+    """Plans and windows of the job's sequences; a sequence of the source's listing whose
+    name is not safe is left out and its reason put in ``refused``."""
     source = job_source(Job(cfg, "", "", {}))
-    seqs = sequences or cfg.source.sequences or source.sequences()
+    seqs, bad = job_sequences(cfg, sequences, source)
+    if refused is not None:
+        refused.update(bad)
     plans, windows = {}, []
     for seq in seqs:
         plan = source.plan(seq)
@@ -134,9 +166,10 @@ def open_job(cfg: JobConfig, out: str, sequences: list[str] | None = None,
              frames: tuple[int, int | None] = (0, None)) -> tuple[Job, Schedule]:
     """Plan the job, record it in ``out``'s ``job.json`` and schedule what is left to do."""
     store = Store(out)
-    plans, windows = plan_job(cfg, sequences, frames)
+    refused: dict[str, str] = {}
+    plans, windows = plan_job(cfg, sequences, frames, refused)
     record = record_job(store, cfg, windows)
-    job = Job(cfg, out, record.run_id, plans)
+    job = Job(cfg, out, record.run_id, plans, refused)
     return job, Schedule(windows, read_resume(store, cfg.source.dataset, windows, job.params_hash))
 
 
@@ -200,8 +233,9 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
             summary.count(task, result, dataset)
             if not keep_cache:
                 for w in served:
-                    if store.exists(cache_path(w)):
-                        store.remove(cache_path(w))
+                    for path in (cache_path(w), cache_path(w, LEGACY_CACHE_SUFFIX)):  # and a pickle of old
+                        if store.exists(path):
+                            store.remove(path)
     finally:
         bar.close()
     summary.seconds = time.perf_counter() - t0
@@ -223,6 +257,8 @@ def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frame
             summary = run_job(job, schedule, ex, progress, keep_cache)
         finally:
             ex.shutdown()
+    for seq, reason in job.refused.items():  # sequences that never got a window
+        summary.failed[f"{cfg.source.dataset}/{seq} (planning)"] = reason
     summary.seconds = time.perf_counter() - t0
     summary.classifiers = classifiers_line(cfg.proposals.proposer)
     return summary
