@@ -13,6 +13,7 @@ draws the same tree); ``store.py`` does the I/O on them::
 Every path is built from names checked by ``mining/names.py`` (dataset, sequence, window),
 so no name can leave ``--out`` or make two tables share a file; ``job.json``'s names are
 checked when it is read.
+
 ``job.json`` records the resolved config, its ``params_hash``, the run id and every
 window planned so far; a job with other params is refused (``JobRecord.check``).
 """

@@ -45,6 +45,7 @@ from mining.pipeline.executors import Executor, RayExecutor
 from mining.pipeline.schedule import Resume, Schedule, Task
 from mining.pipeline.steps import Job, StepResult, job_source, write_manifest
 from mining.proposals.make import classifiers_line
+from mining.sources.base import Source
 from mining.types import Window, plan_windows
 
 
@@ -91,7 +92,7 @@ class Summary:
                 setattr(self, k, getattr(self, k) + result.extra[k])
 
 
-def job_sequences(cfg: JobConfig, sequences: list[str] | None, source) -> tuple[list[str], dict[str, str]]:
+def job_sequences(cfg: JobConfig, sequences: list[str] | None, source: Source) -> tuple[list[str], dict[str, str]]:
     """The job's sequence names, and (name → reason) the names of the source's own listing
     that are not safe names. A name the user gave (``--sequences``, the config's
     ``source.sequences``) that is not safe stops the job: InputError naming it."""
