@@ -59,6 +59,8 @@ def test_resubmit_recomputes_a_truncated_cache(tmp_path):
     summary = mine_job(_cfg(), out, executor=LocalExecutor)
     assert summary.ok == 2 and not summary.failed
     assert _tubes(out) == _tubes(clean)
+    assert list(summary.recomputed) == [windows[0].name] and str(path) in summary.recomputed[windows[0].name]
+    assert any(line.startswith(f"RECOMPUTED {windows[0].name}: ") for line in summary.lines())
 
 
 def test_a_track_that_meets_a_damaged_cache_fails_its_window_with_the_reason(tmp_path):

@@ -77,5 +77,6 @@ def test_planted_pickles_never_run_on_resubmit(tmp_path):
 
     assert not marker.exists(), "a planted pickle ran"
     assert summary.ok == 2 and not summary.failed
+    assert sorted(summary.recomputed) == [w.name for w in schedule.windows], "the planted caches are reported"
     assert _tubes(out) == _tubes(clean), "the recomputed windows give the clean run's catalogue"
     assert not any(store.exists(rel) for rel in planted), "the caches (and the old .pkl ones) are gone after use"

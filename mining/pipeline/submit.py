@@ -64,6 +64,7 @@ class Summary:
     seconds: float = 0.0
     sequences_written: int = 0
     classifiers: str = ""  # which proposers classified (proposals.make.classifiers_line)
+    recomputed: dict[str, str] = field(default_factory=dict)  # window → why its observation cache did not read back
 
     def lines(self) -> list[str]:
         out = [f"windows: {self.ok} ok, {len(self.failed)} failed, {self.skipped} already done (of {self.windows})",
@@ -73,10 +74,14 @@ class Summary:
                f"time: {self.seconds:.1f} s, {self.frames / max(self.seconds, 1e-9):.2f} frames/s"]
         for w, e in sorted(self.failed.items()):
             out.append(f"FAILED {w}: {e.strip().splitlines()[0] if e.strip() else 'unknown error'}")
+        for w, e in sorted(self.recomputed.items()):
+            out.append(f"RECOMPUTED {w}: its observation cache did not read back ({e})")
         return out
 
     def count(self, task: Task, result: StepResult, dataset: str) -> None:
-        """Add the result of a track or finalize task."""
+        """Add the result of a task."""
+        if task.step == "observe" and result.extra.get("recomputed"):
+            self.recomputed[task.target.name] = result.extra["recomputed"]
         if task.step == "track":
             self.frames += result.frames
             if result.ok:
