@@ -42,10 +42,10 @@ CACHE_VERSION = 1  # ours: bump on any change of the arrays below; an older file
 ZIP_MAGIC = b"PK\x03\x04"
 ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
 ZSTD_LEVEL = 1  # ours: 4.4 MB in 50 ms for 16 KITTI frames; level 3 is 3.8 MB in 190 ms
-MAX_CACHE_BYTES = 1 << 34  # ours: refuse to inflate more than 16 GiB (a window holds ~0.5 MB a frame)
+MAX_CACHE_BYTES = 1 << 32  # ours: refuse to inflate more than 4 GiB (a 100-frame KITTI window is ~50 MB)
 
-# name → (dtype kind(s), shape after the first axis, the first axis: "F" frames, "N"
-# observations, "P" points, or another array's name for a lookup table).
+# name → (dtype kind, shape after the first axis, the first axis: "F" frames, "N"
+# observations, "P" mask points, "C" RLE counts bytes, "names" proposer names).
 _ARRAYS: dict[str, tuple[str, tuple[int, ...], str]] = {
     "position": ("i", (), "F"), "index": ("i", (), "F"), "t_ns": ("i", (), "F"),
     "calib": ("f", (5,), "F"), "size": ("i", (2,), "F"),
