@@ -9,6 +9,7 @@ from pathlib import Path
 
 from mining.config import JobConfig, load_config, parse_override, validate
 from mining.errors import ConfigError, MiningError
+from mining.names import check_name
 from mining.proposals.make import classifiers_line
 
 
@@ -551,12 +552,21 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _check_names(args: argparse.Namespace) -> None:
+    """Sequence names from the command line are names, never paths (mining/names.py)."""
+    for flag in ("sequence", "sequences"):
+        value = getattr(args, flag, None)
+        for name in [value] if isinstance(value, str) else value or []:
+            check_name(name, "sequence", f"--{flag}")
+
+
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     argv = sys.argv[1:] if argv is None else argv
     args = build_parser().parse_args(argv)
     args.argv = argv
     try:
+        _check_names(args)
         return args.func(args)
     except (MiningError, ConfigError) as e:
         print(f"mine: error: {e}", file=sys.stderr)

@@ -10,6 +10,10 @@
   the box) and ``mask_<k>.png``, plus ``<dest>/index.parquet`` and ``index.json``: every
   ``tubes`` column, the crop folder, and the 3D track (frame, t_ns, position_world).
   Images are re-read through the source named in ``OUT/job.json``, each frame once.
+
+Names read from the catalogue are data: the dataset and sequence names and the tube ids
+must pass ``mining/names.py`` before a file name is made from them, two tubes may not
+share a folder, and every file written must resolve inside DEST.
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ from mining.catalog.store import Store
 from mining.catalog.views import connect, execute_read_only
 from mining.errors import InputError, MiningError
 from mining.formats.kitti_tracking import ResultFrame, ResultTrack, kitti_type, write_tracking_results
+from mining.names import check_name, inside, tube_folder
 
 FORMATS = ("kitti", "kitti-mots", "crops")
 # KITTI-MOTS class ids (MOTS annotation format): car 1, pedestrian 2, ignore region 10.
@@ -63,9 +68,16 @@ def selected_rows(con: duckdb.DuckDBPyConnection, where: str) -> tuple[pa.Table,
 
 
 def _by_sequence(tubes: pa.Table) -> dict[tuple[str, str], list[dict]]:
+    """The tubes per (dataset, sequence), both checked names (they become file names)."""
     out: dict[tuple[str, str], list[dict]] = {}
+    checked: set[tuple[str, str]] = set()
     for t in tubes.to_pylist():
-        out.setdefault((t["dataset"], t["sequence"]), []).append(t)
+        key = (t["dataset"], t["sequence"])
+        if key not in checked:
+            check_name(key[0], "dataset", "the catalogue")
+            check_name(key[1], "sequence", "the catalogue")
+            checked.add(key)
+        out.setdefault(key, []).append(t)
     return out
 
 
@@ -76,8 +88,9 @@ def _frames_by_tube(frames: pa.Table) -> dict[str, list[dict]]:
     return out
 
 
-def _file_name(sequence: str) -> str:
-    return sequence.replace("/", "_")
+def _sequence_file(dest: Path, sequence: str) -> Path:
+    """``<dest>/<sequence>.txt`` of a checked sequence name, inside DEST."""
+    return inside(dest, f"{check_name(sequence, 'sequence', 'the catalogue')}.txt")
 
 
 def _cam_to_rect0(job: dict, sequence: str):
@@ -113,7 +126,7 @@ def export_kitti(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path) -> in
     per_tube = _frames_by_tube(frames)
     n = 0
     for (_, sequence), seq_tubes in _by_sequence(tubes).items():
-        n += write_tracking_results(dest / f"{_file_name(sequence)}.txt",
+        n += write_tracking_results(_sequence_file(dest, sequence),
                                     _result_tracks(seq_tubes, per_tube, unclassified_as),
                                     _cam_to_rect0(job, sequence), observed_only)
     return n
@@ -172,7 +185,7 @@ def export_kitti_mots(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path) 
                 if m is not None:
                     lines.append(f"{frame} {obj_id} {obj_id // MOTS_IDS_PER_CLASS} {m['size'][0]} {m['size'][1]} "
                                  f"{m['counts']}")
-        (dest / f"{_file_name(sequence)}.txt").write_text("\n".join(lines) + ("\n" if lines else ""))
+        _sequence_file(dest, sequence).write_text("\n".join(lines) + ("\n" if lines else ""))
         n += len(lines)
     return n
 
@@ -187,8 +200,17 @@ def crop_box(bbox, width: int, height: int) -> tuple[int, int, int, int]:
     return x0, max(x1_, x0 + 1), y0, max(y1_, y0 + 1)
 
 
-def tube_folder(tube_id: str) -> str:
-    return tube_id.replace("/", "_")
+def tube_folders(tubes: pa.Table, dest: Path) -> dict[str, Path]:
+    """tube id → its crop folder inside DEST; an InputError for an unsafe id or two tubes
+    that would share a folder."""
+    out: dict[str, Path] = {}
+    owner: dict[str, str] = {}
+    for tid in tubes.column("tube_id").to_pylist():
+        name = tube_folder(tid)
+        if owner.setdefault(name, tid) != tid:
+            raise InputError(f"tubes {owner[name]!r} and {tid!r} would share the crop folder {name!r}", dest)
+        out[tid] = inside(dest, name)
+    return out
 
 
 def _write_png(path: Path, image: np.ndarray) -> None:
@@ -203,15 +225,17 @@ def export_crops(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path) -> in
     src = job.get("source")
     if not src or not src.get("dataset"):
         raise InputError("crops need the source named in job.json (source.dataset, source.root)")
+    folders = tube_folders(tubes, dest)  # every id checked before anything is written
+    by_sequence = _by_sequence(tubes)
     source = open_source(src["dataset"], src.get("root") or None, **src.get("options", {}))
     per_tube = _frames_by_tube(frames)
     n = 0
-    for (_, sequence), seq_tubes in _by_sequence(tubes).items():
+    for (_, sequence), seq_tubes in by_sequence.items():
         plan = source.plan(sequence)
         position = {f: p for p, f in enumerate(plan.frames)}
         wanted: dict[int, list[dict]] = {}  # frame → the tube frames that need it
         for t in seq_tubes:
-            (dest / tube_folder(t["tube_id"])).mkdir(parents=True, exist_ok=True)
+            folders[t["tube_id"]].mkdir(parents=True, exist_ok=True)
             for f in per_tube.get(t["tube_id"], []):
                 wanted.setdefault(f["frame"], []).append(f)
         for frame in sorted(wanted):
@@ -226,7 +250,10 @@ def export_crops(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path) -> in
                                      f"the image's {h}×{w}", src.get("root"), frame)
                 x0, x1, y0, y1 = crop_box(f["bbox"], w, h)
                 mask = mask_utils.decode({"size": [h, w], "counts": f["rle_counts"].encode()})
-                folder = dest / tube_folder(f["tube_id"])
+                folder = folders.get(f["tube_id"])
+                if folder is None:
+                    raise InputError(f"tube_frames row of tube {f['tube_id']!r}, which the tubes table lacks",
+                                     src.get("root"), frame)
                 _write_png(folder / f"frame_{frame}.png", cv2.cvtColor(image[y0:y1, x0:x1], cv2.COLOR_RGB2BGR))
                 _write_png(folder / f"mask_{frame}.png", mask[y0:y1, x0:x1] * np.uint8(255))
                 n += 1

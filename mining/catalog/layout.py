@@ -13,7 +13,11 @@ draws the same tree); ``store.py`` does the I/O on them::
     manifest/dataset=D/sequence=S/stitch.parquet              a sequence whose stitch failed (its row, until one succeeds)
     running/dataset=D/sequence=S/<window>.json                a window a driver has started and not finished
     parts/<table>/dataset=D/sequence=S/<window>.parquet       a window's parts before stitching
-    cache/obs/dataset=D/sequence=S/<window>.pkl               a window's observations, until no track needs them
+    cache/obs/dataset=D/sequence=S/<window>.npz.zst           a window's observations, until no track needs them
+
+Every path is built from names checked by ``mining/names.py`` (dataset, sequence, window),
+so no name can leave ``--out`` or make two tables share a file; ``job.json``'s names are
+checked when it is read.
 
 ``job.json`` records the resolved config, its ``params_hash``, the job's identity
 (``identity.py``: config, source root, recording fingerprint, sequences, frame ranges),
@@ -29,6 +33,7 @@ from typing import TYPE_CHECKING, Any
 
 from mining.catalog.identity import legacy_identity
 from mining.errors import ConfigError, InputError
+from mining.names import check_name
 from mining.types import Window
 
 if TYPE_CHECKING:
@@ -45,20 +50,31 @@ REPLACED = "_replaced"  # catalogues moved aside by --new-run, one folder each
 JOB_ENTRIES = (JOB, CATALOG, MANIFEST, PARTS, "cache")
 RUNNING = "running"
 STITCH_ROW = "stitch"  # the ``window`` of a sequence's failed-stitch row (no window is named so: windows are S-start-end)
+CACHE_SUFFIX = ".npz.zst"  # the observation cache's format: mining/pipeline/cache.py
+LEGACY_CACHE_SUFFIX = ".pkl"  # caches before issue 11 (pickle): never read, removed with their window's
 PART_TABLES = ("tubes", "tube_frames", "frames")  # what a tracked window writes, and a sequence stitches
 # The folder of each table a query reads: the compacted tables, and the manifest as ``windows``.
 TABLE_DIRS = {"tubes": f"{CATALOG}/tubes", "tube_frames": f"{CATALOG}/tube_frames", "frames": f"{CATALOG}/frames",
               "windows": MANIFEST}
 
 
+def _where(dataset: str, sequence: str, window: str | None = None) -> str:
+    """``dataset=D/sequence=S`` (and ``/<window>``) from checked names."""
+    origin = "a path under --out"
+    where = f"dataset={check_name(dataset, 'dataset', origin)}/sequence={check_name(sequence, 'sequence', origin)}"
+    return where if window is None else f"{where}/{check_name(window, 'window', origin)}"
+
+
 def part_path(table: str, dataset: str, sequence: str, window: str) -> str:
     """A window's part of ``table`` (one of ``PART_TABLES``)."""
-    return f"{PARTS}/{table}/dataset={dataset}/sequence={sequence}/{window}.parquet"
+    if table not in PART_TABLES:
+        raise ValueError(f"no part table {table!r}")
+    return f"{PARTS}/{table}/{_where(dataset, sequence, window)}.parquet"
 
 
 def manifest_path(dataset: str, sequence: str, window: str) -> str:
     """A window's manifest row (its row of the ``windows`` table)."""
-    return f"{MANIFEST}/dataset={dataset}/sequence={sequence}/{window}.parquet"
+    return f"{MANIFEST}/{_where(dataset, sequence, window)}.parquet"
 
 
 def files_path(dataset: str, sequence: str, window: str) -> str:
@@ -76,22 +92,24 @@ def running_path(dataset: str, sequence: str, window: str) -> str:
 
 def catalog_dir(table: str, dataset: str, sequence: str) -> str:
     """The folder of one sequence's compacted files of ``table``."""
-    return f"{CATALOG}/{table}/dataset={dataset}/sequence={sequence}"
+    if table not in TABLE_DIRS:
+        raise ValueError(f"no catalogue table {table!r}")
+    return f"{CATALOG}/{table}/{_where(dataset, sequence)}"
 
 
 def catalog_file(table: str, dataset: str, sequence: str, k: int) -> str:
     """The ``k``-th compacted file of one sequence's ``table``."""
-    return f"{catalog_dir(table, dataset, sequence)}/part-{k}.parquet"
+    return f"{catalog_dir(table, dataset, sequence)}/part-{int(k)}.parquet"
 
 
 def done_path(dataset: str, sequence: str) -> str:
     """The marker a finalized sequence leaves: which windows its catalogue holds."""
-    return f"{CATALOG}/_sequences/dataset={dataset}/sequence={sequence}.json"
+    return f"{CATALOG}/_sequences/{_where(dataset, sequence)}.json"
 
 
-def cache_path(w: Window) -> str:
-    """A window's observation cache (its core frames' observations, pickled)."""
-    return f"{CACHE}/dataset={w.dataset}/sequence={w.sequence}/{w.name}.pkl"
+def cache_path(w: Window, suffix: str = CACHE_SUFFIX) -> str:
+    """A window's observation cache (its core frames' observations; ``pipeline/cache.py``)."""
+    return f"{CACHE}/{_where(w.dataset, w.sequence, w.name)}{suffix}"
 
 
 def _window_entry(w: Window) -> dict:
@@ -150,6 +168,9 @@ class JobRecord:
             raise InputError("job.json is not a job record: key 'identity' is not a mapping; move it away to start "
                              "afresh", store.full(JOB))
         windows = [Window(w["dataset"], w["sequence"], tuple(w["core"]), tuple(w["context"])) for w in d["windows"]]
+        for w in windows:
+            check_name(w.dataset, "dataset", "job.json", store.full(JOB))
+            check_name(w.sequence, "sequence", "job.json", store.full(JOB))
         return cls(d["run_id"], d["params_hash"], d["config"], windows, identity)
 
     def check(self, params_hash: str, out: str) -> None:

@@ -31,6 +31,7 @@ from mining.catalog.layout import JobRecord
 from mining.catalog.store import Store
 from mining.config import JobConfig, validate
 from mining.errors import ConfigError, InputError, MiningError
+from mining.names import check_name
 from mining.pipeline.steps import Job, job_source
 from mining.sources.base import Source, check_calib
 from mining.types import SequencePlan, Window, plan_windows
@@ -82,17 +83,35 @@ def checked_plan(source: Source, cfg: JobConfig, sequence: str, frames: tuple[in
     return plan
 
 
+def job_sequences(cfg: JobConfig, sequences: list[str] | None, source: Source) -> tuple[list[str], dict[str, str]]:
+    """The job's sequence names, and (name → reason) the names of the source's own listing
+    that are not safe names (``mining.names``). A name the user gave (``--sequences``, the
+    config's ``source.sequences``) that is not safe stops the job: InputError naming it."""
+    given, origin = (sequences, "--sequences") if sequences else (cfg.source.sequences, "the config's source.sequences")
+    if given:
+        return [check_name(s, "sequence", origin) for s in given], {}
+    listing = f"the {cfg.source.dataset} source's listing of {cfg.source.root or 'its root'}"
+    names, refused = [], {}
+    for seq in source.sequences():
+        try:
+            names.append(check_name(seq, "sequence", listing))
+        except InputError as e:
+            refused[seq] = str(e)
+    return names, refused
+
+
 def plan_sequences(cfg: JobConfig, sequences: list[str] | None = None,
                    frames: tuple[int, int | None] = (0, None)) -> Preflight:
     """Plan every sequence of the job; a sequence that cannot be mined is reported, not fatal,
     unless none can (then InputError listing why for each)."""
     source = job_source(Job(cfg, "", "", {}))
-    seqs = sequences or cfg.source.sequences or source.sequences()
+    seqs, refused = job_sequences(cfg, sequences, source)
     dataset = cfg.source.dataset
-    if not seqs:
+    if not seqs and not refused:
         raise InputError(f"no {dataset} sequences found", cfg.source.root or None)
     w = cfg.window
     pf = Preflight({}, [])
+    pf.failed.update(refused)  # names of the source's listing that are not safe names: left out
     for seq in seqs:
         try:
             plan = checked_plan(source, cfg, seq, frames)

@@ -7,13 +7,14 @@
 Steps are plain objects holding the job; executors (``mining/pipeline/executors.py``)
 decide where ``run`` executes (in-process, or Ray workers). Every output has a
 deterministic name and is written atomically, so a retried or resubmitted step never
-duplicates or half-writes anything; a step whose output exists returns at once.
+duplicates or half-writes anything; a step whose output exists returns at once (an
+observation cache only once it reads back: a damaged or foreign one is recomputed).
+Nothing read back from ``--out`` is unpickled (``cache.py``).
 """
 
 from __future__ import annotations
 
 import json
-import pickle
 import time
 import traceback
 from dataclasses import dataclass, field
@@ -29,11 +30,13 @@ from mining.catalog.rows import RunInfo, frame_rows, frames_row, to_table, tube_
 from mining.catalog.store import Store, write_sequence
 from mining.config import JobConfig
 from mining.errors import InputError, MiningError
+from mining.pipeline.cache import decode_frames, encode_frames
 from mining.pipeline.stitch import stitch_sequence
 from mining.pipeline.window import ObservedFrame, chain_poses, observe_window, track_window
 from mining.sources import open_source
 from mining.sources.base import Source
 from mining.types import SequencePlan, Window
+
 
 @dataclass
 class StepResult:
@@ -53,6 +56,7 @@ class Job:
     out: str
     run_id: str
     plans: dict[str, SequencePlan]  # sequence → (possibly sliced) plan
+    refused: dict[str, str] = field(default_factory=dict)  # sequence → why it was not planned
 
     @property
     def params_hash(self) -> str:
@@ -93,15 +97,21 @@ class Observe:
     def run(self, window: Window) -> StepResult:
         store, t0 = self.job.store(), time.perf_counter()
         path = cache_path(window)
+        recomputed = ""
         if store.exists(path):
-            return StepResult(window.name, True, extra={"cached": True})
+            try:
+                read_cache(store, window)
+                return StepResult(window.name, True, extra={"cached": True})
+            except InputError as e:  # damaged, foreign or of another version: made again below
+                recomputed = str(e)
         try:
             frames = observe_window(job_source(self.job), self.job.plans[window.sequence], window, self.job.cfg,
                                     self._proposer(window))
         except (InputError, MiningError) as e:
             return StepResult(window.name, False, _error(e), time.perf_counter() - t0)
-        store.write_bytes(path, pickle.dumps(frames, protocol=pickle.HIGHEST_PROTOCOL))
-        return StepResult(window.name, True, seconds=time.perf_counter() - t0, frames=len(frames))
+        store.write_bytes(path, encode_frames(frames))
+        return StepResult(window.name, True, seconds=time.perf_counter() - t0, frames=len(frames),
+                          extra={"recomputed": recomputed} if recomputed else {})
 
     def _proposer(self, window: Window):
         from mining.proposals.make import make_proposer
@@ -112,6 +122,15 @@ class Observe:
         return self.proposer
 
 
+def read_cache(store: Store, window: Window) -> list[ObservedFrame]:
+    """A window's observation cache; InputError naming the file when it is not one (or not its window's)."""
+    path = cache_path(window)
+    frames = decode_frames(store.read_bytes(path), store.full(path))
+    if any(not window.core[0] <= f.position < window.core[1] for f in frames):
+        raise InputError(f"observation cache holds frames outside window {window.name}'s core", store.full(path))
+    return frames
+
+
 def load_context(store: Store, window: Window, neighbours: list[Window]) -> list[ObservedFrame]:
     """The observed frames of ``window``'s context, from the caches of the windows that hold them."""
     a, b = window.context
@@ -119,7 +138,7 @@ def load_context(store: Store, window: Window, neighbours: list[Window]) -> list
     for w in sorted(neighbours, key=lambda w: w.core[0]):
         if w.core[1] <= a or w.core[0] >= b or not store.exists(cache_path(w)):
             continue
-        frames.extend(f for f in pickle.loads(store.read_bytes(cache_path(w))) if a <= f.position < b)
+        frames.extend(f for f in read_cache(store, w) if a <= f.position < b)
     return frames
 
 

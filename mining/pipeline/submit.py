@@ -40,8 +40,8 @@ import pyarrow.fs as pafs
 
 from mining.catalog.identity import check_resubmit, job_identity
 from mining.catalog.integrity import marker_damage, read_json, window_damage
-from mining.catalog.layout import (JOB_ENTRIES, PART_TABLES, REPLACED, JobRecord, cache_path, done_path, files_path,
-                                   manifest_path, part_path)
+from mining.catalog.layout import (JOB_ENTRIES, LEGACY_CACHE_SUFFIX, PART_TABLES, REPLACED, JobRecord, cache_path,
+                                   done_path, files_path, manifest_path, part_path)
 from mining.catalog.lock import OutputLock
 from mining.catalog.store import Store
 from mining.config import JobConfig
@@ -73,6 +73,7 @@ class Summary:
     seconds: float = 0.0
     sequences_written: int = 0
     classifiers: str = ""  # which proposers classified (proposals.make.classifiers_line)
+    recomputed: dict[str, str] = field(default_factory=dict)  # window → why its observation cache did not read back
 
     def lines(self) -> list[str]:
         out = [f"windows: {self.ok} ok, {len(self.failed)} failed, {self.skipped} already done (of {self.windows})",
@@ -87,10 +88,14 @@ class Summary:
                        "fix them and rerun the same command")
         for seq, e in sorted(self.unplanned.items()):
             out.append(f"FAILED {seq} (planning): {e.strip().splitlines()[0] if e.strip() else 'unknown error'}")
+        for w, e in sorted(self.recomputed.items()):
+            out.append(f"RECOMPUTED {w}: its observation cache did not read back ({e})")
         return out
 
     def count(self, task: Task, result: StepResult, dataset: str) -> None:
-        """Add the result of a track or finalize task."""
+        """Add the result of a task."""
+        if task.step == "observe" and result.extra.get("recomputed"):
+            self.recomputed[task.target.name] = result.extra["recomputed"]
         if task.step == "track":
             self.frames += result.frames
             if result.ok:
@@ -280,8 +285,9 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
             summary.count(task, result, dataset)
             if not keep_cache:
                 for w in served:
-                    if store.exists(cache_path(w)):
-                        store.remove(cache_path(w))
+                    for path in (cache_path(w), cache_path(w, LEGACY_CACHE_SUFFIX)):  # and a pickle of old
+                        if store.exists(path):
+                            store.remove(path)
     finally:
         bar.close()
         markers.clear_all()  # stopped early (an error, Ctrl-C): what was under way is pending again

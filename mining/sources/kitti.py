@@ -15,12 +15,14 @@ import cv2
 import numpy as np
 
 from mining.errors import InputError
+from mining.names import check_name
 from mining.sources.base import Source
 from mining.sources.kitti_calib import KittiCalib, read_tracking_calib
 from mining.types import SequencePlan, StereoCalib, StereoFrame
 
 KITTI_FRAME_PERIOD_NS = 100_000_000  # ours: KITTI records at 10 Hz (Geiger et al. 2013); tracking has no timestamp file
 _SPLITS = ("training", "testing")
+SPLIT_MARK = "_"  # ours: "training_0005" names a sequence when the root holds both splits
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
@@ -121,8 +123,9 @@ class KittiTrackingSource(Source):
     camera 0, see ``kitti_calib(seq).rect0_to_cam2``.
 
     ``root`` holds ``training/`` and/or ``testing/``, or is itself a split folder. With
-    one split, sequences are named ``"0005"``; with both, ``"training/0005"`` (a bare
-    name is accepted when only one split has it).
+    one split, sequences are named ``"0005"``; with both, ``"training_0005"`` (a bare
+    name is accepted when only one split has it). Names are one path component
+    (``mining/names.py``), so the split joins with ``_``, never ``/``.
     """
 
     dataset = "kitti"
@@ -151,14 +154,14 @@ class KittiTrackingSource(Source):
 
     def _split_dir(self, sequence: str) -> tuple[Path, str]:
         """Split folder and bare sequence id of a sequence name."""
-        if "/" in sequence:
-            split, seq = sequence.split("/", 1)
-            if split not in self._splits:
-                raise InputError(f"unknown split {split!r} in sequence name {sequence!r}", self.root)
+        check_name(sequence, "sequence", "the kitti source", self.root)
+        split, _, seq = sequence.partition(SPLIT_MARK)
+        if seq and split in self._splits and len(self._splits) > 1:
             return self._splits[split], seq
         having = [d for d in self._splits.values() if (d / "calib" / f"{sequence}.txt").is_file()]
         if len(having) > 1:
-            raise InputError(f"sequence {sequence!r} exists in several splits; name it as 'training/{sequence}'", self.root)
+            raise InputError(f"sequence {sequence!r} exists in several splits; name it as "
+                             f"'training{SPLIT_MARK}{sequence}'", self.root)
         if not having:  # let the caller's next step name the missing calibration file
             return next(iter(self._splits.values())), sequence
         return having[0], sequence
@@ -171,7 +174,7 @@ class KittiTrackingSource(Source):
             if not calib_dir.is_dir():
                 continue
             names = sorted(p.stem for p in calib_dir.glob("*.txt"))
-            out += [f"{split}/{n}" if len(self._splits) > 1 else n for n in names]
+            out += [f"{split}{SPLIT_MARK}{n}" if len(self._splits) > 1 else n for n in names]
         return out
 
     def _image_dirs(self, sequence: str) -> tuple[Path, Path]:

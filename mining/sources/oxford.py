@@ -35,6 +35,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from mining.errors import ConfigError, InputError
+from mining.names import check_name
 from mining.sources.base import Source
 from mining.types import SequencePlan, StereoCalib, StereoFrame
 
@@ -189,6 +190,7 @@ class OxfordSource(Source):
     # -- planning -------------------------------------------------------------------------
 
     def _read_timestamps(self, sequence: str) -> list[tuple[int, int]]:
+        check_name(sequence, "sequence", "the oxford source", self.root)  # a traversal folder, never a path
         path = self.root / sequence / TIMESTAMPS_FILE
         try:
             text = path.read_text()
@@ -329,7 +331,7 @@ class OxfordSource(Source):
         (x forward, y right, z down; R = Rz(yaw)·Ry(pitch)·Rx(roll)). We turn it into
         ``T_cur_prev`` in the image axes of the left camera of the pair.
         """
-        path = self.root / sequence / "vo" / "vo.csv"
+        path = self.root / check_name(sequence, "sequence", "the oxford source", self.root) / "vo" / "vo.csv"
         G = load_camera_model(self.models_dir, PAIRS[self.pair][0][1]).G_camera_image
         G_inv = np.linalg.inv(G)
         steps = []
