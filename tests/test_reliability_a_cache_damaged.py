@@ -35,7 +35,7 @@ def _cfg():
 
 def _observed(out: str):
     """(job, windows) of a job whose observe steps ran and whose tracks did not."""
-    job, schedule = open_job(_cfg(), out)
+    job, schedule, _ = open_job(_cfg(), out)
     for w in schedule.windows:
         assert Observe(job).run(w).ok
     return job, schedule.windows

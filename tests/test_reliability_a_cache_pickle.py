@@ -61,7 +61,7 @@ def test_planted_pickles_never_run_on_resubmit(tmp_path):
 
     # A job whose observe steps ran and whose driver died before any track.
     out = str(tmp_path / "out")
-    job, schedule = open_job(cfg, out)
+    job, schedule, _ = open_job(cfg, out)
     for w in schedule.windows:
         assert Observe(job).run(w).ok
     store = Store(out)

@@ -149,6 +149,9 @@ def preflight(cfg: JobConfig, out: str, sequences: list[str] | None = None,
     """Every check of the module docstring, in its order; the sequences to mine."""
     validate(cfg)
     check_frames(frames)
+    if sequences or cfg.source.sequences:  # names the user gave: refused before anything is written
+        given = sequences or cfg.source.sequences
+        [check_name(s, "sequence", "--sequences" if sequences else "the config's source.sequences") for s in given]
     check_output(out)
     pf = plan_sequences(cfg, sequences, frames)
     check_proposer(cfg, pf.plans)

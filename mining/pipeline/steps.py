@@ -56,7 +56,6 @@ class Job:
     out: str
     run_id: str
     plans: dict[str, SequencePlan]  # sequence → (possibly sliced) plan
-    refused: dict[str, str] = field(default_factory=dict)  # sequence → why it was not planned
 
     @property
     def params_hash(self) -> str:

@@ -49,7 +49,7 @@ from mining.errors import ConfigError, InputError
 from mining.pipeline.executors import Executor, RayExecutor
 from mining.pipeline.failures import describe
 from mining.pipeline.localray import init_local_ray, prepare_local_ray
-from mining.pipeline.preflight import preflight
+from mining.pipeline.preflight import Preflight, preflight
 from mining.pipeline.running import RunningMarkers
 from mining.pipeline.schedule import Resume, Schedule, Task
 from mining.pipeline.steps import Job, StepResult, write_manifest, write_stitch_failure
@@ -206,13 +206,13 @@ def read_resume(store: Store, dataset: str, windows: list[Window], params_hash: 
 
 def open_job(cfg: JobConfig, out: str, sequences: list[str] | None = None,
              frames: tuple[int, int | None] = (0, None), mode: str = "resume",
-             verify: bool = False) -> tuple[Job, Schedule, dict[str, str]]:
-    """Preflight and plan the job, record it in ``out``'s ``job.json`` (``record_job``:
-    ``mode`` says what a differing identity may do) and schedule what is left to do; also the
-    sequences left out (sequence → why they cannot be mined). Call it holding the
-    catalogue's lock (``mine_job`` does)."""
+             verify: bool = False, pf: Preflight | None = None) -> tuple[Job, Schedule, dict[str, str]]:
+    """Preflight and plan the job (or take ``pf``, a preflight already run), record it in
+    ``out``'s ``job.json`` (``record_job``: ``mode`` says what a differing identity may do)
+    and schedule what is left to do; also the sequences left out (sequence → why they cannot
+    be mined). Call it holding the catalogue's lock (``mine_job`` does)."""
     store = Store(out)
-    pf = preflight(cfg, out, sequences, frames)
+    pf = pf if pf is not None else preflight(cfg, out, sequences, frames)
     record = record_job(store, cfg, pf.windows, job_identity(cfg, pf.plans, frames, list(pf.failed)), mode)
     job = Job(cfg, out, record.run_id, pf.plans)
     return (job, Schedule(pf.windows, read_resume(store, cfg.source.dataset, pf.windows, job.params_hash, verify)),
@@ -307,8 +307,9 @@ def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frame
     checks every recorded checksum before resuming (``read_resume``).
     """
     t0 = time.perf_counter()
+    pf = preflight(cfg, out, sequences, frames)  # before the lock: a refused job leaves nothing behind
     with OutputLock(Store(out), lock_wait):
-        job, schedule, unplanned = open_job(cfg, out, sequences, frames, mode, verify)
+        job, schedule, unplanned = open_job(cfg, out, sequences, frames, mode, verify, pf)
         if schedule.nothing_to_do:
             summary = Summary(windows=len(schedule.windows), skipped=schedule.skipped)
         else:
