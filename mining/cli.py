@@ -296,6 +296,12 @@ def cmd_export(args: argparse.Namespace) -> int:
     return run_export(args.out, args.where, args.format, args.dest)
 
 
+def cmd_render(args: argparse.Namespace) -> int:
+    from mining.catalog.render import run_render
+
+    return run_render(args.out, args.sequence, args.dest, args.where, args.depth, args.fps, args.frames)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mine", description="Tube Miner: mine generic object tubes from stereo video.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -344,6 +350,18 @@ def build_parser() -> argparse.ArgumentParser:
     exp.add_argument("--format", choices=["kitti", "kitti-mots", "crops"], required=True)
     exp.add_argument("--out", default="out/catalog", help="catalogue folder or URI")
     exp.set_defaults(func=cmd_export)
+
+    rnd = sub.add_parser("render", help="a sequence with its selected tubes drawn (mask, id, category), as a video")
+    rnd.add_argument("dest", help="DEST.mp4 (H.264 where OpenCV has it, else MPEG-4 Part 2, which browsers do not "
+                                  "play) or DEST.webm (VP8, plays in browsers)")
+    rnd.add_argument("--out", default="out/catalog", help="catalogue folder")
+    rnd.add_argument("--sequence", required=True)
+    rnd.add_argument("--where", help="SQL predicate over the tubes table: draw only the selected tubes it matches")
+    rnd.add_argument("--depth", action="store_true", help="add a stereo depth panel beside each frame")
+    rnd.add_argument("--fps", type=float, help="frame rate (default: the sequence's, from its timestamps)")
+    rnd.add_argument("--frames", type=_frames, default=None, metavar="A:B",
+                     help="plan positions [A, B) (default: the frames the catalogue mined)")
+    rnd.set_defaults(func=cmd_render)
 
     inspect = sub.add_parser("inspect", help="run one stage on a frame range and write its raw outputs")
     isub = inspect.add_subparsers(dest="stage", required=True)

@@ -98,6 +98,12 @@ def _build(cls: type, data: dict[str, Any], where: str) -> Any:
     return cls(**kwargs)
 
 
+def section_from_dict(cls: type, data: dict[str, Any], where: str) -> Any:
+    """One config section (e.g. ``GeometryConfig``) from its table in a recorded job
+    (``job.json``'s ``config``); ConfigError naming ``where`` for unknown keys or bad types."""
+    return _build(cls, data, where)
+
+
 def _coerce(hint: Any, value: Any, where: str) -> Any:
     origin = typing.get_origin(hint)
     if hint is float and isinstance(value, int) and not isinstance(value, bool):

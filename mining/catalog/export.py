@@ -60,6 +60,25 @@ def selected_rows(con: duckdb.DuckDBPyConnection, where: str) -> tuple[pa.Table,
     return tubes, frames
 
 
+def job_source(job: dict, what: str):
+    """(source adapter, job.json's ``source`` table) of the job that made a catalogue:
+    images are re-read through it."""
+    from mining.sources import open_source
+
+    src = job.get("source")
+    if not src or not src.get("dataset"):
+        raise InputError(f"{what} needs the source named in job.json (source.dataset, source.root)")
+    return open_source(src["dataset"], src.get("root") or None, **src.get("options", {})), src
+
+
+def category_label(tube: dict) -> str:
+    """A tube's category by the rule of its ``known`` flag: a known tube's COCO class,
+    ``unknown`` when classified as none of them, ``unclassified`` when no classifier looked."""
+    if tube["known"] is None:
+        return "unclassified"
+    return tube["category"] if tube["known"] else "unknown"
+
+
 def _by_sequence(tubes: pa.Table) -> dict[tuple[str, str], list[dict]]:
     out: dict[tuple[str, str], list[dict]] = {}
     for t in tubes.to_pylist():
@@ -196,12 +215,7 @@ def _write_png(path: Path, image: np.ndarray) -> None:
 
 def export_crops(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path) -> int:
     """Per-tube crop and mask PNGs plus the index; returns the crops written."""
-    from mining.sources import open_source
-
-    src = job.get("source")
-    if not src or not src.get("dataset"):
-        raise InputError("crops need the source named in job.json (source.dataset, source.root)")
-    source = open_source(src["dataset"], src.get("root") or None, **src.get("options", {}))
+    source, src = job_source(job, "crops")
     per_tube = _frames_by_tube(frames)
     n = 0
     for (_, sequence), seq_tubes in _by_sequence(tubes).items():
