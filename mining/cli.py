@@ -293,7 +293,7 @@ def cmd_query(args: argparse.Namespace) -> int:
 def cmd_export(args: argparse.Namespace) -> int:
     from mining.catalog.export import run_export
 
-    return run_export(args.out, args.where, args.format, args.dest)
+    return run_export(args.out, args.where, args.format, args.dest, args.margin, args.images, args.overwrite)
 
 
 def cmd_render(args: argparse.Namespace) -> int:
@@ -347,8 +347,15 @@ def build_parser() -> argparse.ArgumentParser:
     exp = sub.add_parser("export", help="tubes matching a SQL predicate, for other tools")
     exp.add_argument("dest", help="output folder")
     exp.add_argument("--where", default="selected", help="SQL predicate over the tubes table (default: selected)")
-    exp.add_argument("--format", choices=["kitti", "kitti-mots", "crops"], required=True)
+    exp.add_argument("--format", choices=["kitti", "kitti-mots", "crops", "youtube-vis", "tao"], required=True)
     exp.add_argument("--out", default="out/catalog", help="catalogue folder or URI")
+    exp.add_argument("--overwrite", action="store_true",
+                     help="DEST holds an earlier export: remove what that export recorded (DEST/.mine-export.json) "
+                          "and write this one; other files in DEST are kept")
+    exp.add_argument("--margin", type=float, default=None,
+                     help="crops: context on each side, as a fraction of the box (default 0.15, at least 8 px)")
+    exp.add_argument("--images", action="store_true",
+                     help="youtube-vis, tao: also write the video frames (rectified left images, JPEG) the JSON names")
     exp.set_defaults(func=cmd_export)
 
     rnd = sub.add_parser("render", help="a sequence with its selected tubes drawn (mask, id, category), as a video")

@@ -59,7 +59,7 @@ def tube_colours(tube_ids: list[str]) -> dict[str, tuple[int, int, int]]:
     in every render of the same tubes, whatever the frame range)."""
     out = {}
     for k, tid in enumerate(sorted(set(tube_ids))):
-        hue = int(round((k * GOLDEN_HUE_STEP) % 1.0 * 180)) % 180
+        hue = round((k * GOLDEN_HUE_STEP) % 1.0 * 180) % 180
         b, g, r = cv2.cvtColor(np.array([[[hue, 220, 255]]], np.uint8), cv2.COLOR_HSV2BGR)[0, 0]
         out[tid] = (int(b), int(g), int(r))
     return out
