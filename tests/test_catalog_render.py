@@ -129,3 +129,13 @@ def test_unknown_sequence_and_container_are_refused(catalogue, tmp_path, capsys)
     assert run_render(str(out), SEQUENCE, str(tmp_path / "a.avi")) == 2
     assert ".webm" in capsys.readouterr().err
     assert not list(tmp_path.iterdir())
+
+
+def test_cli_render(catalogue, tmp_path):
+    from mining.cli import main
+
+    out, _ = catalogue
+    dest = tmp_path / "cli.webm"
+    assert main(["render", "--out", str(out), "--sequence", SEQUENCE, "--frames", "0:2", "--fps", "5", str(dest)]) == 0
+    cap = cv2.VideoCapture(str(dest))
+    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 2 and cap.get(cv2.CAP_PROP_FPS) == 5
