@@ -7,21 +7,33 @@ import os
 import sys
 from pathlib import Path
 
-from mining.config import JobConfig, load_config, parse_override
+from mining.config import JobConfig, load_config, parse_override, validate
 from mining.errors import ConfigError, MiningError
+from mining.names import check_name
 from mining.proposals.make import classifiers_line
 
 
+INTERRUPTED = 130  # the shell's exit status for a process ended by SIGINT (128 + 2)
+
+
 def _frames(text: str) -> tuple[int, int | None]:
-    """``a:b`` → (a, b); ``a:`` → (a, None); ``a`` → (a, a + 1)."""
+    """``a:b`` → (a, b); ``a:`` → (a, None); ``a`` → (a, a + 1). An empty range is an error."""
     try:
         if ":" not in text:
             a = int(text)
-            return a, a + 1
-        a, b = text.split(":", 1)
-        return int(a or 0), (int(b) if b else None)
+            frames = a, a + 1
+        else:
+            a, b = text.split(":", 1)
+            frames = int(a or 0), (int(b) if b else None)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--frames expects a:b, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expects A:B, got {text!r}") from None
+    from mining.pipeline.preflight import check_frames
+
+    try:
+        check_frames(frames)
+    except ConfigError as e:
+        raise argparse.ArgumentTypeError(str(e).removeprefix("--frames ")) from None
+    return frames
 
 
 def _add_job_options(p: argparse.ArgumentParser) -> None:
@@ -40,10 +52,13 @@ def _job_config(args: argparse.Namespace) -> JobConfig:
         overrides.append(f"source.dataset={args.dataset!r}".replace("'", '"'))
     if args.root:
         overrides.append(f'source.root="{Path(args.root).as_posix()}"')
+    if getattr(args, "host", None):
+        overrides.append(f"run.bind_host={args.host!r}".replace("'", '"'))
     cfg = load_config(args.config, overrides)
     for o in args.option:
         for k, v in parse_override(o).items():
             cfg.source.options[k] = v
+    validate(cfg)  # the options too: an unknown key or a wrong type fails here, naming it
     return cfg
 
 
@@ -95,10 +110,11 @@ def cmd_track_images(args: argparse.Namespace) -> int:
     from mining.pipeline.frames import frame_records
     from mining.pipeline.kitti_export import write_tubes_kitti
     from mining.pipeline.mine import mine_tubes
+    from mining.pipeline.preflight import checked_plan
 
     cfg = _job_config(args)
     source = _open(cfg)
-    plan = source.plan(args.sequence)
+    plan = checked_plan(source, cfg, args.sequence, args.frames)
     start, stop = args.frames
     stop = len(plan) if stop is None else min(stop, len(plan))
     mined = mine_tubes((r.tracking for r in frame_records(source, plan, start, stop, cfg)), cfg)
@@ -167,10 +183,11 @@ def cmd_eval_recall(args: argparse.Namespace) -> int:
         return 0
     from mining.formats.kitti_tracking import read_kitti_tracking
     from mining.pipeline.frames import frame_records
+    from mining.pipeline.preflight import checked_plan
 
     cfg = _job_config(args)
     source = _open(cfg)
-    plan = source.plan(args.sequence)
+    plan = checked_plan(source, cfg, args.sequence, args.frames)
     start, stop = args.frames
     stop = len(plan) if stop is None else min(stop, len(plan))
     labels = Path(args.labels) if args.labels else Path(cfg.source.root) / "training" / "label_02" / f"{args.sequence}.txt"
@@ -275,7 +292,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
                           progress=not args.no_progress, mode=mode, verify=args.verify, lock_wait=args.lock_wait)
     for line in summary.lines():
         print(line)
-    return 1 if summary.failed else 0
+    return 1 if summary.failed or summary.unplanned else 0
 
 
 def cmd_status(args: argparse.Namespace) -> int:
@@ -287,7 +304,9 @@ def cmd_status(args: argparse.Namespace) -> int:
 def cmd_query(args: argparse.Namespace) -> int:
     from mining.catalog.query import run_query
 
-    return run_query(args.sql, args.out, args.format, args.output)
+    limits = {k: v for k, v in (("memory_limit", args.memory_limit), ("threads", args.threads),
+                                ("timeout_s", args.timeout)) if v is not None}  # unset: query.py's defaults
+    return run_query(args.sql, args.out, args.format, args.output, **limits)
 
 
 def cmd_export(args: argparse.Namespace) -> int:
@@ -302,8 +321,17 @@ def cmd_render(args: argparse.Namespace) -> int:
     return run_render(args.out, args.sequence, args.dest, args.where, args.depth, args.fps, args.frames)
 
 
+def _version_text() -> str:
+    """The package version, and the catalogue schema it writes."""
+    from mining import __version__
+    from mining.catalog.schema import SCHEMA_VERSION
+
+    return f"mine (tube-miner) {__version__}, catalogue schema v{SCHEMA_VERSION}"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mine", description="Tube Miner: mine generic object tubes from stereo video.")
+    parser.add_argument("--version", action="version", version=_version_text())
     sub = parser.add_subparsers(dest="command", required=True)
 
     smt = sub.add_parser("submit", help="plan windows and mine them on Ray (local, or a cluster with --address)")
@@ -317,6 +345,9 @@ def build_parser() -> argparse.ArgumentParser:
                                        "HOST:PORT or auto: run the scheduler here, the work on that cluster; "
                                        "default: start a local Ray on this machine")
     smt.add_argument("--workers", type=int, help="local Ray only: CPUs to use (default: all)")
+    smt.add_argument("--host", metavar="IP", help="local Ray only: the interface every Ray port listens on (default: "
+                                                  "the config's run.bind_host, 127.0.0.1). Ray's ports run code "
+                                                  "unauthenticated: another interface only on a network you trust")
     smt.add_argument("--no-progress", action="store_true", help="no progress bar (logs and CI)")
     smt.add_argument("--extend", action="store_true",
                      help="--out holds this job with a narrower --frames or fewer --sequences: widen it (what differs "
@@ -342,6 +373,11 @@ def build_parser() -> argparse.ArgumentParser:
     qry.add_argument("--out", default="out/catalog", help="catalogue folder or URI")
     qry.add_argument("--format", choices=["table", "csv", "json", "parquet"], default="table")
     qry.add_argument("--output", help="write here instead of standard output (required for parquet)")
+    qry.add_argument("--memory-limit", help="most memory the query may use, e.g. 4GB; beyond it DuckDB spills to "
+                                            "a private temporary folder (default: query.MEMORY_LIMIT, 2GB)")
+    qry.add_argument("--threads", type=int, help="threads the query may use (default: query.THREADS, 2)")
+    qry.add_argument("--timeout", type=float, metavar="SECONDS",
+                     help="stop the query after this many seconds (default: query.TIMEOUT_S, 60)")
     qry.set_defaults(func=cmd_query)
 
     exp = sub.add_parser("export", help="tubes matching a SQL predicate, for other tools")
@@ -541,16 +577,29 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _check_names(args: argparse.Namespace) -> None:
+    """Sequence names from the command line are names, never paths (mining/names.py)."""
+    for flag in ("sequence", "sequences"):
+        value = getattr(args, flag, None)
+        for name in [value] if isinstance(value, str) else value or []:
+            check_name(name, "sequence", f"--{flag}")
+
+
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     argv = sys.argv[1:] if argv is None else argv
     args = build_parser().parse_args(argv)
     args.argv = argv
     try:
+        _check_names(args)
         return args.func(args)
     except (MiningError, ConfigError) as e:
         print(f"mine: error: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C: one line, no traceback (Ray's included); 130 = 128 + SIGINT
+        resume = " — rerun the same command to resume" if args.command == "submit" else ""
+        print(f"interrupted{resume}", file=sys.stderr)
+        return INTERRUPTED
 
 
 if __name__ == "__main__":

@@ -11,24 +11,25 @@ import dataclasses
 import hashlib
 import json
 import tomllib
-import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
+from mining.checks import Count, OneOf, Range, coerce, split_hint
 from mining.errors import ConfigError
 from mining.geometry.config import GeometryConfig
 from mining.localise.config import LocaliseConfig
 from mining.proposals.config import ProposalConfig
 from mining.score.config import ScoreConfig
 from mining.select.config import SelectConfig
+from mining.sources import DATASETS
 from mining.tubes.config import TubeConfig
 
 
 @dataclass
 class SourceConfig:
-    dataset: str = "synthetic"  # one of mining.sources.DATASETS
+    dataset: Annotated[str, OneOf(tuple(DATASETS))] = "synthetic"  # one of mining.sources.DATASETS
     root: str = ""  # dataset root folder; unused by the synthetic source
     sequences: list[str] = field(default_factory=list)  # empty: every sequence the source finds
     options: dict[str, Any] = field(default_factory=dict)  # source-specific keyword arguments
@@ -42,15 +43,23 @@ class ExportConfig:
 
 @dataclass
 class WindowConfig:
-    core: int = 100  # DESIGN.md: a window's core is 100 frames
+    core: Annotated[int, Range(1, why="a window holds at least one core frame")] = 100  # DESIGN.md: a window's core is 100 frames
     context_before: int = 30  # ours: frames tracked before the core so tube start-up and co-selection see the same data as an unsharded run
     context_after: int = 30  # ours: frames tracked after the core, likewise (tube ends, forward-backward starts)
-    stitch_min_shared: int = 3  # ours: inliers two windows' pieces must share to be one tube
+    stitch_min_shared: Count = 3  # ours: inliers two windows' pieces must share to be one tube
 
 
 @dataclass
 class RunConfig:
     max_retries: int = 3  # ours: Ray retries of a window's task after a system failure (a dead worker or node)
+    # Calibration sanity, checked for every planned sequence before a job starts
+    # (mining.sources.base.check_calib); outside these a calibration is refused, not mined.
+    calib_fov_deg: tuple[float, float] = (5.0, 170.0)  # ours: plausible horizontal field of view of a rectified camera (fx = 0 or a 10× typo falls outside)
+    calib_baseline_m: tuple[float, float] = (0.01, 5.0)  # ours: plausible stereo baseline (a baseline given in millimetres falls outside)
+    calib_aspect: tuple[float, float] = (0.5, 2.0)  # ours: plausible fy / fx (rectified pixels are near square)
+    # ours: the interface a local Ray of the job's own binds every port to (pipeline/localray.py);
+    # loopback unless the user names another (`mine submit --host`); 0.0.0.0 = Ray's own choice
+    bind_host: str = "127.0.0.1"
 
 
 @dataclass
@@ -79,46 +88,43 @@ class JobConfig:
         return hashlib.sha256(blob).hexdigest()[:16]
 
 
-def _build(cls: type, data: dict[str, Any], where: str) -> Any:
-    """Instantiate dataclass ``cls`` from a nested dict, rejecting unknown keys."""
+def _build(cls: type, data: dict[str, Any], where: str, prefix: str = "") -> Any:
+    """Instantiate dataclass ``cls`` from a nested dict, rejecting unknown keys and values
+    that break a field's type or rules (``mining.checks``)."""
     if not isinstance(data, dict):
-        raise ConfigError(f"{where}: expected a table, got {type(data).__name__}")
-    hints = typing.get_type_hints(cls)
+        raise ConfigError(f"{where}: {prefix.rstrip('.') or 'config'}: expected a table, got {type(data).__name__}")
+    hints = typing.get_type_hints(cls, include_extras=True)
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = set(data) - names
     if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {sorted(unknown)}; known: {sorted(names)}")
+        raise ConfigError(f"{where}: unknown key(s) {sorted(prefix + k for k in unknown)}; known: {sorted(names)}")
     kwargs = {}
     for key, value in data.items():
         hint = hints[key]
-        if dataclasses.is_dataclass(hint):
-            kwargs[key] = _build(hint, value, f"{where}.{key}")
+        if dataclasses.is_dataclass(split_hint(hint)[0]):
+            kwargs[key] = _build(split_hint(hint)[0], value, where, f"{prefix}{key}.")
         else:
-            kwargs[key] = _coerce(hint, value, f"{where}.{key}")
+            try:
+                kwargs[key] = coerce(hint, value, prefix + key)
+            except ConfigError as e:
+                raise ConfigError(f"{where}: {e}") from None
     return cls(**kwargs)
 
 
 def section_from_dict(cls: type, data: dict[str, Any], where: str) -> Any:
     """One config section (e.g. ``GeometryConfig``) from its table in a recorded job
-    (``job.json``'s ``config``); ConfigError naming ``where`` for unknown keys or bad types."""
+    (``job.json``'s ``config``); ConfigError naming ``where`` for unknown keys or values
+    that break a field's type or rules."""
     return _build(cls, data, where)
 
 
-def _coerce(hint: Any, value: Any, where: str) -> Any:
-    origin = typing.get_origin(hint)
-    if hint is float and isinstance(value, int) and not isinstance(value, bool):
-        return float(value)
-    if hint in (int, float, str, bool):
-        if not isinstance(value, hint) or (hint is int and isinstance(value, bool)):
-            raise ConfigError(f"{where}: expected {hint.__name__}, got {value!r}")
-        return value
-    if origin in (list, tuple):
-        if not isinstance(value, (list, tuple)):
-            raise ConfigError(f"{where}: expected a list, got {value!r}")
-        return list(value) if origin is list else tuple(value)
-    if origin in (typing.Union, types.UnionType):
-        return value
-    return value
+def validate(cfg: JobConfig, where: str = "config") -> None:
+    """Check a config made or changed in code (``--option``, tests) as the loader checks a
+    file: every field's type and rules, and the source options against the source."""
+    _build(JobConfig, cfg.to_dict(), where)
+    from mining.sources import check_options
+
+    check_options(cfg.source.dataset, cfg.source.options)
 
 
 def merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:

@@ -107,6 +107,11 @@ class SequencePlan:
     timestamps. A recording gap (e.g. a missing RobotCar chunk) shows as a jump in
     ``t_ns``; ``gaps`` lists the positions ``i`` in ``frames`` where a gap lies between
     ``frames[i-1]`` and ``frames[i]``.
+
+    ``problems`` are frames the listing shows cannot be read (one image of the pair
+    missing), as (position, message naming the file and frame): they keep their place,
+    so positions do not shift when a file goes missing, and only a job whose frame range
+    holds one of them is refused (``Source.plan``).
     """
 
     dataset: str
@@ -115,6 +120,12 @@ class SequencePlan:
     frames: tuple[int, ...]
     t_ns: tuple[int, ...]
     gaps: tuple[int, ...] = ()
+    problems: tuple[tuple[int, str], ...] = ()
+
+    def problem_in(self, start: int = 0, stop: int | None = None) -> str | None:
+        """The first problem at a position in ``[start, stop)``, or None."""
+        stop = len(self.frames) if stop is None else stop
+        return next((msg for pos, msg in self.problems if start <= pos < stop), None)
 
     def __len__(self) -> int:
         return len(self.frames)

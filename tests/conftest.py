@@ -13,6 +13,10 @@ DATA = SHARED / "data"
 MODELS = SHARED / "models"
 
 os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+# Ray's single-host mode, read when `ray` is first imported (test modules import it at
+# collection): every Ray a test starts in this process listens on loopback only, as
+# `mine submit` does (mining/pipeline/localray.py). Subprocesses of `mine` get it from there.
+os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
 
 
 def _require(path: Path) -> Path:

@@ -11,7 +11,7 @@ import json
 import re
 import shlex
 import tomllib
-from pathlib import PurePosixPath
+from pathlib import Path, PurePosixPath
 
 import pytest
 import yaml
@@ -324,3 +324,16 @@ def test_rayjob_root_is_mounted_on_head_and_workers():
         mounts = [m["mountPath"] for c in pod["containers"] for m in c.get("volumeMounts", [])]
         assert any(PurePosixPath(args.root).is_relative_to(m) for m in mounts), \
             f"--root {args.root} is not mounted in every pod ({mounts})"
+
+
+def test_version_is_one_number_and_mine_prints_it():
+    import subprocess
+    import sys
+    import tomllib
+
+    import mining
+
+    root = Path(__file__).resolve().parents[1]
+    assert tomllib.loads((root / "pyproject.toml").read_text())["project"]["version"] == mining.__version__
+    r = subprocess.run([sys.executable, "-m", "mining.cli", "--version"], capture_output=True, text=True, cwd=root)
+    assert r.returncode == 0 and r.stdout.strip() == f"mine (tube-miner) {mining.__version__}, catalogue schema v2"

@@ -10,7 +10,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 STAGES = ("sources", "geometry", "proposals", "localise", "tubes", "score", "select", "catalog")
-BELOW_PIPELINE = (*STAGES, "formats", "types", "errors", "masks", "boxes", "config")
+BELOW_PIPELINE = (*STAGES, "formats", "types", "errors", "names", "masks", "boxes", "config")
 
 
 def _imports() -> dict[str, set[str]]:

@@ -9,7 +9,6 @@ prediction that guides matching reaches back further than the two warm-up frames
 
 from __future__ import annotations
 
-import pickle
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +19,7 @@ from mining.catalog.layout import cache_path
 from mining.catalog.store import Store
 from mining.catalog.views import connect
 from mining.config import load_config
+from mining.pipeline.cache import decode_frames, encode_frames
 from mining.pipeline.executors import LocalExecutor, RayExecutor
 from mining.pipeline.submit import mine_job
 from mining.pipeline.window import observe_window
@@ -66,12 +66,12 @@ def test_100_frame_windows_give_the_tubes_of_one_500_frame_window(local_ray, tmp
     # The reference: one window over all 500 frames, from the same observations.
     whole = str(tmp_path / "whole")
     frames = []
-    for rel in Store(sharded).list("cache/obs", ".pkl"):
-        frames += pickle.loads(Store(sharded).read_bytes(rel))
+    for rel in Store(sharded).list("cache/obs", ".npz.zst"):
+        frames += decode_frames(Store(sharded).read_bytes(rel), rel)
     frames.sort(key=lambda f: f.position)
     assert [f.position for f in frames] == list(range(500))
     ref_cfg = load_config(REPO / "jobs" / "synthetic.toml", ["window.core=500"])
-    Store(whole).write_bytes(cache_path(Window("synthetic", "0000", (0, 500), (0, 500))), pickle.dumps(frames))
+    Store(whole).write_bytes(cache_path(Window("synthetic", "0000", (0, 500), (0, 500))), encode_frames(frames))
     assert mine_job(ref_cfg, whole, ["0000"], (0, 500), executor=LocalExecutor).ok == 1
 
     agreement = tube_agreement(selected_tube_masks(whole), selected_tube_masks(sharded))

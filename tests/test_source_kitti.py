@@ -210,9 +210,9 @@ def test_sequence_names_with_both_splits(tmp_path: Path, kitti_tracking_root: Pa
     (tmp_path / "testing/calib").mkdir(parents=True)
     shutil.copy(kitti_tracking_root / "training/calib/0014.txt", tmp_path / "testing/calib/0014.txt")
     src = KittiTrackingSource(tmp_path)
-    assert src.sequences() == ["training/0005", "testing/0014"]
-    assert src.plan("training/0005").frames == src.plan("0005").frames == (0, 1)
-    assert src.calib("testing/0014").width == 1224
+    assert src.sequences() == ["training_0005", "testing_0014"]  # one path component each (mining/names.py)
+    assert src.plan("training_0005").frames == src.plan("0005").frames == (0, 1)
+    assert src.calib("testing_0014").width == 1224
 
 
 def test_camera_pair_selects_the_projection_matrices(kitti_tracking_root: Path) -> None:

@@ -165,6 +165,9 @@ def window_peaks(out: Path, rows: list[dict[str, Any]], samples: list[tuple[floa
 
 def measure_run(cfg: JobConfig, out: str | Path, workers: int) -> dict[str, Any]:
     """Mine ``cfg`` into a fresh ``out`` on a local Ray of ``workers`` CPUs; time, overhead, memory."""
+    from mining.pipeline.localray import init_local_ray, prepare_local_ray
+
+    prepare_local_ray(cfg.run.bind_host)  # before `import ray`: loopback unless run.bind_host says otherwise
     import ray
 
     from mining.pipeline.executors import RayExecutor
@@ -177,8 +180,7 @@ def measure_run(cfg: JobConfig, out: str | Path, workers: int) -> dict[str, Any]
     if ray.is_initialized():
         ray.shutdown()
     t0 = time.perf_counter()
-    ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False,
-             runtime_env={"env_vars": {"OPENCV_FOR_THREADS_NUM": "1"}})
+    init_local_ray(workers, cfg.run.bind_host, runtime_env={"env_vars": {"OPENCV_FOR_THREADS_NUM": "1"}})
     init_s = time.perf_counter() - t0
     try:
         with RssSampler(local_raylet_pid()) as sampler:

@@ -25,6 +25,10 @@ the record (``.mine-export.json``) of an earlier export: then exactly the entrie
 record lists are removed first (files, and folders with what is in them; links are removed,
 not followed), anything else in DEST is kept, and nothing outside DEST is touched. A
 predicate that matches no tube writes and removes nothing and exits 1.
+
+Names read from the catalogue are data: the dataset and sequence names and the tube ids
+must pass ``mining/names.py`` before a file name is made from them, two tubes may not
+share a folder, and every file written must resolve inside DEST.
 """
 
 from __future__ import annotations
@@ -41,10 +45,12 @@ import pyarrow.parquet as pq
 from pycocotools import mask as mask_utils
 
 from mining.catalog.layout import JobRecord
+from mining.catalog.predicate import tubes_query
 from mining.catalog.store import Store
 from mining.catalog.views import connect, execute_read_only
 from mining.errors import InputError, MiningError
 from mining.formats.kitti_tracking import ResultFrame, ResultTrack, kitti_type, write_tracking_results
+from mining.names import check_name, inside, name_problem, tube_folder
 
 FORMATS = ("kitti", "kitti-mots", "crops", "youtube-vis", "tao")
 # KITTI-MOTS class ids (MOTS annotation format): car 1, pedestrian 2, ignore region 10.
@@ -63,17 +69,18 @@ def read_job(store: Store) -> dict:
 
 
 def selected_rows(con: duckdb.DuckDBPyConnection, where: str) -> tuple[pa.Table, pa.Table]:
-    """(tubes, tube_frames) of the tubes matching ``where``, frames in (tube, frame) order."""
-    tubes_sql = f"SELECT * FROM tubes WHERE ({where})"
+    """(tubes, tube_frames) of the tubes matching ``where``, frames in (tube, frame) order.
+
+    ``where`` is parsed as one expression (``predicate.tubes_query``) and both queries run
+    through the read-only checks on ``con`` (a ``views.connect`` connection)."""
+    tubes_sql = tubes_query(where)
     try:
-        if len(duckdb.extract_statements(tubes_sql)) != 1:
-            raise InputError(f"--where must be one SQL predicate, got {where!r}")
-        tubes = execute_read_only(con, tubes_sql + " ORDER BY dataset, sequence, t_start, tube_id").to_arrow_table()
+        tubes = execute_read_only(con, f"SELECT * FROM ({tubes_sql}) ORDER BY dataset, sequence, t_start, tube_id")
+        frames = execute_read_only(con, f"SELECT f.* FROM tube_frames AS f SEMI JOIN ({tubes_sql}) AS t "
+                                        "USING (dataset, sequence, tube_id) ORDER BY f.dataset, f.sequence, f.tube_id, f.frame")
+        return tubes.to_arrow_table(), frames.to_arrow_table()
     except duckdb.Error as e:
         raise InputError(f"bad --where predicate {where!r}: {e}") from None
-    frames = con.sql(f"SELECT f.* FROM tube_frames AS f SEMI JOIN ({tubes_sql}) AS t USING (dataset, sequence, tube_id) "
-                     "ORDER BY f.dataset, f.sequence, f.tube_id, f.frame").to_arrow_table()
-    return tubes, frames
 
 
 def job_source(job: dict, what: str):
@@ -96,9 +103,16 @@ def category_label(tube: dict) -> str:
 
 
 def _by_sequence(tubes: pa.Table) -> dict[tuple[str, str], list[dict]]:
+    """The tubes per (dataset, sequence), both checked names (they become file names)."""
     out: dict[tuple[str, str], list[dict]] = {}
+    checked: set[tuple[str, str]] = set()
     for t in tubes.to_pylist():
-        out.setdefault((t["dataset"], t["sequence"]), []).append(t)
+        key = (t["dataset"], t["sequence"])
+        if key not in checked:
+            check_name(key[0], "dataset", "the catalogue")
+            check_name(key[1], "sequence", "the catalogue")
+            checked.add(key)
+        out.setdefault(key, []).append(t)
     return out
 
 
@@ -109,8 +123,9 @@ def _frames_by_tube(frames: pa.Table) -> dict[str, list[dict]]:
     return out
 
 
-def _file_name(sequence: str) -> str:
-    return sequence.replace("/", "_")
+def _sequence_file(dest: Path, sequence: str) -> Path:
+    """``<dest>/<sequence>.txt`` of a checked sequence name, inside DEST."""
+    return inside(dest, f"{check_name(sequence, 'sequence', 'the catalogue')}.txt")
 
 
 def _cam_to_rect0(job: dict, sequence: str):
@@ -146,7 +161,7 @@ def export_kitti(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path) -> in
     per_tube = _frames_by_tube(frames)
     n = 0
     for (_, sequence), seq_tubes in _by_sequence(tubes).items():
-        n += write_tracking_results(dest / f"{_file_name(sequence)}.txt",
+        n += write_tracking_results(_sequence_file(dest, sequence),
                                     _result_tracks(seq_tubes, per_tube, unclassified_as),
                                     _cam_to_rect0(job, sequence), observed_only)
     return n
@@ -205,7 +220,7 @@ def export_kitti_mots(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path) 
                 if m is not None:
                     lines.append(f"{frame} {obj_id} {obj_id // MOTS_IDS_PER_CLASS} {m['size'][0]} {m['size'][1]} "
                                  f"{m['counts']}")
-        (dest / f"{_file_name(sequence)}.txt").write_text("\n".join(lines) + ("\n" if lines else ""))
+        _sequence_file(dest, sequence).write_text("\n".join(lines) + ("\n" if lines else ""))
         n += len(lines)
     return n
 
@@ -221,8 +236,17 @@ def crop_box(bbox, width: int, height: int, margin: float = CROP_MARGIN) -> tupl
     return x0, max(x1_, x0 + 1), y0, max(y1_, y0 + 1)
 
 
-def tube_folder(tube_id: str) -> str:
-    return tube_id.replace("/", "_")
+def tube_folders(tubes: pa.Table, dest: Path) -> dict[str, Path]:
+    """tube id → its crop folder inside DEST; an InputError for an unsafe id or two tubes
+    that would share a folder."""
+    out: dict[str, Path] = {}
+    owner: dict[str, str] = {}
+    for tid in tubes.column("tube_id").to_pylist():
+        name = tube_folder(tid)
+        if owner.setdefault(name, tid) != tid:
+            raise InputError(f"tubes {owner[name]!r} and {tid!r} would share the crop folder {name!r}", dest)
+        out[tid] = inside(dest, name)
+    return out
 
 
 def _write_png(path: Path, image: np.ndarray) -> None:
@@ -245,17 +269,19 @@ def export_crops(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path, margi
     """Per-tube crop and mask PNGs plus the index; returns the crops written."""
     if not margin >= 0:
         raise InputError(f"--margin must be a fraction ≥ 0 of the box, got {margin}")
+    folders = tube_folders(tubes, dest)  # every id checked before anything is written
+    by_sequence = _by_sequence(tubes)
     source, src = job_source(job, "crops")
     per_tube = _frames_by_tube(frames)
     files: dict[tuple[str, int], dict] = {}  # (tube, frame) → what the index records of its crop
     n = 0
-    for (_, sequence), seq_tubes in _by_sequence(tubes).items():
+    for (_, sequence), seq_tubes in by_sequence.items():
         plan = source.plan(sequence)
         position = {f: p for p, f in enumerate(plan.frames)}
         digits = frame_digits(plan.frames)
         wanted: dict[int, list[dict]] = {}  # frame → the tube frames that need it
         for t in seq_tubes:
-            (dest / tube_folder(t["tube_id"])).mkdir(parents=True, exist_ok=True)
+            folders[t["tube_id"]].mkdir(parents=True, exist_ok=True)
             for f in per_tube.get(t["tube_id"], []):
                 wanted.setdefault(f["frame"], []).append(f)
         for frame in sorted(wanted):
@@ -270,7 +296,10 @@ def export_crops(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path, margi
                                      f"the image's {h}×{w}", src.get("root"), frame)
                 x0, x1, y0, y1 = crop_box(f["bbox"], w, h, margin)
                 mask = mask_utils.decode({"size": [h, w], "counts": f["rle_counts"].encode()})
-                folder = dest / tube_folder(f["tube_id"])
+                folder = folders.get(f["tube_id"])
+                if folder is None:
+                    raise InputError(f"tube_frames row of tube {f['tube_id']!r}, which the tubes table lacks",
+                                     src.get("root"), frame)
                 crop_name, mask_name = crop_names(frame, digits)
                 _write_png(folder / crop_name, cv2.cvtColor(image[y0:y1, x0:x1], cv2.COLOR_RGB2BGR))
                 _write_png(folder / mask_name, mask[y0:y1, x0:x1] * np.uint8(255))
@@ -361,7 +390,7 @@ def _recorded(dest: Path) -> list[str]:
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise InputError(f"not a record of an earlier export ({e}); remove DEST's contents yourself or choose "
                          "another folder", dest / RECORD) from None
-    bad = [n for n in names if n in ("", ".", "..", RECORD) or "/" in n or "\\" in n or "\x00" in n]
+    bad = [n for n in names if n == RECORD or name_problem(n) is not None]
     if bad:
         raise InputError(f"the record names {bad!r}, which are not entries of DEST; remove DEST's contents yourself",
                          dest / RECORD)
@@ -429,6 +458,7 @@ def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: floa
         options["images"] = True
     dest = Path(dest)
     replaced = check_dest(dest, overwrite)
+    job = read_job(Store(out))
     con = connect(out)
     try:
         tubes, frames = selected_rows(con, where)
@@ -441,7 +471,7 @@ def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: floa
     _remove(dest, replaced)
     kept = _entries(dest)
     dest.mkdir(parents=True, exist_ok=True)
-    n = EXPORTERS[fmt](tubes, frames, read_job(Store(out)), dest, **options)
+    n = EXPORTERS[fmt](tubes, frames, job, dest, **options)
     written = [e for e in _entries(dest) if e not in kept]
     record = {"format": fmt, "catalogue": str(out), "where": where, "tubes": tubes.num_rows, "items": n,
               "options": {k: v for k, v in options.items() if k != "video_frames"}, "written": written}

@@ -41,6 +41,7 @@ from pycocotools import mask as mask_utils
 
 from mining.catalog.export import _by_sequence, _export_settings, _frames_by_tube, category_label, frame_digits, job_source
 from mining.errors import InputError
+from mining.names import inside
 from mining.proposals.coco import CLASS_INDEX, COCO_CATEGORY_IDS
 
 UNKNOWN_ID = 1000  # ours: category id of unknown tubes, outside COCO's 1..90
@@ -52,7 +53,8 @@ TAO_JSON, TAO_IMAGES = "tao.json", "frames"
 
 
 def video_name(dataset: str, sequence: str) -> str:
-    return f"{dataset}_{sequence.replace('/', '_')}"
+    """``<dataset>_<sequence>``: both are checked names (``export._by_sequence``), so this is one."""
+    return f"{dataset}_{sequence}"
 
 
 def xywh(bbox) -> list[float]:
@@ -131,18 +133,21 @@ def write_images(job: dict, vids: list[Video], folder: Path, progress: Callable[
     source, src = job_source(job, "--images")
     total, done = sum(len(v.frames) for v in vids), 0
     for v in vids:
-        plan = source.plan(v.sequence)
-        position = {f: p for p, f in enumerate(plan.frames)}
-        (folder / v.name).mkdir(parents=True, exist_ok=True)
+        survey = source.survey(v.sequence)
+        position = {f: p for p, f in enumerate(survey.frames)}
+        missing = [f for f in v.frames if f not in position]
+        if missing:
+            raise InputError(f"frame {missing[0]} of the catalogue is not in the source's sequence {v.sequence!r}",
+                             src.get("root"), missing[0])
+        # only the video's frames need to read (problems elsewhere in the sequence do not matter)
+        plan = source.plan(v.sequence, min(position[f] for f in v.frames), max(position[f] for f in v.frames) + 1)
+        inside(folder, v.name).mkdir(parents=True, exist_ok=True)
         for frame in v.frames:
-            if frame not in position:
-                raise InputError(f"frame {frame} of the catalogue is not in the source's sequence {v.sequence!r}",
-                                 src.get("root"), frame)
             image = source.read_frame(plan, position[frame]).left
             if image.shape[:2] != (v.height, v.width):
                 raise InputError(f"image of {image.shape[1]}×{image.shape[0]}, masks of {v.width}×{v.height}",
                                  src.get("root"), frame)
-            path = folder / v.file_name(frame)
+            path = inside(folder, v.file_name(frame))
             if not cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY]):
                 raise InputError("cannot write JPEG", path)
             done += 1

@@ -10,6 +10,8 @@ must have the same one (``check_resubmit``):
 * ``source.root`` — the dataset root, as an absolute path (URIs as given);
 * ``sequences`` — the sequences mined (sorted: planning order changes no result);
 * ``frames.<sequence>`` — the plan positions ``a:b`` mined, after clipping to the recording;
+* ``unplanned`` — the sequences asked for that could not be planned; once repaired, the
+  same command adds them (they had no windows);
 * ``recording.<sequence>.frames`` / ``.stamps`` / ``.calib`` — a cheap fingerprint of the
   recording from its plan (no image is decoded): the frame count, a hash of the frame
   indices, timestamps and gaps, and the calibration. Image contents are not part of it
@@ -27,7 +29,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -70,8 +72,10 @@ def frame_range(plan: SequencePlan, frames: tuple[int, int | None]) -> tuple[int
     return max(0, frames[0]), n
 
 
-def job_identity(cfg: JobConfig, plans: Mapping[str, SequencePlan], frames: tuple[int, int | None]) -> dict[str, Any]:
-    """The flat identity of a job (module docstring): key → JSON value."""
+def job_identity(cfg: JobConfig, plans: Mapping[str, SequencePlan], frames: tuple[int, int | None],
+                 unplanned: Sequence[str] = ()) -> dict[str, Any]:
+    """The flat identity of a job (module docstring): key → JSON value. ``unplanned``: the
+    sequences asked for that could not be planned (left out, named in the summary)."""
     out: dict[str, Any] = {}
     d = cfg.to_dict()
     d.pop("run")  # retries change how a result is reached, not the result (as params_hash)
@@ -79,6 +83,8 @@ def job_identity(cfg: JobConfig, plans: Mapping[str, SequencePlan], frames: tupl
     _flatten("config", d, out)
     out["source.root"] = root_key(cfg.source.root)
     out["sequences"] = sorted(plans)
+    if unplanned:
+        out["unplanned"] = sorted(unplanned)
     for seq, plan in plans.items():
         a, b = frame_range(plan, frames)
         out[f"frames.{seq}"] = f"{a}:{b}"
@@ -100,6 +106,28 @@ def _show(v: Any) -> str:
 def _range(text: str) -> tuple[int, int]:
     a, b = text.split(":")
     return int(a), int(b)
+
+
+def _sequence_of(key: str) -> str | None:
+    if key.startswith("frames."):
+        return key[len("frames."):]
+    if key.startswith("recording."):
+        return key[len("recording."):].rsplit(".", 1)[0]  # sequence names may hold dots
+    return None
+
+
+def _repaired(key: str, old: Any, new: Any, old_id: Mapping[str, Any]) -> bool:
+    """A difference the same command makes once a sequence left out at planning is repaired:
+    it joins the job (it had no windows, so nothing mined changes)."""
+    was_out = set(old_id.get("unplanned") or ())
+    if not was_out:
+        return False
+    if key == "unplanned":
+        return True
+    if key == "sequences":
+        return (isinstance(old, list) and isinstance(new, list) and set(old) <= set(new)
+                and set(new) - set(old) <= was_out)
+    return _sequence_of(key) in was_out and old == ABSENT
 
 
 def _extends(key: str, old: Any, new: Any, old_id: Mapping[str, Any]) -> bool:
@@ -127,7 +155,8 @@ def check_resubmit(old: Mapping[str, Any], new: Mapping[str, Any], out: str, mod
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     complete = "sequences" in old
-    diffs = [(k, o, n) for k, o, n in differences(old, new) if complete or o != ABSENT]
+    diffs = [(k, o, n) for k, o, n in differences(old, new)
+             if (complete or o != ABSENT) and not _repaired(k, o, n, old)]
     if not diffs or mode == "new":
         return
     lines = "\n".join(f"  {k}: {_show(o)} → {_show(n)}" for k, o, n in diffs)

@@ -10,8 +10,14 @@ draws the same tree); ``store.py`` does the I/O on them::
                                                               and the size and sha256 of each of its compacted files
     manifest/dataset=D/sequence=S/<window>.parquet            the windows table, one row per window
     manifest/dataset=D/sequence=S/<window>.files.json         size and sha256 of the window's parts (integrity.py)
+    manifest/dataset=D/sequence=S/stitch.parquet              a sequence whose stitch failed (its row, until one succeeds)
+    running/dataset=D/sequence=S/<window>.json                a window a driver has started and not finished
     parts/<table>/dataset=D/sequence=S/<window>.parquet       a window's parts before stitching
-    cache/obs/dataset=D/sequence=S/<window>.pkl               a window's observations, until no track needs them
+    cache/obs/dataset=D/sequence=S/<window>.npz.zst           a window's observations, until no track needs them
+
+Every path is built from names checked by ``mining/names.py`` (dataset, sequence, window),
+so no name can leave ``--out`` or make two tables share a file; ``job.json``'s names are
+checked when it is read.
 
 ``job.json`` records the resolved config, its ``params_hash``, the job's identity
 (``identity.py``: config, source root, recording fingerprint, sequences, frame ranges),
@@ -27,6 +33,7 @@ from typing import TYPE_CHECKING, Any
 
 from mining.catalog.identity import legacy_identity
 from mining.errors import ConfigError, InputError
+from mining.names import check_name
 from mining.types import Window
 
 if TYPE_CHECKING:
@@ -41,50 +48,96 @@ LOCK = ".mine.lock"  # a dot name: every reader skips it (store.is_temporary)
 REPLACED = "_replaced"  # catalogues moved aside by --new-run, one folder each
 # What a job writes under --out (a --new-run moves exactly these aside).
 JOB_ENTRIES = (JOB, CATALOG, MANIFEST, PARTS, "cache")
+RUNNING = "running"
+STITCH_ROW = "stitch"  # the ``window`` of a sequence's failed-stitch row (no window is named so: windows are S-start-end)
+CACHE_SUFFIX = ".npz.zst"  # the observation cache's format: mining/pipeline/cache.py
+LEGACY_CACHE_SUFFIX = ".pkl"  # caches before issue 11 (pickle): never read, removed with their window's
 PART_TABLES = ("tubes", "tube_frames", "frames")  # what a tracked window writes, and a sequence stitches
 # The folder of each table a query reads: the compacted tables, and the manifest as ``windows``.
 TABLE_DIRS = {"tubes": f"{CATALOG}/tubes", "tube_frames": f"{CATALOG}/tube_frames", "frames": f"{CATALOG}/frames",
               "windows": MANIFEST}
 
 
+def _where(dataset: str, sequence: str, window: str | None = None) -> str:
+    """``dataset=D/sequence=S`` (and ``/<window>``) from checked names."""
+    origin = "a path under --out"
+    where = f"dataset={check_name(dataset, 'dataset', origin)}/sequence={check_name(sequence, 'sequence', origin)}"
+    return where if window is None else f"{where}/{check_name(window, 'window', origin)}"
+
+
 def part_path(table: str, dataset: str, sequence: str, window: str) -> str:
     """A window's part of ``table`` (one of ``PART_TABLES``)."""
-    return f"{PARTS}/{table}/dataset={dataset}/sequence={sequence}/{window}.parquet"
+    if table not in PART_TABLES:
+        raise ValueError(f"no part table {table!r}")
+    return f"{PARTS}/{table}/{_where(dataset, sequence, window)}.parquet"
 
 
 def manifest_path(dataset: str, sequence: str, window: str) -> str:
     """A window's manifest row (its row of the ``windows`` table)."""
-    return f"{MANIFEST}/dataset={dataset}/sequence={sequence}/{window}.parquet"
+    return f"{MANIFEST}/{_where(dataset, sequence, window)}.parquet"
 
 
 def files_path(dataset: str, sequence: str, window: str) -> str:
     """Size and sha256 of a window's parts, written before its manifest row says done."""
     return f"{MANIFEST}/dataset={dataset}/sequence={sequence}/{window}.files.json"
+def stitch_path(dataset: str, sequence: str) -> str:
+    """The manifest row of a sequence whose stitch (finalize) failed; removed when one succeeds."""
+    return f"{MANIFEST}/dataset={dataset}/sequence={sequence}/{STITCH_ROW}.parquet"
+
+
+def running_path(dataset: str, sequence: str, window: str) -> str:
+    """The marker of a window a driver has started (its observe or track step) and not finished."""
+    return f"{RUNNING}/dataset={dataset}/sequence={sequence}/{window}.json"
 
 
 def catalog_dir(table: str, dataset: str, sequence: str) -> str:
     """The folder of one sequence's compacted files of ``table``."""
-    return f"{CATALOG}/{table}/dataset={dataset}/sequence={sequence}"
+    if table not in TABLE_DIRS:
+        raise ValueError(f"no catalogue table {table!r}")
+    return f"{CATALOG}/{table}/{_where(dataset, sequence)}"
 
 
 def catalog_file(table: str, dataset: str, sequence: str, k: int) -> str:
     """The ``k``-th compacted file of one sequence's ``table``."""
-    return f"{catalog_dir(table, dataset, sequence)}/part-{k}.parquet"
+    return f"{catalog_dir(table, dataset, sequence)}/part-{int(k)}.parquet"
 
 
 def done_path(dataset: str, sequence: str) -> str:
     """The marker a finalized sequence leaves: which windows its catalogue holds."""
-    return f"{CATALOG}/_sequences/dataset={dataset}/sequence={sequence}.json"
+    return f"{CATALOG}/_sequences/{_where(dataset, sequence)}.json"
 
 
-def cache_path(w: Window) -> str:
-    """A window's observation cache (its core frames' observations, pickled)."""
-    return f"{CACHE}/dataset={w.dataset}/sequence={w.sequence}/{w.name}.pkl"
+def cache_path(w: Window, suffix: str = CACHE_SUFFIX) -> str:
+    """A window's observation cache (its core frames' observations; ``pipeline/cache.py``)."""
+    return f"{CACHE}/{_where(w.dataset, w.sequence, w.name)}{suffix}"
 
 
 def _window_entry(w: Window) -> dict:
     return {"dataset": w.dataset, "sequence": w.sequence, "window": w.name, "core": list(w.core),
             "context": list(w.context)}
+
+
+def _record_problem(d: object) -> str | None:
+    """What makes parsed JSON not a job record (the key and what it holds), or None."""
+    if not isinstance(d, dict):
+        return f"expected a JSON object, got {type(d).__name__}"
+    for key, kind in (("run_id", str), ("params_hash", str), ("config", dict), ("windows", list)):
+        if key not in d:
+            return f"key {key!r} is missing"
+        if not isinstance(d[key], kind):
+            return f"key {key!r} holds {type(d[key]).__name__}, expected {kind.__name__}"
+    for i, w in enumerate(d["windows"]):
+        if not isinstance(w, dict):
+            return f"windows[{i}] holds {type(w).__name__}, expected an object"
+        for key in ("dataset", "sequence"):
+            if not isinstance(w.get(key), str):
+                return f"windows[{i}].{key} is {w.get(key)!r}, expected a name"
+        for key in ("core", "context"):
+            v = w.get(key)
+            if not (isinstance(v, list) and len(v) == 2 and all(isinstance(x, int) and not isinstance(x, bool)
+                                                                  and x >= 0 for x in v) and v[0] < v[1]):
+                return f"windows[{i}].{key} is {v!r}, expected [start, end] frame positions"
+    return None
 
 
 @dataclass
@@ -104,13 +157,21 @@ class JobRecord:
             return None
         try:
             d = json.loads(store.read_bytes(JOB))
-            windows = [Window(w["dataset"], w["sequence"], tuple(w["core"]), tuple(w["context"])) for w in d["windows"]]
-            identity = d["identity"] if "identity" in d else legacy_identity(d["config"])
-            if not isinstance(identity, dict):
-                raise TypeError("identity is not a mapping")
-            return cls(d["run_id"], d["params_hash"], d["config"], windows, identity)
-        except (ValueError, KeyError, TypeError, AttributeError) as e:
-            raise InputError(f"job.json is not a job record ({e})", store.full(JOB)) from None
+        except ValueError as e:  # not UTF-8, not JSON (a truncated or overwritten file)
+            raise InputError(f"job.json is not a job record: not valid JSON ({e}); move it away to start afresh",
+                             store.full(JOB)) from None
+        if (problem := _record_problem(d)) is not None:
+            raise InputError(f"job.json is not a job record: {problem}; move it away to start afresh",
+                             store.full(JOB))
+        identity = d["identity"] if "identity" in d else legacy_identity(d["config"])
+        if not isinstance(identity, dict):
+            raise InputError("job.json is not a job record: key 'identity' is not a mapping; move it away to start "
+                             "afresh", store.full(JOB))
+        windows = [Window(w["dataset"], w["sequence"], tuple(w["core"]), tuple(w["context"])) for w in d["windows"]]
+        for w in windows:
+            check_name(w.dataset, "dataset", "job.json", store.full(JOB))
+            check_name(w.sequence, "sequence", "job.json", store.full(JOB))
+        return cls(d["run_id"], d["params_hash"], d["config"], windows, identity)
 
     def check(self, params_hash: str, out: str) -> None:
         """Refuse a job of other params than the catalogue at ``out`` was made with (the

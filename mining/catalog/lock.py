@@ -129,7 +129,8 @@ class OutputLock:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
         except OSError as e:
-            raise InputError(f"cannot create the catalogue's lock file: {e.strerror}", self.path) from None
+            raise InputError(f"{self.path.parent}: the output folder cannot be written (its lock file: {e.strerror})",
+                             self.path) from None
         deadline = time.monotonic() + self.wait_s
         try:
             while True:

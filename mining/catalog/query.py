@@ -1,4 +1,10 @@
-"""`mine query`: read-only SQL over the catalogue, as a table, CSV, JSON or Parquet."""
+"""`mine query`: read-only SQL over the catalogue, as a table, CSV, JSON or Parquet.
+
+One query may take at most ``memory_limit`` of memory (DuckDB spills the rest to its
+private temporary folder), ``threads`` threads and ``timeout_s`` seconds: a timer
+thread interrupts the connection (``con.interrupt()``) when the time is up, so a shared
+machine is not held by a runaway join. The defaults are the command's flag defaults.
+"""
 
 from __future__ import annotations
 
@@ -6,6 +12,7 @@ import io
 import json
 import math
 import sys
+import threading
 from pathlib import Path
 
 import duckdb
@@ -17,16 +24,32 @@ from mining.catalog.views import connect, execute_read_only
 from mining.errors import MiningError
 
 FORMATS = ("table", "csv", "json", "parquet")
+MEMORY_LIMIT = "2GB"  # ours: `mine query --memory-limit` default; a shared login node keeps the rest
+THREADS = 2  # ours: `mine query --threads` default
+TIMEOUT_S = 60.0  # ours: `mine query --timeout` default; catalogue queries take well under a second (`mine bench pipeline`)
 MAX_CELL = 60  # ours: longer cells (RLE strings, posteriors) are cut in table output
 
 
-def query_table(sql: str, out: str | Path) -> pa.Table:
-    """The result of a read-only query as an Arrow table."""
-    con = connect(out)
+class QueryTimeout(MiningError):
+    """A query stopped because it ran past its time limit."""
+
+
+def query_table(sql: str, out: str | Path, memory_limit: str | None = MEMORY_LIMIT, threads: int | None = THREADS,
+                timeout_s: float | None = TIMEOUT_S) -> pa.Table:
+    """The result of a read-only query as an Arrow table, within the given limits (None: DuckDB's own)."""
+    con = connect(out, memory_limit=memory_limit, threads=threads)
+    timer = threading.Timer(timeout_s, con.interrupt) if timeout_s is not None else None
     try:
+        if timer is not None:
+            timer.daemon = True
+            timer.start()
         rel = execute_read_only(con, sql)
         return rel.to_arrow_table() if rel is not None else pa.table({})
+    except duckdb.InterruptException:
+        raise QueryTimeout(f"the query ran past --timeout {timeout_s:g} s and was stopped") from None
     finally:
+        if timer is not None:
+            timer.cancel()
         con.close()
 
 
@@ -99,9 +122,13 @@ def write_result(t: pa.Table, fmt: str, output: str | Path | None) -> None:
         Path(output).write_text(text)
 
 
-def run_query(sql: str, out: str | Path, fmt: str = "table", output: str | Path | None = None) -> int:
+def run_query(sql: str, out: str | Path, fmt: str = "table", output: str | Path | None = None,
+              memory_limit: str = MEMORY_LIMIT, threads: int = THREADS, timeout_s: float = TIMEOUT_S) -> int:
     """`mine query`: 0 on success; 2 with a message on standard error for bad SQL, a
-    missing catalogue or a statement that would write."""
+    missing catalogue, a statement that would write or a query past its limits."""
+    if threads < 1 or not timeout_s > 0:
+        print(f"mine query: --threads must be ≥ 1 and --timeout > 0, got {threads} and {timeout_s}", file=sys.stderr)
+        return 2
     if fmt not in FORMATS:
         print(f"mine query: unknown format {fmt!r}; one of {', '.join(FORMATS)}", file=sys.stderr)
         return 2
@@ -109,7 +136,7 @@ def run_query(sql: str, out: str | Path, fmt: str = "table", output: str | Path 
         print("mine query: --format parquet needs --output FILE", file=sys.stderr)
         return 2
     try:
-        t = query_table(sql, out)
+        t = query_table(sql, out, memory_limit, threads, timeout_s)
         write_result(t, fmt, output)
     except (MiningError, duckdb.Error) as e:
         print(f"mine query: {e}", file=sys.stderr)

@@ -39,6 +39,7 @@ from mining.catalog.export import category_label, job_source, read_job, selected
 from mining.catalog.store import Store
 from mining.catalog.views import _sql_string, connect
 from mining.errors import InputError, MiningError
+from mining.names import check_name
 
 GOLDEN_HUE_STEP = 0.618034  # ours: hue step between tubes (the golden ratio's fraction spreads any count)
 FILL_ALPHA = 0.45  # ours: opacity of a tube's mask fill
@@ -253,6 +254,7 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
     the positions the catalogue mined)."""
     t0 = time.perf_counter()
     dest = Path(dest)
+    check_name(sequence, "sequence", "--sequence")
     store = Store(out)
     job = read_job(store)
     source, src = job_source(job, "render")
@@ -281,7 +283,7 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
     if not tube_rows:
         raise NothingToRender(f"no selected tube of sequence {sequence!r} matches"
                               + ("" if where is None else f" --where {where!r}"))
-    plan = source.plan(sequence)
+    plan = source.survey(sequence)
     if frames is not None:
         start, stop = frames
         stop = len(plan) if stop is None else min(stop, len(plan))
@@ -294,6 +296,7 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
     start = max(0, start)
     if stop <= start:
         raise InputError(f"--frames {start}:{stop} holds no frame of {sequence!r} (the plan has {len(plan)})")
+    plan = source.plan(sequence, start, stop)  # refuses a frame in the range the source cannot read
     fps = fps or _fps(plan.t_ns[start:stop])
 
     colours = tube_colours(list(keep))

@@ -66,8 +66,13 @@ class Store:
     # -- paths ---------------------------------------------------------------------
 
     def full(self, rel: str) -> str:
-        """The filesystem path of ``rel`` (for pyarrow calls on ``self.fs``)."""
-        return posixpath.join(self.root, rel) if rel else self.root
+        """The filesystem path of ``rel`` (for pyarrow calls on ``self.fs``); an InputError
+        for a path that could leave the catalogue (absolute, ``..``, ``.`` or empty parts)."""
+        if not rel:
+            return self.root
+        if rel.startswith("/") or any(p in ("", ".", "..") for p in rel.split("/")):
+            raise InputError("not a path inside the catalogue", f"{self.root}/{rel}")
+        return posixpath.join(self.root, rel)
 
     # -- queries -------------------------------------------------------------------
 
@@ -101,7 +106,7 @@ class Store:
 
     def read_bytes(self, rel: str) -> bytes:
         try:
-            with self.fs.open_input_stream(self.full(rel)) as f:
+            with self.fs.open_input_stream(self.full(rel), compression=None) as f:
                 return f.read()
         except FileNotFoundError:
             raise InputError("catalogue file not found", self.full(rel)) from None
@@ -124,7 +129,7 @@ class Store:
         """Atomically create or replace ``rel`` with ``data``."""
         tmp = self._temporary(rel)
         try:
-            with self.fs.open_output_stream(tmp) as f:
+            with self.fs.open_output_stream(tmp, compression=None) as f:
                 f.write(data)
         except BaseException:
             self._discard(tmp)
@@ -135,7 +140,7 @@ class Store:
         """Write ``table`` under a temporary name beside ``rel``; ``publish`` it later."""
         tmp = self._temporary(rel)
         try:
-            with self.fs.open_output_stream(tmp) as f:
+            with self.fs.open_output_stream(tmp, compression=None) as f:
                 pq.write_table(table, f, compression=COMPRESSION, row_group_size=row_group_rows)
         except BaseException:
             self._discard(tmp)

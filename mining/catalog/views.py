@@ -17,11 +17,19 @@ Read-only, in two layers: the connection may touch no file outside the catalogue
 (``enable_external_access`` off, the folder allowed, configuration locked), and
 ``check_read_only`` admits only statements that read (SELECT, and the DESCRIBE / SHOW /
 SUMMARIZE / FROM forms DuckDB parses as SELECT; EXPLAIN without ANALYZE).
+
+DuckDB allows its temporary (spill) folder as well, by default ``<cwd>/.tmp``: the
+connection spills into a private folder of its own instead (made by ``mkdtemp``, mode
+0700, removed with the connection), so no file of the caller's becomes readable.
+``memory_limit`` and ``threads`` bound what one query may take (``mine query`` flags).
 """
 
 from __future__ import annotations
 
 import re
+import shutil
+import tempfile
+import weakref
 from pathlib import Path
 
 import duckdb
@@ -107,12 +115,14 @@ def _files_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, native
     con.execute(f"CREATE VIEW {table} AS SELECT {cols} FROM _arrow_{table}")
 
 
-def connect(out: str | Path, native: bool | None = None) -> duckdb.DuckDBPyConnection:
+def connect(out: str | Path, native: bool | None = None, memory_limit: str | None = None,
+            threads: int | None = None) -> duckdb.DuckDBPyConnection:
     """An in-memory DuckDB with the catalogue's tables and views (see module docstring).
 
     ``native`` chooses DuckDB's Parquet reader (default for a local catalogue) over
-    pyarrow datasets (default for other filesystems). Raises InputError when ``out`` is
-    not a catalogue folder.
+    pyarrow datasets (default for other filesystems). ``memory_limit`` (e.g. "2GB") and
+    ``threads`` limit queries (default: DuckDB's). Raises InputError when ``out`` is not
+    a catalogue folder, or for a limit DuckDB does not accept.
     """
     store = Store(out)
     if not store.root_exists():
@@ -123,6 +133,17 @@ def connect(out: str | Path, native: bool | None = None) -> duckdb.DuckDBPyConne
     if native and not store.local:
         raise InputError("DuckDB's own reader needs a local catalogue; use pyarrow datasets", out)
     con = duckdb.connect(":memory:")
+    spill = tempfile.mkdtemp(prefix="tube-miner-duckdb-")  # private (0700); DuckDB makes and removes spill/ in it
+    weakref.finalize(con, shutil.rmtree, spill, True)
+    con.execute(f"SET temp_directory = {_sql_string(spill + '/spill')}")
+    try:
+        if memory_limit is not None:
+            con.execute(f"SET memory_limit = {_sql_string(memory_limit)}")
+        if threads is not None:
+            con.execute(f"SET threads = {int(threads)}")
+    except duckdb.Error as e:
+        con.close()
+        raise InputError(f"DuckDB refuses the query limits (memory {memory_limit!r}, threads {threads!r}): {e}") from None
     damage = catalogue_damage(store)
     for table in SCHEMAS:
         _base_view(con, store, table, native, damage.get(table))

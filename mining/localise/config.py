@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
+
+from mining.checks import Count, Positive, Range
 
 
 @dataclass
@@ -13,12 +16,12 @@ class LocaliseConfig:
     # against LiDAR 0.5–0.85 px, biased by −0.1…−0.6 px beyond 10 m. A mask's median averages
     # the independent part: its depth error is 0.4–0.8 σ_Z on synthetic and 1.0–1.4 σ_Z on
     # KITTI 0005's cars at 30–60 m (the bias), so the covariance is honest at range; it stays.
-    pixel_noise_px: float = 0.5  # REFERENCE: stereo triangulation with 0.5 px pixel noise
+    pixel_noise_px: Positive = 0.5  # REFERENCE: stereo triangulation with 0.5 px pixel noise
     prior_var_x: float = 0.5  # REFERENCE: covariance prior, +0.5 on x (m²)
     prior_var_z: float = 0.18  # REFERENCE: covariance prior, +0.18 on z (m²)
-    min_points: int = 10  # REFERENCE: at least 10 points for a 3D box
-    min_flow_samples: int = 4  # REFERENCE: fewer than 4 flow samples → no velocity measurement
-    max_size_m: float = 4.0  # REFERENCE: sizes ≤ 4 m
-    max_points: int = 1000  # ours: mask pixels sampled per proposal on a regular grid (median and warping need no more)
+    min_points: Count = 10  # REFERENCE: at least 10 points for a 3D box
+    min_flow_samples: Count = 4  # REFERENCE: fewer than 4 flow samples → no velocity measurement
+    max_size_m: Positive = 4.0  # REFERENCE: sizes ≤ 4 m
+    max_points: Count = 1000  # ours: mask pixels sampled per proposal on a regular grid (median and warping need no more)
     point_outlier_mahalanobis: float = 10.0  # REFERENCE: mask points beyond 10 Mahalanobis units from the median are dropped before warping
-    size_percentiles: tuple[float, float] = (5.0, 95.0)  # ours: robust extent of the mask's points
+    size_percentiles: Annotated[tuple[float, float], Range(0, 100)] = (5.0, 95.0)  # ours: robust extent of the mask's points

@@ -1,16 +1,31 @@
-"""``mine status``: every planned window of a catalogue, done, failed (with its error) or
-pending; and every output file that is not as the manifest recorded it (``integrity.py``:
-sizes, and checksums with ``--verify``), with what a resubmission recomputes."""
+"""``mine status``: every planned window of a catalogue, and every sequence's stitch.
+
+A window is
+
+* ``done`` or ``failed``: its manifest row says so, with this job's params (a failed
+  one shows the first line of its error: the step, the exception type, the message);
+* ``running``: a live driver has started its work and not recorded the result
+  (``running.py``: the marker, its driver's host and pid, since when);
+* ``pending``: neither — never started, or its driver is gone (killed, Ctrl-C).
+
+A sequence is ``stitched`` (its catalogue holds exactly its done windows), ``failed``
+(its stitch failed: the manifest's ``stitch`` row, with the error) or ``pending``.
+Every output file that is not as the manifest recorded it (``integrity.py``: sizes, and
+checksums with ``--verify``) is named, with what a resubmission recomputes.
+Exits 1 when any window or stitch failed or any file is damaged.
+"""
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 
 from mining.catalog.integrity import Damage, sequence_damage, window_damage
-from mining.catalog.layout import JOB, JobRecord, manifest_path
+from mining.catalog.layout import JOB, JobRecord, done_path, manifest_path, stitch_path
 from mining.catalog.lock import current_writer, describe
 from mining.catalog.store import Store
 from mining.errors import InputError
+from mining.pipeline.running import driver_alive, read_marker
 from mining.proposals.make import classifiers_line
 
 
@@ -19,9 +34,24 @@ class WindowStatus:
     dataset: str
     sequence: str
     window: str
-    status: str  # done | failed | pending
+    status: str  # done | failed | running | pending
     attempts: int
     error: str
+    running: str = ""  # for a running window: its step, driver and start time
+
+
+@dataclass
+class SequenceStatus:
+    dataset: str
+    sequence: str
+    status: str  # stitched | failed | pending
+    attempts: int
+    error: str
+
+
+def _running(marker: dict) -> str:
+    return (f"{marker.get('step', '?')} step, driver pid {marker.get('driver_pid')} on {marker.get('driver_host')}, "
+            f"since {marker.get('started')}")
 
 
 def job_status(out: str) -> list[WindowStatus]:
@@ -32,16 +62,21 @@ def job_status(out: str) -> list[WindowStatus]:
     rows = []
     for w in job.windows:
         m = manifest_path(w.dataset, w.sequence, w.name)
+        status, attempts, error = "pending", 0, ""
         if store.exists(m):
             try:
                 r = store.read_table(m).to_pylist()[0]
             except (InputError, IndexError):  # named under integrity; a resubmission runs the window again
                 rows.append(WindowStatus(w.dataset, w.sequence, w.name, "pending", 0, "manifest row unreadable"))
                 continue
-            status = r["status"] if r["params_hash"] == job.params_hash else "pending"
-            rows.append(WindowStatus(w.dataset, w.sequence, w.name, status, r["attempts"], r["error"] or ""))
+            if r["params_hash"] == job.params_hash:
+                status, error = r["status"], r["error"] or ""
+            attempts = r["attempts"]
+        marker = read_marker(store, w)
+        if marker is not None and marker.get("params_hash") == job.params_hash and driver_alive(marker):
+            rows.append(WindowStatus(w.dataset, w.sequence, w.name, "running", attempts, error, _running(marker)))
         else:
-            rows.append(WindowStatus(w.dataset, w.sequence, w.name, "pending", 0, ""))
+            rows.append(WindowStatus(w.dataset, w.sequence, w.name, status, attempts, error))
     return rows
 
 
@@ -70,22 +105,65 @@ def _repair(d: Damage) -> str:
     return f"runs window {name} again" if kind == "window" else f"stitches sequence {name} again"
 
 
+def sequence_status(out: str, windows: list[WindowStatus] | None = None) -> list[SequenceStatus]:
+    """The stitch of every sequence the job planned."""
+    store = Store(out)
+    job = JobRecord.load(store)
+    if job is None:
+        raise InputError("no mining job here (job.json missing): run `mine submit --out` first", store.full(JOB))
+    windows = job_status(out) if windows is None else windows
+    seqs: dict[tuple[str, str], set[str]] = {}
+    for w in windows:
+        seqs.setdefault((w.dataset, w.sequence), set())
+        if w.status == "done":
+            seqs[(w.dataset, w.sequence)].add(w.window)
+    out_rows = []
+    for (d, s), done in seqs.items():
+        row = store.read_table(stitch_path(d, s)).to_pylist()[0] if store.exists(stitch_path(d, s)) else None
+        if row is not None and row["params_hash"] == job.params_hash:
+            out_rows.append(SequenceStatus(d, s, "failed", row["attempts"], row["error"] or ""))
+            continue
+        status = "pending"
+        if store.exists(done_path(d, s)):
+            marker = json.loads(store.read_bytes(done_path(d, s)))
+            if marker.get("params_hash") == job.params_hash and set(marker.get("windows", ())) == done:
+                status = "stitched"
+        out_rows.append(SequenceStatus(d, s, status, 0 if row is None else row["attempts"], ""))
+    return out_rows
+
+
+def _first_line(text: str) -> str:
+    return text.strip().splitlines()[0] if text.strip() else ""
+
+
 def print_status(out: str, verify: bool = False) -> int:
-    """Print the windows' states and every damaged or missing file; exit 1 when any window
-    failed or any file is damaged, 0 otherwise."""
+    """Print the windows' and sequences' states and every damaged or missing file; exit 1
+    when any window or stitch failed or any file is damaged, 0 otherwise."""
     rows = job_status(out)
-    counts = {s: sum(r.status == s for r in rows) for s in ("done", "failed", "pending")}
-    print(f"{out}: {len(rows)} windows: {counts['done']} done, {counts['failed']} failed, {counts['pending']} pending")
+    seqs = sequence_status(out, rows)
+    counts = {s: sum(r.status == s for r in rows) for s in ("done", "failed", "pending", "running")}
+    running = f", {counts['running']} running" if counts["running"] else ""
+    print(f"{out}: {len(rows)} windows: {counts['done']} done, {counts['failed']} failed, {counts['pending']} pending"
+          f"{running}")
+    stitched = {s: sum(q.status == s for q in seqs) for s in ("stitched", "failed", "pending")}
+    print(f"sequences: {stitched['stitched']} stitched, {stitched['failed']} failed to stitch, "
+          f"{stitched['pending']} not stitched yet (of {len(seqs)})")
     job = JobRecord.load(Store(out))
     proposer = (job.config.get("proposals") or {}).get("proposer") if job else None
     if proposer:
         print(classifiers_line(str(proposer)))
     for r in rows:
+        if r.status == "done":
+            continue
         line = f"{r.status:8s} {r.dataset}/{r.window}  attempts {r.attempts}"
-        if r.error:
-            line += "  " + r.error.strip().splitlines()[0]
-        if r.status != "done":
-            print(line)
+        if r.running:
+            line += "  " + r.running
+        elif r.error:
+            line += "  " + _first_line(r.error)
+        print(line)
+    for q in seqs:
+        if q.status == "failed":
+            print(f"{'failed':8s} {q.dataset}/{q.sequence} stitching  attempts {q.attempts}  {_first_line(q.error)}")
     writer = current_writer(Store(out))
     if writer:
         print(f"being written now by {describe(writer)}: files of steps in flight may show as damaged below")
@@ -94,4 +172,4 @@ def print_status(out: str, verify: bool = False) -> int:
         print(f"damaged  {d.path}: {d.reason} (a resubmission {_repair(d)})")
     checked = "sizes and checksums" if verify else "sizes; --verify also checks checksums"
     print(f"integrity: {len(damage)} damaged or missing file(s) ({checked})")
-    return 1 if counts["failed"] or damage else 0
+    return 1 if counts["failed"] or stitched["failed"] or damage else 0

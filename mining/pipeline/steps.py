@@ -7,13 +7,14 @@
 Steps are plain objects holding the job; executors (``mining/pipeline/executors.py``)
 decide where ``run`` executes (in-process, or Ray workers). Every output has a
 deterministic name and is written atomically, so a retried or resubmitted step never
-duplicates or half-writes anything; a step whose output exists returns at once.
+duplicates or half-writes anything; a step whose output exists returns at once (an
+observation cache only once it reads back: a damaged or foreign one is recomputed).
+Nothing read back from ``--out`` is unpickled (``cache.py``).
 """
 
 from __future__ import annotations
 
 import json
-import pickle
 import time
 import traceback
 from dataclasses import dataclass, field
@@ -23,16 +24,19 @@ import numpy as np
 import pyarrow as pa
 
 from mining.catalog.integrity import sequence_files, window_files
-from mining.catalog.layout import PART_TABLES, cache_path, done_path, files_path, manifest_path, part_path
+from mining.catalog.layout import (PART_TABLES, STITCH_ROW, cache_path, done_path, files_path, manifest_path, part_path,
+                                   stitch_path)
 from mining.catalog.rows import RunInfo, frame_rows, frames_row, to_table, tube_row
 from mining.catalog.store import Store, write_sequence
 from mining.config import JobConfig
 from mining.errors import InputError, MiningError
+from mining.pipeline.cache import decode_frames, encode_frames
 from mining.pipeline.stitch import stitch_sequence
 from mining.pipeline.window import ObservedFrame, chain_poses, observe_window, track_window
 from mining.sources import open_source
 from mining.sources.base import Source
 from mining.types import SequencePlan, Window
+
 
 @dataclass
 class StepResult:
@@ -52,6 +56,7 @@ class Job:
     out: str
     run_id: str
     plans: dict[str, SequencePlan]  # sequence → (possibly sliced) plan
+    refused: dict[str, str] = field(default_factory=dict)  # sequence → why it was not planned
 
     @property
     def params_hash(self) -> str:
@@ -92,15 +97,21 @@ class Observe:
     def run(self, window: Window) -> StepResult:
         store, t0 = self.job.store(), time.perf_counter()
         path = cache_path(window)
+        recomputed = ""
         if store.exists(path):
-            return StepResult(window.name, True, extra={"cached": True})
+            try:
+                read_cache(store, window)
+                return StepResult(window.name, True, extra={"cached": True})
+            except InputError as e:  # damaged, foreign or of another version: made again below
+                recomputed = str(e)
         try:
             frames = observe_window(job_source(self.job), self.job.plans[window.sequence], window, self.job.cfg,
                                     self._proposer(window))
         except (InputError, MiningError) as e:
             return StepResult(window.name, False, _error(e), time.perf_counter() - t0)
-        store.write_bytes(path, pickle.dumps(frames, protocol=pickle.HIGHEST_PROTOCOL))
-        return StepResult(window.name, True, seconds=time.perf_counter() - t0, frames=len(frames))
+        store.write_bytes(path, encode_frames(frames))
+        return StepResult(window.name, True, seconds=time.perf_counter() - t0, frames=len(frames),
+                          extra={"recomputed": recomputed} if recomputed else {})
 
     def _proposer(self, window: Window):
         from mining.proposals.make import make_proposer
@@ -111,6 +122,15 @@ class Observe:
         return self.proposer
 
 
+def read_cache(store: Store, window: Window) -> list[ObservedFrame]:
+    """A window's observation cache; InputError naming the file when it is not one (or not its window's)."""
+    path = cache_path(window)
+    frames = decode_frames(store.read_bytes(path), store.full(path))
+    if any(not window.core[0] <= f.position < window.core[1] for f in frames):
+        raise InputError(f"observation cache holds frames outside window {window.name}'s core", store.full(path))
+    return frames
+
+
 def load_context(store: Store, window: Window, neighbours: list[Window]) -> list[ObservedFrame]:
     """The observed frames of ``window``'s context, from the caches of the windows that hold them."""
     a, b = window.context
@@ -118,28 +138,42 @@ def load_context(store: Store, window: Window, neighbours: list[Window]) -> list
     for w in sorted(neighbours, key=lambda w: w.core[0]):
         if w.core[1] <= a or w.core[0] >= b or not store.exists(cache_path(w)):
             continue
-        frames.extend(f for f in pickle.loads(store.read_bytes(cache_path(w))) if a <= f.position < b)
+        frames.extend(f for f in read_cache(store, w) if a <= f.position < b)
     return frames
 
 
-def write_manifest(job: Job, window: Window, status: str, started: datetime | None, error: str = "",
-                   seconds_observe: float | None = None, seconds_tubes: float | None = None,
-                   n_pieces: int | None = None, context_complete: bool | None = None) -> None:
+def _write_row(job: Job, path: str, name: str, core: tuple[int, int], context: tuple[int, int], status: str,
+               started: datetime | None, error: str, **measures) -> None:
     store = job.store()
-    path = manifest_path(window.dataset, window.sequence, window.name)
     attempts = 1
     if store.exists(path):
         try:
             attempts += int(store.read_table(path, ["attempts"]).column(0)[0].as_py())
         except (InputError, IndexError, TypeError):
             pass  # a damaged row: this attempt's row replaces it
-    row = {"run_id": job.run_id, "window": window.name, "core_start": window.core[0], "core_end": window.core[1],
-           "context_start": window.context[0], "context_end": window.context[1], "status": status,
-           "attempts": attempts, "started": started, "finished": _now(), "seconds_observe": seconds_observe,
-           "seconds_tubes": seconds_tubes, "n_pieces": n_pieces,
-           "context_complete": context_complete, "error": error or None,
-           "params_hash": job.params_hash}
+    row = {"run_id": job.run_id, "window": name, "core_start": core[0], "core_end": core[1],
+           "context_start": context[0], "context_end": context[1], "status": status,
+           "attempts": attempts, "started": started, "finished": _now(), "seconds_observe": None,
+           "seconds_tubes": None, "n_pieces": None, "context_complete": None, "error": error or None,
+           "params_hash": job.params_hash} | measures
     store.write_table(path, to_table([row], "windows"))
+
+
+def write_manifest(job: Job, window: Window, status: str, started: datetime | None, error: str = "",
+                   seconds_observe: float | None = None, seconds_tubes: float | None = None,
+                   n_pieces: int | None = None, context_complete: bool | None = None) -> None:
+    _write_row(job, manifest_path(window.dataset, window.sequence, window.name), window.name, window.core,
+               window.context, status, started, error, seconds_observe=seconds_observe,
+               seconds_tubes=seconds_tubes, n_pieces=n_pieces, context_complete=context_complete)
+
+
+def write_stitch_failure(job: Job, sequence: str, windows: list[Window], error: str,
+                         started: datetime | None = None) -> None:
+    """The manifest row of a sequence whose stitch failed: window ``stitch``, status failed,
+    the sequence's planned range as core and context. ``Finalize`` removes it once a stitch
+    of the sequence succeeds."""
+    span = (min(w.core[0] for w in windows), max(w.core[1] for w in windows)) if windows else (0, 0)
+    _write_row(job, stitch_path(job.cfg.source.dataset, sequence), STITCH_ROW, span, span, "failed", started, error)
 
 
 class Track:
@@ -212,6 +246,7 @@ class Finalize:
                 if store.exists(manifest_path(d, sequence, w.name))]
         if rows:
             written += write_sequence(store, "windows", d, sequence, pa.concat_tables(rows))
+        store.remove(stitch_path(d, sequence))  # a failed stitch before this one is repaired
         # The marker comes last and records what it vouches for: the windows stitched, the
         # context of each, and the size and sha256 of every compacted file (integrity.py).
         marker = {"params_hash": job.params_hash, "run_id": job.run_id, "dataset": d, "sequence": sequence,

@@ -1,9 +1,13 @@
 """``mine submit``: plan windows, run the steps on an executor, report.
 
-``open_job`` plans the windows, records the job (``job.json``) and reads what earlier
-runs left; the ``Schedule`` (``schedule.py``) orders the steps; ``run_job`` is the loop
+``open_job`` runs the preflight (``preflight.py``: config, frame range, output, every
+sequence's plan and calibration, the proposer — all before job.json is written or Ray
+starts; a sequence that cannot be planned is reported and the others run), records the
+job (``job.json``) and reads what earlier runs left; the ``Schedule`` (``schedule.py``) orders the steps; ``run_job`` is the loop
 that hands them to an executor (``executors.py``: this process, or Ray) and writes what
-a step that could not run leaves behind. ``mine_job`` does all of it in one call.
+a step that could not run leaves behind: the window's manifest row, or the sequence's
+``stitch`` row, with why (``failures.py``); it also keeps the running-window markers
+(``running.py``). ``mine_job`` does all of it in one call.
 
 Scheduling: a window is *tracked* once the observe steps of every window its context
 touches have finished, so tracking starts while later windows are still being
@@ -36,17 +40,21 @@ import pyarrow.fs as pafs
 
 from mining.catalog.identity import check_resubmit, job_identity
 from mining.catalog.integrity import marker_damage, read_json, window_damage
-from mining.catalog.layout import (JOB_ENTRIES, PART_TABLES, REPLACED, JobRecord, cache_path, done_path, files_path,
-                                   manifest_path, part_path)
+from mining.catalog.layout import (JOB_ENTRIES, LEGACY_CACHE_SUFFIX, PART_TABLES, REPLACED, JobRecord, cache_path,
+                                   done_path, files_path, manifest_path, part_path)
 from mining.catalog.lock import OutputLock
 from mining.catalog.store import Store
 from mining.config import JobConfig
 from mining.errors import ConfigError, InputError
 from mining.pipeline.executors import Executor, RayExecutor
+from mining.pipeline.failures import describe
+from mining.pipeline.localray import init_local_ray, prepare_local_ray
+from mining.pipeline.preflight import preflight
+from mining.pipeline.running import RunningMarkers
 from mining.pipeline.schedule import Resume, Schedule, Task
-from mining.pipeline.steps import Job, StepResult, job_source, write_manifest
+from mining.pipeline.steps import Job, StepResult, write_manifest, write_stitch_failure
 from mining.proposals.make import classifiers_line
-from mining.types import Window, plan_windows
+from mining.types import Window
 
 
 @dataclass
@@ -55,6 +63,7 @@ class Summary:
     skipped: int = 0
     ok: int = 0
     failed: dict[str, str] = field(default_factory=dict)  # window → error
+    unplanned: dict[str, str] = field(default_factory=dict)  # "dataset/sequence" left out by the preflight → why
     frames: int = 0
     tubes: int = 0
     candidates: int = 0
@@ -64,6 +73,7 @@ class Summary:
     seconds: float = 0.0
     sequences_written: int = 0
     classifiers: str = ""  # which proposers classified (proposals.make.classifiers_line)
+    recomputed: dict[str, str] = field(default_factory=dict)  # window → why its observation cache did not read back
 
     def lines(self) -> list[str]:
         out = [f"windows: {self.ok} ok, {len(self.failed)} failed, {self.skipped} already done (of {self.windows})",
@@ -73,10 +83,19 @@ class Summary:
                f"time: {self.seconds:.1f} s, {self.frames / max(self.seconds, 1e-9):.2f} frames/s"]
         for w, e in sorted(self.failed.items()):
             out.append(f"FAILED {w}: {e.strip().splitlines()[0] if e.strip() else 'unknown error'}")
+        if self.unplanned:
+            out.append(f"sequences left out: {len(self.unplanned)} could not be planned (the others ran); "
+                       "fix them and rerun the same command")
+        for seq, e in sorted(self.unplanned.items()):
+            out.append(f"FAILED {seq} (planning): {e.strip().splitlines()[0] if e.strip() else 'unknown error'}")
+        for w, e in sorted(self.recomputed.items()):
+            out.append(f"RECOMPUTED {w}: its observation cache did not read back ({e})")
         return out
 
     def count(self, task: Task, result: StepResult, dataset: str) -> None:
-        """Add the result of a track or finalize task."""
+        """Add the result of a task."""
+        if task.step == "observe" and result.extra.get("recomputed"):
+            self.recomputed[task.target.name] = result.extra["recomputed"]
         if task.step == "track":
             self.frames += result.frames
             if result.ok:
@@ -90,18 +109,6 @@ class Summary:
             self.sequences_written += 1
             for k in ("tubes", "candidates", "known", "unknown", "unclassified"):
                 setattr(self, k, getattr(self, k) + result.extra[k])
-
-
-def plan_job(cfg: JobConfig, sequences: list[str] | None, frames: tuple[int, int | None]) -> tuple[dict, list[Window]]:
-    source = job_source(Job(cfg, "", "", {}))
-    seqs = sequences or cfg.source.sequences or source.sequences()
-    plans, windows = {}, []
-    for seq in seqs:
-        plan = source.plan(seq)
-        plans[seq] = plan
-        w = cfg.window
-        windows += plan_windows(plan, w.core, w.context_before, w.context_after, frames[0], frames[1])
-    return plans, windows
 
 
 def _retire(store: Store, prior: list[Window], windows: list[Window]) -> None:
@@ -199,15 +206,17 @@ def read_resume(store: Store, dataset: str, windows: list[Window], params_hash: 
 
 def open_job(cfg: JobConfig, out: str, sequences: list[str] | None = None,
              frames: tuple[int, int | None] = (0, None), mode: str = "resume",
-             verify: bool = False) -> tuple[Job, Schedule]:
-    """Plan the job, record it in ``out``'s ``job.json`` (``record_job``: ``mode`` says what
-    a differing identity may do) and schedule what is left to do; call it holding the
+             verify: bool = False) -> tuple[Job, Schedule, dict[str, str]]:
+    """Preflight and plan the job, record it in ``out``'s ``job.json`` (``record_job``:
+    ``mode`` says what a differing identity may do) and schedule what is left to do; also the
+    sequences left out (sequence → why they cannot be mined). Call it holding the
     catalogue's lock (``mine_job`` does)."""
     store = Store(out)
-    plans, windows = plan_job(cfg, sequences, frames)
-    record = record_job(store, cfg, windows, job_identity(cfg, plans, frames), mode)
-    job = Job(cfg, out, record.run_id, plans)
-    return job, Schedule(windows, read_resume(store, cfg.source.dataset, windows, job.params_hash, verify))
+    pf = preflight(cfg, out, sequences, frames)
+    record = record_job(store, cfg, pf.windows, job_identity(cfg, pf.plans, frames, list(pf.failed)), mode)
+    job = Job(cfg, out, record.run_id, pf.plans)
+    return (job, Schedule(pf.windows, read_resume(store, cfg.source.dataset, pf.windows, job.params_hash, verify)),
+            pf.failed)
 
 
 class Progress:
@@ -232,12 +241,10 @@ class Progress:
 
 
 def system_failure(task: Task, error: BaseException, max_retries: int) -> StepResult:
-    """The failed result of a step that could not run (its worker died and retries are spent)."""
-    if task.step == "observe":
-        return StepResult(task.target.name, False, f"system failure: {error}")
-    if task.step == "track":
-        return StepResult(task.target.name, False, f"system failure after {max_retries} retries: {error}")
-    return StepResult(task.target, False, str(error))
+    """The failed result of a step that raised, or whose worker died with its retries spent:
+    the step, the exception's type and message first (``failures.describe``)."""
+    name = task.target if task.step == "finalize" else task.target.name
+    return StepResult(name, False, describe(error, task.step, max_retries))
 
 
 def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = False,
@@ -252,9 +259,14 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
     summary = Summary(windows=len(schedule.windows), skipped=schedule.skipped)
     bar = Progress(len(schedule.todo), progress)
     running: dict[Any, Task] = {}
+    markers = RunningMarkers(store, job.run_id, job.params_hash)
+    todo = {w.name for w in schedule.todo}
+    markers.sweep(todo)
     try:
         while schedule.outstanding or executor.pending():
             while executor.free() and (task := schedule.next_task()) is not None:
+                if task.step != "finalize" and task.target.name in todo:
+                    markers.mark(task.target, task.step)
                 running[executor.submit(task.step, *task.args)] = task
             if not executor.pending():
                 continue
@@ -264,16 +276,21 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
                 result = system_failure(task, err, job.cfg.run.max_retries)
                 if task.step == "track":  # the step wrote no manifest row
                     write_manifest(job, task.target, "failed", None, result.error)
+            if task.step == "finalize" and not result.ok:  # a row in the manifest, for `mine status`
+                write_stitch_failure(job, task.target, schedule.by_seq[task.target], result.error)
             served = schedule.on_result(task, result)
             if task.step == "track":
+                markers.clear(task.target)
                 bar.update(result.ok, result.frames)
             summary.count(task, result, dataset)
             if not keep_cache:
                 for w in served:
-                    if store.exists(cache_path(w)):
-                        store.remove(cache_path(w))
+                    for path in (cache_path(w), cache_path(w, LEGACY_CACHE_SUFFIX)):  # and a pickle of old
+                        if store.exists(path):
+                            store.remove(path)
     finally:
         bar.close()
+        markers.clear_all()  # stopped early (an error, Ctrl-C): what was under way is pending again
     summary.seconds = time.perf_counter() - t0
     return summary
 
@@ -291,7 +308,7 @@ def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frame
     """
     t0 = time.perf_counter()
     with OutputLock(Store(out), lock_wait):
-        job, schedule = open_job(cfg, out, sequences, frames, mode, verify)
+        job, schedule, unplanned = open_job(cfg, out, sequences, frames, mode, verify)
         if schedule.nothing_to_do:
             summary = Summary(windows=len(schedule.windows), skipped=schedule.skipped)
         else:
@@ -302,6 +319,7 @@ def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frame
                 ex.shutdown()
     summary.seconds = time.perf_counter() - t0
     summary.classifiers = classifiers_line(cfg.proposals.proposer)
+    summary.unplanned = {f"{cfg.source.dataset}/{seq}": error for seq, error in unplanned.items()}
     return summary
 
 
@@ -311,19 +329,21 @@ def mine_on_ray(cfg: JobConfig, out: str, sequences: list[str] | None = None,
                 lock_wait: float = 0.0) -> Summary:
     """``mine submit`` here: the steps on the running cluster at ``address`` (or
     ``RAY_ADDRESS``), which decides the CPUs, or else on a Ray of its own with ``workers``
-    CPUs (never one that happens to run on this machine). Ray starts only when there is
-    work, and is shut down at the end."""
-    import ray
-
+    CPUs (never one that happens to run on this machine), listening on
+    ``cfg.run.bind_host`` only (``localray.py``). Ray starts only when there is work, and
+    is shut down at the end."""
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     address = address or os.environ.get("RAY_ADDRESS")
+    if not address:
+        prepare_local_ray(cfg.run.bind_host)  # before `import ray`; a bad --host fails before planning
+    import ray
 
     def on_ray(job: Job) -> RayExecutor:
         if not ray.is_initialized():
             if address:  # join a running cluster (e.g. as a Ray job's entrypoint)
                 ray.init(address=address, log_to_driver=False)
-            else:
-                ray.init(address="local", num_cpus=workers, include_dashboard=False, log_to_driver=False)
+            else:  # every port on run.bind_host (loopback by default)
+                init_local_ray(workers, cfg.run.bind_host)
         return RayExecutor(job, workers if not address else None)
 
     try:

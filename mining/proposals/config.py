@@ -3,8 +3,22 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Annotated
 
+from mining.checks import Count, Fraction, OneOf, Positive, Range, Satisfies, Signed
 from mining.proposals.stereo_config import StereoProposerConfig
+
+
+def _input_side(v: int | str) -> str | None:
+    if v == "auto" or (isinstance(v, int) and v > 0 and v % 32 == 0):
+        return None
+    return "must be 'auto' or a positive multiple of 32 (the YOLO family's largest stride)"
+
+
+def _proposer_names(v: str) -> str | None:
+    from mining.proposals.make import unknown_proposers  # the names live beside the code that makes them
+
+    return unknown_proposers(v)
 
 
 @dataclass
@@ -18,15 +32,15 @@ class OnnxConfig:
 
     model_path: str = ""  # ours: user-given model file (weights are not bundled: AGPL-3.0)
     cache_dir: str = ""  # ours: where converted float models are kept; "" = ~/.cache/tube_miner/onnx
-    input_height: int | str = "auto"  # ours: "auto" = the frame's aspect; 320 squashes KITTI to 320×97
-    input_width: int | str = "auto"  # ours: see input_height
-    auto_max_side: int = 1280  # ours: "auto" never runs larger than this on the long side (KITTI 1242 → 1248)
-    score_threshold: float = 0.01  # ours: low on purpose, proposals live on recall (REFERENCE's 0.8 cut is a ⚠)
-    nms_iou: float = 0.7  # ours: class-agnostic NMS box IoU (Ultralytics' default); tubes prune the rest
-    max_proposals: int = 300  # REFERENCE: sorted by score, at most 300 kept
-    mask_threshold: float = 0.5  # ours: sigmoid mask probability cut (Ultralytics' choice)
+    input_height: Annotated[int | str, Satisfies(_input_side)] = "auto"  # ours: "auto" = the frame's aspect; 320 squashes KITTI to 320×97
+    input_width: Annotated[int | str, Satisfies(_input_side)] = "auto"  # ours: see input_height
+    auto_max_side: Annotated[int, Range(32)] = 1280  # ours: "auto" never runs larger than this on the long side (KITTI 1242 → 1248)
+    score_threshold: Fraction = 0.01  # ours: low on purpose, proposals live on recall (REFERENCE's 0.8 cut is a ⚠)
+    nms_iou: Fraction = 0.7  # ours: class-agnostic NMS box IoU (Ultralytics' default); tubes prune the rest
+    max_proposals: Count = 300  # REFERENCE: sorted by score, at most 300 kept
+    mask_threshold: Fraction = 0.5  # ours: sigmoid mask probability cut (Ultralytics' choice)
     intra_op_num_threads: int = 1  # ours: one thread per proposer; Ray parallelises over actors
-    pad_value: int = 114  # ours: letterbox grey the YOLO family was trained with
+    pad_value: Annotated[int, Range(0, 255)] = 114  # ours: letterbox grey the YOLO family was trained with
 
 
 @dataclass
@@ -74,8 +88,8 @@ class ProposalFilterConfig:
     # Gaussian, depth noise is not): on KITTI, with 0.5 px pixel noise, an estimate is dropped beyond
     # Z ≈ 77 m, not 60 m. 0 = the hard limits on the estimate.
     noise_sigmas: float = 2.0  # ours: 2 std (≤ 2.3 % of objects at a limit dropped); synthetic 0000 + KITTI 0005, `mine bench range`
-    max_proposals: int = 300  # REFERENCE: sorted by score, at most 300 kept (authors advise ≤ 500)
-    min_objectness: float = 0.0  # ours: 0 keeps every proposal (REFERENCE's 0.8 cut defeats generic proposals); detectors may want one
+    max_proposals: Count = 300  # REFERENCE: sorted by score, at most 300 kept (authors advise ≤ 500)
+    min_objectness: Fraction = 0.0  # ours: 0 keeps every proposal (REFERENCE's 0.8 cut defeats generic proposals); detectors may want one
 
 
 @dataclass
@@ -83,8 +97,8 @@ class JsonProposalsConfig:
     """Per-frame proposal files in the original 4D-GVT JSON format (``precomputed`` proposer)."""
 
     folder: str = ""  # ours: user-given folder of NNNNNN.json files, one per frame
-    filename_digits: int = 6  # ours: zero-padded frame index in the file name (4D-GVT files: 000042.json)
-    category_ids: str = "agnostic"  # ours: category_id without second_posterior: "agnostic" (no classes) or "coco" ids
+    filename_digits: Count = 6  # ours: zero-padded frame index in the file name (4D-GVT files: 000042.json)
+    category_ids: Annotated[str, OneOf(("agnostic", "coco"))] = "agnostic"  # ours: category_id without second_posterior: "agnostic" (no classes) or "coco" ids
 
 
 @dataclass
@@ -101,28 +115,28 @@ class KittiDetectionsConfig:
     """
 
     path: str = ""  # ours: a file, or a folder of <seq>.txt (results) or <Class>/<seq>.txt (PointRCNN)
-    score_offset: float = 2.67  # ours: raw score at objectness 0.5; logistic fit, PointRCNN vs label_02
-    score_scale: float = 1.02  # ours: raw-score units per logit of objectness; same fit (per class 0.92–1.11)
+    score_offset: Signed = 2.67  # ours: raw score at objectness 0.5; logistic fit, PointRCNN vs label_02
+    score_scale: Positive = 1.02  # ours: raw-score units per logit of objectness; same fit (per class 0.92–1.11)
 
 
 @dataclass
 class UnionConfig:
     """Several proposers' outputs merged into one set per frame."""
 
-    mask_iou: float = 0.5  # ours: same object above it; 0005 box vs YOLO masks: same 0.56–0.86, other < 0.4
+    mask_iou: Fraction = 0.5  # ours: same object above it; 0005 box vs YOLO masks: same 0.56–0.86, other < 0.4
     # A class-agnostic proposal no classifier covers counts toward "unknown" with weight
     # 1 / (1 + exp(−(ln h − ln detect_h50_px) / detect_log_scale)), h its box height (union.py).
-    detect_h50_px: float = 20.0  # ours: box height at which the learned proposer finds half the COCO objects; `mine bench classify`
-    detect_log_scale: float = 0.3  # ours: spread of that curve in ln(height); same fit
+    detect_h50_px: Positive = 20.0  # ours: box height at which the learned proposer finds half the COCO objects; `mine bench classify`
+    detect_log_scale: Positive = 0.3  # ours: spread of that curve in ln(height); same fit
     better_mask: bool = True  # ours: a merged pair keeps the mask that agrees better with the object's depth
-    better_mask_margin: float = 0.2  # ours: the later mask must agree better by this much (IoU with the depth region); `mine bench classify`
+    better_mask_margin: Fraction = 0.2  # ours: the later mask must agree better by this much (IoU with the depth region); `mine bench classify`
     depth_band_m: float = 2.5  # ours: depth extent of an object around its median (half a car's length + margin)
     band_noise_px: float = 1.0  # ours: disparity noise allowed on top of that band (2 × SGBM's ~0.5 px)
 
 
 @dataclass
 class ProposalConfig:
-    proposer: str = "stereo"  # ours: "stereo" (weight-free default), "onnx", "torch", "json", or a union: "onnx+stereo"
+    proposer: Annotated[str, Satisfies(_proposer_names)] = "stereo"  # ours: "stereo" (weight-free default), "onnx", "torch", "json", or a union: "onnx+stereo"
     onnx: OnnxConfig = field(default_factory=OnnxConfig)
     torch: TorchConfig = field(default_factory=TorchConfig)
     filters: ProposalFilterConfig = field(default_factory=ProposalFilterConfig)

@@ -20,6 +20,17 @@ NAMES = ("stereo", "onnx", "torch", "json")
 CLASSIFYING = ("onnx", "torch", "json")
 
 
+def unknown_proposers(proposer: str) -> str | None:
+    """What is wrong with a ``proposals.proposer`` setting, or None (the config's rule)."""
+    names = proposer_names(proposer)
+    if not names:
+        return f"names no proposer; known: {', '.join(NAMES)} or a union like 'onnx+stereo'"
+    bad = [n for n in names if n not in NAMES]
+    if bad:
+        return f"unknown proposer {', '.join(map(repr, bad))}; known: {', '.join(NAMES)} or a union like 'onnx+stereo'"
+    return None
+
+
 def proposer_names(proposer: str) -> list[str]:
     """The proposers of a ``proposals.proposer`` setting ("onnx+stereo" → ["onnx", "stereo"])."""
     return [n.strip() for n in proposer.split("+") if n.strip()]

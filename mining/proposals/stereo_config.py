@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from mining.checks import Count, Fraction, Positive, Signed
+
 
 @dataclass
 class StereoProposerConfig:
@@ -16,16 +18,16 @@ class StereoProposerConfig:
     """
 
     # Point cloud
-    pixel_step: int = 2  # ours: take every 2nd pixel in each direction (1/4 of the points)
-    max_depth_m: float = 60.0  # ours: farther stereo points are too noisy to outline objects (REFERENCE's Z filter is 60 m)
+    pixel_step: Count = 2  # ours: take every 2nd pixel in each direction (1/4 of the points)
+    max_depth_m: Positive = 60.0  # ours: farther stereo points are too noisy to outline objects (REFERENCE's Z filter is 60 m)
     min_height_m: float = 0.2  # ours: points lower than this above the ground are ground (REFERENCE drops < 0.1 m proposals)
     max_height_m: float = 4.0  # ours: points higher are canopy, facades, signs (REFERENCE drops > 5.0 m proposals)
-    disparity_noise_px: float = 0.5  # ours: stereo disparity std at full resolution (SGBM at half resolution, measured on KITTI 2015)
+    disparity_noise_px: Positive = 0.5  # ours: stereo disparity std at full resolution (SGBM at half resolution, measured on KITTI 2015)
     height_noise_sigmas: float = 2.0  # ours: the ground cut rises by this many height stds (far ground is noisy)
     # Polar bird's-eye grid
-    column_px: int = 6  # ours: image columns per grid column (0.17 m at 20 m on KITTI)
-    range_cell_m: float = 0.25  # ours: range cell depth near the camera
-    disparity_cell_px: float = 0.5  # ours: range cell depth in disparity where that is coarser (≈ 1 noise std; 1.0 px: R@all 0.75 vs 0.79 on KITTI 0005)
+    column_px: Count = 6  # ours: image columns per grid column (0.17 m at 20 m on KITTI)
+    range_cell_m: Positive = 0.25  # ours: range cell depth near the camera
+    disparity_cell_px: Positive = 0.5  # ours: range cell depth in disparity where that is coarser (≈ 1 noise std; 1.0 px: R@all 0.75 vs 0.79 on KITTI 0005)
     min_density_m: float = 0.15  # ours: a cell is occupied by ≥ this many metres of visible vertical surface
     # Multi-scale clustering: each scale = (density multiplier, grid dilation rows, columns).
     # Finer scales split touching objects, coarser ones join objects broken by holes.
@@ -34,29 +36,29 @@ class StereoProposerConfig:
     )  # ours: chosen on KITTI 0005 and synthetic (adding (1, 1, 3) and (3, 1, 1) changed no recall)
     height_band_m: float = 1.0  # ours: extra clusters within bands of cell top height (two offsets); 0 = off (KITTI 0005 car R@all 0.77 → 0.33)
     image_jumps_px: tuple[float, ...] = (1.0,)  # ours: image regions are cut where neighbouring disparities differ by more (≈ 2 noise stds, or border_gap_m); () = off
-    min_points: int = 12  # ours: clusters with fewer sample points are noise
-    stats_points: int = 256  # ours: a cluster's percentiles (extent, top) come from about this many of its points
-    max_extent_m: float = 10.0  # ours: footprints longer than this are structures (walls, hedges), not objects
+    min_points: Count = 12  # ours: clusters with fewer sample points are noise
+    stats_points: Count = 256  # ours: a cluster's percentiles (extent, top) come from about this many of its points
+    max_extent_m: Positive = 10.0  # ours: footprints longer than this are structures (walls, hedges), not objects
     # Image masks
     grow_min_height_m: float = 0.05  # ours: masks grow over points this high (+1 height std) at the object's depth
     grow_steps: int = 12  # ours: at most this many growth steps of one sample; fewer where the cut band is thinner in the image
     left_trim_px: int = 4  # ours: masks lose this many pixels at their left edges (left-reference stereo fattens them there; 8 px: better on KITTI, worse on synthetic)
-    mask_close_px: int = 7  # ours: closing kernel (full-resolution px) that fills stereo holes in a mask
+    mask_close_px: Count = 7  # ours: closing kernel (full-resolution px) that fills stereo holes in a mask
     # Objectness = sigmoid(bias + Σ weight·cue); every cue lies in [0, 1], higher = more object-like,
     # and every weight is ≥ 0, so objectness never decreases when a cue increases.
-    plausible_extent_m: float = 5.0  # ours: footprints up to this long are fully plausible (cars, people, bins)
+    plausible_extent_m: Positive = 5.0  # ours: footprints up to this long are fully plausible (cars, people, bins)
     plausible_top_m: tuple[float, float] = (0.4, 2.5)  # ours: object tops in this height range are fully plausible
-    support_points: int = 400  # ours: clusters with this many sample points are fully supported
+    support_points: Count = 400  # ours: clusters with this many sample points are fully supported
     border_gap_m: float = 0.5  # ours: a border pixel this much farther than the object (or more than the noise) is background
     # Weights chosen on KITTI 0005 frames 0–15 (cars only: support, fill and top separate them from
     # clutter best; the border contrast less, as parked cars touch bushes) and checked on synthetic
     # frames with unknown objects. Tuned and measured on the same frames — optimistic figures.
-    bias: float = -4.0  # ours: objectness with all cues at 0
+    bias: Signed = -4.0  # ours: objectness with all cues at 0
     w_contrast: float = 1.0  # ours: the mask's border stands out in depth (free space around)
     w_fill: float = 3.0  # ours: the mask fills its box (compact in the image)
     w_extent: float = 1.5  # ours: plausible footprint
     w_top: float = 2.0  # ours: plausible height
     w_support: float = 2.0  # ours: enough stereo points (4.0 ranks KITTI cars a bit higher, small unknown objects lower)
-    nms_iou: float = 0.9  # ours: box IoU at which a lower-scoring near-duplicate from another scale goes
-    max_proposals: int = 100  # ours: at most this many per frame, best objectness first
+    nms_iou: Fraction = 0.9  # ours: box IoU at which a lower-scoring near-duplicate from another scale goes
+    max_proposals: Count = 100  # ours: at most this many per frame, best objectness first
     mask_budget: float = 1.0  # ours: masks are built for at most this × max_proposals clusters, best cheap cues first

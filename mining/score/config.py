@@ -4,15 +4,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from mining.checks import Fraction, Positive, Signed
+
 
 @dataclass
 class ScoreConfig:
-    objectness_k: float = 10.0  # REFERENCE: objectness LLR ln(x) − ln(1/K), K = 10 (paper's β)
-    motion_k: float = 1000.0  # REFERENCE: motion LLR, K = 1000 (paper's 1/A_GP)
-    mask_k: float = 500.0  # REFERENCE: mask LLR, K = 500 (paper's α)
-    alpha: float = 0.5  # REFERENCE: score = β·(α·motion + (1−α)·mask) + (1−β)·objectness
-    beta: float = 0.5  # REFERENCE: as above
-    floor: float = 1e-6  # ours: a term's x is clipped here so ln(0) cannot occur
+    objectness_k: Positive = 10.0  # REFERENCE: objectness LLR ln(x) − ln(1/K), K = 10 (paper's β)
+    motion_k: Positive = 1000.0  # REFERENCE: motion LLR, K = 1000 (paper's 1/A_GP)
+    mask_k: Positive = 500.0  # REFERENCE: mask LLR, K = 500 (paper's α)
+    alpha: Fraction = 0.5  # REFERENCE: score = β·(α·motion + (1−α)·mask) + (1−β)·objectness
+    beta: Fraction = 0.5  # REFERENCE: as above
+    floor: Positive = 1e-6  # ours: a term's x is clipped here so ln(0) cannot occur
     # Known / unknown / unclassified (mining/tubes/category.py).
-    known_log_margin: float = 0.0  # paper: argmax over the 81 entries (ln P[best class] − ln P[unknown] > 0); `mine bench classify`
+    known_log_margin: Signed = 0.0  # paper: argmax over the 81 entries (ln P[best class] − ln P[unknown] > 0); `mine bench classify`
     min_class_evidence: float = 1.0  # ours: classified only with ≥ one frame-equivalent of classifier evidence

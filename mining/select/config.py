@@ -6,15 +6,18 @@ Defaults from REFERENCE.md ("Co-selection") and the original implementation unle
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Annotated
+
+from mining.checks import Count, Fraction, OneOf, Range, Signed
 
 
 @dataclass
 class SelectConfig:
     # --- the energy: maximise mᵀQm, Q_ii = score_i − ε1, Q_ij = −½·ε2·Σ_t maskIoU_t(i, j)
-    epsilon1: float = 20.0  # REFERENCE: ε1, price of selecting a tube (unary offset)
+    epsilon1: Signed = 20.0  # REFERENCE: ε1, price of selecting a tube (unary offset)
     epsilon2: float = 30.0  # REFERENCE: ε2, weight of the pairwise overlap penalty
-    window_frames: int = 100  # REFERENCE/paper: batches of 100 frames (original: ±50 frames around each frame)
-    box_iou_gate: float = 0.1  # REFERENCE: a frame's mask IoU counts only when the boxes' IoU exceeds this
+    window_frames: Count = 100  # REFERENCE/paper: batches of 100 frames (original: ±50 frames around each frame)
+    box_iou_gate: Fraction = 0.1  # REFERENCE: a frame's mask IoU counts only when the boxes' IoU exceeds this
 
     # --- the original's greedy multi-branch search (Schindler et al. ECCV 2006)
     # The first two branch widths narrow as the problem grows: problems with fewer than
@@ -26,8 +29,8 @@ class SelectConfig:
     branch_tail_widths: list[int] = field(default_factory=lambda: [5, 2, 1, 1])  # REFERENCE: levels 3–6; deeper levels are greedy (width 1)
 
     # --- our production solver (mining.select.qubo.solve)
-    solver: str = "auto"  # ours: "auto" (reduce, split, exact or multi-branch + local search), "multibranch" (the original's), "exhaustive"
-    exact_max_candidates: int = 20  # ours: components this small are solved exactly by enumeration (2^20 in a few ms)
+    solver: Annotated[str, OneOf(("auto", "multibranch", "exhaustive"))] = "auto"  # ours: "auto" (reduce, split, exact or multi-branch + local search), "multibranch" (the original's), "exhaustive"
+    exact_max_candidates: Annotated[int, Range(0, 26, why="2^26 selections is about the most enumeration stays practical for")] = 20  # ours: components this small are solved exactly by enumeration (2^20 in a few ms)
     tabu_iterations: int = 2000  # ours: at most this many 1-flip tabu moves per start on a large component
     tabu_stall_iterations: int = 300  # ours: a tabu run stops after this many moves without a new best (100 missed 1 of 30 hard groups, 300 none)
     tabu_restarts: int = 1  # ours: extra tabu runs from a seeded random perturbation of the best solution

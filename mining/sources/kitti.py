@@ -15,12 +15,14 @@ import cv2
 import numpy as np
 
 from mining.errors import InputError
+from mining.names import check_name
 from mining.sources.base import Source
 from mining.sources.kitti_calib import KittiCalib, read_tracking_calib
 from mining.types import SequencePlan, StereoCalib, StereoFrame
 
 KITTI_FRAME_PERIOD_NS = 100_000_000  # ours: KITTI records at 10 Hz (Geiger et al. 2013); tracking has no timestamp file
 _SPLITS = ("training", "testing")
+SPLIT_MARK = "_"  # ours: "training_0005" names a sequence when the root holds both splits
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
@@ -59,13 +61,11 @@ def read_stereo_pair(left_path: Path, right_path: Path, frame: int, calib: Stere
     return left, right
 
 
-def paired_frames(left_dir: Path, right_dir: Path, digits: int) -> tuple[int, ...]:
-    """Frame indices whose image (``<digits-wide index>.png``) exists in both folders.
-
-    Indices must be consecutive from the first. A frame present on one side only, or a
-    hole in the numbering, raises InputError naming the missing file, from the directory
-    listing alone.
-    """
+def listed_frames(left_dir: Path, right_dir: Path, digits: int) -> tuple[tuple[int, ...], dict[int, str]]:
+    """Frame indices from the first to the last image (``<digits-wide index>.png``) in
+    either folder, and the unreadable ones among them: index → message naming the missing
+    file and the frame (present on one side only, or a hole in the numbering). From the
+    directory listing alone."""
     for d in (left_dir, right_dir):
         if not d.is_dir():
             raise InputError("image folder is missing", d)
@@ -76,20 +76,36 @@ def paired_frames(left_dir: Path, right_dir: Path, digits: int) -> tuple[int, ..
         return {int(m.group(1)): n for n in _names(d) if (m := pattern.fullmatch(n))}
 
     left, right = listing(left_dir), listing(right_dir)
-    if only_left := sorted(left.keys() - right.keys()):
-        idx = only_left[0]
-        raise InputError("right image is missing for this frame", right_dir / left[idx], idx)
-    if only_right := sorted(right.keys() - left.keys()):
-        idx = only_right[0]
-        raise InputError("left image is missing for this frame", left_dir / right[idx], idx)
-    frames = sorted(left)
-    if not frames:
-        raise InputError("no images found", left_dir)
-    for prev, cur in zip(frames, frames[1:]):
-        if cur != prev + 1:
-            missing = left_dir / f"{prev + 1:0{digits}d}.png"
-            raise InputError(f"image is missing: frame numbering jumps from {prev} to {cur}", missing, prev + 1)
-    return tuple(frames)
+    for d, names in ((left_dir, left), (right_dir, right)):
+        if not names:
+            raise InputError("no images found", d)
+    frames = tuple(range(min(left.keys() | right.keys()), max(left.keys() | right.keys()) + 1))
+    problems = {}
+    for idx in frames:
+        name = f"{idx:0{digits}d}.png"
+        if idx in left and idx not in right:
+            problems[idx] = str(InputError("right image is missing for this frame", right_dir / name, idx))
+        elif idx in right and idx not in left:
+            problems[idx] = str(InputError("left image is missing for this frame", left_dir / name, idx))
+        elif idx not in left:
+            prev = max(i for i in left if i < idx)
+            nxt = min(i for i in left if i > idx)
+            problems[idx] = str(InputError(f"image is missing: frame numbering jumps from {prev} to {nxt}",
+                                           left_dir / name, idx))
+    return frames, problems
+
+
+def paired_frames(left_dir: Path, right_dir: Path, digits: int) -> tuple[int, ...]:
+    """Frame indices whose image (``<digits-wide index>.png``) exists in both folders.
+
+    Indices must be consecutive from the first. A frame present on one side only, or a
+    hole in the numbering, raises InputError naming the missing file, from the directory
+    listing alone.
+    """
+    frames, problems = listed_frames(left_dir, right_dir, digits)
+    if problems:
+        raise InputError(problems[min(problems)])
+    return frames
 
 
 def _names(d: Path) -> list[str]:
@@ -107,8 +123,9 @@ class KittiTrackingSource(Source):
     camera 0, see ``kitti_calib(seq).rect0_to_cam2``.
 
     ``root`` holds ``training/`` and/or ``testing/``, or is itself a split folder. With
-    one split, sequences are named ``"0005"``; with both, ``"training/0005"`` (a bare
-    name is accepted when only one split has it).
+    one split, sequences are named ``"0005"``; with both, ``"training_0005"`` (a bare
+    name is accepted when only one split has it). Names are one path component
+    (``mining/names.py``), so the split joins with ``_``, never ``/``.
     """
 
     dataset = "kitti"
@@ -137,14 +154,14 @@ class KittiTrackingSource(Source):
 
     def _split_dir(self, sequence: str) -> tuple[Path, str]:
         """Split folder and bare sequence id of a sequence name."""
-        if "/" in sequence:
-            split, seq = sequence.split("/", 1)
-            if split not in self._splits:
-                raise InputError(f"unknown split {split!r} in sequence name {sequence!r}", self.root)
+        check_name(sequence, "sequence", "the kitti source", self.root)
+        split, _, seq = sequence.partition(SPLIT_MARK)
+        if seq and split in self._splits and len(self._splits) > 1:
             return self._splits[split], seq
         having = [d for d in self._splits.values() if (d / "calib" / f"{sequence}.txt").is_file()]
         if len(having) > 1:
-            raise InputError(f"sequence {sequence!r} exists in several splits; name it as 'training/{sequence}'", self.root)
+            raise InputError(f"sequence {sequence!r} exists in several splits; name it as "
+                             f"'training{SPLIT_MARK}{sequence}'", self.root)
         if not having:  # let the caller's next step name the missing calibration file
             return next(iter(self._splits.values())), sequence
         return having[0], sequence
@@ -157,7 +174,7 @@ class KittiTrackingSource(Source):
             if not calib_dir.is_dir():
                 continue
             names = sorted(p.stem for p in calib_dir.glob("*.txt"))
-            out += [f"{split}/{n}" if len(self._splits) > 1 else n for n in names]
+            out += [f"{split}{SPLIT_MARK}{n}" if len(self._splits) > 1 else n for n in names]
         return out
 
     def _image_dirs(self, sequence: str) -> tuple[Path, Path]:
@@ -211,13 +228,18 @@ class KittiTrackingSource(Source):
 
     # -- Source interface -----------------------------------------------------------
 
-    def plan(self, sequence: str) -> SequencePlan:
+    def survey(self, sequence: str) -> SequencePlan:
         kc = self.kitti_calib(sequence)
         left_dir, right_dir = self._image_dirs(sequence)
-        frames = paired_frames(left_dir, right_dir, 6)
-        calib = self._checked_stereo(kc, left_dir / f"{frames[0]:06d}.png")
+        frames, problems = listed_frames(left_dir, right_dir, 6)
+        first = next((i for i in frames if i not in problems), None)
+        if first is None:
+            raise InputError("no frame has both its left and right image", left_dir)
+        calib = self._checked_stereo(kc, left_dir / f"{first:06d}.png")
         t_ns = tuple(i * KITTI_FRAME_PERIOD_NS for i in frames)
-        return SequencePlan(self.dataset, sequence, calib, frames, t_ns)
+        pos = {idx: k for k, idx in enumerate(frames)}
+        return SequencePlan(self.dataset, sequence, calib, frames, t_ns,
+                            problems=tuple((pos[i], msg) for i, msg in sorted(problems.items())))
 
     def read_frame(self, plan: SequencePlan, position: int) -> StereoFrame:
         idx = plan.frames[position]

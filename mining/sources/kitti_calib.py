@@ -169,6 +169,11 @@ class KittiCalib:
     def stereo(self, width: int, height: int, left: int = 2, right: int = 3) -> StereoCalib:
         """StereoCalib of a camera pair (default image_02 / image_03), in the left camera's frame."""
         Pl, Pr = self.P(left), self.P(right)
+        for name, v in ((f"P{left} fx", Pl[0, 0]), (f"P{left} fy", Pl[1, 1]), (f"P{right} fx", Pr[0, 0])):
+            if not (np.isfinite(v) and v > 0):  # before the baseline: it divides by fx
+                raise InputError(f"calibration {name} = {float(v)!r} is not a positive finite focal length", self.path)
+        if not np.all(np.isfinite(Pl[:, 3])) or not np.all(np.isfinite(Pr[:, 3])):
+            raise InputError(f"calibration P{left} or P{right} has a non-finite translation", self.path)
         b = float((Pl[0, 3] - Pr[0, 3]) / Pl[0, 0])
         if not b > 0:
             raise InputError(f"baseline P{left}→P{right} = {b:.4f} m is not positive (left and right swapped?)", self.path)

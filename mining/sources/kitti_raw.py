@@ -18,7 +18,7 @@ import numpy as np
 
 from mining.errors import InputError
 from mining.sources.base import Source
-from mining.sources.kitti import paired_frames, png_size, read_stereo_pair
+from mining.sources.kitti import listed_frames, png_size, read_stereo_pair
 from mining.sources.kitti_calib import KittiCalib, read_raw_calib
 from mining.types import SequencePlan, StereoFrame
 
@@ -179,21 +179,26 @@ class KittiRawSource(Source):
 
     # -- Source interface -----------------------------------------------------------
 
-    def plan(self, sequence: str) -> SequencePlan:
+    def survey(self, sequence: str) -> SequencePlan:
         drive = self._drive_dir(sequence)
         kc = read_raw_calib(drive.parent)
         left_dir, right_dir = drive / "image_02" / "data", drive / "image_03" / "data"
-        frames = paired_frames(left_dir, right_dir, _DIGITS)
-        first = left_dir / f"{frames[0]:0{_DIGITS}d}.png"
-        size = png_size(first, frames[0])
+        frames, problems = listed_frames(left_dir, right_dir, _DIGITS)
+        k = next((i for i in frames if i not in problems), None)
+        if k is None:
+            raise InputError("no frame has both its left and right image", left_dir)
+        first = left_dir / f"{k:0{_DIGITS}d}.png"
+        size = png_size(first, k)
         if size != kc.image_size:
             raise InputError(
                 f"image is {size[0]}×{size[1]} but S_rect_02 in {kc.path} says {kc.image_size[0]}×{kc.image_size[1]}",
                 first,
-                frames[0],
+                k,
             )
         t_ns = self._timestamps(drive / "image_02" / "timestamps.txt", frames)
-        return SequencePlan(self.dataset, sequence, kc.stereo(*size), frames, t_ns)
+        pos = {idx: p for p, idx in enumerate(frames)}
+        return SequencePlan(self.dataset, sequence, kc.stereo(*size), frames, t_ns,
+                            problems=tuple((pos[i], msg) for i, msg in sorted(problems.items())))
 
     @staticmethod
     def _timestamps(path: Path, frames: tuple[int, ...]) -> tuple[int, ...]:

@@ -11,6 +11,11 @@ Left and right images are paired by their header stamps (nearest neighbour, mutu
 The frame index is the left message's position in the left topic (ordered by stamp), so a
 skipped frame leaves a hole in ``plan.frames`` and a gap in ``plan.gaps``.
 
+Two images on one topic with the same stamp cannot both be paired, and which one a frame
+gets would be a guess: by default ``plan`` refuses the file, naming the topic and the
+stamp; with ``duplicate_stamps="gap"`` the first message of each stamp (by log time) is
+kept and the others are dropped as recording gaps, counted in ``pairing()``.
+
 ``plan`` reads the summary, the first CameraInfo of each camera and the first 12 bytes
 (CDR encapsulation + stamp) of each image message; it never decodes an image, but it does
 decompress every chunk that holds images (~4 ms per 1.4 MB image message). With
@@ -88,6 +93,8 @@ class _Index:
     unpaired_left: int
     unpaired_right: int
     info_topics: tuple[str, str]
+    repeated_left: int = 0  # messages dropped because an earlier one has their stamp (duplicate_stamps="gap")
+    repeated_right: int = 0
 
 
 def _open_error(path: Path, err: Exception) -> InputError:
@@ -112,9 +119,13 @@ class McapSource(Source):
         right_info: str | None = None,
         max_pair_dt_ns: int = MAX_PAIR_DT_NS,
         time_source: str = "header",
+        duplicate_stamps: str = "error",
     ):
         if time_source not in ("header", "log"):
             raise ConfigError(f"time_source must be 'header' or 'log', got {time_source!r}")
+        if duplicate_stamps not in ("error", "gap"):
+            raise ConfigError(f"duplicate_stamps must be 'error' or 'gap', got {duplicate_stamps!r}")
+        self.duplicate_stamps = duplicate_stamps
         self.root = Path(root)
         self.left_topic, self.right_topic = left_topic, right_topic
         self.left_info, self.right_info = left_info, right_info
@@ -214,14 +225,26 @@ class McapSource(Source):
         calib = _calib_from_infos(infos[lit], infos[rit], path, lit, rit)
         left = sorted(stamps[lt])
         right = sorted(stamps[rt])
-        partner = _pair(left, right, self.max_pair_dt_ns)
+        repeats = {topic: _repeated(msgs) for topic, msgs in ((lt, left), (rt, right))}
+        for topic, msgs in ((lt, left), (rt, right)):
+            if repeats[topic] and self.duplicate_stamps == "error":
+                k = repeats[topic][0]
+                by_log = self.time_source == "header" and msgs[k - 1][1] != msgs[k][1]
+                raise InputError(
+                    f"image topic {topic}: {len(repeats[topic])} message(s) repeat the stamp of an earlier one "
+                    f"(first: stamp {msgs[k][0]} ns, log times {msgs[k - 1][1]} and {msgs[k][1]}); pairing would "
+                    "drop frames silently. Pass duplicate_stamps='gap' to keep the first of each stamp and drop "
+                    f"the repeats as recording gaps{', or time_source=log (their log times differ)' if by_log else ''}",
+                    path,
+                )
+        partner = _pair(left, right, self.max_pair_dt_ns, set(repeats[lt]), set(repeats[rt]))
         return _Index(
             path, (lt, rt), kinds, left, right, partner, calib,
             unpaired_left=len(left) - len(partner), unpaired_right=len(right) - len(partner),
-            info_topics=(lit, rit),
+            info_topics=(lit, rit), repeated_left=len(repeats[lt]), repeated_right=len(repeats[rt]),
         )  # fmt: skip
 
-    def plan(self, sequence: str) -> SequencePlan:
+    def survey(self, sequence: str) -> SequencePlan:
         idx = self._build_index(sequence)
         frames = tuple(sorted(idx.partner))
         if not frames:
@@ -250,6 +273,8 @@ class McapSource(Source):
             "pairs": len(idx.partner),
             "unpaired_left": idx.unpaired_left,
             "unpaired_right": idx.unpaired_right,
+            "repeated_left": idx.repeated_left,
+            "repeated_right": idx.repeated_right,
         }
 
     # -- reading -------------------------------------------------------------------------
@@ -342,8 +367,24 @@ def _common_prefix(a: str, b: str) -> str:
     return a[:n]
 
 
-def _pair(left: list[tuple[int, int]], right: list[tuple[int, int]], tol: int) -> dict[int, int]:
-    """Mutual nearest neighbours by stamp within ``tol``: left position → right position."""
+def _repeated(msgs: list[tuple[int, int]]) -> list[int]:
+    """Positions (in stamp order) of messages whose stamp an earlier message already has."""
+    return [k for k in range(1, len(msgs)) if msgs[k][0] == msgs[k - 1][0]]
+
+
+def _pair(left: list[tuple[int, int]], right: list[tuple[int, int]], tol: int,
+          skip_left: set[int] = frozenset(), skip_right: set[int] = frozenset()) -> dict[int, int]:
+    """Mutual nearest neighbours by stamp within ``tol``: left position → right position;
+    the ``skip_*`` positions (repeated stamps) take part in no pair."""
+    keep_r = [j for j in range(len(right)) if j not in skip_right]
+    keep_l = [i for i in range(len(left)) if i not in skip_left]
+    if not keep_l or not keep_r:
+        return {}
+    pairs = _pair_unique([left[i] for i in keep_l], [right[j] for j in keep_r], tol)
+    return {keep_l[i]: keep_r[j] for i, j in pairs.items()}
+
+
+def _pair_unique(left: list[tuple[int, int]], right: list[tuple[int, int]], tol: int) -> dict[int, int]:
     ls = [s for s, _ in left]
     rs = [s for s, _ in right]
 
@@ -383,7 +424,7 @@ def decode_image(msg: Any, kind: str, path: Path, frame: int, topic: str) -> np.
     if kind == "compressed":
         if "compresseddepth" in msg.format.lower():
             raise InputError(f"{topic}: compressedDepth images are not colour images", path, frame)
-        img = cv2.imdecode(buf, cv2.IMREAD_COLOR)
+        img = cv2.imdecode(buf, cv2.IMREAD_COLOR) if buf.size else None  # an empty buffer raises cv2.error
         if img is None:
             raise InputError(f"{topic}: cannot decode CompressedImage ({msg.format!r})", path, frame)
         return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)

@@ -35,6 +35,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from mining.errors import ConfigError, InputError
+from mining.names import check_name
 from mining.sources.base import Source
 from mining.types import SequencePlan, StereoCalib, StereoFrame
 
@@ -189,6 +190,7 @@ class OxfordSource(Source):
     # -- planning -------------------------------------------------------------------------
 
     def _read_timestamps(self, sequence: str) -> list[tuple[int, int]]:
+        check_name(sequence, "sequence", "the oxford source", self.root)  # a traversal folder, never a path
         path = self.root / sequence / TIMESTAMPS_FILE
         try:
             text = path.read_text()
@@ -228,7 +230,7 @@ class OxfordSource(Source):
             cams.append(_Camera(self.root / sequence / "stereo" / folder, model, maps))
         return cams[0], cams[1]
 
-    def plan(self, sequence: str) -> SequencePlan:
+    def survey(self, sequence: str) -> SequencePlan:
         rows = self._read_timestamps(sequence)
         (lfolder, _), (rfolder, _) = PAIRS[self.pair]
         stereo = self.root / sequence / "stereo"
@@ -246,35 +248,40 @@ class OxfordSource(Source):
         frames: list[int] = []
         t_ns: list[int] = []
         gaps: list[int] = []
+        problems: list[tuple[int, str]] = []
         prev_line, prev_chunk = None, None
         for line, (t_us, chunk) in enumerate(rows):
             name = f"{t_us}.png"
             has_l, has_r = name in present[lfolder], name in present[rfolder]
             if not (has_l and has_r):
-                if chunk_has_images.get(chunk):
-                    missing = stereo / (rfolder if has_l else lfolder) / name
-                    raise InputError(f"stereo image missing within downloaded chunk {chunk}", missing, line)
-                continue  # chunk not downloaded: a gap
+                if not chunk_has_images.get(chunk):
+                    continue  # chunk not downloaded: a gap
+                # One image of a downloaded chunk is missing: the frame keeps its place.
+                missing = stereo / (rfolder if has_l else lfolder) / name
+                problems.append((len(frames), str(InputError(f"stereo image missing within downloaded chunk {chunk}",
+                                                             missing, line))))
             if prev_line is not None and (line != prev_line + 1 or chunk > prev_chunk + 1):
                 gaps.append(len(frames))
             frames.append(line)
             t_ns.append(t_us * 1000)
             prev_line, prev_chunk = line, chunk
-        if not frames:
+        bad = {p for p, _ in problems}
+        good = [k for k in range(len(frames)) if k not in bad]
+        if not good:
             raise InputError(f"no {self.pair} stereo images for any of the {len(rows)} timestamps", stereo)
 
-        first = stereo / lfolder / f"{t_ns[0] // 1000}.png"
+        first = stereo / lfolder / f"{t_ns[good[0]] // 1000}.png"
         width, height, depth, ctype = png_size(first)
         if depth != 8 or ctype != 0:
             raise InputError(
                 f"expected raw Bayer 8-bit single-channel PNG, got bit depth {depth}, colour type {ctype}",
                 first,
-                frames[0],
+                frames[good[0]],
             )
         cams = self._load_cameras(sequence, width, height)
         self._cameras[sequence] = cams
         calib = stereo_calib(cams[0].model, cams[1].model, width, height)
-        return SequencePlan(self.dataset, sequence, calib, tuple(frames), tuple(t_ns), tuple(gaps))
+        return SequencePlan(self.dataset, sequence, calib, tuple(frames), tuple(t_ns), tuple(gaps), tuple(problems))
 
     # -- reading --------------------------------------------------------------------------
 
@@ -292,7 +299,12 @@ class OxfordSource(Source):
         data = np.fromfile(path, np.uint8) if path.is_file() else None
         if data is None:
             raise InputError("stereo image not found", path, index)
-        raw = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+        if data.size == 0:  # cv2.imdecode raises a bare cv2.error on an empty buffer
+            raise InputError("stereo image is empty (0 bytes): an incomplete download or copy", path, index)
+        try:
+            raw = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+        except cv2.error as e:
+            raise InputError(f"cannot decode PNG ({str(e).strip()})", path, index) from None
         if raw is None:
             raise InputError("cannot decode PNG (truncated or corrupt)", path, index)
         if raw.ndim != 2 or raw.dtype != np.uint8:
@@ -319,7 +331,7 @@ class OxfordSource(Source):
         (x forward, y right, z down; R = Rz(yaw)·Ry(pitch)·Rx(roll)). We turn it into
         ``T_cur_prev`` in the image axes of the left camera of the pair.
         """
-        path = self.root / sequence / "vo" / "vo.csv"
+        path = self.root / check_name(sequence, "sequence", "the oxford source", self.root) / "vo" / "vo.csv"
         G = load_camera_model(self.models_dir, PAIRS[self.pair][0][1]).G_camera_image
         G_inv = np.linalg.inv(G)
         steps = []

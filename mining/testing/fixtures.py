@@ -218,12 +218,14 @@ def write_stereo_mcap(
     log_delay_ns: int = 3_000_000,
     with_camera_info: bool = True,
     skip_right: Sequence[int] = (),
+    stamps_ns: Sequence[int] | None = None,
 ) -> dict[str, str]:
     """Write a ROS 2 MCAP with left/right images and CameraInfo, one message each per frame.
 
     Header stamps are ``t0_ns + i/hz`` (the right camera ``right_offset_ns`` later); log
     times are the stamps plus ``log_delay_ns``, as a recorder sees them. Frames listed in
-    ``skip_right`` get no right image. Returns the topic names used.
+    ``skip_right`` get no right image; ``stamps_ns`` gives each frame's stamp instead
+    (repeats allowed, to stage duplicate stamps). Returns the topic names used.
     """
     from mcap_ros2.writer import Writer
 
@@ -242,7 +244,7 @@ def write_stereo_mcap(
             img_schema = writer.register_msgdef("sensor_msgs/msg/Image", IMAGE_MSGDEF)
         info_schema = writer.register_msgdef("sensor_msgs/msg/CameraInfo", CAMERA_INFO_MSGDEF)
         for i, (lf, rf) in enumerate(zip(left_frames, right_frames, strict=True)):
-            stamp = t0_ns + round(i * 1e9 / hz)
+            stamp = t0_ns + round(i * 1e9 / hz) if stamps_ns is None else int(stamps_ns[i])
             for side, rgb, t in (("left", lf, stamp), ("right", rf, stamp + right_offset_ns)):
                 if side == "right" and i in skip_right:
                     continue

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from mining.checks import Count, Fraction, Positive
+
 
 @dataclass
 class KalmanConfig:
@@ -12,11 +14,11 @@ class KalmanConfig:
     process_std_position: tuple[float, float, float] = (0.5, 0.1, 0.5)  # REFERENCE: process noise std, position (m)
     process_std_velocity: tuple[float, float] = (1.0, 1.0)  # REFERENCE: process noise std, velocity (m/s)
     process_std_size: float = 0.05  # REFERENCE: process noise std, size (m)
-    process_dt_s: float = 0.1  # REFERENCE: the original's fixed frame interval; noise above is per this interval
+    process_dt_s: Positive = 0.1  # REFERENCE: the original's fixed frame interval; noise above is per this interval
     measurement_std_size: tuple[float, float, float] = (0.2, 0.2, 0.5)  # REFERENCE: size measurement std (m)
     velocity_noise_factor: float = 2.0  # REFERENCE: velocity noise = 2 × ground-projected position covariance
     initial_var_velocity: tuple[float, float] = (1.0, 45.0)  # REFERENCE: initial vx, vz variance without flow
-    max_size_m: float = 4.0  # REFERENCE: sizes ≤ 4 m
+    max_size_m: Positive = 4.0  # REFERENCE: sizes ≤ 4 m
 
 
 @dataclass
@@ -24,30 +26,30 @@ class TubeConfig:
     kalman: KalmanConfig = field(default_factory=KalmanConfig)
     # Gating.
     gate_mahalanobis: float = 5.0  # REFERENCE: Mahalanobis distance of the footpoint < 5.0
-    gate_box_iou: float = 0.3  # REFERENCE: box IoU of predicted and observed > 0.3
-    gate_size_similarity: float = 0.6  # REFERENCE: 2D size similarity > 0.6
-    gate_mask_iou: float = 0.5  # REFERENCE: mask IoU > 0.5
+    gate_box_iou: Fraction = 0.3  # REFERENCE: box IoU of predicted and observed > 0.3
+    gate_size_similarity: Fraction = 0.6  # REFERENCE: 2D size similarity > 0.6
+    gate_mask_iou: Fraction = 0.5  # REFERENCE: mask IoU > 0.5
     # Association.
     density_extra_var: float = 0.2  # REFERENCE: Gaussian density with observation covariance + 0.2·I
     min_association: float = 0.02  # REFERENCE: a tube takes its best gated observation if score > 0.02
     # Mask prediction by 3D warping.
-    warp_close_px: int = 9  # REFERENCE: holes closed with a 9×9 box
+    warp_close_px: Count = 9  # REFERENCE: holes closed with a 9×9 box
     min_predicted_mask_px: int = 100  # REFERENCE: a predicted mask ≤ 100 px ends the tube
     # Start (forward-backward enumeration).
-    backward_steps: int = 5  # REFERENCE: run the filter backwards up to 5 frames
+    backward_steps: Count = 5  # REFERENCE: run the filter backwards up to 5 frames
     backward_required: int = 3  # REFERENCE: require an inlier in each of the first 3 back-steps
     start_hypotheses: int = 3  # ours: velocity hypotheses (displacements to the frame before) per observation the own-motion start missed; 0 = none
-    start_part_ioa: float = 0.5  # ours: a mask at least half inside one a tube took is part of a tracked object: no displacement hypotheses
-    start_max_speed_mps: float = 40.0  # ours: fastest object a displacement hypothesis may start (144 km/h on a motorway)
+    start_part_ioa: Fraction = 0.5  # ours: a mask at least half inside one a tube took is part of a tracked object: no displacement hypotheses
+    start_max_speed_mps: Positive = 40.0  # ours: fastest object a displacement hypothesis may start (144 km/h on a motorway)
     probe_with_boxes: bool = True  # ours: the backward probe gates on warped boxes (box IoU for mask IoU); the forward replay uses masks
-    duplicate_box_iou: float = 0.9  # REFERENCE: new tubes with the same inliers and box IoU ≥ 0.9 throughout are dropped
+    duplicate_box_iou: Fraction = 0.9  # REFERENCE: new tubes with the same inliers and box IoU ≥ 0.9 throughout are dropped
     # End.
     min_depth_m: float = 1.3  # REFERENCE: leaves the view behind 1.3 m
-    max_depth_m: float = 80.0  # REFERENCE: leaves the view beyond 80 m
+    max_depth_m: Positive = 80.0  # REFERENCE: leaves the view beyond 80 m
     lateral_margin: float = 0.3  # REFERENCE: lateral margin 0.3 (share of the image width outside the frame)
     max_gap_frames: int = 5  # REFERENCE: gap limit min(5, max(1, round(0.2 × inliers)))
     gap_inlier_factor: float = 0.2  # REFERENCE: gap limit min(5, max(1, round(0.2 × inliers)))
     # Tube NMS.
     nms_min_age: int = 4  # REFERENCE: tube NMS on tubes older than 4 frames
-    nms_overlap: float = 0.8  # REFERENCE: summed mask IoU / longer tube's inliers > 0.8 suppresses the weaker
-    nms_length_ratio: float = 0.7  # REFERENCE: ... when the length ratio ≥ 0.7
+    nms_overlap: Fraction = 0.8  # REFERENCE: summed mask IoU / longer tube's inliers > 0.8 suppresses the weaker
+    nms_length_ratio: Fraction = 0.7  # REFERENCE: ... when the length ratio ≥ 0.7

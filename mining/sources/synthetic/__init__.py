@@ -69,7 +69,7 @@ class SyntheticSource(Source):
         except ValueError:
             raise InputError(f"synthetic sequence names are integers, got {sequence!r}") from None
 
-    def plan(self, sequence: str) -> SequencePlan:
+    def survey(self, sequence: str) -> SequencePlan:
         self._seed(sequence)
         frames = tuple(i for i in range(self.n_frames) if i not in self.dropped)
         t_ns = tuple(int(round(i * 1e9 / self.hz)) for i in frames)

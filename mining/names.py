@@ -1,0 +1,83 @@
+"""Names are data: the one rule for dataset, sequence, window and tube names.
+
+Names come from users (``--sequences``, a config's ``source.sequences``), from a source's
+own listing (RobotCar traversal folders, MCAP file stems, KITTI calibration files) and
+back from a catalogue (``job.json``, the hive folders, tube ids), and they end up in
+paths under ``--out`` and an export's DEST. So a name is checked where it enters and
+again where a path is built from it, and a path is never made from anything else.
+
+The rule (no encoding, so every name reads the same in a path, a query and a log):
+
+* a **name** is 1 to ``MAX_NAME_LENGTH`` characters of ``[A-Za-z0-9._-]``, starts with a
+  letter, digit or ``_`` (never ``.`` or ``-``), and holds no ``..``. It is one path
+  component: no separator, never ``.`` or ``..``, no ``=`` (the hive partition mark).
+* a **tube id** is names joined by ``/`` (the catalogue's ``dataset/sequence/frame.obs``);
+  its export folder joins them with ``_`` instead (``tube_folder``).
+
+``inside`` is the last line of defence where a path is built under a folder: the
+resolved path (symbolic links followed) must lie inside the resolved folder.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from mining.errors import InputError
+
+MAX_NAME_LENGTH = 128  # ours: a window file name (name + 16 + suffix + temp mark) stays far below 255 bytes
+NAME_RULE = f"1-{MAX_NAME_LENGTH} characters of A-Z a-z 0-9 . _ -, not starting with '.' or '-', no '..'"
+
+
+def name_problem(name: object) -> str | None:
+    """Why ``name`` is not a safe name, or None when it is one."""
+    if not isinstance(name, str):
+        return f"not a string but {type(name).__name__}"
+    if not name:
+        return "empty"
+    if len(name) > MAX_NAME_LENGTH:
+        return f"{len(name)} characters, more than {MAX_NAME_LENGTH}"
+    problems = []
+    bad = sorted({c for c in name if not (c.isascii() and (c.isalnum() or c in "._-"))})
+    if bad:
+        problems.append("holds " + " ".join(repr(c) for c in bad))
+    if ".." in name:
+        problems.append("holds '..'")
+    if name[0] in ".-":
+        problems.append(f"starts with {name[0]!r}")
+    return "; ".join(problems) or None
+
+
+def check_name(name: object, kind: str, origin: str, path: str | Path | None = None) -> str:
+    """``name`` when it is a safe ``kind`` name (dataset, sequence, window…); else an
+    InputError naming it, where it came from (``origin``) and the rule."""
+    problem = name_problem(name)
+    if problem is not None:
+        raise InputError(f"{kind} name {name!r} from {origin} is not a safe name ({problem}); "
+                         f"names are {NAME_RULE}", path)
+    return name  # type: ignore[return-value]
+
+
+def check_tube_id(tube_id: object, origin: str, path: str | Path | None = None) -> str:
+    """``tube_id`` when it is safe names joined by ``/``; else an InputError."""
+    parts = tube_id.split("/") if isinstance(tube_id, str) else [tube_id]
+    for part in parts:
+        problem = name_problem(part)
+        if problem is not None:
+            raise InputError(f"tube id {tube_id!r} from {origin} is not safe names joined by '/' "
+                             f"(part {part!r}: {problem}); names are {NAME_RULE}", path)
+    return tube_id  # type: ignore[return-value]
+
+
+def tube_folder(tube_id: str, origin: str = "the catalogue") -> str:
+    """The one-component folder name of a tube (``/`` → ``_``); an InputError for an unsafe id."""
+    return "_".join(check_tube_id(tube_id, origin).split("/"))
+
+
+def inside(folder: str | Path, path: str | Path) -> Path:
+    """``path`` (relative to ``folder`` or absolute) when, resolved, it lies inside the
+    resolved ``folder``; else an InputError. Returns the unresolved ``folder / path``."""
+    folder = Path(folder)
+    full = folder / path
+    if not full.resolve().is_relative_to(folder.resolve()):
+        raise InputError(f"refusing to write outside {folder}", full)
+    return full

@@ -1,0 +1,155 @@
+"""Preflight: what ``mine submit`` checks in the driver before job.json is written or Ray starts.
+
+A bad setting or model file that only the workers notice fails every window one by one
+after Ray has started (thousands of identical FAILED lines on a long recording), and
+leaves a job.json by which the fixed command is then refused. So the driver checks,
+once, in this order:
+
+1. the whole config: every field's type and rules (``mining.checks``: ranges, multiples,
+   choices, proposer names), and the source options against the source's arguments;
+2. the frame range: ``--frames 50:10`` is an error, not a job of zero windows;
+3. the output: ``--out`` can be written (a probe file, removed at once) and a job.json
+   already there can be read;
+4. every sequence: planned with only the frames inside the range mattering
+   (``Source.plan``), its calibration sane (``check_calib``: finite, positive,
+   plausible), its range not empty. A sequence that fails is reported and left out;
+   the others run. When none is left, the job fails here;
+5. the proposer, made once here: an ONNX model is opened and loaded by onnxruntime, a
+   JSON proposal folder is looked up.
+
+Each failure is a MiningError whose message names the key or file, the value and the
+rule. Nothing but the probe is written before all of them pass.
+"""
+
+from __future__ import annotations
+
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from mining.catalog.layout import JobRecord
+from mining.catalog.store import Store
+from mining.config import JobConfig, validate
+from mining.errors import ConfigError, InputError, MiningError
+from mining.names import check_name
+from mining.pipeline.steps import Job, job_source
+from mining.sources.base import Source, check_calib
+from mining.types import SequencePlan, Window, plan_windows
+
+
+@dataclass
+class Preflight:
+    """The sequences a job can mine, their windows, and the sequences it cannot (with why)."""
+
+    plans: dict[str, SequencePlan]
+    windows: list[Window]
+    failed: dict[str, str] = field(default_factory=dict)  # sequence → why it cannot be mined
+
+
+def check_frames(frames: tuple[int, int | None]) -> None:
+    """ConfigError for a frame range that holds no frame (or starts before frame 0)."""
+    a, b = frames
+    if a < 0:
+        raise ConfigError(f"--frames {a}:{'' if b is None else b}: the start must be ≥ 0")
+    if b is not None and b <= a:
+        raise ConfigError(f"--frames {a}:{b} is empty: the end must be greater than the start")
+
+
+def check_output(out: str) -> None:
+    """InputError unless ``out`` is (or can be made) a folder this process can write, and
+    a job.json in it can be read."""
+    store = Store(out)
+    if store.local and Path(store.root).exists() and not Path(store.root).is_dir():
+        raise InputError("--out is not a folder", store.root)
+    probe = f".preflight-{uuid.uuid4().hex[:12]}"
+    try:
+        store.write_bytes(probe, b"")
+        store.remove(probe)
+    except OSError as e:
+        reason = e.strerror or str(e)
+        raise InputError(f"the output folder cannot be written ({reason}); choose another --out", store.root) from None
+    JobRecord.load(store)  # a corrupt job.json: InputError naming the file and the key
+
+
+def checked_plan(source: Source, cfg: JobConfig, sequence: str, frames: tuple[int, int | None]) -> SequencePlan:
+    """A sequence's plan for a frame range: frames inside it readable, calibration sane,
+    the range not empty; InputError otherwise. For every command that plans a sequence."""
+    start, stop = frames
+    plan = source.plan(sequence, start, stop)
+    r = cfg.run
+    check_calib(plan.calib, None, r.calib_fov_deg, r.calib_baseline_m, r.calib_aspect)
+    if start >= len(plan):
+        raise InputError(f"--frames {start}:{'' if stop is None else stop} holds none of its {len(plan)} frames")
+    return plan
+
+
+def job_sequences(cfg: JobConfig, sequences: list[str] | None, source: Source) -> tuple[list[str], dict[str, str]]:
+    """The job's sequence names, and (name → reason) the names of the source's own listing
+    that are not safe names (``mining.names``). A name the user gave (``--sequences``, the
+    config's ``source.sequences``) that is not safe stops the job: InputError naming it."""
+    given, origin = (sequences, "--sequences") if sequences else (cfg.source.sequences, "the config's source.sequences")
+    if given:
+        return [check_name(s, "sequence", origin) for s in given], {}
+    listing = f"the {cfg.source.dataset} source's listing of {cfg.source.root or 'its root'}"
+    names, refused = [], {}
+    for seq in source.sequences():
+        try:
+            names.append(check_name(seq, "sequence", listing))
+        except InputError as e:
+            refused[seq] = str(e)
+    return names, refused
+
+
+def plan_sequences(cfg: JobConfig, sequences: list[str] | None = None,
+                   frames: tuple[int, int | None] = (0, None)) -> Preflight:
+    """Plan every sequence of the job; a sequence that cannot be mined is reported, not fatal,
+    unless none can (then InputError listing why for each)."""
+    source = job_source(Job(cfg, "", "", {}))
+    seqs, refused = job_sequences(cfg, sequences, source)
+    dataset = cfg.source.dataset
+    if not seqs and not refused:
+        raise InputError(f"no {dataset} sequences found", cfg.source.root or None)
+    w = cfg.window
+    pf = Preflight({}, [])
+    pf.failed.update(refused)  # names of the source's listing that are not safe names: left out
+    for seq in seqs:
+        try:
+            plan = checked_plan(source, cfg, seq, frames)
+        except MiningError as e:
+            pf.failed[seq] = str(e)
+            continue
+        except Exception as e:  # bad data an adapter did not foresee: still that sequence's failure only
+            pf.failed[seq] = f"{type(e).__name__}: {e}"
+            continue
+        pf.plans[seq] = plan
+        pf.windows += plan_windows(plan, w.core, w.context_before, w.context_after, frames[0], frames[1])
+    if not pf.plans:
+        raise InputError("no sequence can be mined: " + "; ".join(f"{dataset}/{s}: {e}" for s, e in pf.failed.items()))
+    return pf
+
+
+def check_proposer(cfg: JobConfig, plans: dict[str, SequencePlan]) -> None:
+    """Make the configured proposer once (loads an ONNX model, finds a JSON folder)."""
+    from mining.proposals.make import make_proposer, proposer_names
+
+    calib = next(iter(plans.values())).calib
+    try:
+        make_proposer(cfg.proposals, (calib.height, calib.width))
+    except MiningError:
+        raise
+    except Exception as e:  # onnx / onnxruntime raise their own types for an unreadable model
+        what = f"proposals.proposer = {cfg.proposals.proposer!r}"
+        if "onnx" in proposer_names(cfg.proposals.proposer):
+            what += f", proposals.onnx.model_path = {cfg.proposals.onnx.model_path!r}"
+        raise ConfigError(f"{what}: the proposer cannot be made: {type(e).__name__}: {e}") from None
+
+
+def preflight(cfg: JobConfig, out: str, sequences: list[str] | None = None,
+              frames: tuple[int, int | None] = (0, None)) -> Preflight:
+    """Every check of the module docstring, in its order; the sequences to mine."""
+    validate(cfg)
+    check_frames(frames)
+    check_output(out)
+    pf = plan_sequences(cfg, sequences, frames)
+    check_proposer(cfg, pf.plans)
+    return pf
