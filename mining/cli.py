@@ -312,7 +312,13 @@ def cmd_query(args: argparse.Namespace) -> int:
 def cmd_export(args: argparse.Namespace) -> int:
     from mining.catalog.export import run_export
 
-    return run_export(args.out, args.where, args.format, args.dest)
+    return run_export(args.out, args.where, args.format, args.dest, args.margin, args.images, args.overwrite)
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    from mining.catalog.render import run_render
+
+    return run_render(args.out, args.sequence, args.dest, args.where, args.depth, args.fps, args.frames)
 
 
 def _version_text() -> str:
@@ -377,9 +383,28 @@ def build_parser() -> argparse.ArgumentParser:
     exp = sub.add_parser("export", help="tubes matching a SQL predicate, for other tools")
     exp.add_argument("dest", help="output folder")
     exp.add_argument("--where", default="selected", help="SQL predicate over the tubes table (default: selected)")
-    exp.add_argument("--format", choices=["kitti", "kitti-mots", "crops"], required=True)
+    exp.add_argument("--format", choices=["kitti", "kitti-mots", "crops", "youtube-vis", "tao"], required=True)
     exp.add_argument("--out", default="out/catalog", help="catalogue folder or URI")
+    exp.add_argument("--overwrite", action="store_true",
+                     help="DEST holds an earlier export: remove what that export recorded (DEST/.mine-export.json) "
+                          "and write this one; other files in DEST are kept")
+    exp.add_argument("--margin", type=float, default=None,
+                     help="crops: context on each side, as a fraction of the box (default 0.15, at least 8 px)")
+    exp.add_argument("--images", action="store_true",
+                     help="youtube-vis, tao: also write the video frames (rectified left images, JPEG) the JSON names")
     exp.set_defaults(func=cmd_export)
+
+    rnd = sub.add_parser("render", help="a sequence with its selected tubes drawn (mask, id, category), as a video")
+    rnd.add_argument("dest", help="DEST.mp4 (H.264 where OpenCV has it, else MPEG-4 Part 2, which browsers do not "
+                                  "play) or DEST.webm (VP8, plays in browsers)")
+    rnd.add_argument("--out", default="out/catalog", help="catalogue folder")
+    rnd.add_argument("--sequence", required=True)
+    rnd.add_argument("--where", help="SQL predicate over the tubes table: draw only the selected tubes it matches")
+    rnd.add_argument("--depth", action="store_true", help="add a stereo depth panel beside each frame")
+    rnd.add_argument("--fps", type=float, help="frame rate (default: the sequence's, from its timestamps)")
+    rnd.add_argument("--frames", type=_frames, default=None, metavar="A:B",
+                     help="plan positions [A, B) (default: the frames the catalogue mined)")
+    rnd.set_defaults(func=cmd_render)
 
     inspect = sub.add_parser("inspect", help="run one stage on a frame range and write its raw outputs")
     isub = inspect.add_subparsers(dest="stage", required=True)

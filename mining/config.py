@@ -111,6 +111,13 @@ def _build(cls: type, data: dict[str, Any], where: str, prefix: str = "") -> Any
     return cls(**kwargs)
 
 
+def section_from_dict(cls: type, data: dict[str, Any], where: str) -> Any:
+    """One config section (e.g. ``GeometryConfig``) from its table in a recorded job
+    (``job.json``'s ``config``); ConfigError naming ``where`` for unknown keys or values
+    that break a field's type or rules."""
+    return _build(cls, data, where)
+
+
 def validate(cfg: JobConfig, where: str = "config") -> None:
     """Check a config made or changed in code (``--option``, tests) as the loader checks a
     file: every field's type and rules, and the source options against the source."""

@@ -120,14 +120,14 @@ def test_crops_are_real_image_content(catalogue, tmp_path, kitti_tracking_root):
         np.testing.assert_allclose([p["position_world"] for p in row["track"]], [f["position_world"] for f in tf])
         folder = dest / row["folder"]
         assert row["folder"] == tube_folder(row["tube_id"]) and "/" not in row["folder"]
-        assert len(list(folder.glob("frame_*.png"))) == len(tf) == len(list(folder.glob("mask_*.png")))
+        assert len(list(folder.glob("crop_*.png"))) == len(tf) == len(list(folder.glob("mask_*.png")))
         for f in tf[:: max(1, len(tf) // 4)]:
             full = cv2.imread(str(images / f"{f['frame']:06d}.png"))
             x0, x1, y0, y1 = crop_box(f["bbox"], full.shape[1], full.shape[0])
-            crop = cv2.imread(str(folder / f"frame_{f['frame']}.png"))
+            crop = cv2.imread(str(folder / f"crop_{f['frame']:06d}.png"))
             assert crop.shape == (y1 - y0, x1 - x0, 3) and crop.shape[0] > 10 and crop.shape[1] > 10
             assert (crop == full[y0:y1, x0:x1]).all() and crop.std() > 5, "the frame's own pixels"
-            mask = cv2.imread(str(folder / f"mask_{f['frame']}.png"), cv2.IMREAD_GRAYSCALE)
+            mask = cv2.imread(str(folder / f"mask_{f['frame']:06d}.png"), cv2.IMREAD_GRAYSCALE)
             assert set(np.unique(mask)) <= {0, 255} and mask.shape == crop.shape[:2]
             area = int(mask_utils.area({"size": [f["rle_h"], f["rle_w"]], "counts": f["rle_counts"].encode()}))
             assert (mask == 255).sum() == area > 0, "the whole mask lies inside the crop"
@@ -152,8 +152,8 @@ def test_bad_predicates(catalogue, tmp_path, capsys):
     assert "no_such_column" in capsys.readouterr().err
     assert run_export(str(out), f"selected) TO '{out}/x.csv'; COPY (SELECT 1", "kitti", str(tmp_path / "b")) == 2
     assert not (out / "x.csv").exists()
-    assert run_export(str(out), "false", "kitti", str(tmp_path / "c")) == 0
-    assert not list((tmp_path / "c").iterdir())
+    assert run_export(str(out), "false", "kitti", str(tmp_path / "c")) == 1, "nothing matched"
+    assert "no tube matches" in capsys.readouterr().err and not (tmp_path / "c").exists()
 
 
 def test_exports_type_tubes_by_the_known_flag(catalogue, tmp_path):

@@ -14,7 +14,7 @@ import pyarrow as pa
 import pytest
 
 from _catalog_data import DATASET, SEQUENCE
-from mining.catalog.export import run_export
+from mining.catalog.export import RECORD, run_export
 from mining.catalog.schema import SCHEMAS
 from mining.catalog.store import Store, write_sequence
 
@@ -53,7 +53,8 @@ def test_the_other_tubes_still_export_and_a_safe_id_keeps_its_folder(catalogue, 
     cat = _with_tube_id(catalogue, tmp_path, f"{DATASET}/{SEQUENCE}/renamed.000")
     dest = tmp_path / "dest"
     assert run_export(str(cat), "tube_id LIKE '%renamed%'", "crops", str(dest)) == 0
-    assert sorted(p.name for p in dest.iterdir()) == ["index.json", "index.parquet", f"{DATASET}_{SEQUENCE}_renamed.000"]
+    assert sorted(p.name for p in dest.iterdir()) == [RECORD, "index.json", "index.parquet",
+                                                      f"{DATASET}_{SEQUENCE}_renamed.000"]
 
 
 def test_kitti_export_of_an_unsafe_sequence_name(catalogue, tmp_path, capsys):

@@ -6,10 +6,25 @@
   img_width rle`` with class 1 car, 2 pedestrian, 10 ignore (the MOTS annotation format,
   vision.rwth-aachen.de/page/mots), object id = class_id·1000 + track index. MOTS masks
   may not overlap: within a frame the higher-scoring tube keeps the shared pixels.
-* ``crops`` — per tube ``<dest>/<tube_id with / → _>/frame_<k>.png`` (left image around
-  the box) and ``mask_<k>.png``, plus ``<dest>/index.parquet`` and ``index.json``: every
-  ``tubes`` column, the crop folder, and the 3D track (frame, t_ns, position_world).
-  Images are re-read through the source named in ``OUT/job.json``, each frame once.
+* ``crops`` — per tube ``<dest>/<tube_id with / → _>/crop_<frame>.png`` (the left image
+  around the box, with ``--margin`` context: a fraction of the box's width / height on each
+  side) and ``mask_<frame>.png``, frame numbers zero-padded (``crop_000010.png``: the
+  sequence's largest frame number's digits, at least 6, so names sort in frame order), plus
+  ``<dest>/index.parquet`` and ``index.json``: every ``tubes`` column, the crop folder, and
+  per frame (``track``) the box as x1, y1, x2, y2 and COCO x, y, w, h, the 3D position in
+  the camera and the world, the crop and mask file names and the crop's rectangle in the
+  frame. Images are re-read through the source named in ``OUT/job.json``, each frame once.
+* ``youtube-vis`` and ``tao`` — video instance segmentation / open-world tracking JSON
+  (``export_vis.py``).
+
+Boxes: the catalogue keeps x1, y1, x2, y2; COCO-style formats (YouTube-VIS, TAO, the
+crops index's ``bbox_xywh``) get x, y, width, height.
+
+DEST: an export refuses a DEST that is not empty, unless ``--overwrite`` and DEST holds
+the record (``.mine-export.json``) of an earlier export: then exactly the entries that
+record lists are removed first (files, and folders with what is in them; links are removed,
+not followed), anything else in DEST is kept, and nothing outside DEST is touched. A
+predicate that matches no tube writes and removes nothing and exits 1.
 
 Names read from the catalogue are data: the dataset and sequence names and the tube ids
 must pass ``mining/names.py`` before a file name is made from them, two tubes may not
@@ -35,15 +50,16 @@ from mining.catalog.store import Store
 from mining.catalog.views import connect, execute_read_only
 from mining.errors import InputError, MiningError
 from mining.formats.kitti_tracking import ResultFrame, ResultTrack, kitti_type, write_tracking_results
-from mining.names import check_name, inside, tube_folder
+from mining.names import check_name, inside, name_problem, tube_folder
 
-FORMATS = ("kitti", "kitti-mots", "crops")
+FORMATS = ("kitti", "kitti-mots", "crops", "youtube-vis", "tao")
 # KITTI-MOTS class ids (MOTS annotation format): car 1, pedestrian 2, ignore region 10.
 MOTS_CLASS = {"car": 1, "person": 2}
 MOTS_IGNORE = 10
 MOTS_IDS_PER_CLASS = 1000  # object id = class_id * 1000 + instance; instance < 1000
 CROP_MARGIN = 0.15  # ours: context around the box, as a fraction of the box's width / height
 CROP_MARGIN_MIN_PX = 8  # ours: at least this much context for small boxes
+MIN_FRAME_DIGITS = 6  # ours: frame numbers in file names are zero-padded to at least this width
 
 
 def read_job(store: Store) -> dict:
@@ -65,6 +81,25 @@ def selected_rows(con: duckdb.DuckDBPyConnection, where: str) -> tuple[pa.Table,
         return tubes.to_arrow_table(), frames.to_arrow_table()
     except duckdb.Error as e:
         raise InputError(f"bad --where predicate {where!r}: {e}") from None
+
+
+def job_source(job: dict, what: str):
+    """(source adapter, job.json's ``source`` table) of the job that made a catalogue:
+    images are re-read through it."""
+    from mining.sources import open_source
+
+    src = job.get("source")
+    if not src or not src.get("dataset"):
+        raise InputError(f"{what} needs the source named in job.json (source.dataset, source.root)")
+    return open_source(src["dataset"], src.get("root") or None, **src.get("options", {})), src
+
+
+def category_label(tube: dict) -> str:
+    """A tube's category by the rule of its ``known`` flag: a known tube's COCO class,
+    ``unknown`` when classified as none of them, ``unclassified`` when no classifier looked."""
+    if tube["known"] is None:
+        return "unclassified"
+    return tube["category"] if tube["known"] else "unknown"
 
 
 def _by_sequence(tubes: pa.Table) -> dict[tuple[str, str], list[dict]]:
@@ -190,11 +225,12 @@ def export_kitti_mots(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path) 
     return n
 
 
-def crop_box(bbox, width: int, height: int) -> tuple[int, int, int, int]:
-    """Pixel rectangle [x0, x1) × [y0, y1) around a box, with margin, inside the image."""
+def crop_box(bbox, width: int, height: int, margin: float = CROP_MARGIN) -> tuple[int, int, int, int]:
+    """Pixel rectangle [x0, x1) × [y0, y1) around a box, with ``margin`` (a fraction of the
+    box's width / height, at least CROP_MARGIN_MIN_PX) on every side, inside the image."""
     x1, y1, x2, y2 = (float(v) for v in bbox)
-    mx = max(CROP_MARGIN * (x2 - x1), CROP_MARGIN_MIN_PX)
-    my = max(CROP_MARGIN * (y2 - y1), CROP_MARGIN_MIN_PX)
+    mx = max(margin * (x2 - x1), CROP_MARGIN_MIN_PX)
+    my = max(margin * (y2 - y1), CROP_MARGIN_MIN_PX)
     x0, x1_ = int(np.floor(max(0.0, x1 - mx))), int(np.ceil(min(float(width), x2 + mx)))
     y0, y1_ = int(np.floor(max(0.0, y1 - my))), int(np.ceil(min(float(height), y2 + my)))
     return x0, max(x1_, x0 + 1), y0, max(y1_, y0 + 1)
@@ -218,21 +254,31 @@ def _write_png(path: Path, image: np.ndarray) -> None:
         raise InputError("cannot write PNG", path)
 
 
-def export_crops(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path) -> int:
-    """Per-tube crop and mask PNGs plus the index; returns the crops written."""
-    from mining.sources import open_source
+def frame_digits(frames) -> int:
+    """Width of zero-padded frame numbers in file names: the largest frame's digits, at least
+    MIN_FRAME_DIGITS (so names sort in frame order)."""
+    return max(MIN_FRAME_DIGITS, len(str(max(frames, default=0))))
 
-    src = job.get("source")
-    if not src or not src.get("dataset"):
-        raise InputError("crops need the source named in job.json (source.dataset, source.root)")
+
+def crop_names(frame: int, digits: int) -> tuple[str, str]:
+    """(crop, mask) file names of a tube's crop at ``frame``: ``crop_000010.png``, ``mask_000010.png``."""
+    return f"crop_{frame:0{digits}d}.png", f"mask_{frame:0{digits}d}.png"
+
+
+def export_crops(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path, margin: float = CROP_MARGIN) -> int:
+    """Per-tube crop and mask PNGs plus the index; returns the crops written."""
+    if not margin >= 0:
+        raise InputError(f"--margin must be a fraction ≥ 0 of the box, got {margin}")
     folders = tube_folders(tubes, dest)  # every id checked before anything is written
     by_sequence = _by_sequence(tubes)
-    source = open_source(src["dataset"], src.get("root") or None, **src.get("options", {}))
+    source, src = job_source(job, "crops")
     per_tube = _frames_by_tube(frames)
+    files: dict[tuple[str, int], dict] = {}  # (tube, frame) → what the index records of its crop
     n = 0
     for (_, sequence), seq_tubes in by_sequence.items():
         plan = source.plan(sequence)
         position = {f: p for p, f in enumerate(plan.frames)}
+        digits = frame_digits(plan.frames)
         wanted: dict[int, list[dict]] = {}  # frame → the tube frames that need it
         for t in seq_tubes:
             folders[t["tube_id"]].mkdir(parents=True, exist_ok=True)
@@ -248,28 +294,50 @@ def export_crops(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path) -> in
                 if (f["rle_h"], f["rle_w"]) != (h, w):
                     raise InputError(f"mask size {f['rle_h']}×{f['rle_w']} of tube {f['tube_id']} differs from "
                                      f"the image's {h}×{w}", src.get("root"), frame)
-                x0, x1, y0, y1 = crop_box(f["bbox"], w, h)
+                x0, x1, y0, y1 = crop_box(f["bbox"], w, h, margin)
                 mask = mask_utils.decode({"size": [h, w], "counts": f["rle_counts"].encode()})
                 folder = folders.get(f["tube_id"])
                 if folder is None:
                     raise InputError(f"tube_frames row of tube {f['tube_id']!r}, which the tubes table lacks",
                                      src.get("root"), frame)
-                _write_png(folder / f"frame_{frame}.png", cv2.cvtColor(image[y0:y1, x0:x1], cv2.COLOR_RGB2BGR))
-                _write_png(folder / f"mask_{frame}.png", mask[y0:y1, x0:x1] * np.uint8(255))
+                crop_name, mask_name = crop_names(frame, digits)
+                _write_png(folder / crop_name, cv2.cvtColor(image[y0:y1, x0:x1], cv2.COLOR_RGB2BGR))
+                _write_png(folder / mask_name, mask[y0:y1, x0:x1] * np.uint8(255))
+                files[(f["tube_id"], frame)] = {"crop": crop_name, "mask": mask_name, "crop_box": [x0, y0, x1, y1]}
                 n += 1
-    write_index(tubes, per_tube, dest)
+    write_index(tubes, per_tube, dest, files)
     return n
 
 
-def write_index(tubes: pa.Table, per_tube: dict[str, list[dict]], dest: Path) -> None:
-    """index.parquet and index.json: the tubes' columns, crop folder and 3D track."""
-    track_type = pa.list_(pa.struct([("frame", pa.int32()), ("t_ns", pa.int64()),
-                                     ("position_world", pa.list_(pa.float32(), 3))]))
-    tracks = [[{"frame": f["frame"], "t_ns": f["t_ns"], "position_world": f["position_world"]}
-               for f in per_tube.get(tid, [])] for tid in tubes.column("tube_id").to_pylist()]
+_TRACK_TYPE = pa.list_(pa.struct([
+    ("frame", pa.int32()), ("t_ns", pa.int64()), ("observed", pa.bool_()),
+    ("bbox", pa.list_(pa.float32(), 4)),  # x1, y1, x2, y2 pixels (the catalogue's convention)
+    ("bbox_xywh", pa.list_(pa.float32(), 4)),  # COCO x, y, width, height
+    ("position_cam", pa.list_(pa.float32(), 3)),  # camera metres of this frame (x right, y down, z forward)
+    ("position_world", pa.list_(pa.float32(), 3)),  # world metres of the tube's segment
+    ("crop", pa.string()), ("mask", pa.string()),  # file names in the tube's folder
+    ("crop_box", pa.list_(pa.int32(), 4)),  # the crop's pixels in the frame: x0, y0, x1, y1 (exclusive)
+]))
+
+
+def write_index(tubes: pa.Table, per_tube: dict[str, list[dict]], dest: Path,
+                files: dict[tuple[str, int], dict] | None = None) -> None:
+    """index.parquet and index.json: the tubes' columns, crop folder and per frame the box,
+    3D position and crop files (``track``)."""
+    files = files or {}
+
+    def entry(f: dict) -> dict:
+        x1, y1, x2, y2 = (float(v) for v in f["bbox"])
+        crop = files.get((f["tube_id"], f["frame"]), {})
+        return {"frame": f["frame"], "t_ns": f["t_ns"], "observed": f["observed"], "bbox": [x1, y1, x2, y2],
+                "bbox_xywh": [x1, y1, x2 - x1, y2 - y1], "position_cam": f["position_cam"],
+                "position_world": f["position_world"], "crop": crop.get("crop"), "mask": crop.get("mask"),
+                "crop_box": crop.get("crop_box")}
+
+    tracks = [[entry(f) for f in per_tube.get(tid, [])] for tid in tubes.column("tube_id").to_pylist()]
     index = tubes.append_column("folder", pa.array([tube_folder(t) for t in tubes.column("tube_id").to_pylist()],
                                                    pa.string()))
-    index = index.append_column("track", pa.array(tracks, track_type))
+    index = index.append_column("track", pa.array(tracks, _TRACK_TYPE))
     pq.write_table(index, dest / "index.parquet", compression="zstd")
 
     def clean(v):
@@ -284,30 +352,143 @@ def write_index(tubes: pa.Table, per_tube: dict[str, list[dict]], dest: Path) ->
     (dest / "index.json").write_text(json.dumps([clean(r) for r in index.to_pylist()], indent=1) + "\n")
 
 
-EXPORTERS = {"kitti": export_kitti, "kitti-mots": export_kitti_mots, "crops": export_crops}
+def _export_youtube_vis(*args, **kwargs) -> int:
+    from mining.catalog.export_vis import export_youtube_vis
+
+    return export_youtube_vis(*args, **kwargs)
 
 
-def export(out: str | Path, where: str, fmt: str, dest: str | Path) -> tuple[int, int]:
-    """Export the tubes of catalogue ``out`` matching ``where``; (tubes, items written)."""
+def _export_tao(*args, **kwargs) -> int:
+    from mining.catalog.export_vis import export_tao
+
+    return export_tao(*args, **kwargs)
+
+
+EXPORTERS = {"kitti": export_kitti, "kitti-mots": export_kitti_mots, "crops": export_crops,
+             "youtube-vis": _export_youtube_vis, "tao": _export_tao}
+VIDEO_FORMATS = ("youtube-vis", "tao")  # one video per sequence: they take the catalogue's frames and --images
+ITEMS = {"kitti": "rows", "kitti-mots": "masks", "crops": "crops", "youtube-vis": "tube annotations",
+         "tao": "frame annotations"}
+RECORD = ".mine-export.json"  # in DEST: what the export wrote there, so --overwrite replaces exactly that
+
+
+class NothingMatched(InputError):
+    """The predicate matches no tube: nothing is written."""
+
+
+def _entries(dest: Path) -> list[str]:
+    return sorted(p.name for p in dest.iterdir()) if dest.is_dir() else []
+
+
+def _recorded(dest: Path) -> list[str]:
+    """The top-level names in ``dest`` an earlier export recorded (RECORD), checked to be
+    plain names inside ``dest``."""
+    try:
+        names = json.loads((dest / RECORD).read_text())["written"]
+        if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+            raise TypeError("'written' is not a list of names")
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise InputError(f"not a record of an earlier export ({e}); remove DEST's contents yourself or choose "
+                         "another folder", dest / RECORD) from None
+    bad = [n for n in names if n == RECORD or name_problem(n) is not None]
+    if bad:
+        raise InputError(f"the record names {bad!r}, which are not entries of DEST; remove DEST's contents yourself",
+                         dest / RECORD)
+    return names
+
+
+def check_dest(dest: Path, overwrite: bool) -> list[str]:
+    """Refuse a DEST that is not an empty or absent folder, unless ``overwrite`` and DEST
+    holds an earlier export's RECORD; returns the entries that replacing will remove."""
+    if dest.exists() and not dest.is_dir():
+        raise InputError("DEST is not a folder", dest)
+    present = _entries(dest)
+    if not present:
+        return []
+    if not overwrite:
+        raise InputError(f"DEST is not empty ({len(present)} entries: {', '.join(present[:5])}"
+                         f"{', …' if len(present) > 5 else ''}); choose an empty folder, or pass --overwrite to replace "
+                         "an earlier export there", dest)
+    if RECORD not in present:
+        raise InputError(f"--overwrite replaces only what an earlier `mine export` recorded in {RECORD}, and DEST "
+                         f"has none ({len(present)} other entries): remove them yourself or choose another folder", dest)
+    return [n for n in _recorded(dest) if n in present]
+
+
+def _remove(dest: Path, names: list[str]) -> None:
+    """Delete the entries ``names`` of ``dest`` (links themselves, never what they point to)."""
+    import shutil
+
+    for name in names:
+        p = dest / name
+        if p.is_symlink() or not p.is_dir():
+            p.unlink(missing_ok=True)
+        else:
+            shutil.rmtree(p)
+    (dest / RECORD).unlink(missing_ok=True)
+
+
+def _video_frames(con: duckdb.DuckDBPyConnection, tubes: pa.Table) -> dict[tuple[str, str], list[int]]:
+    """The frames the catalogue mined, per (dataset, sequence) of ``tubes``, in frame order."""
+    seqs = {(d, s) for d, s in zip(tubes.column("dataset").to_pylist(), tubes.column("sequence").to_pylist())}
+    out: dict[tuple[str, str], list[int]] = {}
+    for d, s, f in con.execute("SELECT dataset, sequence, frame FROM frames ORDER BY dataset, sequence, frame").fetchall():
+        if (d, s) in seqs:
+            out.setdefault((d, s), []).append(f)
+    return out
+
+
+def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: float | None = None,
+           images: bool = False, overwrite: bool = False) -> tuple[int, int]:
+    """Export the tubes of catalogue ``out`` matching ``where``; (tubes, items written).
+
+    DEST must be empty (or absent); with ``overwrite`` the entries an earlier export
+    recorded in DEST's RECORD are removed first (nothing else in DEST, nothing outside it).
+    NothingMatched, before anything is written or removed, when no tube matches."""
     if fmt not in EXPORTERS:
-        raise InputError(f"unknown export format {fmt!r}; one of {', '.join(FORMATS)}")
+        raise InputError(f"unknown export format {fmt!r}; one of {', '.join(EXPORTERS)}")
+    options: dict = {}
+    if margin is not None:
+        if fmt != "crops":
+            raise InputError("--margin applies to --format crops only")
+        options["margin"] = margin
+    if images:
+        if fmt not in VIDEO_FORMATS:
+            raise InputError(f"--images applies to --format {' and '.join(VIDEO_FORMATS)} only")
+        options["images"] = True
+    dest = Path(dest)
+    replaced = check_dest(dest, overwrite)
+    job = read_job(Store(out))
     con = connect(out)
     try:
         tubes, frames = selected_rows(con, where)
+        if fmt in VIDEO_FORMATS:
+            options["video_frames"] = _video_frames(con, tubes)
     finally:
         con.close()
-    dest = Path(dest)
+    if not tubes.num_rows:
+        raise NothingMatched(f"no tube matches --where {where!r}; nothing written")
+    _remove(dest, replaced)
+    kept = _entries(dest)
     dest.mkdir(parents=True, exist_ok=True)
-    return tubes.num_rows, EXPORTERS[fmt](tubes, frames, read_job(Store(out)), dest)
+    n = EXPORTERS[fmt](tubes, frames, job, dest, **options)
+    written = [e for e in _entries(dest) if e not in kept]
+    record = {"format": fmt, "catalogue": str(out), "where": where, "tubes": tubes.num_rows, "items": n,
+              "options": {k: v for k, v in options.items() if k != "video_frames"}, "written": written}
+    (dest / RECORD).write_text(json.dumps(record, indent=1) + "\n")
+    return tubes.num_rows, n
 
 
-def run_export(out: str | Path, where: str, fmt: str, dest: str | Path) -> int:
-    """`mine export`: 0 on success; 2 with a message on standard error otherwise."""
+def run_export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: float | None = None,
+               images: bool = False, overwrite: bool = False) -> int:
+    """`mine export`: 0 on success; 1 when no tube matches; 2 with a message on standard error otherwise."""
     try:
-        n_tubes, n_items = export(out, where, fmt, dest)
+        n_tubes, n_items = export(out, where, fmt, dest, margin, images, overwrite)
+    except NothingMatched as e:
+        print(f"mine export: {e}", file=sys.stderr)
+        return 1
     except (MiningError, duckdb.Error) as e:
         print(f"mine export: {e}", file=sys.stderr)
         return 2
-    what = {"kitti": "rows", "kitti-mots": "masks", "crops": "crops"}[fmt]
-    print(f"mine export: {n_tubes} tubes, {n_items} {what} → {dest}")
+    print(f"mine export: {n_tubes} tubes, {n_items} {ITEMS[fmt]} → {dest}")
     return 0

@@ -1,0 +1,226 @@
+"""`mine export --format youtube-vis | tao`: the tubes as video instance segmentation and
+open-world tracking annotations, the JSON that VIS and TAO/BURST tools read.
+
+One video per sequence. Its frames are the ones the catalogue mined (the ``frames`` table,
+in plan order); ``file_names`` / ``file_name`` name them ``<video>/<frame, zero-padded>.jpg``
+relative to an image folder in DEST, which ``--images`` fills with the rectified left
+frames re-read through the job's source (the frames the masks are drawn on). Masks are the
+catalogue's COCO RLE (counts as a string, size [h, w]); boxes are COCO ``[x, y, width,
+height]`` from the catalogue's ``x1, y1, x2, y2``; areas are the masks' pixel counts. With
+the job's ``export.observed_only`` (the default) a frame where a tube is only predicted
+(a gap) has no annotation (null in YouTube-VIS), as in the KITTI exports.
+
+Categories follow the ``known`` flag: a known tube's COCO class with its COCO annotation id
+(``mining/proposals/coco.py``); known false → ``unknown`` (id ``UNKNOWN_ID``); no
+classifier → ``unclassified`` (``UNCLASSIFIED_ID``), both outside COCO's 1..90. Every
+annotation carries the tube's score (its weighted total, not a probability) and tube id.
+
+* ``youtube-vis`` — ``DEST/instances.json`` in the YouTube-VIS 2021 layout (``videos``:
+  id, name, width, height, length, file_names; ``annotations``: id, video_id,
+  category_id, segmentations / bboxes / areas with one entry or null per video frame,
+  iscrowd 0, score; ``categories``: id, name, supercategory), images in
+  ``DEST/JPEGImages/``.
+* ``tao`` — ``DEST/tao.json`` in TAO's layout (the TAO toolkit's annotation format:
+  ``videos``, ``images`` (id, video_id, file_name, width, height, frame_index),
+  ``tracks`` (id, category_id, video_id), ``annotations`` (id, image_id, video_id,
+  track_id, category_id, bbox, area, iscrowd, plus the ``segmentation`` RLE BURST and
+  TAO-Amodal carry and a ``score``), ``categories`` (id, name, synset)), images in
+  ``DEST/frames/``. TAO's categories are LVIS's; ours are COCO's ids plus the two above,
+  each with synset "unknown" (TAO's value for a category outside LVIS).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import pyarrow as pa
+from pycocotools import mask as mask_utils
+
+from mining.catalog.export import _by_sequence, _export_settings, _frames_by_tube, category_label, frame_digits, job_source
+from mining.errors import InputError
+from mining.names import inside
+from mining.proposals.coco import CLASS_INDEX, COCO_CATEGORY_IDS
+
+UNKNOWN_ID = 1000  # ours: category id of unknown tubes, outside COCO's 1..90
+UNCLASSIFIED_ID = 1001  # ours: category id of unclassified tubes
+BOX_DECIMALS = 3  # ours: JSON boxes to 1/1000 px (the catalogue stores float32)
+JPEG_QUALITY = 95  # ours: --images JPEG quality
+YTVIS_JSON, YTVIS_IMAGES = "instances.json", "JPEGImages"  # the YouTube-VIS 2021 split layout
+TAO_JSON, TAO_IMAGES = "tao.json", "frames"
+
+
+def video_name(dataset: str, sequence: str) -> str:
+    """``<dataset>_<sequence>``: both are checked names (``export._by_sequence``), so this is one."""
+    return f"{dataset}_{sequence}"
+
+
+def xywh(bbox) -> list[float]:
+    """COCO ``[x, y, width, height]`` of the catalogue's ``x1, y1, x2, y2``."""
+    x1, y1, x2, y2 = (float(v) for v in bbox)
+    return [round(x1, BOX_DECIMALS), round(y1, BOX_DECIMALS), round(x2 - x1, BOX_DECIMALS), round(y2 - y1, BOX_DECIMALS)]
+
+
+def category_id(tube: dict) -> int:
+    """The COCO id of a known tube's class; UNKNOWN_ID / UNCLASSIFIED_ID otherwise."""
+    label = category_label(tube)
+    if label == "unknown":
+        return UNKNOWN_ID
+    if label == "unclassified":
+        return UNCLASSIFIED_ID
+    if label not in CLASS_INDEX:
+        raise InputError(f"tube {tube['tube_id']} is known as {label!r}, which is not a COCO class")
+    return COCO_CATEGORY_IDS[CLASS_INDEX[label]]
+
+
+def categories(used: set[int], tao: bool = False) -> list[dict]:
+    """The COCO classes among ``used`` (by id) and the two own categories; YouTube-VIS
+    entries carry a supercategory ("coco" / "mined"), TAO entries a synset ("unknown")."""
+    names = {COCO_CATEGORY_IDS[i]: name for name, i in CLASS_INDEX.items()}
+    rows = [(c, names[c], "coco") for c in sorted(used) if c in names]
+    rows += [(UNKNOWN_ID, "unknown", "mined"), (UNCLASSIFIED_ID, "unclassified", "mined")]
+    if tao:
+        return [{"id": c, "name": n, "synset": "unknown"} for c, n, _ in rows]
+    return [{"id": c, "name": n, "supercategory": g} for c, n, g in rows]
+
+
+class Video:
+    """One sequence as a video: its frames (the catalogue's, in frame order), size and tubes."""
+
+    def __init__(self, vid: int, dataset: str, sequence: str, frames: list[int], tubes: list[dict],
+                 per_tube: dict[str, list[dict]]):
+        self.id, self.dataset, self.sequence, self.tubes = vid, dataset, sequence, tubes
+        self.name = video_name(dataset, sequence)
+        sizes = {(f["rle_h"], f["rle_w"]) for t in tubes for f in per_tube.get(t["tube_id"], [])}
+        if len(sizes) != 1:
+            raise InputError(f"{dataset}/{sequence}: the tubes' masks have {len(sizes)} sizes {sorted(sizes)}; "
+                             "a video has one")
+        self.height, self.width = sizes.pop()
+        seen = {f["frame"] for t in tubes for f in per_tube.get(t["tube_id"], [])}
+        self.frames = sorted(set(frames) | seen)
+        self.digits = frame_digits(self.frames)
+
+    def file_name(self, frame: int) -> str:
+        return f"{self.name}/{frame:0{self.digits}d}.jpg"
+
+
+def videos(tubes: pa.Table, frames: pa.Table, video_frames: dict[tuple[str, str], list[int]]) -> list[Video]:
+    """One Video per sequence of ``tubes``, numbered from 1; a sequence the ``frames`` table
+    lacks spans its tubes' frames."""
+    per_tube = _frames_by_tube(frames)
+    out = []
+    for vid, ((dataset, sequence), seq_tubes) in enumerate(_by_sequence(tubes).items(), start=1):
+        out.append(Video(vid, dataset, sequence, video_frames.get((dataset, sequence), []), seq_tubes, per_tube))
+    return out
+
+
+def _annotated(frames: list[dict], observed_only: bool) -> dict[int, dict]:
+    return {f["frame"]: f for f in frames if f["observed"] or not observed_only}
+
+
+def _rle(f: dict) -> dict:
+    return {"size": [f["rle_h"], f["rle_w"]], "counts": f["rle_counts"]}
+
+
+def _area(f: dict) -> float:
+    return float(mask_utils.area({"size": [f["rle_h"], f["rle_w"]], "counts": f["rle_counts"].encode()}))
+
+
+def write_images(job: dict, vids: list[Video], folder: Path, progress: Callable[[int, int], None] | None = None) -> int:
+    """The rectified left frame of every video frame as ``folder/<file_name>``; the count."""
+    source, src = job_source(job, "--images")
+    total, done = sum(len(v.frames) for v in vids), 0
+    for v in vids:
+        survey = source.survey(v.sequence)
+        position = {f: p for p, f in enumerate(survey.frames)}
+        missing = [f for f in v.frames if f not in position]
+        if missing:
+            raise InputError(f"frame {missing[0]} of the catalogue is not in the source's sequence {v.sequence!r}",
+                             src.get("root"), missing[0])
+        # only the video's frames need to read (problems elsewhere in the sequence do not matter)
+        plan = source.plan(v.sequence, min(position[f] for f in v.frames), max(position[f] for f in v.frames) + 1)
+        inside(folder, v.name).mkdir(parents=True, exist_ok=True)
+        for frame in v.frames:
+            image = source.read_frame(plan, position[frame]).left
+            if image.shape[:2] != (v.height, v.width):
+                raise InputError(f"image of {image.shape[1]}×{image.shape[0]}, masks of {v.width}×{v.height}",
+                                 src.get("root"), frame)
+            path = inside(folder, v.file_name(frame))
+            if not cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY]):
+                raise InputError("cannot write JPEG", path)
+            done += 1
+            if progress is not None:
+                progress(done, total)
+    return done
+
+
+def _info(job: dict, fmt: str) -> dict:
+    return {"description": f"Tube Miner tubes ({fmt} export)", "run_id": job.get("run_id"),
+            "source": (job.get("source") or {}).get("dataset")}
+
+
+def export_youtube_vis(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path,
+                       video_frames: dict[tuple[str, str], list[int]] | None = None, images: bool = False) -> int:
+    """``DEST/instances.json`` (and ``DEST/JPEGImages/`` with ``images``); returns the
+    annotations (tubes) written."""
+    observed_only, _ = _export_settings(job)
+    per_tube = _frames_by_tube(frames)
+    vids = videos(tubes, frames, video_frames or {})
+    out_videos, anns, used = [], [], set()
+    for v in vids:
+        out_videos.append({"id": v.id, "name": v.name, "width": v.width, "height": v.height,
+                           "length": len(v.frames), "file_names": [v.file_name(f) for f in v.frames]})
+        for t in v.tubes:
+            at = _annotated(per_tube.get(t["tube_id"], []), observed_only)
+            cid = category_id(t)
+            used.add(cid)
+            anns.append({"id": len(anns) + 1, "video_id": v.id, "category_id": cid, "iscrowd": 0,
+                         "width": v.width, "height": v.height, "length": 1,
+                         "segmentations": [_rle(at[f]) if f in at else None for f in v.frames],
+                         "bboxes": [xywh(at[f]["bbox"]) if f in at else None for f in v.frames],
+                         "areas": [_area(at[f]) if f in at else None for f in v.frames],
+                         "score": float(t["score"]), "tube_id": t["tube_id"]})
+    doc = {"info": _info(job, "youtube-vis"), "licenses": [], "videos": out_videos, "annotations": anns,
+           "categories": categories(used)}
+    (dest / YTVIS_JSON).write_text(json.dumps(doc) + "\n")
+    if images:
+        write_images(job, vids, dest / YTVIS_IMAGES)
+    return len(anns)
+
+
+def export_tao(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path,
+               video_frames: dict[tuple[str, str], list[int]] | None = None, images: bool = False) -> int:
+    """``DEST/tao.json`` (and ``DEST/frames/`` with ``images``); returns the annotations
+    (tube frames) written."""
+    observed_only, _ = _export_settings(job)
+    per_tube = _frames_by_tube(frames)
+    vids = videos(tubes, frames, video_frames or {})
+    out_videos, out_images, tracks, anns, used = [], [], [], [], set()
+    for v in vids:
+        out_videos.append({"id": v.id, "name": v.name, "width": v.width, "height": v.height,
+                           "neg_category_ids": [], "not_exhaustive_category_ids": [],
+                           "metadata": {"dataset": v.dataset, "sequence": v.sequence}})
+        image_id = {}
+        for k, f in enumerate(v.frames):
+            image_id[f] = len(out_images) + 1
+            out_images.append({"id": image_id[f], "video_id": v.id, "file_name": v.file_name(f), "width": v.width,
+                               "height": v.height, "frame_index": k, "frame": f})
+        for t in v.tubes:
+            cid = category_id(t)
+            used.add(cid)
+            track_id = len(tracks) + 1
+            tracks.append({"id": track_id, "category_id": cid, "video_id": v.id, "score": float(t["score"]),
+                           "tube_id": t["tube_id"]})
+            for frame, f in sorted(_annotated(per_tube.get(t["tube_id"], []), observed_only).items()):
+                anns.append({"id": len(anns) + 1, "image_id": image_id[frame], "video_id": v.id, "track_id": track_id,
+                             "category_id": cid, "bbox": xywh(f["bbox"]), "area": _area(f), "iscrowd": 0,
+                             "segmentation": _rle(f), "score": float(t["score"])})
+    doc = {"info": _info(job, "tao"), "licenses": [], "videos": out_videos, "images": out_images, "tracks": tracks,
+           "annotations": anns, "categories": categories(used, tao=True)}
+    (dest / TAO_JSON).write_text(json.dumps(doc) + "\n")
+    if images:
+        write_images(job, vids, dest / TAO_IMAGES)
+    return len(anns)
+

@@ -1,0 +1,141 @@
+"""`mine render`: videos of a real catalogue (KITTI 0005 frames 0–15) read back with OpenCV."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from pycocotools import mask as mask_utils
+
+from _catalog_data import N_FRAMES, SEQUENCE
+from mining.catalog.render import run_render
+
+W, H = 1242, 375
+VIDEO_H = H + 1  # 4:2:0 video needs even sides: one black row below KITTI's 375
+
+
+def _frames(path) -> list[np.ndarray]:
+    cap = cv2.VideoCapture(str(path))
+    assert cap.isOpened(), path
+    out = []
+    while True:
+        ok, img = cap.read()
+        if not ok:
+            break
+        out.append(img)
+    cap.release()
+    return out
+
+
+def _source(kitti_tracking_root, frame: int) -> np.ndarray:
+    return cv2.imread(str(kitti_tracking_root / "training" / "image_02" / SEQUENCE / f"{frame:06d}.png"))
+
+
+def _mask(tube_frames, tube_ids, frame: int) -> np.ndarray:
+    m = np.zeros((H, W), bool)
+    for f in tube_frames.to_pylist():
+        if f["frame"] == frame and f["tube_id"] in tube_ids:
+            m |= mask_utils.decode({"size": [f["rle_h"], f["rle_w"]], "counts": f["rle_counts"].encode()}).astype(bool)
+    return m
+
+
+def _selected(tables) -> list[str]:
+    return sorted(t["tube_id"] for t in tables["tubes"].to_pylist() if t["selected"])
+
+
+@pytest.fixture(scope="module")
+def mp4(catalogue, tmp_path_factory):
+    out, _ = catalogue
+    dest = tmp_path_factory.mktemp("render") / "0005.mp4"
+    assert run_render(str(out), SEQUENCE, str(dest)) == 0
+    return dest
+
+
+def test_every_mined_frame_at_the_source_size(mp4):
+    frames = _frames(mp4)
+    assert len(frames) == N_FRAMES
+    assert {f.shape for f in frames} == {(VIDEO_H, W, 3)}
+    cap = cv2.VideoCapture(str(mp4))
+    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == N_FRAMES
+
+
+def test_masks_are_drawn_and_the_rest_is_the_source(mp4, catalogue, kitti_tracking_root):
+    """Inside the selected tubes' masks the pixels change; far from every mask they are the
+    source's (up to the codec's loss), away from the caption in the top-left corner."""
+    _, tables = catalogue
+    frame = 8
+    got = _frames(mp4)[frame][:H].astype(np.int32)
+    src = _source(kitti_tracking_root, frame).astype(np.int32)
+    inside = _mask(tables["tube_frames"], set(_selected(tables)), frame)
+    all_tubes = {t["tube_id"] for t in tables["tubes"].to_pylist()}
+    near = cv2.dilate(_mask(tables["tube_frames"], all_tubes, frame).astype(np.uint8), np.ones((61, 61), np.uint8))
+    far = near == 0
+    far[:40, :500] = False  # the caption
+    diff = np.abs(got - src).mean(axis=2)
+    assert inside.sum() > 500 and far.sum() > W * H // 2
+    assert diff[inside].mean() > 25, "the masks are filled"
+    assert diff[far].mean() < 10, "pixels far from every mask are the source's"
+
+
+def test_where_draws_only_the_tubes_it_matches(mp4, catalogue, tmp_path, kitti_tracking_root):
+    """The other selected tubes' masks, filled in the full render, keep the source's pixels."""
+    out, tables = catalogue
+    one, *others = _selected(tables)
+    dest = tmp_path / "one.mp4"
+    assert run_render(str(out), SEQUENCE, str(dest), where=f"tube_id = '{one}'", frames=(0, 2)) == 0
+    src = _source(kitti_tracking_root, 0).astype(np.int32)
+    diff = np.abs(_frames(dest)[0][:H].astype(np.int32) - src).mean(axis=2)
+    full = np.abs(_frames(mp4)[0][:H].astype(np.int32) - src).mean(axis=2)
+    mine = _mask(tables["tube_frames"], {one}, 0)
+    theirs = _mask(tables["tube_frames"], set(others), 0)
+    theirs &= cv2.dilate(mine.astype(np.uint8), np.ones((41, 41), np.uint8)) == 0  # their fill, not one's outline
+    assert mine.sum() > 100 and theirs.sum() > 100
+    assert np.median(diff[mine]) > 25
+    assert np.median(full[theirs]) > 25 and np.median(diff[theirs]) < 12
+
+
+def test_depth_doubles_the_width(catalogue, tmp_path):
+    out, _ = catalogue
+    dest = tmp_path / "depth.mp4"
+    assert run_render(str(out), SEQUENCE, str(dest), depth=True, frames=(3, 5)) == 0
+    frames = _frames(dest)
+    assert len(frames) == 2 and frames[0].shape == (VIDEO_H, 2 * W, 3)
+    panel = frames[0][:H, W:]
+    assert (panel.std(axis=(0, 1)) > 20).all(), "a colour-mapped depth image, not a blank panel"
+
+
+def test_webm_is_vp8(catalogue, tmp_path):
+    """WebM is written as VP8, which browsers play."""
+    out, _ = catalogue
+    dest = tmp_path / "v.webm"
+    assert run_render(str(out), SEQUENCE, str(dest), frames=(0, 3)) == 0
+    cap = cv2.VideoCapture(str(dest))
+    fourcc = int(cap.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, "little").decode()
+    assert fourcc == "VP80" and len(_frames(dest)) == 3
+
+
+def test_nothing_matched_writes_nothing(catalogue, tmp_path, capsys):
+    out, _ = catalogue
+    dest = tmp_path / "none.mp4"
+    assert run_render(str(out), SEQUENCE, str(dest), where="n_frames > 10000") == 1
+    assert "no selected tube" in capsys.readouterr().err
+    assert not dest.exists() and not list(tmp_path.iterdir())
+
+
+def test_unknown_sequence_and_container_are_refused(catalogue, tmp_path, capsys):
+    out, _ = catalogue
+    assert run_render(str(out), "9999", str(tmp_path / "a.mp4")) == 2
+    assert "'9999'" in capsys.readouterr().err
+    assert run_render(str(out), SEQUENCE, str(tmp_path / "a.avi")) == 2
+    assert ".webm" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
+def test_cli_render(catalogue, tmp_path):
+    from mining.cli import main
+
+    out, _ = catalogue
+    dest = tmp_path / "cli.webm"
+    assert main(["render", "--out", str(out), "--sequence", SEQUENCE, "--frames", "0:2", "--fps", "5", str(dest)]) == 0
+    cap = cv2.VideoCapture(str(dest))
+    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 2 and cap.get(cv2.CAP_PROP_FPS) == 5
