@@ -24,11 +24,11 @@ REPO = Path(__file__).resolve().parents[1]
 
 def test_write_table_replaces_whole_file(tmp_path):
     store = Store(tmp_path)
-    rel = "parts/tubes/dataset=a/sequence=b/w0.parquet"
+    rel = "_parts/tubes/dataset=a/sequence=b/w0.parquet"
     store.write_table(rel, pa.table({"x": [1, 2, 3]}))
     store.write_table(rel, pa.table({"x": [7, 8]}))
     assert store.read_table(rel).column("x").to_pylist() == [7, 8]
-    assert store.list("parts") == [rel]
+    assert store.list("_parts") == [rel]
     assert [p.name for p in (tmp_path / rel).parent.iterdir()] == ["w0.parquet"], "no temporary file stays"
 
 

@@ -66,7 +66,7 @@ def test_100_frame_windows_give_the_tubes_of_one_500_frame_window(local_ray, tmp
     # The reference: one window over all 500 frames, from the same observations.
     whole = str(tmp_path / "whole")
     frames = []
-    for rel in Store(sharded).list("cache/obs", ".npz.zst"):
+    for rel in Store(sharded).list("_cache/obs", ".npz.zst"):
         frames += decode_frames(Store(sharded).read_bytes(rel), rel)
     frames.sort(key=lambda f: f.position)
     assert [f.position for f in frames] == list(range(500))

@@ -71,3 +71,19 @@ def test_a_stereo_only_job_labels_no_tube_known_or_unknown(tmp_path):
     assert con.sql("SELECT count(*) FROM unknown_tubes").fetchone()[0] == 0
     assert con.sql("SELECT count(*) FROM known_tubes").fetchone()[0] == 0
     assert con.sql("SELECT count(*) FROM unclassified_tubes").fetchone()[0] == summary.tubes
+
+
+def test_working_files_sit_where_hive_readers_skip_them(tmp_path):
+    """Parts, caches and running markers live under "_" folders: a Hive-style reader of the
+    output folder (pyarrow datasets, Spark) sees the catalogue and the manifest only."""
+    import pyarrow.dataset as ds
+
+    out = tmp_path / "cat"
+    cfg = _cfg()
+    assert mine_job(cfg, str(out), executor=LocalExecutor, keep_cache=True).ok == 2
+    parts = list((out / "_parts").rglob("*.parquet"))
+    caches = list((out / "_cache").rglob("*.npz.zst"))
+    assert parts and caches, "the job left its working files"
+    assert not [p for p in out.iterdir() if p.name in ("parts", "cache", "running")], "no unprefixed working folder"
+    seen = {Path(f).relative_to(out).parts[0] for f in ds.dataset(str(out), format="parquet").files}
+    assert seen == {"catalog", "manifest"}

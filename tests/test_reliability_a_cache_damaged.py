@@ -133,8 +133,8 @@ def test_every_kind_of_bad_cache_is_an_input_error_naming_the_file(tmp_path):
     }
     for what, (data, reason) in bad.items():
         with pytest.raises(InputError) as e:
-            decode_frames(data, "/out/cache/obs/w.npz.zst")
-        assert "/out/cache/obs/w.npz.zst" in str(e.value) and reason in str(e.value), what
+            decode_frames(data, "/out/_cache/obs/w.npz.zst")
+        assert "/out/_cache/obs/w.npz.zst" in str(e.value) and reason in str(e.value), what
     assert not marker.exists(), "a planted payload ran"
 
 

@@ -68,7 +68,7 @@ def test_planted_pickles_never_run_on_resubmit(tmp_path):
     planted = []
     for w in schedule.windows:
         for name in CACHE_NAMES:
-            rel = f"cache/obs/dataset={w.dataset}/sequence={w.sequence}/{name.format(w=w.name)}"
+            rel = f"_cache/obs/dataset={w.dataset}/sequence={w.sequence}/{name.format(w=w.name)}"
             store.write_bytes(rel, payload)
             planted.append(rel)
     assert len(planted) == 4 and all(store.exists(rel) for rel in planted)

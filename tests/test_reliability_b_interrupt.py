@@ -37,7 +37,7 @@ def test_ctrl_c_prints_one_line_and_exits_130_and_status_tells_running_from_pend
     job = Mine(out, *JOB, logs=tmp_path / "logs1")
     try:
         deadline = time.monotonic() + JOB_TIMEOUT_S
-        while not (out / "running").exists() or not any((out / "running").rglob("*.json")):
+        while not (out / "_running").exists() or not any((out / "_running").rglob("*.json")):
             assert job.proc.poll() is None, "the job ended before any window started"
             assert time.monotonic() < deadline, "no window started in time"
             time.sleep(0.1)

@@ -32,7 +32,7 @@ def _cfg():
 def test_running_needs_a_live_driver(tmp_path, capsys):
     out = str(tmp_path / "cat")
     mine_job(_cfg(), out, executor=LocalExecutor)
-    assert not list((tmp_path / "cat").glob("running/**/*.json")), "a finished run leaves no marker"
+    assert not list((tmp_path / "cat").glob("_running/**/*.json")), "a finished run leaves no marker"
     store = Store(out)
     job = JobRecord.load(store)
     later = [Window("synthetic", "0000", (12, 18), (10, 20)), Window("synthetic", "0000", (18, 24), (16, 24))]
@@ -47,7 +47,7 @@ def test_running_needs_a_live_driver(tmp_path, capsys):
                     "RunningMarkers(Store(sys.argv[1]), sys.argv[2], sys.argv[3])"
                     ".mark(Window('synthetic', '0000', (18, 24), (16, 24)), 'observe')", out, job.run_id,
                     job.params_hash], check=True, cwd=REPO, env=dict(os.environ, PYTHONPATH=str(REPO)))
-    assert (tmp_path / "cat" / "running" / "dataset=synthetic" / "sequence=0000" / f"{later[1].name}.json").exists()
+    assert (tmp_path / "cat" / "_running" / "dataset=synthetic" / "sequence=0000" / f"{later[1].name}.json").exists()
 
     rows = {r.window: r for r in job_status(out)}
     assert rows[later[0].name].status == "running" and "track step, driver pid" in rows[later[0].name].running

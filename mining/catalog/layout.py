@@ -11,9 +11,9 @@ draws the same tree); ``store.py`` does the I/O on them::
     manifest/dataset=D/sequence=S/<window>.parquet            the windows table, one row per window
     manifest/dataset=D/sequence=S/<window>.files.json         size and sha256 of the window's parts (integrity.py)
     manifest/dataset=D/sequence=S/stitch.parquet              a sequence whose stitch failed (its row, until one succeeds)
-    running/dataset=D/sequence=S/<window>.json                a window a driver has started and not finished
-    parts/<table>/dataset=D/sequence=S/<window>.parquet       a window's parts before stitching
-    cache/obs/dataset=D/sequence=S/<window>.npz.zst           a window's observations, until no track needs them
+    _running/dataset=D/sequence=S/<window>.json               a window a driver has started and not finished
+    _parts/<table>/dataset=D/sequence=S/<window>.parquet      a window's parts before stitching
+    _cache/obs/dataset=D/sequence=S/<window>.npz.zst          a window's observations, until no track needs them
 
 Every path is built from names checked by ``mining/names.py`` (dataset, sequence, window),
 so no name can leave ``--out`` or make two tables share a file; ``job.json``'s names are
@@ -42,13 +42,16 @@ if TYPE_CHECKING:
 JOB = "job.json"
 CATALOG = "catalog"
 MANIFEST = "manifest"
-PARTS = "parts"
-CACHE = "cache/obs"
+# Working files (per-window parts, caches, running markers) sit under "_"-prefixed folders,
+# which Hive-style readers (DuckDB, Spark, pyarrow datasets) skip: a glob over the output
+# folder finds the catalogue and the manifest, never a half-stitched piece.
+PARTS = "_parts"
+CACHE = "_cache/obs"
 LOCK = ".mine.lock"  # a dot name: every reader skips it (store.is_temporary)
 REPLACED = "_replaced"  # catalogues moved aside by --new-run, one folder each
 # What a job writes under --out (a --new-run moves exactly these aside).
-JOB_ENTRIES = (JOB, CATALOG, MANIFEST, PARTS, "cache")
-RUNNING = "running"
+JOB_ENTRIES = (JOB, CATALOG, MANIFEST, PARTS, "_cache")
+RUNNING = "_running"
 STITCH_ROW = "stitch"  # the ``window`` of a sequence's failed-stitch row (no window is named so: windows are S-start-end)
 CACHE_SUFFIX = ".npz.zst"  # the observation cache's format: mining/pipeline/cache.py
 LEGACY_CACHE_SUFFIX = ".pkl"  # caches before issue 11 (pickle): never read, removed with their window's

@@ -1,7 +1,7 @@
 """The observation cache: a window's observed frames as plain arrays, one file per window.
 
 The observe step writes it and the track steps of the window and its neighbours read
-it back (``OUT/cache/obs/…/<window>.npz.zst``, ``layout.cache_path``). Anyone who can
+it back (``OUT/_cache/obs/…/<window>.npz.zst``, ``layout.cache_path``). Anyone who can
 write to ``--out`` can plant a file there, so the format carries data only: a zstd frame
 with its content checksum (``zstd -d`` opens it) around an uncompressed NPZ (a zip of
 ``.npy`` arrays, each with a CRC-32) read with ``allow_pickle=False``: no object arrays,

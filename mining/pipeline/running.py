@@ -2,7 +2,7 @@
 
 ``mine status`` must tell a window being worked on from one nobody has started. The
 manifest row is written only when a window ends, so the driver writes a marker
-(``running/dataset=D/sequence=S/<window>.json``, ``layout.running_path``) when it hands
+(``_running/dataset=D/sequence=S/<window>.json``, ``layout.running_path``) when it hands
 the window's first step (observe) to a worker, refreshes it when it hands over the track
 step, and removes it when the track's result is in — also when the driver stops early
 (an error, Ctrl-C). A marker holds the driver's host, pid, run id and params hash and
