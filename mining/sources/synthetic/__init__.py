@@ -20,7 +20,7 @@ from mining.errors import InputError
 from mining.sources.base import Source
 from mining.sources.synthetic.render import Camera, inverse_depth_planes, rasterize, shade, texture_tables, to_camera
 from mining.sources.synthetic.scenarios import get_scenario
-from mining.sources.synthetic.scene import KNOWN, R_N, R_OBJ, R_TINT, Scene, frame_faces
+from mining.sources.synthetic.scene import KNOWN, R_N, R_NV, R_OBJ, R_TINT, Scene, frame_faces
 from mining.sources.synthetic.textures import build_atlas
 from mining.types import FrameTruth, ObjectTruth, SequencePlan, StereoCalib, StereoFrame
 
@@ -122,6 +122,38 @@ class SyntheticSource(Source):
                 truth_bufs = (ids, invz)
         truth = self._truth(sc, t, M, truth_bufs, rows, states)
         return StereoFrame(self.dataset, plan.sequence, index, plan.t_ns[position], images[0], images[1], c, truth)
+
+    def unoccluded(self, plan: SequencePlan, position: int) -> dict[int, tuple[int, tuple[float, float, float, float] | None]]:
+        """Per object near the ego: (pixels it would cover in the left image if nothing else
+        were drawn, its untruncated box: the projection of all its vertices, None when some
+        lie behind the camera). Rasterised by the same code as the frame, object by object,
+        so ``visible pixels / unoccluded pixels`` is the share not hidden by other things."""
+        if not 0 <= position < len(plan):
+            raise InputError(f"position {position} outside the plan of {len(plan)} frames", frame=plan.frames[0])
+        t = plan.t_ns[position] / 1e9
+        sc = self.scene(plan.sequence)
+        c = self.calib
+        cam = self._cam or Camera(c.fx, c.fy, c.cx, c.cy, c.width, c.height)
+        self._cam = cam
+        verts, rows, states = frame_faces(sc, t)
+        M = sc.camera_map(t)
+        Rcm = M[:3, :3].T
+        V, rows_cam = to_camera(verts, rows, Rcm, -Rcm @ M[:3, 3])
+        obj = rows[:, R_OBJ].astype(np.int64)
+        out = {}
+        for tid in states:
+            sel = np.flatnonzero(obj == tid)
+            v, r = V[sel], rows_cam[sel]
+            C, dp = inverse_depth_planes(cam, r, v)
+            ids, _ = rasterize(cam, v, r, C, dp)
+            pts = np.concatenate([v[k, : int(r[k, R_NV])] for k in range(len(sel))])
+            box = None
+            if pts[:, 2].min() > 1e-3:
+                u = c.fx * pts[:, 0] / pts[:, 2] + c.cx
+                w = c.fy * pts[:, 1] / pts[:, 2] + c.cy
+                box = (float(u.min()), float(w.min()), float(u.max()), float(w.max()))
+            out[tid] = (int((ids >= 0).sum()), box)
+        return out
 
     def _sky(self, cam: Camera, Rcm: np.ndarray) -> np.ndarray:
         """Sky gradient by ray elevation (horizon haze → blue zenith) on an 8× coarser grid
