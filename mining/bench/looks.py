@@ -144,6 +144,7 @@ def synthetic_recall(proposer: OnnxProposer, seeds: list[str], frames: int, step
     also the read_frame milliseconds of every frame."""
     src = open_source("synthetic", None, n_frames=n_frames, **options)
     tallies: dict[str, ClassTally] = {}
+    by_shape: dict[str, dict[str, ClassTally]] = {}
     ms = []
     for seq in seeds:
         plan = src.plan(seq)
@@ -156,27 +157,41 @@ def synthetic_recall(proposer: OnnxProposer, seeds: list[str], frames: int, step
             ms.append(1e3 * (time.perf_counter() - t0))
             objs = synthetic_eligible(fr.truth, src.unoccluded(plan, pos), fr.calib.width, fr.calib.height)
             rows, boxes = [], []
+            shapes = []
             for o, ok in objs:
-                name = "rider" if o.category == "person" and _riding(src, seq, o.track_id) else o.category
+                name = _kind(src, seq, o)
                 if ok and name in RIGHT_CLASSES:
                     rows.append(name)
                     boxes.append(o.box)
+                    shapes.append(_shape(src, seq, o) if name == "car" else "")
             props = proposer(fr.index, fr.left)
-            dets = _score_frame(props, np.array(boxes, np.float64).reshape(-1, 4), rows, tallies)
+            boxes = np.array(boxes, np.float64).reshape(-1, 4)
+            dets = _score_frame(props, boxes, rows, tallies)
+            for body in sorted(set(shapes) - {""}):  # cars by body type, as "car:<type>" rows
+                sel = [i for i, b in enumerate(shapes) if b == body]
+                _score_frame(props, boxes[sel], ["car"] * len(sel), by_shape.setdefault(body, {}))
             if png_dir is not None and k in (1, frames // 2):
                 _draw(fr.left, [(o.box, ok) for o, ok in objs if o.known], dets,
                       png_dir / f"looks_synthetic_{seq}_{fr.index:06d}.png")
+    for body, t in sorted(by_shape.items()):
+        tallies[f"car:{body}"] = t["car"]
     return tallies, ms
 
 
-def _riding(src, sequence: str, track_id: int) -> bool:
-    o = src.scene(sequence).objects[track_id - 1]
-    return o.tint2[0] < 0  # the scene's marker of a seated rider (scene.person_faces)
+def _kind(src, sequence: str, o) -> str:
+    """The tally row of a truth object: riders apart from walkers."""
+    obj = src.scene(sequence).objects[o.track_id - 1]
+    return "rider" if o.category == "person" and obj.riding else o.category
+
+
+def _shape(src, sequence: str, o) -> str:
+    return src.scene(sequence).objects[o.track_id - 1].shape
 
 
 def format_tallies(title: str, tallies: dict[str, ClassTally]) -> str:
     lines = [f"  {title}"]
-    for name in ("car", "car+truck", "person", "rider", "bicycle", "truck", "bus"):
+    for name in ("car", "car+truck", *sorted(k for k in tallies if k.startswith("car:")), "person", "rider",
+                 "bicycle", "truck", "bus"):
         if name in tallies:
             r = tallies[name].row()
             am = ", ".join(f"{c} {n}" for c, n in r["argmax"].items())
