@@ -96,7 +96,7 @@ class SyntheticSource(Source):
         if self._cam is None:
             self._cam = Camera(c.fx, c.fy, c.cx, c.cy, c.width, c.height)
         cam = self._cam
-        verts, rows, states = frame_faces(sc, t)
+        verts, rows, states = frame_faces(sc, t, self._view())
         M = sc.camera_map(t)
         Rcm = M[:3, :3].T
         lambert = AMBIENT + DIFFUSE * np.clip(rows[:, R_N : R_N + 3] @ sc.sun, 0, 1)
@@ -135,7 +135,7 @@ class SyntheticSource(Source):
         c = self.calib
         cam = self._cam or Camera(c.fx, c.fy, c.cx, c.cy, c.width, c.height)
         self._cam = cam
-        verts, rows, states = frame_faces(sc, t)
+        verts, rows, states = frame_faces(sc, t, self._view())
         M = sc.camera_map(t)
         Rcm = M[:3, :3].T
         V, rows_cam = to_camera(verts, rows, Rcm, -Rcm @ M[:3, 3])
@@ -154,6 +154,12 @@ class SyntheticSource(Source):
                 box = (float(u.min()), float(w.min()), float(u.max()), float(w.max()))
             out[tid] = (int((ids >= 0).sum()), box)
         return out
+
+    def _view(self) -> tuple[float, float, float]:
+        """The rig's field of view for ``frame_faces``: tan of the half angles (to the farther image
+        border, plus a pixel), and the baseline (the right camera sits that far to the side)."""
+        c = self.calib
+        return ((max(c.cx, c.width - c.cx) + 1) / c.fx, (max(c.cy, c.height - c.cy) + 1) / c.fy, c.baseline_m)
 
     def _sky(self, cam: Camera, Rcm: np.ndarray) -> np.ndarray:
         """Sky gradient by ray elevation (horizon haze → blue zenith) on an 8× coarser grid

@@ -222,6 +222,11 @@ class FaceList:
         ring = [a - half_w * e1 - hd * e2, a + half_w * e1 - hd * e2, a + half_w * e1 + hd * e2, a - half_w * e1 + hd * e2]
         self.prism(ring, b - a, material, tint, obj, part, caps=(False, False))
 
+    def extend(self, verts: np.ndarray, rows: np.ndarray) -> None:
+        """Faces already packed (another list's ``arrays()``, moved)."""
+        self.verts.extend(verts)
+        self.rows.extend(rows)
+
     def arrays(self) -> tuple[np.ndarray, np.ndarray]:
         self._finish()
         if not self.verts:

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mining.sources.synthetic.faces import MAXV, FaceList, rot_x
+from mining.sources.synthetic.faces import MAXV, R_N, R_O, R_OBJ, R_TINT, R_U, R_V, FaceList, rot_x
 from mining.sources.synthetic.textures import Atlas
 
 if TYPE_CHECKING:
@@ -116,17 +116,22 @@ def _shadow(fl: FaceList, half_w: float, half_l: float, lift: float = SHADOW_LIF
 
 
 def clip_z(pts: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """A convex polygon cut to lo ≤ z ≤ hi (Sutherland–Hodgman, two planes)."""
-    poly = [np.asarray(p, float) for p in pts]
-    for sign, bound in ((1, lo), (-1, hi)):
+    """A convex polygon cut to lo ≤ z ≤ hi (Sutherland–Hodgman, two planes; plain floats: polygons are small)."""
+    arr = np.asarray(pts, float)
+    if len(arr) and lo <= arr[:, 2].min() and arr[:, 2].max() <= hi:
+        return arr
+    poly = arr.tolist()
+    for sign, bound in ((1.0, lo), (-1.0, hi)):
         out = []
-        for i in range(len(poly)):
-            a, b = poly[i], poly[(i + 1) % len(poly)]
+        n = len(poly)
+        for i in range(n):
+            a, b = poly[i], poly[(i + 1) % n]
             ina, inb = sign * (a[2] - bound) >= 0, sign * (b[2] - bound) >= 0
             if ina:
                 out.append(a)
             if ina != inb:
-                out.append(a + (bound - a[2]) / (b[2] - a[2]) * (b - a))
+                t = (bound - a[2]) / (b[2] - a[2])
+                out.append([a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]), bound])
         poly = out
         if len(poly) < 3:
             return np.zeros((0, 3))
@@ -170,17 +175,16 @@ def solid(planes: list[tuple[np.ndarray, float]], inside: np.ndarray) -> list[tu
     N, D = N / norm[:, None], np.array([d for _, d in planes], float) / norm
     verts = HalfspaceIntersection(np.column_stack([N, -D]), np.asarray(inside, float)).intersections
     verts = np.unique(np.round(verts, 7), axis=0)
+    incident = np.abs(verts @ N.T - D) < 1e-6  # (V, K)
     faces = []
-    for k in range(len(N)):
-        on = verts[np.abs(verts @ N[k] - D[k]) < 1e-6]
-        if len(on) < 3:
-            continue
+    for k in np.flatnonzero(incident.sum(0) >= 3):
+        on = verts[incident[:, k]]
         c = on.mean(0)
-        e1 = on[np.argmax(np.linalg.norm(on - c, axis=1))] - c
-        e1 /= np.linalg.norm(e1)
-        e2 = np.cross(N[k], e1)
-        order = np.argsort(np.arctan2((on - c) @ e2, (on - c) @ e1))
-        faces.append((k, on[order]))
+        rel = on - c
+        e1 = rel[np.argmax(np.einsum("ij,ij->i", rel, rel))]
+        n = N[k]
+        e2 = np.array([n[1] * e1[2] - n[2] * e1[1], n[2] * e1[0] - n[0] * e1[2], n[0] * e1[1] - n[1] * e1[0]])
+        faces.append((int(k), on[np.argsort(np.arctan2(rel @ e2, rel @ e1))]))
     return faces
 
 
@@ -189,6 +193,13 @@ def fan(poly: np.ndarray) -> list[np.ndarray]:
     if len(poly) <= MAXV:
         return [poly]
     return [poly[np.r_[0, i : min(i + MAXV - 1, len(poly))]] for i in range(1, len(poly) - 1, MAXV - 2)]
+
+
+def clip_axis(pts: np.ndarray, axis: int, lo: float, hi: float) -> np.ndarray:
+    """A convex polygon cut to lo ≤ coordinate ``axis`` ≤ hi."""
+    order = [a for a in range(3) if a != axis] + [axis]
+    q = clip_z(np.asarray(pts, float)[:, order], lo, hi)
+    return q[:, np.argsort(order)] if len(q) else q
 
 
 def clip_y(pts: np.ndarray, lo: float, hi: float) -> np.ndarray:
@@ -229,33 +240,16 @@ def _bevel(a, corner, b, axes: str, sign: float, k: int) -> list[tuple[np.ndarra
 SKY_SHEEN = np.array([0.78, 0.82, 0.9])  # ours: the colour a car's clear coat reflects from the sky
 
 
-def _sheen(paint, n) -> tuple[float, float, float]:
-    """Paint on a face of normal ``n`` with the sky reflected in its clear coat: more on faces
-    turned up (bonnet, roof) than on the sides, never darker than the paint."""
-    n = np.asarray(n, float)
-    up = max(0.0, -n[1] / np.linalg.norm(n))
-    s = 0.1 + 0.32 * up
-    p = np.asarray(paint, float)
-    return tuple(p * (1 - s) + s * np.maximum(SKY_SHEEN, p))
-
-
-def car_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
-    """A car of body type ``o.shape``: lower body and glasshouse as two convex solids (each the
-    intersection of a side profile, a cross section and a plan outline), lamps, plates, mirrors,
-    wheels in their arches and the contact shadow."""
-    w, h, l = o.size
-    sh = next(c for c in CAR_SHAPES if c.name == o.shape)
-    k, paint = o.track_id, o.tint
+def _car_body(fl: FaceList, sh: CarShape, w: float, h: float, l: float, rng: np.random.Generator) -> float:
+    """A car body of type ``sh`` and size (w, h, l): lower body and glasshouse as two convex solids
+    (each the intersection of a side profile, a cross section and a plan outline) with lamps.
+    Paint faces carry the tint PAINT_MARK, glass GLASS_MARK (``car_faces`` colours them);
+    returns the windscreen base's z (the mirrors go there)."""
+    k, paint = 0, PAINT_MARK
     hw, zf, zr = w / 2, l / 2, -l / 2
 
     def put(pts, n, mat, tint, *args, **kw):
-        """A car face: paint with the sky's sheen, glass brighter where it faces up."""
-        if tint is paint:
-            tint = _sheen(paint, n)
-        elif mat == "glass":
-            n = np.asarray(n, float)
-            tint = (1.0 + 0.7 * max(0.0, -n[1] / np.linalg.norm(n)),) * 3
-        fl.poly(pts, n, mat, tint, *args, **kw)
+        fl.poly(pts, n, mat, GLASS_MARK if mat == "glass" else tint, *args, **kw)
     clr = sh.clearance
     belt = sh.belt * h
     nose_low = clr + 0.1
@@ -266,8 +260,10 @@ def car_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
     roof_front = cowl - sh.screen * rng.uniform(0.92, 1.08)
     roof_rear, base_rear = zr + sh.roof_rear, zr + sh.glass_rear
     # ---- lower body
-    prof = [(zf - 0.12, clr), (zf, nose_low), (zf, nose_top), (zf - 0.2, bonnet_front), (cowl, belt), (zr, belt),
-            (zr, nose_low), (zr + 0.12, clr)]  # (z, height), clockwise seen from +x: faces to the right are outward
+    lamp_top, lamp_low = belt - 0.01, belt - 0.2  # the tail-lamp band: the tailgate's top edge, leaning in
+    prof = [(zf - 0.12, clr), (zf, nose_low), (zf, nose_top), (zf - 0.2, bonnet_front), (cowl, belt),
+            (zr + 0.07, belt), (zr, lamp_low), (zr, nose_low), (zr + 0.12, clr)]  # (z, height) round the
+    # outline: outward is to the right of each edge
     planes, kinds = [], []
     for a, b in zip(prof, prof[1:] + prof[:1]):
         planes.append(_line_plane(a, b, "zh"))
@@ -302,19 +298,35 @@ def car_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
             front = kind[0] == "corner_front"
             bands = ([(clr, nose_low, "trim", (1, 1, 1)), (nose_low, nose_mid, "paint", paint),
                       (nose_mid, nose_top, "lamp", (1, 1, 1)), (nose_top, belt + 0.01, "paint", paint)] if front else
-                     [(clr, nose_low, "trim", (1, 1, 1)), (nose_low, belt - 0.2, "paint", paint),
-                      (belt - 0.2, belt - 0.04, "tail_light", (1, 1, 1)), (belt - 0.04, belt + 0.01, "paint", paint)])
+                     [(clr, nose_low + 0.1, "trim", (1, 1, 1)), (nose_low + 0.1, lamp_low, "paint", paint),
+                      (lamp_low, lamp_top, "tail_light", (1, 1, 1)), (lamp_top, belt + 0.01, "paint", paint)])
             for lo, hi, mat, tint in bands:
                 piece = clip_y(poly, lo, hi)
                 if len(piece) >= 3:
                     put(piece, n, mat, tint, k, u_hint=(0, -1, 0) if mat == "lamp" else (1, 0, 0))
         else:
             (z0, y0), (z1, y1) = kind[1], kind[2]
-            if z0 == z1 == zf:  # the front: bumper below, headlights and grille above
-                for lo, hi, mat, tint in ((nose_low, nose_mid, "paint", paint), (nose_mid, nose_top, "headlights", (1, 1, 1))):
+            if z0 == z1 == zf:  # the front: air intake and bumper below, headlights and grille above
+                for lo, hi, mat, tint in ((nose_low, nose_low + 0.07, "trim", (1, 1, 1)),
+                                          (nose_low + 0.07, nose_mid, "paint", paint),
+                                          (nose_mid, nose_top, "headlights", (1, 1, 1))):
                     piece = clip_y(poly, lo, hi)
                     if len(piece) >= 3:
                         put(piece, n, mat, tint, k, u_hint=(1, 0, 0))
+            elif z0 == z1 == zr:  # the rear: black lower bumper, tailgate and bumper panel
+                for lo, hi, mat, tint in ((nose_low, nose_low + 0.1, "trim", (1, 1, 1)),
+                                          (nose_low + 0.1, lamp_low, "rear_panel", paint)):
+                    piece = clip_y(poly, lo, hi)
+                    if len(piece) >= 3:
+                        put(piece, n, mat, tint, k, u_hint=(-1, 0, 0))
+            elif (z0, y0) == (zr + 0.07, belt):  # the lamp band: tail lamps at the ends, paint between
+                lw = min(0.32, 0.18 * w)
+                for lo, hi, mat, tint in ((-hw, -hw + cx_r + lw, "tail_light", (1, 1, 1)),
+                                          (-hw + cx_r + lw, hw - cx_r - lw, "paint", paint),
+                                          (hw - cx_r - lw, hw, "tail_light", (1, 1, 1))):
+                    piece = clip_axis(poly, 0, lo, hi)
+                    if len(piece) >= 3:
+                        put(piece, n, mat, tint, k, u_hint=(-1, 0, 0))
             elif y0 == clr or y1 == clr:
                 put(poly, n, "trim", (1, 1, 1), k, u_hint=(1, 0, 0))
             else:
@@ -366,16 +378,59 @@ def car_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
                         put(upper, n, "paint", paint, k, u_hint=(0, 0, -1))
                 if len(piece) >= 3:
                     put(piece, n, mat, tint, k, u_hint=(0, 0, -1))
-    # ---- lamps and plates just in front of their panels, mirrors, wheels, shadow
-    lw = min(0.3, 0.17 * w)
-    for sx in (-1, 1):
-        x0, x1 = sx * (hw - cx_r), sx * (hw - cx_r - lw)
-        put([P(x0, belt - 0.04, zr - OVERLAY_M), P(x1, belt - 0.06, zr - OVERLAY_M),
-                 P(x1, belt - 0.18, zr - OVERLAY_M), P(x0, belt - 0.2, zr - OVERLAY_M)], (0, 0, -1), "tail_light",
-                (1, 1, 1), k, u_hint=(-sx, 0, 0))
+    return cowl
+
+
+CAR_VARIANTS = 3  # ours: body templates per type (bonnet and windscreen lengths drawn once for each)
+PAINT_MARK, GLASS_MARK = (-1.0, -1.0, -1.0), (-2.0, -2.0, -2.0)  # template tints: the car's paint, glass
+
+
+def car_template(atlas: Atlas, material: str | None, shape: str, variant: int):
+    """A body type's faces at its middle size (built once per atlas, material and variant)."""
+    key = ("car", material, shape, variant)
+    if key not in atlas.cache:
+        sh = next(c for c in CAR_SHAPES if c.name == shape)
+        size = tuple(float(np.mean(r)) for r in (sh.width, sh.height, sh.length))
+        fl = FaceList(atlas, material)
+        cowl = _car_body(fl, sh, *size, np.random.default_rng([variant, 17]))
+        atlas.cache[key] = (fl.arrays(), np.array(size), cowl)
+    return atlas.cache[key]
+
+
+def car_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
+    """A car of body type ``o.shape``: its type's body template stretched to the car's size
+    (planes stay planes and textures follow exactly: the texture axes take the inverse
+    stretch), coloured; plates, mirrors, wheels in their arches and the contact shadow."""
+    w, h, l = o.size
+    sh = next(c for c in CAR_SHAPES if c.name == o.shape)
+    k, paint = o.track_id, o.tint
+    hw, zf, zr = w / 2, l / 2, -l / 2
+    (V, R), size0, cowl0 = car_template(fl.atlas, fl.material, o.shape, int(rng.integers(CAR_VARIANTS)))
+    S = np.array([w, h, l]) / size0
+    R = R.copy()
+    n = R[:, R_N : R_N + 3] / S
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    R[:, R_N : R_N + 3] = n
+    R[:, R_O : R_O + 3] *= S
+    R[:, R_U : R_U + 3] /= S
+    R[:, R_V : R_V + 3] /= S
+    R[:, R_OBJ] = k
+    tint = R[:, R_TINT : R_TINT + 3]
+    up = np.maximum(0.0, -n[:, 1])[:, None]
+    is_paint, is_glass = tint[:, 0] == PAINT_MARK[0], tint[:, 0] == GLASS_MARK[0]
+    sheen = 0.1 + 0.32 * up  # the sky in the clear coat: more on faces turned up, never darker than the paint
+    p = np.asarray(paint, float)
+    tint[is_paint] = (p * (1 - sheen) + sheen * np.maximum(SKY_SHEEN, p))[is_paint]
+    tint[is_glass] = np.repeat(1.0 + 0.7 * up, 3, 1)[is_glass]  # glass reflects more where it faces up
+    fl.extend(V * S, R)
+    cowl = cowl0 * S[2]
+    belt = sh.belt * h
+    clr = sh.clearance
+    nose_low = clr + 0.1
+    # ---- plates just in front of their panels, mirrors, wheels, shadow
     pw, ph = PLATE_M
-    for z, out, y0 in ((zf + OVERLAY_M, 1, nose_low + 0.03), (zr - OVERLAY_M, -1, nose_low + 0.12)):
-        put([P(-pw / 2, y0 + ph, z), P(pw / 2, y0 + ph, z), P(pw / 2, y0, z), P(-pw / 2, y0, z)], (0, 0, out),
+    for z, out, y0 in ((zf + OVERLAY_M, 1, nose_low + 0.1), (zr - OVERLAY_M, -1, nose_low + 0.16)):
+        fl.poly([P(-pw / 2, y0 + ph, z), P(pw / 2, y0 + ph, z), P(pw / 2, y0, z), P(-pw / 2, y0, z)], (0, 0, out),
                 "plate", (1, 1, 1), k, u_hint=(out, 0, 0))
     for sx in (-1, 1):
         fl.box([sx * (hw + 0.05), -(belt + 0.06), cowl - 0.18], (0.08, 0.055, 0.045), np.eye(3), {"all": "paint"},
@@ -508,18 +563,15 @@ def _saddle_hip(stature: float) -> float:
     return BIKE_BB_H - CRANK_M + 0.05 + np.sqrt(max((0.96 * leg) ** 2 - dz * dz, 0.1))
 
 
-def person_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
-    """A person in the rest pose (standing straight, arms down), clothes from the seed."""
-    rg = rig(o)
-    H, k = rg.stature, o.track_id
-    skin = SKIN[int(rng.integers(len(SKIN)))]
-    hair_c = HAIR[int(rng.integers(len(HAIR)))]
-    top = o.tint
-    bottom = o.tint2
-    shoes = ((0.08, 0.08, 0.08), (0.3, 0.2, 0.12), (0.85, 0.85, 0.85))[int(rng.integers(3))]
-    long_sleeves = rng.random() < 0.6
-    skirt = not o.riding and rng.random() < 0.15
-    coat = not o.riding and not skirt and rng.random() < 0.2
+ROLES = ("top", "bottom", "skin", "hair", "shoes", "bag")  # a person template's tints: −1 … −6 by role
+
+
+def _person_body(fl: FaceList, long_sleeves: bool, skirt: bool, coat: bool, backpack: bool) -> None:
+    """A person of stature 1 in the rest pose (standing straight, arms down); tints mark roles."""
+    top, bottom, skin, hair_c, shoes, bag = ((-float(i + 1),) * 3 for i in range(len(ROLES)))
+    H, k = 1.0, 0
+    rg = Rig(1.0, HIP_H, KNEE_H, ANKLE_H, SHOULDER_H, SHOULDER_H - UPPER_ARM, SHOULDER_H - UPPER_ARM - FOREARM,
+             0.0, 0.0, 0.0, 0.0)
     I = np.eye(3)
     # torso (part 0): hips to shoulders, a little wider and deeper at the chest
     fl.frustum(P(0, rg.hip - 0.04 * H, 0), P(0, rg.shoulder + 0.012 * H, 0), (0.09 * H, 0.058 * H), (0.1 * H, 0.062 * H),
@@ -530,9 +582,9 @@ def person_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
     if skirt:
         fl.frustum(P(0, 0.34 * H, 0), P(0, rg.hip - 0.03 * H, 0), (0.12 * H, 0.09 * H), (0.09 * H, 0.06 * H), I,
                    "fabric", bottom, k, caps=(True, False))
-    if rng.random() < 0.2:  # a backpack
-        fl.box([0, -(rg.shoulder - 0.13 * H), -(0.062 * H + 0.06)], (0.075 * H, 0.11 * H, 0.06), I, {"all": "fabric"},
-               CLOTHES[int(rng.integers(len(CLOTHES)))], k, skip=())
+    if backpack:
+        fl.box([0, -(rg.shoulder - 0.13 * H), -(0.062 * H + 0.034)], (0.075 * H, 0.11 * H, 0.034), I, {"all": "fabric"},
+               bag, k, skip=())
     # neck and head: a hexagonal head, skin in front, hair behind and on the crown
     fl.frustum(P(0, rg.shoulder, 0.004 * H), P(0, CHIN_H * H + 0.01 * H, 0.004 * H), (0.03 * H, 0.032 * H),
                (0.028 * H, 0.03 * H), I, "skin", skin, k, caps=(False, False))
@@ -572,6 +624,36 @@ def person_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
                    "fabric" if long_sleeves else "skin", top if long_sleeves else skin, k, fore, caps=(False, False))
         fl.box([x, -(rg.wrist - HAND * H / 2), 0], (0.014 * H, HAND * H / 2, 0.024 * H), I, {"all": "skin"}, skin, k,
                part=fore, skip=())
+
+
+def person_template(atlas: Atlas, material: str | None, flags: tuple[bool, bool, bool, bool]):
+    key = ("person", material, flags)
+    if key not in atlas.cache:
+        fl = FaceList(atlas, material)
+        _person_body(fl, *flags)
+        atlas.cache[key] = fl.arrays()
+    return atlas.cache[key]
+
+
+def person_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
+    """A person: the template of its clothing cut scaled to its stature, coloured from the seed."""
+    H, k = o.stature, o.track_id
+    colours = [o.tint, o.tint2, SKIN[int(rng.integers(len(SKIN)))], HAIR[int(rng.integers(len(HAIR)))],
+               ((0.08, 0.08, 0.08), (0.3, 0.2, 0.12), (0.85, 0.85, 0.85))[int(rng.integers(3))]]
+    long_sleeves = bool(rng.random() < 0.6)
+    skirt = bool(not o.riding and rng.random() < 0.15)
+    coat = bool(not o.riding and not skirt and rng.random() < 0.2)
+    backpack = bool(rng.random() < 0.2)
+    colours.append(CLOTHES[int(rng.integers(len(CLOTHES)))])
+    V, R = person_template(fl.atlas, fl.material, (long_sleeves, skirt, coat, backpack))
+    R = R.copy()
+    R[:, R_O : R_O + 3] *= H
+    R[:, R_U : R_U + 3] /= H
+    R[:, R_V : R_V + 3] /= H
+    R[:, R_OBJ] = k
+    role = (-R[:, R_TINT]).astype(int) - 1
+    R[:, R_TINT : R_TINT + 3] = np.array(colours, float)[role]
+    fl.extend(V * H, R)
     _shadow(fl, 0.28, 0.3)
 
 
@@ -655,7 +737,23 @@ def part_poses(o: Obj, walked: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def bicycle_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
-    k, paint = o.track_id, o.tint
+    """A bicycle: the one template (built once per atlas), its frame in the bicycle's paint."""
+    key = ("bicycle", fl.material)
+    if key not in fl.atlas.cache:
+        t = FaceList(fl.atlas, fl.material)
+        _bicycle_body(t)
+        fl.atlas.cache[key] = t.arrays()
+    V, R = fl.atlas.cache[key]
+    R = R.copy()
+    R[:, R_OBJ] = o.track_id
+    paint = R[:, R_TINT] == PAINT_MARK[0]
+    R[paint, R_TINT : R_TINT + 3] = o.tint
+    fl.extend(V, R)
+    _shadow(fl, 0.25, 0.75)
+
+
+def _bicycle_body(fl: FaceList) -> None:
+    k, paint = 0, PAINT_MARK
     r = BIKE_WHEEL_R
     zr, zf = -BIKE_WHEELBASE / 2, BIKE_WHEELBASE / 2
     n = 12
@@ -689,7 +787,6 @@ def bicycle_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
     fl.tube(seat, P(0, 0.92, SADDLE_Z), 0.012, "metal", (0.5, 0.5, 0.5), k)
     fl.box([0, -0.94, SADDLE_Z - 0.02], (0.07, 0.025, 0.13), np.eye(3), {"all": "trim"}, (1, 1, 1), k)
     fl.tube(bb + [0.05, 0, 0], bb + [0.05, 0.16, 0.05], 0.012, "metal", (0.6, 0.6, 0.6), k)
-    _shadow(fl, 0.25, 0.75)
 
 
 # --------------------------------------------------------------------------- the unknown kinds

@@ -45,6 +45,7 @@ GROUND_DROP_M = 0.02  # ours: the terrain plane lies this far below the road (no
 MAX_SPEED = 15.0  # ours: ego speed limit, m/s
 VIEW_AHEAD_M = 140.0  # ours: structure and objects further along the road are not drawn
 VIEW_BEHIND_M = 25.0  # ours: ... nor further behind the camera
+VIEW_SLACK_M = 0.5  # ours: an object's bounding sphere grows by this much in the view test (swinging limbs, mirrors)
 KNOWN = {"car": True, "truck": True, "bus": True, "person": True, "bicycle": True,
          "cone": False, "bin": False, "crate": False, "debris": False, "blob": False, "tyre": False,
          "barrier": False, "box": False, "branch": False, "cart": False, "tortoise": False}
@@ -318,6 +319,10 @@ class Scene:
         for side in (-1, 1):
             self._lots(fl, rng, side, s_lo + 5, s_hi - 5)
         self.static_verts, self.static_rows = fl.arrays()
+        # bounding spheres for the view test (padded vertices repeat a real one: the box is exact)
+        lo, hi = self.static_verts.min(1), self.static_verts.max(1)
+        self.static_centres = (lo + hi) / 2
+        self.static_radii = np.linalg.norm(hi - lo, axis=1) / 2
 
     def _lots(self, fl: FaceList, rng, side: int, s_lo: float, s_hi: float) -> None:
         road = self.road
@@ -610,15 +615,30 @@ def transform_faces(verts: np.ndarray, rows: np.ndarray, R: np.ndarray, t: np.nd
     return v, r
 
 
-def frame_faces(scene: Scene, t: float):
-    """All faces near the ego at time t (map frame) and the visible-candidate objects' states."""
+def _in_view(M: np.ndarray, centres: np.ndarray, radii: np.ndarray, view: tuple[float, float, float]) -> np.ndarray:
+    """Which spheres (map frame) may show in a camera at pose M (camera to map) whose image spans
+    |x/z| ≤ view[0], |y/z| ≤ view[1], or in one moved sideways by up to view[2] (the stereo baseline)."""
+    tx, ty, margin = view
+    P = (centres - M[:3, 3]) @ M[:3, :3]  # map → camera frame
+    r = radii + margin
+    return ((P[:, 2] > -r) & (np.abs(P[:, 0]) - P[:, 2] * tx <= r * math.hypot(1, tx))
+            & (np.abs(P[:, 1]) - P[:, 2] * ty <= r * math.hypot(1, ty)))
+
+
+def frame_faces(scene: Scene, t: float, view: tuple[float, float, float] | None = None):
+    """All faces near the ego at time t (map frame) and the visible-candidate objects' states.
+    ``view`` (tan of the half field of view across and down, sideways margin): leave out the
+    faces and objects no camera of the rig can see (none are left out without it)."""
     s_ego = scene.ego_arc(t)
     key = scene.static_rows[:, R_SKEY]
     sel = (key > s_ego - VIEW_BEHIND_M) & (key < s_ego + VIEW_AHEAD_M)
+    M = scene.camera_map(t)
+    if view is not None:
+        sel[sel] = _in_view(M, scene.static_centres[sel], scene.static_radii[sel], view)
     verts = [scene.static_verts[sel]]
     rows = [scene.static_rows[sel]]
     # terrain: one big square below the road, texture anchored at the map origin
-    c = scene.camera_map(t)[:3, 3]
+    c = M[:3, 3]
     g = np.array([round(c[0] / 16) * 16, GROUND_DROP_M, round(c[2] / 16) * 16])
     r = 400.0
     fl = FaceList(scene.atlas)
@@ -642,6 +662,9 @@ def frame_faces(scene: Scene, t: float):
         if o.faces is None:
             o.faces = build_mesh(o, scene.atlas)
         pos, yaw, walked, _ = st
+        if view is not None and not _in_view(M, (pos - [0.0, o.size[1] / 2, 0.0])[None],
+                                             np.array([0.5 * float(np.linalg.norm(o.size)) + VIEW_SLACK_M]), view)[0]:
+            continue
         Ro = rot_y(yaw)
         lv, lr = o.faces
         if o.category == "person":

@@ -10,7 +10,7 @@ left and right views and break stereo matching the way no real image does).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -38,6 +38,7 @@ class Atlas:
     levels: list[np.ndarray]  # uint8 (H/2^L, W/2^L, 3)
     tiles: dict[str, Tile]
     packed: np.ndarray | None = None  # all levels side by side; level L starts at x = 2·ATLAS_W·(1 − 2^−L)
+    cache: dict = field(default_factory=dict)  # meshes built once per atlas (their rows hold its tile places)
 
 
 # --------------------------------------------------------------------------- noise
@@ -226,6 +227,21 @@ def body_side(rng, h, w) -> np.ndarray:
         img[int(0.26 * h) : int(0.3 * h), x0:x1] *= 1.25
         img[int(0.3 * h) : int(0.36 * h), x0:x1] *= 0.35
     img[int(0.86 * h) :, :] = 0.16  # sill: black plastic (the tint barely shows)
+    return img
+
+
+def rear_panel(rng, h, w) -> np.ndarray:
+    """A car's rear below the lamps, stretched (painted): a crease under the lamps, the recess
+    the plate sits in, the bumper's top seam with its reflectors, shading towards the bottom."""
+    img = paint(rng, h, w)
+    y = (np.arange(h, dtype=np.float32) + 0.5) / h
+    img *= (1.04 - 0.22 * y)[:, None, None]
+    img[int(0.08 * h) : int(0.12 * h)] *= 1.2
+    img[int(0.12 * h) : int(0.17 * h)] *= 0.7
+    img[int(0.3 * h) : int(0.62 * h), int(0.3 * w) : int(0.7 * w)] *= 0.8
+    img[int(0.62 * h) : int(0.66 * h)] *= 0.45
+    for x0 in (0.04, 0.9):
+        img[int(0.72 * h) : int(0.8 * h), int(x0 * w) : int((x0 + 0.06) * w)] = (0.6, 0.05, 0.04)
     return img
 
 
@@ -455,6 +471,7 @@ def _tile_specs() -> dict[str, tuple[int, int, float, float]]:
         "paint": (128, 128, 2.0, 2.0),
         "body_side": (256, 64, 0, 0),
         "glass": (128, 64, 0, 0),
+        "rear_panel": (128, 64, 0, 0),
         "headlights": (128, 32, 0, 0),
         "tail_light": (32, 32, 0, 0),
         "lamp": (16, 16, 0, 0),
@@ -525,6 +542,8 @@ def make_tile(name: str, rng: np.random.Generator, w: int, h: int) -> np.ndarray
         return paint(rng, h, w)
     if name == "body_side":
         return body_side(rng, h, w)
+    if name == "rear_panel":
+        return rear_panel(rng, h, w)
     if name == "glass":
         return glass(rng, h, w)
     if name == "headlights":
