@@ -29,7 +29,7 @@ CY_FRAC = 172.854 / 375
 AMBIENT = 0.55  # ours: sky light on every face
 DIFFUSE = 0.55  # ours: sun light, scaled by cos(normal, sun)
 NOISE_DN = 1.5  # ours: sensor noise sigma, 8-bit levels
-BLUR_SIGMA = 0.5  # ours: optics blur, pixels (also hides raster stair-steps)
+BLUR_SIGMA = 0.8  # ours: optics blur, pixels (also hides raster stair-steps)
 SCENES_CACHED = 2  # ours: worlds kept in memory per source
 
 
@@ -116,7 +116,7 @@ class SyntheticSource(Source):
             g = gain * (sc.right_gain if k else np.ones(3))
             sky_img = cv2.resize(sky * (255.0 * g).astype(np.float32), (cam.w, cam.h), interpolation=cv2.INTER_LINEAR)
             img = shade(cam, self._atlas, ids, invz, tab, (light * g).astype(np.float32), sky_img)
-            img = cv2.GaussianBlur(img, (3, 3), BLUR_SIGMA)  # the ±2 taps of sigma 0.5 weigh 3e-4: left out
+            img = cv2.GaussianBlur(img, (5, 5), BLUR_SIGMA)  # the ±2 taps of sigma 0.5 weigh 3e-4: left out
             images.append(cv2.add(img, self._noise_at(rng, c.height, c.width), dtype=cv2.CV_8U))  # rounds, saturates
             if k == 0:
                 truth_bufs = (ids, invz)

@@ -31,6 +31,7 @@ if TYPE_CHECKING:
     from mining.sources.synthetic.scene import Obj
 
 SHADOW_LIFT_M = 0.015  # ours: the contact shadow lies this far above the ground (clear of the road in depth)
+TUCK_M = 0.045  # ours: how far a car's side tucks in from its widest line down to the sill
 OVERLAY_M = 0.005  # ours: lights, plates, arches and wheels sit this far in front of the panel they are on
 
 
@@ -270,13 +271,16 @@ def _car_body(fl: FaceList, sh: CarShape, w: float, h: float, l: float, rng: np.
         kinds.append(("profile", a, b))
     cz_f, cx_f, cz_r, cx_r = 0.5, 0.3, 0.36, 0.24  # ours: plan-view corner rounding, front and rear (m)
     drop, inset = 0.14, 0.08  # ours: the shoulder's rounding under the belt line
+    waist = (clr + belt) / 2 + 0.05  # ours: the side's widest line; below it the side tucks in by TUCK_M
     for s in (-1, 1):
         planes.append((np.array([s, 0.0, 0.0]), hw))
         kinds.append(("side", s))
+        planes.append(_line_plane((s * (hw - TUCK_M), clr + 0.1), (s * hw, waist), "xh", s))
+        kinds.append(("lower", s))
         for pl in _bevel((s * hw, belt - drop), (s * hw, belt), (s * (hw - inset), belt), "xh", s, 2):
             planes.append(pl)
             kinds.append(("shoulder", s))
-        planes.append(_line_plane((s * (hw - 0.05), clr), (s * hw, clr + 0.1), "xh", s))
+        planes.append(_line_plane((s * (hw - TUCK_M - 0.04), clr), (s * (hw - TUCK_M), clr + 0.1), "xh", s))
         kinds.append(("sill", s))
         for pl in _bevel((s * hw, zf - cz_f), (s * hw, zf), (s * (hw - cx_f), zf), "xz", s, 3):
             planes.append(pl)
@@ -290,6 +294,8 @@ def _car_body(fl: FaceList, sh: CarShape, w: float, h: float, l: float, rng: np.
         n = planes[idx][0]
         if kind[0] == "side":
             put(poly, n, "body_side", paint, k, u_hint=(0, 0, -1))
+        elif kind[0] == "lower":
+            put(poly, n, "body_lower", paint, k, u_hint=(0, 0, -1))
         elif kind[0] in ("shoulder",):
             put(poly, n, "paint", paint, k, u_hint=(0, 0, 1))
         elif kind[0] == "sill":

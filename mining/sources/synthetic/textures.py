@@ -207,26 +207,34 @@ def bark(rng, h, w) -> np.ndarray:
 
 
 def paint(rng, h, w) -> np.ndarray:
-    g = 0.85 + 0.08 * fbm(rng, h, w, 3, 5) + 0.06 * fbm(rng, h, w, 32, 2) + 0.08 * speckle(rng, h, w, 0.08)
+    g = 0.86 + 0.04 * fbm(rng, h, w, 3, 5) + 0.015 * fbm(rng, h, w, 32, 2)
     return _rgb(g, (1, 1, 1))
 
 
-def body_side(rng, h, w) -> np.ndarray:
-    """A car's lower body side, stretched from the front bumper to the rear and from the belt
-    line to the sill: sky-lit shoulder above a character line, shading down towards the sill
-    (the panel turns away from the sky), door seams and handles, a dark plastic sill."""
+def body_side(rng, h, w, part: str = "upper") -> np.ndarray:
+    """A car's body side, stretched along the car: the ``upper`` part (waist line to the shoulder:
+    sky-lit, a crease under the shoulder, door handles) or the ``lower`` part (waist to sill:
+    shading down as the panel turns away from the sky, a black plastic sill); door seams at
+    the same places on both."""
     img = paint(rng, h, w)
     y = (np.arange(h, dtype=np.float32) + 0.5) / h
-    shade = np.where(y < 0.22, 1.12 - 0.2 * y, 1.0 - 0.35 * np.clip(y - 0.22, 0, 1) ** 1.5)
-    shade[(y > 0.2) & (y < 0.24)] *= 0.82  # the crease under the shoulder
+    if part == "upper":
+        shade = 1.08 - 0.12 * y
+        shade[y < 0.12] *= 1.06
+        shade[(y > 0.12) & (y < 0.2)] *= 0.8  # the crease under the shoulder
+    else:
+        shade = 0.98 - 0.3 * y ** 1.5
     img *= shade[:, None, None]
     for fx in (0.26, 0.53, 0.78):  # door seams: front wing | front door | rear door | rear quarter
-        img[int(0.04 * h) : int(0.86 * h), int(fx * w) : int(fx * w) + 2] *= 0.45
-    for fx in (0.46, 0.72):  # handles: a dark recess under a bright edge
-        x0, x1 = int(fx * w), int(fx * w) + max(3, w // 22)
-        img[int(0.26 * h) : int(0.3 * h), x0:x1] *= 1.25
-        img[int(0.3 * h) : int(0.36 * h), x0:x1] *= 0.35
-    img[int(0.86 * h) :, :] = 0.16  # sill: black plastic (the tint barely shows)
+        y1 = h if part == "upper" else int(0.8 * h)
+        img[:y1, int(fx * w) : int(fx * w) + 2] *= 0.45
+    if part == "upper":
+        for fx in (0.46, 0.72):  # handles: a dark recess under a bright edge
+            x0, x1 = int(fx * w), int(fx * w) + max(3, w // 22)
+            img[int(0.4 * h) : int(0.48 * h), x0:x1] *= 1.25
+            img[int(0.48 * h) : int(0.6 * h), x0:x1] *= 0.35
+    else:
+        img[int(0.8 * h) :, :] = 0.16  # sill: black plastic (the tint barely shows)
     return img
 
 
@@ -336,7 +344,7 @@ def contact_shadow(rng, h, w) -> np.ndarray:
     y = ((np.arange(h, dtype=np.float32) + 0.5) / h - 0.5)[:, None] * 2
     x = ((np.arange(w, dtype=np.float32) + 0.5) / w - 0.5)[None, :] * 2
     d = np.clip((np.maximum(np.abs(x) ** 4 + np.abs(y) ** 4, 0) ** 0.25 - 0.55) / 0.45, 0, 1)
-    g = 0.34 * (0.3 + 0.7 * d * d * (3 - 2 * d)) + 0.05 * speckle(rng, h, w, 0.15)
+    g = 0.34 * (0.12 + 0.88 * d * d * (3 - 2 * d)) + 0.05 * speckle(rng, h, w, 0.15)
     return _rgb(g, (1.0, 1.0, 1.03))
 
 
@@ -469,7 +477,8 @@ def _tile_specs() -> dict[str, tuple[int, int, float, float]]:
         "foliage": (192, 192, 2.0, 2.0),
         "metal": (64, 64, 1.0, 1.0),
         "paint": (128, 128, 2.0, 2.0),
-        "body_side": (256, 64, 0, 0),
+        "body_side": (256, 32, 0, 0),
+        "body_lower": (256, 32, 0, 0),
         "glass": (128, 64, 0, 0),
         "rear_panel": (128, 64, 0, 0),
         "headlights": (128, 32, 0, 0),
@@ -541,7 +550,9 @@ def make_tile(name: str, rng: np.random.Generator, w: int, h: int) -> np.ndarray
     if name == "paint":
         return paint(rng, h, w)
     if name == "body_side":
-        return body_side(rng, h, w)
+        return body_side(rng, h, w, "upper")
+    if name == "body_lower":
+        return body_side(rng, h, w, "lower")
     if name == "rear_panel":
         return rear_panel(rng, h, w)
     if name == "glass":
