@@ -70,8 +70,8 @@ CAR_SHAPES = (
     CarShape("estate", 0.16, (4.5, 4.9), (1.78, 1.86), (1.46, 1.54), 0.14, 0.66, 0.61, (0.92, 1.04), 1.15, 0.82,
              0.2, 0.08, 0.16, 1.0),
     # ours: compact SUV (VW Tiguan II: 4.51 × 1.84 × 1.67 m, wheelbase 2.68 m, tyre 235/55 R18 ≈ 0.72 m)
-    CarShape("suv", 0.2, (4.3, 4.8), (1.82, 1.95), (1.62, 1.78), 0.2, 0.72, 0.6, (0.9, 0.93), 1.1, 0.75,
-             0.22, 0.08, 0.16, 1.0),
+    CarShape("suv", 0.2, (4.3, 4.7), (1.82, 1.9), (1.6, 1.72), 0.19, 0.72, 0.6, (0.9, 0.93), 1.1, 0.78,
+             0.36, 0.12, 0.19, 1.0),
     # ours: panel van (VW Transporter T6: 4.90 × 1.90 × 1.97 m, wheelbase 3.0 m, tyre 215/65 R16 ≈ 0.69 m);
     # the shares: KITTI's labels hold about one Van per ten Car + Van
     CarShape("van", 0.1, (4.8, 5.3), (1.88, 2.0), (1.9, 2.1), 0.18, 0.69, 0.5, (0.96, 0.96), 0.62, 0.62,
@@ -351,12 +351,18 @@ def _car_body(fl: FaceList, sh: CarShape, w: float, h: float, l: float, rng: np.
         for pl in _bevel((s * x_at, h - rr), (s * gt, h), (s * (gt - rc), h), "xh", s, 2):
             planes.append(pl)
             kinds.append(("roof_edge", s))
+    fr, bk = 0.07, 0.16  # ours: the roof curving down into the windscreen and the rear window (m)
+    on_ab = (B[0] + (A[0] - B[0]) * fr / (h - belt), h - fr)
+    on_cd = (C[0] + (D[0] - C[0]) * fr / (h - belt), h - fr)
+    for pl in _bevel(on_ab, B, (B[0] - bk, h), "zh", 1.0, 2) + _bevel((C[0] + bk, h), C, on_cd, "zh", 1.0, 2):
+        planes.append(pl)
+        kinds.append("roof_curve")
     z_lo, z_hi = min(A[0], B[0], C[0], D[0]), max(A[0], B[0], C[0], D[0])
     for idx, poly in solid(planes, P(0, (belt + h) / 2, (A[0] + D[0] + B[0] + C[0]) / 4)):
         kind, n = kinds[idx], planes[idx][0]
         if kind == "base":
             continue
-        if kind in ("roof",) or kind[0] == "roof_edge":
+        if kind in ("roof", "roof_curve") or kind[0] == "roof_edge":
             put(poly, n, "paint", paint, k, u_hint=(1, 0, 0))
         elif kind == "screen":
             put(poly, n, "glass", (1, 1, 1), k, u_hint=(1, 0, 0))
@@ -765,20 +771,24 @@ def _bicycle_body(fl: FaceList) -> None:
     n = 12
     ang = (np.arange(n) + 0.5) * 2 * np.pi / n
     for zc in (zr, zf):
-        outer = np.stack([np.zeros(n), -r + r * np.cos(ang), zc + r * np.sin(ang)], 1)
-        inner = np.stack([np.zeros(n), -r + 0.8 * r * np.cos(ang), zc + 0.8 * r * np.sin(ang)], 1)
+        def ring(f):
+            return np.stack([np.zeros(n), -r + f * r * np.cos(ang), zc + f * r * np.sin(ang)], 1)
+
+        outer, inner, hub = ring(1.0), ring(0.9), ring(0.84)  # ours: a 35 mm tyre on a 22 mm rim
         for i in range(n):
             j = (i + 1) % n
             for sx in (-1, 1):
-                dx = np.array([sx * 0.018, 0, 0])
+                dx = np.array([sx * 0.016, 0, 0])
                 fl.poly([outer[i] + dx, outer[j] + dx, inner[j] + dx, inner[i] + dx], (sx, 0, 0), "rubber",
                         (1, 1, 1), k)
+                fl.poly([inner[i] + dx * 0.6, inner[j] + dx * 0.6, hub[j] + dx * 0.6, hub[i] + dx * 0.6], (sx, 0, 0),
+                        "metal", (0.85, 0.85, 0.85), k)
             mid = 0.5 * (ang[i] + ang[j])
-            dx = np.array([0.018, 0, 0])
+            dx = np.array([0.016, 0, 0])
             fl.poly([outer[i] - dx, outer[j] - dx, outer[j] + dx, outer[i] + dx], (0, np.cos(mid), np.sin(mid)),
                     "rubber", (1, 1, 1), k)
         for a in (0.0, np.pi / 3, 2 * np.pi / 3):  # spokes
-            d = np.array([0, np.cos(a), np.sin(a)]) * 0.8 * r
+            d = np.array([0, np.cos(a), np.sin(a)]) * 0.84 * r
             c = np.array([0, -r, zc])
             fl.tube(c - d, c + d, 0.004, "metal", (0.8, 0.8, 0.8), k, across=(1, 0, 0))
     bb = P(0, BIKE_BB_H, -0.05)
