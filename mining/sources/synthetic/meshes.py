@@ -59,6 +59,8 @@ class CarShape:
     side_glass: float  # share of the glasshouse side that is glass (a van's is mostly panel)
 
 
+# Shares in traffic (ours): German traffic around KITTI's recording (2011) — compact hatchbacks, saloons
+# and estates dominate, SUVs are fewer; KITTI's labels hold about one Van per ten Car + Van.
 CAR_SHAPES = (
     # ours: typical European compact hatchback (VW Golf VIII: 4.28 × 1.79 × 1.46 m, wheelbase 2.62 m, tyre 205/55 R16 ≈ 0.63 m)
     CarShape("hatchback", 0.32, (3.9, 4.3), (1.70, 1.80), (1.42, 1.52), 0.14, 0.63, 0.63, (0.86, 0.72), 1.02, 0.88,
@@ -67,13 +69,12 @@ CAR_SHAPES = (
     CarShape("sedan", 0.22, (4.5, 4.9), (1.78, 1.86), (1.42, 1.50), 0.14, 0.66, 0.62, (0.92, 1.04), 1.18, 0.82,
              1.22, 0.62, 0.17, 1.0),
     # ours: estate of the same (Passat Variant: 4.77 × 1.83 × 1.51 m)
-    CarShape("estate", 0.16, (4.5, 4.9), (1.78, 1.86), (1.46, 1.54), 0.14, 0.66, 0.61, (0.92, 1.04), 1.15, 0.82,
+    CarShape("estate", 0.21, (4.5, 4.9), (1.78, 1.86), (1.46, 1.54), 0.14, 0.66, 0.61, (0.92, 1.04), 1.15, 0.82,
              0.2, 0.08, 0.16, 1.0),
     # ours: compact SUV (VW Tiguan II: 4.51 × 1.84 × 1.67 m, wheelbase 2.68 m, tyre 235/55 R18 ≈ 0.72 m)
-    CarShape("suv", 0.2, (4.3, 4.7), (1.82, 1.9), (1.6, 1.72), 0.19, 0.72, 0.6, (0.9, 0.93), 1.1, 0.78,
+    CarShape("suv", 0.15, (4.3, 4.7), (1.82, 1.9), (1.6, 1.72), 0.19, 0.72, 0.6, (0.9, 0.93), 1.1, 0.78,
              0.36, 0.12, 0.19, 1.0),
-    # ours: panel van (VW Transporter T6: 4.90 × 1.90 × 1.97 m, wheelbase 3.0 m, tyre 215/65 R16 ≈ 0.69 m);
-    # the shares: KITTI's labels hold about one Van per ten Car + Van
+    # ours: panel van (VW Transporter T6: 4.90 × 1.90 × 1.97 m, wheelbase 3.0 m, tyre 215/65 R16 ≈ 0.69 m)
     CarShape("van", 0.1, (4.8, 5.3), (1.88, 2.0), (1.9, 2.1), 0.18, 0.69, 0.5, (0.96, 0.96), 0.62, 0.62,
              0.06, 0.05, 0.06, 0.3),
 )
@@ -737,14 +738,15 @@ def part_poses(o: Obj, walked: float) -> tuple[np.ndarray, np.ndarray]:
         knee = -(0.08 + 0.95 * max(0.0, np.cos(p + 0.25)) ** 2)  # flexes in the swing phase
         about(thigh, a_t, np.array([x, hip_y, 0]))
         about(shin, knee, np.array([x, -rg.knee, 0]), base=(R[thigh].copy(), t[thigh].copy()))
-        ankle_h.append(rg.hip - lt * np.cos(a_t) - ls * np.cos(a_t + knee))
+        for z in (0.045 * H - FOOT * H / 2, 0.045 * H + FOOT * H / 2):  # heel and toe, on the ground at rest
+            ankle_h.append(-(R[shin] @ np.array([x, 0.0, z]) + t[shin])[1])
     for side, upper, fore, ph in ((-1, 3, 7, np.pi), (1, 4, 8, 0.0)):
         x = side * SHOULDER_X * H
         p = phase + ph
         a_u = rg.arm_swing * np.sin(p)
         about(upper, a_u, np.array([x, sh_y, 0]))
         about(fore, 0.2 + 0.25 * max(0.0, np.sin(p)), np.array([x, -rg.elbow, 0]), base=(R[upper].copy(), t[upper].copy()))
-    t[:, 1] += min(ankle_h) - rg.ankle  # the lower foot on the ground: the body bobs
+    t[:, 1] += min(ankle_h)  # the lowest heel or toe on the ground: the body bobs
     return R, t
 
 
@@ -881,10 +883,11 @@ def branch_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
         a = base + (tip - base) * f
         side = rng.choice([-1, 1])
         b = a + np.array([side * rng.uniform(0.3, w / 2), -rng.uniform(0.05, h - 0.15), rng.uniform(0.1, 0.5)])
+        b = np.clip(b, [-w / 2 + 0.2, -(h - 0.12), -l / 2 + 0.2], [w / 2 - 0.2, 0.0, l / 2 - 0.2])  # in the truth box
         fl.tube(a, b, 0.022, "bark", bark, k)
         if rng.random() < 0.7:
             c = rng.normal(size=(9, 3)) * [0.22, 0.12, 0.22] + b
-            c[:, 1] = np.minimum(c[:, 1], -0.02)
+            c = np.clip(c, [-w / 2, -h, -l / 2], [w / 2, -0.02, l / 2])
             fl.convex(c, "foliage", (0.9, 1.0, 0.85), k)
 
 
@@ -954,11 +957,7 @@ def build_mesh(o: Obj, atlas: Atlas) -> tuple[np.ndarray, np.ndarray]:
             p = np.array([[rb * np.cos(a0), -0.04, rb * np.sin(a0)], [rb * np.cos(a1), -0.04, rb * np.sin(a1)],
                           [rt * np.cos(a1), -h, rt * np.sin(a1)], [rt * np.cos(a0), -h, rt * np.sin(a0)]])
             am = 0.5 * (a0 + a1)
-            n = np.array([np.cos(am) * h, (rb - rt), np.sin(am) * h])
-            n /= np.linalg.norm(n)
-            u = (p[1] - p[0]) / np.linalg.norm(p[1] - p[0])
-            v = (p[0] - p[3]) / np.linalg.norm(p[0] - p[3])
-            fl.add(p[[3, 2, 1, 0]], n, p[3], u, v, "cone", (1, 1, 1), k, extent=(2 * np.pi * rb, h))
+            fl.poly(p[[3, 2, 1, 0]], (np.cos(am), -0.2, np.sin(am)), "cone", (1, 1, 1), k)
         fl.box([0, -0.02, 0], (0.2, 0.02, 0.2), I, {"all": "paint"}, (0.1, 0.1, 0.1), k)
     elif cat == "bin":
         fl.box([0, -(h - 0.08) / 2, 0], (w / 2 - 0.03, (h - 0.08) / 2, l / 2 - 0.03), I, {"all": "bin"}, o.tint, k, offset=off)
@@ -985,5 +984,8 @@ def build_mesh(o: Obj, atlas: Atlas) -> tuple[np.ndarray, np.ndarray]:
         tortoise_faces(fl, o, rng)
     else:
         raise KeyError(f"no mesh for category {cat!r}")
-    return fl.arrays()
+    V, R = fl.arrays()
+    if o.material:  # one material: one colour too (a textureless object is uniform but for its shading)
+        R[R[:, R_OBJ] == k, R_TINT : R_TINT + 3] = o.tint
+    return V, R
 

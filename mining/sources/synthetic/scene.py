@@ -519,6 +519,13 @@ class Scene:
                 while s < hi + abs(v) * T:
                     s += rng.uniform(12, 60)
                     self._new(rng, "person", Motion("lane", s0=s, d=side * (h + band), v=v, yaw=0 if v > 0 else np.pi))
+        for side in (-1, 1):  # tortoises plodding along the outer edge of the sidewalks
+            v = rng.uniform(0.25, 0.45) * rng.choice([-1, 1])  # ours: a giant tortoise walks ~0.3 m/s
+            s = lo + rng.uniform(0, 150)
+            while s < min(hi, s_end + 250):
+                self._new(rng, "tortoise", Motion("lane", s0=s, d=side * (h + SIDEWALK_M - 1.4), v=v,
+                                                  yaw=0 if v > 0 else np.pi))
+                s += rng.uniform(150, 400)
         self._crossings(rng)
 
     def _crossings(self, rng) -> None:
@@ -528,7 +535,7 @@ class Scene:
         h = self.half
         while t < self.duration:
             cat = str(rng.choice(["person", "blob", "tortoise"], p=[0.7, 0.15, 0.15]))
-            speed = {"person": (1.0, 1.6), "blob": (0.6, 1.4), "tortoise": (0.5, 0.8)}[cat]  # ours (a tortoise: faster than life, to cross in time)
+            speed = {"person": (1.0, 1.6), "blob": (0.6, 1.4), "tortoise": (0.5, 0.8)}[cat]  # ours (a tortoise: faster than life, to cross in time; seldom does)
             speed = rng.uniform(*speed)
             ahead = rng.uniform(20, 60)
             s_c = self.ego_arc(t) + ahead
