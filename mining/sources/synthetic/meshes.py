@@ -513,8 +513,10 @@ def bus_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
             (0, 0, 1), "glass", (1, 1, 1), k, u_hint=(1, 0, 0))
     fl.poly([P(-hw + 0.1, 0.45, zf), P(hw - 0.1, 0.45, zf), P(hw - 0.1, 0.7, zf), P(-hw + 0.1, 0.7, zf)],
             (0, 0, 1), "headlights", (1, 1, 1), k, u_hint=(1, 0, 0))
-    fl.poly([P(-hw + 0.2, 1.6, zr), P(hw - 0.2, 1.6, zr), P(hw - 0.2, h - 0.4, zr), P(-hw + 0.2, h - 0.4, zr)],
-            (0, 0, -1), "glass", (1, 1, 1), k, u_hint=(-1, 0, 0))
+    fl.poly([P(-hw + 0.4, 2.05, zr), P(hw - 0.4, 2.05, zr), P(hw - 0.4, h - 0.3, zr), P(-hw + 0.4, h - 0.3, zr)],
+            (0, 0, -1), "glass", (1, 1, 1), k, u_hint=(-1, 0, 0))  # a small rear window over the engine
+    fl.poly([P(-hw + 0.3, 0.55, zr), P(hw - 0.3, 0.55, zr), P(hw - 0.3, 1.3, zr), P(-hw + 0.3, 1.3, zr)],
+            (0, 0, -1), "trim", (1, 1, 1), k, u_hint=(-1, 0, 0))  # the engine grille
     for sx in (-1, 1):
         fl.poly([P(sx * (hw - 0.08), 0.5, zr), P(sx * (hw - 0.3), 0.5, zr), P(sx * (hw - 0.3), 1.0, zr),
                  P(sx * (hw - 0.08), 1.0, zr)], (0, 0, -1), "tail_light", (1, 1, 1), k, u_hint=(-sx, 0, 0))
