@@ -275,3 +275,11 @@ def test_module_writes_frames_for_a_look(tmp_path):
     for kind in ("right", "depth", "inst"):
         img = cv2.imread(f"{stem}_{kind}.png")
         assert img.shape == expect.left.shape and img.any()
+
+
+def test_module_times_the_renderer(capsys):
+    from mining.sources.synthetic.__main__ import main
+
+    main(["--seq", "0001", "--bench", "2", "--n-frames", "5"])
+    out = capsys.readouterr().out
+    assert "2 frames 1242x375" in out and "frames/s" in out
