@@ -31,6 +31,7 @@ if TYPE_CHECKING:
     from mining.sources.synthetic.scene import Obj
 
 SHADOW_LIFT_M = 0.015  # ours: the contact shadow lies this far above the ground (clear of the road in depth)
+BUMPER_M = 0.04  # ours: how far the rear bumper stands out of the tailgate
 TUCK_M = 0.045  # ours: how far a car's side tucks in from its widest line down to the sill
 OVERLAY_M = 0.005  # ours: lights, plates, arches and wheels sit this far in front of the panel they are on
 
@@ -338,6 +339,33 @@ def _car_body(fl: FaceList, sh: CarShape, w: float, h: float, l: float, rng: np.
                 put(poly, n, "trim", (1, 1, 1), k, u_hint=(1, 0, 0))
             else:
                 put(poly, n, "paint", paint, k, u_hint=(1, 0, 0))
+    # ---- rear bumper: a rounded block standing out of the tailgate, black below
+    bt, bb = nose_low + 0.22, nose_low - 0.04
+    planes = [(np.array([0, -1.0, 0]), bt), (np.array([0, 1.0, 0]), -bb), (np.array([0, 0, 1.0]), zr + 0.35),
+              (np.array([0, 0, -1.0]), -(zr - BUMPER_M))]
+    kinds = ["top", "bottom", "inner", "back"]
+    for s in (-1, 1):
+        planes.append((np.array([s, 0.0, 0.0]), hw - 0.01))
+        kinds.append("side")
+        for pl in _bevel((s * (hw - cx_r - 0.02), zr - BUMPER_M), (s * (hw - 0.01), zr - BUMPER_M),
+                         (s * (hw - 0.01), zr + cz_r - 0.02), "xz", s, 3):
+            planes.append(pl)
+            kinds.append("corner")
+    for pl in _bevel((zr + 0.02, bt), (zr - BUMPER_M, bt), (zr - BUMPER_M, bt - 0.05), "zh", 1.0, 1):
+        planes.append(pl)
+        kinds.append("edge")
+    for idx, poly in solid(planes, P(0, (bt + bb) / 2, zr + 0.1)):
+        kind, n = kinds[idx], planes[idx][0]
+        if kind in ("inner",):
+            continue
+        if kind in ("back", "corner", "side"):
+            for lo, hi, mat, tint in ((bb, bb + 0.09, "trim", (1, 1, 1)), (bb + 0.09, bt, "paint", paint)):
+                piece = clip_y(poly, lo, hi)
+                if len(piece) >= 3:
+                    put(piece, n, mat, tint, k, u_hint=(-1, 0, 0))
+        else:
+            put(poly, n, "trim" if kind == "bottom" else "paint", (1, 1, 1) if kind == "bottom" else paint, k,
+                u_hint=(1, 0, 0))
     # ---- glasshouse: base a little into the body, roof rounded at its edges
     gb, gt = hw - inset, hw - inset - sh.tumble
     A, B, C, D = (cowl - 0.04, belt), (roof_front, h), (roof_rear, h), (base_rear, belt)
@@ -442,7 +470,7 @@ def car_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
     nose_low = clr + 0.1
     # ---- plates just in front of their panels, mirrors, wheels, shadow
     pw, ph = PLATE_M
-    for z, out, y0 in ((zf + OVERLAY_M, 1, nose_low + 0.1), (zr - OVERLAY_M, -1, nose_low + 0.16)):
+    for z, out, y0 in ((zf + OVERLAY_M, 1, nose_low + 0.1), (zr - OVERLAY_M, -1, nose_low + 0.27)):
         fl.poly([P(-pw / 2, y0 + ph, z), P(pw / 2, y0 + ph, z), P(pw / 2, y0, z), P(-pw / 2, y0, z)], (0, 0, out),
                 "plate", (1, 1, 1), k, u_hint=(out, 0, 0))
     for sx in (-1, 1):

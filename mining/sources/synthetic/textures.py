@@ -272,13 +272,13 @@ def headlight_band(rng, h, w) -> np.ndarray:
     (chrome reflector, clear lens, a bright lamp), a black grille with bars between them."""
     img = np.full((h, w, 3), 0.09, np.float32)
     yy, xx = np.mgrid[0:h, 0:w]
-    for x0, x1 in ((0.02, 0.27), (0.73, 0.98)):
-        m = (xx >= x0 * w) & (xx < x1 * w) & (yy > 0.12 * h) & (yy < 0.82 * h)
-        refl = 0.62 + 0.2 * np.cos((xx - (x0 + x1) / 2 * w) / ((x1 - x0) * w) * 6.0) * np.cos((yy - h / 2) / h * 3)
+    for x0, x1 in ((0.02, 0.25), (0.75, 0.98)):
+        m = (xx >= x0 * w) & (xx < x1 * w) & (yy > 0.15 * h) & (yy < 0.8 * h)
+        refl = 0.42 + 0.14 * np.cos((xx - (x0 + x1) / 2 * w) / ((x1 - x0) * w) * 6.0) * np.cos((yy - h / 2) / h * 3)
         img[m] = (refl[m][:, None] * np.array([0.95, 0.96, 1.0], np.float32))
         cx = (x0 + 0.3 * (x1 - x0)) if x0 < 0.5 else (x1 - 0.3 * (x1 - x0))
-        lamp = ((xx - cx * w) / (0.06 * w)) ** 2 + ((yy - 0.47 * h) / (0.22 * h)) ** 2 < 1
-        img[lamp] = (1.0, 0.99, 0.95)
+        lamp = ((xx - cx * w) / (0.05 * w)) ** 2 + ((yy - 0.47 * h) / (0.2 * h)) ** 2 < 1
+        img[lamp] = (0.78, 0.78, 0.76)  # daytime: the lamp unlit, a bright reflector
     grille = (xx >= 0.32 * w) & (xx < 0.68 * w) & (yy > 0.2 * h) & (yy < 0.95 * h)
     bars = (yy % max(3, h // 6)) < 1
     img[grille] = 0.05
@@ -290,7 +290,7 @@ def headlight_band(rng, h, w) -> np.ndarray:
 def lamp(rng, h, w) -> np.ndarray:
     """A headlamp's clear lens where it wraps round the corner (untinted): chrome and glass."""
     y = (np.arange(h, dtype=np.float32) + 0.5)[:, None] / h
-    g = 0.7 + 0.2 * np.cos(y * 5.0) + 0.05 * fbm(rng, h, w, 2, 2)
+    g = 0.38 + 0.12 * np.cos(y * 5.0) + 0.04 * fbm(rng, h, w, 2, 2)
     img = _rgb(np.broadcast_to(g, (h, w)).copy(), (0.95, 0.96, 1.0))
     img[:1], img[-1:] = 0.1, 0.1
     return img
