@@ -311,7 +311,7 @@ def _car_body(fl: FaceList, sh: CarShape, w: float, h: float, l: float, rng: np.
             for lo, hi, mat, tint in bands:
                 piece = clip_y(poly, lo, hi)
                 if len(piece) >= 3:
-                    put(piece, n, mat, tint, k, u_hint=(0, -1, 0) if mat == "lamp" else (1, 0, 0))
+                    put(piece, n, mat, tint, k, u_hint=(1, 0, 0))
         else:
             (z0, y0), (z1, y1) = kind[1], kind[2]
             if z0 == z1 == zf:  # the front: air intake and bumper below, headlights and grille above
@@ -462,7 +462,7 @@ def car_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
     sheen = 0.1 + 0.32 * up  # the sky in the clear coat: more on faces turned up, never darker than the paint
     p = np.asarray(paint, float)
     tint[is_paint] = (p * (1 - sheen) + sheen * np.maximum(SKY_SHEEN, p))[is_paint]
-    tint[is_glass] = np.repeat(1.0 + 0.7 * up, 3, 1)[is_glass]  # glass reflects more where it faces up
+    tint[is_glass] = np.repeat(1.0 + 1.2 * up, 3, 1)[is_glass]  # glass reflects more where it faces up
     fl.extend(V * S, R)
     cowl = cowl0 * S[2]
     belt = sh.belt * h

@@ -291,9 +291,7 @@ def lamp(rng, h, w) -> np.ndarray:
     """A headlamp's clear lens where it wraps round the corner (untinted): chrome and glass."""
     y = (np.arange(h, dtype=np.float32) + 0.5)[:, None] / h
     g = 0.38 + 0.12 * np.cos(y * 5.0) + 0.04 * fbm(rng, h, w, 2, 2)
-    img = _rgb(np.broadcast_to(g, (h, w)).copy(), (0.95, 0.96, 1.0))
-    img[:1], img[-1:] = 0.1, 0.1
-    return img
+    return _rgb(np.broadcast_to(g, (h, w)).copy(), (0.95, 0.96, 1.0))
 
 
 def tail_light(rng, h, w) -> np.ndarray:
