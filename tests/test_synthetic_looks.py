@@ -6,8 +6,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-
 from conftest import MODELS
+
 from mining.sources.synthetic import SyntheticSource
 from mining.sources.synthetic.faces import R_N, R_NV, R_OBJ, R_PART
 from mining.sources.synthetic.meshes import CAR_SHAPES, build_mesh, part_poses, rig

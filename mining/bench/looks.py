@@ -101,10 +101,10 @@ def _draw(image: np.ndarray, gts: list[tuple], dets: list[tuple], path: Path) ->
     """Ground truth (thin white, eligible: thick yellow) and the top-20 detections with class and score."""
     img = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
     for box, eligible in gts:
-        x0, y0, x1, y1 = (int(round(v)) for v in box)
+        x0, y0, x1, y1 = (round(v) for v in box)
         cv2.rectangle(img, (x0, y0), (x1, y1), (0, 230, 255) if eligible else (255, 255, 255), 2 if eligible else 1)
     for box, cls, score in dets:
-        x0, y0, x1, y1 = (int(round(v)) for v in box)
+        x0, y0, x1, y1 = (round(v) for v in box)
         colour = {"car": (60, 220, 60), "person": (60, 60, 255), "bicycle": (255, 120, 0),
                   "truck": (200, 0, 200)}.get(cls, (180, 180, 180))
         cv2.rectangle(img, (x0, y0), (x1, y1), colour, 1)

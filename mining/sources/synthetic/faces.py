@@ -6,8 +6,6 @@ them); ``arrays()`` packs them as (F, MAXV, 3) vertices and (F, 23) rows for the
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from mining.sources.synthetic.textures import Atlas, Tile

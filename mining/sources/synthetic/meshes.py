@@ -1,16 +1,25 @@
 """Object meshes of the synthetic world: cars, trucks, buses, people, bicycles and the unknown kinds.
 
-Each object is a few dozen planar faces in its own frame (origin on the ground below its
-centre, x right, y down, z forward), built once from its seed; body parts that move
-(legs, arms) carry a part index and ``part_poses`` moves them rigidly each frame.
+Each object is planar faces in its own frame (origin on the ground below its centre, x right,
+y down, z forward), built once from its seed; body parts that move (legs, arms) carry a
+part index and ``part_poses`` moves them rigidly each frame.
 
-Cars follow a body type (``CAR_SHAPES``): a lower body extruded from a side profile (front
-bumper, nose, bonnet, deck, rear, each a strip across the width, so the light falls on each
-at its own angle: a curved panel in a few facets), a glasshouse that narrows towards the
-roof (tumblehome) with dark glass all round and black pillars, wheels with rims inside dark
-arches, head and tail lights, number plates, mirrors and a contact shadow on the road.
-People have a torso, neck, head with hair, and two-segment arms and legs (hip, knee,
-shoulder, elbow) that walk, or pedal a bicycle; clothing, hair and skin vary per person.
+Cars follow a body type (``CAR_SHAPES``: hatchback, saloon, estate, SUV, van). The lower body
+and the glasshouse are convex solids, each the intersection of half-spaces (``solid``): a
+side profile (bumpers, nose, bonnet, deck, tailgate), a cross section (the side tucking in
+below the waist, a rounded shoulder; the glasshouse narrowing to a roof with rounded edges)
+and a plan outline with rounded corners. Each bounding plane is one face, so light falls on
+each facet at its own angle and a curved panel shades smoothly in steps; paint also reflects
+the sky, more where it faces up. Glass is dark and reflective with black pillars and a
+painted roof rail; head and tail lamps wrap round the corners; plates, mirrors, a rear
+bumper, wheels with rims in dark arches and a contact shadow complete it. A body type is
+built once per atlas (three variants) and stretched to each car's size: planes stay planes
+and textures follow (the texture axes take the inverse stretch).
+
+People have a torso, neck, a head with hair, and two-segment arms and legs (hip, knee,
+shoulder, elbow) that walk with the lowest foot on the ground, stand, or pedal a bicycle
+(leg and arm angles solved for pedal and handlebar); clothing cut (sleeves, skirt, coat,
+backpack), clothes, skin and hair vary per person, from templates scaled to the stature.
 
 Shadows are faces of the object's mesh with track id 0: they move with it but are not
 part of its truth mask (a detector's box does not include the shadow either).
@@ -20,11 +29,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from itertools import pairwise
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mining.sources.synthetic.faces import MAXV, R_N, R_O, R_OBJ, R_TINT, R_U, R_V, FaceList, rot_x
+from mining.sources.synthetic.faces import R_N, R_O, R_OBJ, R_TINT, R_U, R_V, FaceList, rot_x
 from mining.sources.synthetic.textures import Atlas
 
 if TYPE_CHECKING:
@@ -191,13 +201,6 @@ def solid(planes: list[tuple[np.ndarray, float]], inside: np.ndarray) -> list[tu
     return faces
 
 
-def fan(poly: np.ndarray) -> list[np.ndarray]:
-    """A convex polygon as pieces of at most MAXV vertices (a fan from its first vertex)."""
-    if len(poly) <= MAXV:
-        return [poly]
-    return [poly[np.r_[0, i : min(i + MAXV - 1, len(poly))]] for i in range(1, len(poly) - 1, MAXV - 2)]
-
-
 def clip_axis(pts: np.ndarray, axis: int, lo: float, hi: float) -> np.ndarray:
     """A convex polygon cut to lo ≤ coordinate ``axis`` ≤ hi."""
     order = [a for a in range(3) if a != axis] + [axis]
@@ -237,7 +240,7 @@ def _bevel(a, corner, b, axes: str, sign: float, k: int) -> list[tuple[np.ndarra
     a, c, b = (np.asarray(x, float) for x in (a, corner, b))
     t = np.linspace(0, 1, k + 1)[:, None]
     pts = (1 - t) ** 2 * a + 2 * (1 - t) * t * c + t * t * b
-    return [_line_plane(tuple(p), tuple(q), axes, sign) for p, q in zip(pts[:-1], pts[1:])]
+    return [_line_plane(tuple(p), tuple(q), axes, sign) for p, q in pairwise(pts)]
 
 
 SKY_SHEEN = np.array([0.78, 0.82, 0.9])  # ours: the colour a car's clear coat reflects from the sky
@@ -803,7 +806,7 @@ def _bicycle_body(fl: FaceList) -> None:
     n = 12
     ang = (np.arange(n) + 0.5) * 2 * np.pi / n
     for zc in (zr, zf):
-        def ring(f):
+        def ring(f, zc=zc):
             return np.stack([np.zeros(n), -r + f * r * np.cos(ang), zc + f * r * np.sin(ang)], 1)
 
         outer, inner, hub = ring(1.0), ring(0.9), ring(0.84)  # ours: a 35 mm tyre on a 22 mm rim
@@ -864,7 +867,7 @@ def tyre_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
     else:
         n = 8
         ang = (np.arange(n) + 0.5) * 2 * np.pi / n
-        for j in range(int(round(o.size[1] / 0.21))):
+        for j in range(round(o.size[1] / 0.21)):
             y0 = -0.21 * j - 0.005 * j
             ring = np.stack([r * np.cos(ang), np.full(n, y0), r * np.sin(ang)], 1)
             fl.prism(ring, (0, -0.2, 0), "rubber", (1, 1, 1), k, caps=(False, False))
@@ -907,7 +910,7 @@ def branch_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
     bark = tuple(np.array(o.tint) * 0.3 + 0.7)
     base, tip = P(0, 0.07, -l / 2), P(rng.uniform(-0.2, 0.2), 0.05, l / 2)
     pts = [base + (tip - base) * f for f in (0.0, 0.35, 0.7, 1.0)]
-    for (a, b), hw in zip(zip(pts[:-1], pts[1:]), (0.07, 0.05, 0.03)):
+    for (a, b), hw in zip(pairwise(pts), (0.07, 0.05, 0.03)):
         fl.tube(a, b, hw, "bark", bark, k)
     for f in rng.uniform(0.25, 0.9, int(rng.integers(2, 5))):
         a = base + (tip - base) * f
@@ -923,7 +926,7 @@ def branch_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
 
 def cart_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
     """A two-wheeled hand cart: a wooden bed on two wheels, handles behind, sometimes a load."""
-    w, h, l = o.size
+    w, _, l = o.size
     k = o.track_id
     I = np.eye(3)
     bed_h = 0.42
