@@ -269,6 +269,14 @@ def cmd_bench_proposals(args: argparse.Namespace) -> int:
                                random_weights=args.random_weights, json_path=args.json)
 
 
+def cmd_bench_looks(args: argparse.Namespace) -> int:
+    from mining.bench.looks import run_looks_bench
+
+    return run_looks_bench(Path(args.data), _job_config(args), args.model, args.seeds, frames=args.frames,
+                           step=args.step, n_frames=args.n_frames, png_dir=args.png, json_out=args.json,
+                           kitti=not args.no_kitti)
+
+
 def cmd_bench_pipeline(args: argparse.Namespace) -> int:
     from mining.bench.pipeline import run_pipeline_bench
 
@@ -511,6 +519,21 @@ def build_parser() -> argparse.ArgumentParser:
     bpip.add_argument("--dir", help="where the bench catalogues go (default: the system temporary folder)")
     bpip.add_argument("--json", help="also write the results as JSON here")
     bpip.set_defaults(func=cmd_bench_pipeline)
+
+    blk = bsub.add_parser("looks", help="recall@20 with the right COCO class (shared ONNX model) on synthetic "
+                                        "frames against KITTI 0005 frames 0–15, and the renderer's ms per frame")
+    _add_job_options(blk)
+    blk.add_argument("--data", default=default_data, help="the shared real-data folder (default: ../shared/data)")
+    blk.add_argument("--model", default=str(Path(default_data).parent / "models" / "yolov8n-seg_int8.onnx"),
+                     help="YOLO-seg ONNX model (default: ../shared/models/yolov8n-seg_int8.onnx)")
+    blk.add_argument("--seeds", nargs="+", default=["0000", "0001", "0002"], help="synthetic sequences")
+    blk.add_argument("--frames", type=int, default=34, help="frames per seed")
+    blk.add_argument("--step", type=int, default=5, help="plan positions between frames (the first is STEP)")
+    blk.add_argument("--n-frames", type=int, default=200, help="length of the synthetic world")
+    blk.add_argument("--png", help="write a few frames with the detections drawn to this folder")
+    blk.add_argument("--no-kitti", action="store_true", help="skip the KITTI reference")
+    blk.add_argument("--json", help="also write the results as JSON here")
+    blk.set_defaults(func=cmd_bench_looks)
 
     bscn = bsub.add_parser("scenarios", help="staged synthetic scenarios (one failure mode each), scene flow on and "
                                              "off: tube recall, IDSW per track, HOTA, flow on the targets")

@@ -67,7 +67,7 @@ class ObjectTruth:
     """Ground truth of one object instance in one frame (synthetic source only)."""
 
     track_id: int
-    category: str  # e.g. "car", "person", "bicycle", "cone", "bin", "crate", "debris", "animal"
+    category: str  # e.g. "car", "person", "bicycle", "cone", "tyre", "tortoise" (synthetic: scene.KNOWN lists them)
     known: bool  # True when one of the 80 COCO classes covers the category
     mask: np.ndarray  # (H, W) bool, visible pixels in the left image
     box: tuple[float, float, float, float]  # x1, y1, x2, y2 of the visible mask, pixels

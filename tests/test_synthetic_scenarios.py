@@ -234,6 +234,7 @@ def test_stop_and_go():
     vis = seen("stopgo", range(10, N, 10))
     assert car in vis and len(vis[car]) == 7  # in view all the time, 10–25 m ahead
     assert all(10 < o.center_cam[2] < 26 for o in vis[car].values())
+    vis = seen("stopgo", (30, 40), min_px=40)  # at 40 it nears the left border: ~55 px of a slim person at half size
     assert person in vis and {30, 40} <= set(vis[person])  # in view while it stands
 
 

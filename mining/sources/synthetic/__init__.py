@@ -20,7 +20,7 @@ from mining.errors import InputError
 from mining.sources.base import Source
 from mining.sources.synthetic.render import Camera, inverse_depth_planes, rasterize, shade, texture_tables, to_camera
 from mining.sources.synthetic.scenarios import get_scenario
-from mining.sources.synthetic.scene import KNOWN, R_N, R_OBJ, R_TINT, Scene, frame_faces
+from mining.sources.synthetic.scene import KNOWN, R_N, R_NV, R_OBJ, R_TINT, Scene, frame_faces
 from mining.sources.synthetic.textures import build_atlas
 from mining.types import FrameTruth, ObjectTruth, SequencePlan, StereoCalib, StereoFrame
 
@@ -29,7 +29,7 @@ CY_FRAC = 172.854 / 375
 AMBIENT = 0.55  # ours: sky light on every face
 DIFFUSE = 0.55  # ours: sun light, scaled by cos(normal, sun)
 NOISE_DN = 1.5  # ours: sensor noise sigma, 8-bit levels
-BLUR_SIGMA = 0.5  # ours: optics blur, pixels (also hides raster stair-steps)
+BLUR_SIGMA = 0.8  # ours: optics blur, pixels (also hides raster stair-steps)
 SCENES_CACHED = 2  # ours: worlds kept in memory per source
 
 
@@ -96,7 +96,7 @@ class SyntheticSource(Source):
         if self._cam is None:
             self._cam = Camera(c.fx, c.fy, c.cx, c.cy, c.width, c.height)
         cam = self._cam
-        verts, rows, states = frame_faces(sc, t)
+        verts, rows, states = frame_faces(sc, t, self._view())
         M = sc.camera_map(t)
         Rcm = M[:3, :3].T
         lambert = AMBIENT + DIFFUSE * np.clip(rows[:, R_N : R_N + 3] @ sc.sun, 0, 1)
@@ -116,12 +116,50 @@ class SyntheticSource(Source):
             g = gain * (sc.right_gain if k else np.ones(3))
             sky_img = cv2.resize(sky * (255.0 * g).astype(np.float32), (cam.w, cam.h), interpolation=cv2.INTER_LINEAR)
             img = shade(cam, self._atlas, ids, invz, tab, (light * g).astype(np.float32), sky_img)
-            img = cv2.GaussianBlur(img, (3, 3), BLUR_SIGMA)  # the ±2 taps of sigma 0.5 weigh 3e-4: left out
+            img = cv2.GaussianBlur(img, (5, 5), BLUR_SIGMA)  # the ±2 taps of sigma 0.5 weigh 3e-4: left out
             images.append(cv2.add(img, self._noise_at(rng, c.height, c.width), dtype=cv2.CV_8U))  # rounds, saturates
             if k == 0:
                 truth_bufs = (ids, invz)
         truth = self._truth(sc, t, M, truth_bufs, rows, states)
         return StereoFrame(self.dataset, plan.sequence, index, plan.t_ns[position], images[0], images[1], c, truth)
+
+    def unoccluded(self, plan: SequencePlan, position: int) -> dict[int, tuple[int, tuple[float, float, float, float] | None]]:
+        """Per object near the ego: (pixels it would cover in the left image if nothing else
+        were drawn, its untruncated box: the projection of all its vertices, None when some
+        lie behind the camera). Rasterised by the same code as the frame, object by object,
+        so ``visible pixels / unoccluded pixels`` is the share not hidden by other things."""
+        if not 0 <= position < len(plan):
+            raise InputError(f"position {position} outside the plan of {len(plan)} frames", frame=plan.frames[0])
+        t = plan.t_ns[position] / 1e9
+        sc = self.scene(plan.sequence)
+        c = self.calib
+        cam = self._cam or Camera(c.fx, c.fy, c.cx, c.cy, c.width, c.height)
+        self._cam = cam
+        verts, rows, states = frame_faces(sc, t, self._view())
+        M = sc.camera_map(t)
+        Rcm = M[:3, :3].T
+        V, rows_cam = to_camera(verts, rows, Rcm, -Rcm @ M[:3, 3])
+        obj = rows[:, R_OBJ].astype(np.int64)
+        out = {}
+        for tid in states:
+            sel = np.flatnonzero(obj == tid)
+            v, r = V[sel], rows_cam[sel]
+            C, dp = inverse_depth_planes(cam, r, v)
+            ids, _ = rasterize(cam, v, r, C, dp)
+            pts = np.concatenate([v[k, : int(r[k, R_NV])] for k in range(len(sel))])
+            box = None
+            if pts[:, 2].min() > 1e-3:
+                u = c.fx * pts[:, 0] / pts[:, 2] + c.cx
+                w = c.fy * pts[:, 1] / pts[:, 2] + c.cy
+                box = (float(u.min()), float(w.min()), float(u.max()), float(w.max()))
+            out[tid] = (int((ids >= 0).sum()), box)
+        return out
+
+    def _view(self) -> tuple[float, float, float]:
+        """The rig's field of view for ``frame_faces``: tan of the half angles (to the farther image
+        border, plus a pixel), and the baseline (the right camera sits that far to the side)."""
+        c = self.calib
+        return ((max(c.cx, c.width - c.cx) + 1) / c.fx, (max(c.cy, c.height - c.cy) + 1) / c.fy, c.baseline_m)
 
     def _sky(self, cam: Camera, Rcm: np.ndarray) -> np.ndarray:
         """Sky gradient by ray elevation (horizon haze → blue zenith) on an 8× coarser grid

@@ -8,10 +8,15 @@ Geometry is planar convex polygons ("faces"), each carrying a texture frame anch
 surface it belongs to (the road's arc length, a building's wall, an object's own body), so
 texture moves exactly with the 3D motion.
 
-Categories. Known (a COCO class covers them): car, truck, bus, person, bicycle. Unknown:
-cone (traffic cone), bin (wheelie bin), crate, debris (a low-poly rock or lump lying on the
-road) and blob (a crawling low-poly ellipsoid the size of a large dog but with no legs,
-head or tail, so no COCO animal class describes it).
+Categories. Known (a COCO class covers them): car (hatchback, saloon, estate, SUV and van
+bodies), truck, bus, person (walking, standing or riding), bicycle. Unknown: cone (traffic
+cone), bin (wheelie bin), crate, debris (a low-poly rock or lump lying on the road), blob (a
+crawling low-poly ellipsoid the size of a large dog but with no legs, head or tail, so no
+COCO animal class describes it), tyre (a loose car tyre, lying or standing), barrier (a
+striped board on trestles or a concrete kerb barrier), box (cardboard), branch (a fallen
+branch with leaves), cart (a two-wheeled hand cart) and tortoise (a giant tortoise crossing:
+an animal, but none of COCO's ten). The meshes are in ``meshes.py``. Objects beyond the
+curb stand on the sidewalk (a curb height up).
 """
 
 from __future__ import annotations
@@ -22,7 +27,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from mining.sources.synthetic.textures import LANE_M, PARKING_M, Atlas, Tile
+from mining.sources.synthetic.faces import (  # noqa: F401  (the row layout is re-exported for the renderer)
+    DOWN, MAXV, R_N, R_NV, R_O, R_OBJ, R_PART, R_SKEY, R_TILE, R_TINT, R_U, R_V, FaceList, rot_x, rot_y, rot_z,
+)
+from mining.sources.synthetic.meshes import (
+    CAR_COLOURS, CAR_SHAPES, CAR_WEIGHTS, CLOTHES, TROUSERS, build_mesh, part_poses, rider_height,
+)
+from mining.sources.synthetic.textures import LANE_M, PARKING_M, Atlas
 
 if TYPE_CHECKING:
     from mining.sources.synthetic.scenarios import Scenario
@@ -34,110 +45,10 @@ GROUND_DROP_M = 0.02  # ours: the terrain plane lies this far below the road (no
 MAX_SPEED = 15.0  # ours: ego speed limit, m/s
 VIEW_AHEAD_M = 140.0  # ours: structure and objects further along the road are not drawn
 VIEW_BEHIND_M = 25.0  # ours: ... nor further behind the camera
-MAXV = 8  # vertices per face (padded)
+VIEW_SLACK_M = 0.5  # ours: an object's bounding sphere grows by this much in the view test (swinging limbs, mirrors)
 KNOWN = {"car": True, "truck": True, "bus": True, "person": True, "bicycle": True,
-         "cone": False, "bin": False, "crate": False, "debris": False, "blob": False}
-DOWN = np.array([0.0, 1.0, 0.0])
-
-
-# --------------------------------------------------------------------------- faces
-
-
-class FaceList:
-    """Accumulates faces; ``arrays()`` packs them for the renderer."""
-
-    def __init__(self, atlas: Atlas, material: str | None = None):
-        """``material``: every face takes this material instead of its own (a textureless object)."""
-        self.atlas = atlas
-        self.material = material
-        self.verts: list[np.ndarray] = []
-        self.rows: list[np.ndarray] = []  # per face: normal(3) O(3) U(3) V(3) tile(4) tint(3) obj skey part
-
-    def add(self, pts, normal, origin, u_dir, v_dir, material: str, tint=(1, 1, 1), obj: int = 0,
-            skey: float = 0.0, part: int = 0, offset=(0.0, 0.0), extent=None) -> None:
-        """One face. ``u_dir``/``v_dir`` are unit texture axes; ``extent`` (u, v metres) stretches a
-        stretch material over the face, else the material's texels-per-metre apply."""
-        tile: Tile = self.atlas.tiles[self.material or material]
-        if tile.metres_w == 0:
-            ext = extent if extent is not None else (1.0, 1.0)
-            du, dv = tile.w / max(ext[0], 1e-3), tile.h / max(ext[1], 1e-3)
-        else:
-            du, dv = tile.w / tile.metres_w, tile.h / tile.metres_h
-        p = np.asarray(pts, float)
-        pad = np.repeat(p[-1:], MAXV - len(p), axis=0)
-        self.verts.append(np.concatenate([p, pad]))
-        o = np.asarray(origin, float) - offset[0] * np.asarray(u_dir) - offset[1] * np.asarray(v_dir)
-        row = np.concatenate([normal, o, np.asarray(u_dir) * du, np.asarray(v_dir) * dv,
-                              [tile.x0, tile.y0, tile.w, tile.h], tint, [obj, skey, part, len(p)]])
-        self.rows.append(row)
-
-    def quad(self, p0, p1, p3, normal, material, tint=(1, 1, 1), obj=0, skey=0.0, part=0, offset=(0.0, 0.0)):
-        """Parallelogram with corner ``p0``, u edge to ``p1``, v edge to ``p3``."""
-        p0, p1, p3 = (np.asarray(x, float) for x in (p0, p1, p3))
-        eu, ev = p1 - p0, p3 - p0
-        lu, lv = np.linalg.norm(eu), np.linalg.norm(ev)
-        self.add([p0, p1, p1 + ev, p3], normal, p0, eu / lu, ev / lv, material, tint, obj, skey, part, offset, (lu, lv))
-
-    def box(self, center, half, R, mats: dict[str, str], tint=(1, 1, 1), obj=0, skey=0.0, part=0,
-            offset=(0.0, 0.0), skip=("bottom",)):
-        """Axis-aligned (in R's frame) box; ``mats`` maps side/front/rear/top/bottom to materials."""
-        c = np.asarray(center, float)
-        ax, ay, az = (R[:, i] * half[i] for i in range(3))
-        ex, ey, ez = R[:, 0], R[:, 1], R[:, 2]
-        faces = {
-            "right": (c + ax - ay + az, c + ax - ay - az, c + ax + ay + az, ex),
-            "left": (c - ax - ay - az, c - ax - ay + az, c - ax + ay - az, -ex),
-            "front": (c - ax - ay + az, c + ax - ay + az, c - ax + ay + az, ez),
-            "rear": (c + ax - ay - az, c - ax - ay - az, c + ax + ay - az, -ez),
-            "top": (c - ax - ay - az, c + ax - ay - az, c - ax - ay + az, -ey),
-            "bottom": (c - ax + ay + az, c + ax + ay + az, c - ax + ay - az, ey),
-        }
-        for name, (p0, p1, p3, n) in faces.items():
-            if name in skip:
-                continue
-            key = "side" if name in ("right", "left") else name
-            self.quad(p0, p1, p3, n, mats.get(key, mats.get("all")), tint, obj, skey, part, offset)
-
-    def convex(self, points, material, tint=(1, 1, 1), obj=0, part=0, offset=(0.0, 0.0)):
-        """Faces of the convex hull of ``points`` (rocks, blobs), outward normals."""
-        from scipy.spatial import ConvexHull
-
-        pts = np.asarray(points, float)
-        hull = ConvexHull(pts)
-        centre = pts.mean(0)
-        for simplex, eq in zip(hull.simplices, hull.equations):
-            tri = pts[simplex]
-            n = eq[:3]
-            if np.dot(tri.mean(0) - centre, n) < 0:
-                n = -n
-            u = tri[1] - tri[0]
-            u /= np.linalg.norm(u)
-            v = np.cross(n, u)
-            self.add(tri, n, tri[0], u, v, material, tint, obj, 0.0, part, offset)
-
-    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
-        if not self.verts:
-            return np.zeros((0, MAXV, 3)), np.zeros((0, 23))
-        return np.array(self.verts), np.array(self.rows)
-
-
-# row layout of FaceList.rows
-R_N, R_O, R_U, R_V, R_TILE, R_TINT, R_OBJ, R_SKEY, R_PART, R_NV = 0, 3, 6, 9, 12, 16, 19, 20, 21, 22
-
-
-def rot_y(a: float) -> np.ndarray:
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
-
-
-def rot_x(a: float) -> np.ndarray:
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
-
-
-def rot_z(a: float) -> np.ndarray:
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+         "cone": False, "bin": False, "crate": False, "debris": False, "blob": False, "tyre": False,
+         "barrier": False, "box": False, "branch": False, "cart": False, "tortoise": False}
 
 
 # --------------------------------------------------------------------------- road and ego
@@ -298,6 +209,9 @@ class Obj:
     tint2: tuple[float, float, float] = (1, 1, 1)
     faces: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
     material: str | None = None  # every face of this material (e.g. "flat": textureless); None: the category's own
+    shape: str = ""  # the variant of the category (a car's body type, a tyre lying or upright, ...)
+    riding: bool = False  # a person on a bicycle (seated, pedalling)
+    stature: float = 0.0  # a person's standing height (size[1] is a rider's seated height)
 
 
 class Scene:
@@ -405,6 +319,10 @@ class Scene:
         for side in (-1, 1):
             self._lots(fl, rng, side, s_lo + 5, s_hi - 5)
         self.static_verts, self.static_rows = fl.arrays()
+        # bounding spheres for the view test (padded vertices repeat a real one: the box is exact)
+        lo, hi = self.static_verts.min(1), self.static_verts.max(1)
+        self.static_centres = (lo + hi) / 2
+        self.static_radii = np.linalg.norm(hi - lo, axis=1) / 2
 
     def _lots(self, fl: FaceList, rng, side: int, s_lo: float, s_hi: float) -> None:
         road = self.road
@@ -474,32 +392,62 @@ class Scene:
         """One more object (its track id is the next free one); size, tint and mesh seed from ``rng``."""
         return self._new(rng, category, motion, size)
 
-    def _new(self, rng, category: str, motion: Motion, size=None) -> Obj:
+    def _new(self, rng, category: str, motion: Motion, size=None, riding: bool = False) -> Obj:
+        shape = ""
+        if category == "car":
+            body = CAR_SHAPES[int(rng.choice(len(CAR_SHAPES), p=CAR_WEIGHTS))]
+            shape = body.name
+        elif category == "tyre":
+            shape = str(rng.choice(["lying1", "lying2", "lying3", "upright"], p=[0.35, 0.2, 0.1, 0.35]))
+        elif category == "barrier":
+            shape = "jersey" if rng.random() < 0.35 else "board"
         if size is None:
-            size = {
-                "car": (rng.uniform(1.65, 1.85), rng.uniform(1.4, 1.55), rng.uniform(3.9, 4.8)),
-                "truck": (2.4, rng.uniform(3.0, 3.6), rng.uniform(7, 9)),
-                "bus": (2.5, 3.1, rng.uniform(10, 12)),
-                "person": (0.5, rng.uniform(1.55, 1.9), 0.3),
-                "bicycle": (0.5, 1.05, 1.75),
-                "cone": (0.4, rng.uniform(0.5, 0.75), 0.4),
-                "bin": (0.6, 1.07, 0.72),
-                "crate": tuple([rng.uniform(0.4, 1.0)] * 2 + [rng.uniform(0.4, 1.2)]),
-                "debris": (rng.uniform(0.3, 0.9), rng.uniform(0.2, 0.5), rng.uniform(0.3, 1.0)),
-                "blob": (rng.uniform(0.6, 0.9), rng.uniform(0.5, 0.8), rng.uniform(0.9, 1.4)),
-            }[category]
+            if category == "car":
+                size = (rng.uniform(*body.width), rng.uniform(*body.height), rng.uniform(*body.length))
+            elif category == "tyre":
+                size = (0.2, 0.62, 0.62) if shape == "upright" else (0.62, 0.205 * int(shape[-1]), 0.62)
+            elif category == "barrier":
+                size = (0.6, 0.8, rng.uniform(2.0, 3.0)) if shape == "jersey" else (0.6, 1.0, rng.uniform(1.2, 2.0))
+            else:
+                size = {
+                    "truck": lambda: (2.4, rng.uniform(3.0, 3.6), rng.uniform(7, 9)),
+                    "bus": lambda: (2.5, 3.1, rng.uniform(10, 12)),
+                    "person": lambda: (0.5, rng.uniform(1.55, 1.9), 0.3),
+                    "bicycle": lambda: (0.5, 1.05, 1.78),
+                    "cone": lambda: (0.4, rng.uniform(0.5, 0.75), 0.4),
+                    "bin": lambda: (0.6, 1.07, 0.72),
+                    "crate": lambda: tuple([rng.uniform(0.4, 1.0)] * 2 + [rng.uniform(0.4, 1.2)]),
+                    "debris": lambda: (rng.uniform(0.3, 0.9), rng.uniform(0.2, 0.5), rng.uniform(0.3, 1.0)),
+                    "blob": lambda: (rng.uniform(0.6, 0.9), rng.uniform(0.5, 0.8), rng.uniform(0.9, 1.4)),
+                    "box": lambda: (rng.uniform(0.3, 0.7), rng.uniform(0.25, 0.6), rng.uniform(0.3, 0.7)),
+                    "branch": lambda: (rng.uniform(0.8, 1.6), rng.uniform(0.3, 0.6), rng.uniform(1.5, 3.0)),
+                    "cart": lambda: (0.8, 1.0, rng.uniform(1.3, 1.6)),
+                    "tortoise": lambda: (rng.uniform(0.6, 0.8), rng.uniform(0.4, 0.5), rng.uniform(0.8, 1.1)),
+                }[category]()
         palette = [(0.9, 0.9, 0.9), (0.15, 0.15, 0.17), (0.6, 0.62, 0.65), (0.7, 0.1, 0.1), (0.15, 0.25, 0.6),
                    (0.85, 0.85, 0.8), (0.3, 0.35, 0.3), (0.8, 0.6, 0.2)]
-        if category in ("car", "truck", "bus"):
+        tint2 = tuple(rng.uniform(0.15, 0.8, 3))
+        if category == "car":
+            colours, weights = zip(*CAR_COLOURS)
+            c = np.array(colours[int(rng.choice(len(colours), p=np.array(weights) / sum(weights)))])
+            tint = tuple(np.clip(c * rng.uniform(0.92, 1.06, 3), 0, 1))
+        elif category in ("truck", "bus"):
             tint = palette[rng.integers(len(palette))]
+        elif category == "person":
+            tint = tuple(np.clip(np.array(CLOTHES[int(rng.integers(len(CLOTHES)))]) * rng.uniform(0.8, 1.15, 3), 0, 1))
+            tint2 = tuple(np.clip(np.array(TROUSERS[int(rng.integers(len(TROUSERS)))]) * rng.uniform(0.85, 1.15, 3), 0, 1))
         elif category == "bin":
             tint = [(0.2, 0.4, 0.2), (0.3, 0.3, 0.32), (0.15, 0.25, 0.55), (0.45, 0.3, 0.15)][rng.integers(4)]
-        elif category == "blob":
+        elif category in ("blob", "tortoise"):
             tint = tuple(rng.uniform([0.4, 0.3, 0.2], [0.8, 0.6, 0.45]))
         else:
             tint = tuple(rng.uniform(0.2, 0.95, 3))
         o = Obj(len(self.objects) + 1, category, np.array(size, float), tint, motion, int(rng.integers(1 << 30)),
-                tuple(rng.uniform(0.15, 0.8, 3)))
+                tint2, shape=shape)
+        if category == "person":
+            o.stature, o.riding = float(o.size[1]), riding
+            if riding:  # the truth box of a rider: seated height, the length of the bicycle under it
+                o.size = np.array([0.55, rider_height(o), 1.0])
         self.objects.append(o)
         return o
 
@@ -516,12 +464,15 @@ class Scene:
                 if r < 0.45:
                     cat, gap = "car", rng.uniform(5.5, 8)
                     yaw = (0 if side > 0 else np.pi) + rng.normal(0, 0.03)
-                elif r < 0.55:
+                elif r < 0.53:
                     cat, gap, yaw = "cone", rng.uniform(1.5, 3), 0.0
-                elif r < 0.62:
+                elif r < 0.57:
                     cat, gap, yaw = "crate", 2.0, rng.uniform(0, 3)
-                elif r < 0.68:
+                elif r < 0.61:
                     cat, gap, yaw = "debris", 2.0, rng.uniform(0, 6)
+                elif r < 0.68:  # the other unknowns left at the kerb
+                    cat = str(rng.choice(["tyre", "barrier", "box", "cart"], p=[0.3, 0.3, 0.25, 0.15]))
+                    gap, yaw = rng.uniform(2.0, 3.5), rng.uniform(0, 6.3) if cat != "barrier" else rng.normal(0, 0.1)
                 else:
                     cat, gap, yaw = None, rng.uniform(4, 20), 0.0
                 if cat:
@@ -529,16 +480,17 @@ class Scene:
                     self._new(rng, cat, Motion("static", s0=s + gap / 2, d=dd, yaw=yaw))
                 s += gap
             s = lo
-            while s < min(hi, s_end + 250):  # bins and crates by the buildings
+            while s < min(hi, s_end + 250):  # bins, crates, boxes and carts by the buildings
                 s += rng.uniform(10, 60)
-                cat = "bin" if rng.random() < 0.7 else "crate"
+                cat = str(rng.choice(["bin", "crate", "box", "cart", "barrier"], p=[0.5, 0.15, 0.15, 0.1, 0.1]))
                 self._new(rng, cat, Motion("static", s0=s, d=side * (h + SIDEWALK_M - 0.5), yaw=rng.uniform(-0.3, 0.3) + (0 if side > 0 else np.pi)))
         s = lo
         while s < min(hi, s_end + 250):
             s += rng.uniform(30, 120)
-            cat = ["cone", "debris", "crate"][rng.integers(3)]
+            cat = str(rng.choice(["cone", "debris", "crate", "tyre", "box", "branch"]))
+            d = rng.normal(0, 0.05) if cat != "branch" else rng.choice([-1, 1]) * (self.lanes * LANE_M - 0.6)
             for j in range(rng.integers(1, 4) if cat == "cone" else 1):
-                self._new(rng, cat, Motion("static", s0=s + 2.5 * j, d=rng.normal(0, 0.05), yaw=rng.uniform(0, 6)))
+                self._new(rng, cat, Motion("static", s0=s + 2.5 * j, d=d, yaw=rng.uniform(0, 6)))
         # moving traffic: one train of vehicles per lane, all at the lane's speed (never colliding)
         lanes = [(-(LANE_M / 2 + LANE_M * j), -1) for j in range(self.lanes)]
         lanes += [(LANE_M / 2 + LANE_M * j, 1) for j in range(self.lanes) if abs(LANE_M / 2 + LANE_M * j - self.ego_d) > 0.1]
@@ -557,26 +509,34 @@ class Scene:
             v = rng.uniform(3.5, 6) * side
             s = lo - abs(v) * T
             while s < hi + abs(v) * T:
-                s += rng.uniform(60, 250)
+                s += rng.uniform(40, 160)
                 d = side * (h + 1.1)
                 self._new(rng, "bicycle", Motion("lane", s0=s, d=d, v=v, yaw=0 if v > 0 else np.pi))
-                self._new(rng, "person", Motion("lane", s0=s, d=d, v=v, yaw=0 if v > 0 else np.pi)).tint2 = (-1, 0, 0)
+                self._new(rng, "person", Motion("lane", s0=s, d=d, v=v, yaw=0 if v > 0 else np.pi), riding=True)
             for band, direction in ((2.3, 1), (3.4, -1)):
                 v = rng.uniform(1.0, 1.6) * direction
                 s = lo - abs(v) * T
                 while s < hi + abs(v) * T:
                     s += rng.uniform(12, 60)
                     self._new(rng, "person", Motion("lane", s0=s, d=side * (h + band), v=v, yaw=0 if v > 0 else np.pi))
+        for side in (-1, 1):  # tortoises plodding along the outer edge of the sidewalks
+            v = rng.uniform(0.25, 0.45) * rng.choice([-1, 1])  # ours: a giant tortoise walks ~0.3 m/s
+            s = lo + rng.uniform(0, 150)
+            while s < min(hi, s_end + 250):
+                self._new(rng, "tortoise", Motion("lane", s0=s, d=side * (h + SIDEWALK_M - 1.4), v=v,
+                                                  yaw=0 if v > 0 else np.pi))
+                s += rng.uniform(150, 400)
         self._crossings(rng)
 
     def _crossings(self, rng) -> None:
-        """Pedestrians and blobs crossing the road ahead of the ego, timed to clear its lane."""
+        """Pedestrians, blobs and tortoises crossing the road ahead of the ego, timed to clear its lane."""
         t = rng.uniform(0, 4)
         t_axis = np.arange(len(self.ego_s)) * self.dt
         h = self.half
         while t < self.duration:
-            cat = "blob" if rng.random() < 0.3 else "person"
-            speed = rng.uniform(1.0, 1.6) if cat == "person" else rng.uniform(0.6, 1.4)
+            cat = str(rng.choice(["person", "blob", "tortoise"], p=[0.7, 0.15, 0.15]))
+            speed = {"person": (1.0, 1.6), "blob": (0.6, 1.4), "tortoise": (0.5, 0.8)}[cat]  # ours (a tortoise: faster than life, to cross in time; seldom does)
+            speed = rng.uniform(*speed)
             ahead = rng.uniform(20, 60)
             s_c = self.ego_arc(t) + ahead
             direction = rng.choice([-1, 1])
@@ -634,106 +594,18 @@ class Scene:
             yaw = float(np.arctan2(vec[0], vec[2]))
             cum = np.concatenate([[0], np.cumsum(np.hypot(np.diff(m.ss), np.diff(m.dd)))])
             walked = float(np.interp(t, m.times, cum))
-            return self.road.point(s, d), yaw, walked, s
+            return self.road.point(s, d, self._ground(d)), yaw, walked, s
         if not (self.road.s[0] < s < self.road.s[-1]):
             return None
         _, th, _, _ = self.road.frame(s)
-        return self.road.point(s, d), float(th) + m.yaw, walked, s
+        return self.road.point(s, d, self._ground(d)), float(th) + m.yaw, walked, s
+
+    def _ground(self, d: float) -> float:
+        """Height (y, down) of the surface an object at lateral offset d stands on: the sidewalk beyond the curb."""
+        return -CURB_M if abs(d) > self.half else 0.0
 
 
-# --------------------------------------------------------------------------- object meshes
-# Local frame: origin on the ground below the centre, x right, y down, z forward.
-
-PIVOTS = {1: "hip", 2: "hip", 3: "shoulder", 4: "shoulder"}
-
-
-def person_faces(fl: FaceList, h: float, obj: int, shirt, trousers, skin, seated: bool = False) -> None:
-    I = np.eye(3)
-    lift = 0.35 if seated else 0.0
-    hip, sh = 0.48 * h + lift, 0.80 * h + lift
-    for side, part in ((-1, 1), (1, 2)):
-        fl.box([side * 0.09, -(hip / 2 + (lift / 2 if seated else 0)) , 0], (0.07, hip / 2 - (lift / 2 if seated else 0), 0.08), I,
-               {"all": "fabric"}, trousers, obj, part=part, offset=(side * 0.3, 0))
-        fl.box([side * 0.24, -(sh - 0.16 * h), 0], (0.045, 0.16 * h, 0.05), I, {"all": "fabric"}, shirt, obj,
-               part=part + 2, skip=())
-    fl.box([0, -(hip + sh) / 2, 0], (0.19, (sh - hip) / 2, 0.11), I, {"all": "fabric"}, shirt, obj, skip=())
-    fl.box([0, -(sh + 0.075 * h + 0.02), 0], (0.09, 0.075 * h, 0.1), I, {"all": "skin", "top": "fabric"}, skin, obj, skip=())
-
-
-def build_mesh(o: Obj, atlas: Atlas) -> tuple[np.ndarray, np.ndarray]:
-    fl = FaceList(atlas, o.material)
-    rng = np.random.default_rng(o.seed)
-    w, h, l = o.size
-    I = np.eye(3)
-    k = o.track_id
-    off = tuple(rng.uniform(0, 2, 2))
-    tint = o.tint
-    if o.category == "car":
-        fl.box([0, -(0.2 + 0.33), 0], (w / 2, 0.33, l / 2), I,
-               {"side": "car_side", "front": "car_front", "rear": "car_rear", "top": "paint"}, tint, k, offset=off)
-        ch = h - 0.86
-        fl.box([0, -(0.86 + ch / 2), -0.06 * l], (w / 2 - 0.08, ch / 2, 0.27 * l), I,
-               {"side": "car_windows", "front": "windshield", "rear": "windshield", "top": "paint"}, tint, k, offset=off)
-        for sx in (-1, 1):
-            for sz in (-1, 1):
-                fl.box([sx * (w / 2 - 0.1), -0.31, sz * 0.32 * l], (0.11, 0.31, 0.31), I, {"all": "tyre"}, (1, 1, 1), k)
-    elif o.category in ("truck", "bus"):
-        if o.category == "truck":
-            cab = 2.0
-            fl.box([0, -(0.4 + (h - 0.9) / 2), l / 2 - cab / 2], (w / 2 - 0.05, (h - 0.9) / 2, cab / 2), I,
-                   {"side": "car_windows", "front": "windshield", "rear": "paint", "top": "paint"}, tint, k, offset=off)
-            fl.box([0, -(0.5 + (h - 0.5) / 2), -cab / 2], (w / 2, (h - 0.5) / 2, (l - cab) / 2 - 0.1), I,
-                   {"all": "corrugated"}, o.tint2, k, offset=off)
-        else:
-            fl.box([0, -(0.3 + (h - 0.3) / 2), 0], (w / 2, (h - 0.3) / 2, l / 2), I,
-                   {"side": "bus_side", "front": "windshield", "rear": "car_rear", "top": "paint"}, tint, k, offset=off)
-        for sx in (-1, 1):
-            for zz in (0.35 * l, -0.3 * l, -0.4 * l):
-                fl.box([sx * (w / 2 - 0.15), -0.5, zz], (0.16, 0.5, 0.5), I, {"all": "tyre"}, (1, 1, 1), k)
-    elif o.category == "person":
-        skin = tuple(np.array([0.95, 0.75, 0.6]) * rng.uniform(0.45, 1.0))
-        person_faces(fl, h, k, tint, o.tint2 if o.tint2[0] >= 0 else (0.2, 0.2, 0.3), skin, seated=o.tint2[0] < 0)
-    elif o.category == "bicycle":
-        for zz in (-0.55, 0.55):
-            ang = np.arange(8) * np.pi / 4 + np.pi / 8
-            for sx in (-1, 1):
-                ring = np.stack([np.full(8, sx * 0.025), -0.33 + 0.33 * np.cos(ang), zz + 0.33 * np.sin(ang)], 1)
-                n = np.array([sx, 0.0, 0.0])
-                fl.add(ring, n, ring[0], np.array([0, 0, 1.0]), np.array([0, 1.0, 0]), "tyre", (1, 1, 1), k,
-                       offset=(-(zz - 0.33), 0), extent=(0.66, 0.66))
-        fl.box([0, -0.55, 0], (0.025, 0.03, 0.5), I, {"all": "paint"}, tint, k, skip=())
-        fl.box([0, -0.75, -0.25], (0.025, 0.2, 0.025), I, {"all": "paint"}, tint, k, skip=())
-        fl.box([0, -0.85, 0.45], (0.25, 0.02, 0.02), I, {"all": "metal"}, (0.3, 0.3, 0.3), k, skip=())
-    elif o.category == "cone":
-        ang = np.arange(8) * np.pi / 4
-        rb, rt = 0.16, 0.03
-        for i in range(8):
-            a0, a1 = ang[i], ang[(i + 1) % 8]
-            p = [[rb * np.cos(a0), -0.04, rb * np.sin(a0)], [rb * np.cos(a1), -0.04, rb * np.sin(a1)],
-                 [rt * np.cos(a1), -h, rt * np.sin(a1)], [rt * np.cos(a0), -h, rt * np.sin(a0)]]
-            p = np.array(p)
-            am = 0.5 * (a0 + a1)
-            n = np.array([np.cos(am) * h, (rb - rt), np.sin(am) * h])
-            n /= np.linalg.norm(n)
-            u = (p[1] - p[0]) / np.linalg.norm(p[1] - p[0])
-            v = (p[0] - p[3]) / np.linalg.norm(p[0] - p[3])
-            fl.add(p[[3, 2, 1, 0]], n, p[3] - u * 0.0, u, v, "cone", (1, 1, 1), k, extent=(2 * np.pi * rb / 8 * 8, h))
-        fl.box([0, -0.02, 0], (0.2, 0.02, 0.2), I, {"all": "paint"}, (0.1, 0.1, 0.1), k)
-    elif o.category == "bin":
-        fl.box([0, -(h - 0.08) / 2, 0], (w / 2 - 0.03, (h - 0.08) / 2, l / 2 - 0.03), I, {"all": "bin"}, tint, k, offset=off)
-        fl.box([0, -(h - 0.04), 0], (w / 2, 0.04, l / 2), I, {"all": "paint"}, tint, k, skip=())
-    elif o.category == "crate":
-        fl.box([0, -h / 2, 0], (w / 2, h / 2, l / 2), I, {"all": "crate"}, tuple(np.array(tint) * 0.3 + 0.7), k)
-    else:  # debris, blob: low-poly lumps
-        n = 14 if o.category == "debris" else 22
-        dirs = rng.normal(size=(n, 3))
-        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-        rad = rng.uniform(0.8, 1.0, (n, 1)) if o.category == "debris" else rng.uniform(0.92, 1.0, (n, 1))
-        pts = dirs * rad * np.array([w / 2, h / 2, l / 2])
-        pts[:, 1] = np.minimum(pts[:, 1], 0.3 * h / 2)  # flat bottom
-        pts[:, 1] -= pts[:, 1].max()
-        fl.convex(pts, "stone" if o.category == "debris" else "mottled", tint, k, offset=off)
-    return fl.arrays()
+# --------------------------------------------------------------------------- frame assembly
 
 
 def transform_faces(verts: np.ndarray, rows: np.ndarray, R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -750,40 +622,30 @@ def transform_faces(verts: np.ndarray, rows: np.ndarray, R: np.ndarray, t: np.nd
     return v, r
 
 
-def part_poses(o: Obj, walked: float) -> tuple[np.ndarray, np.ndarray]:
-    """Rigid motion (R (5,3,3), t (5,3)) of each body part (row R_PART: 0 body, 1–2 legs, 3–4 arms)
-    in the object's frame: people swing legs and arms by the distance travelled (riders pedal)."""
-    R = np.repeat(np.eye(3)[None], 5, 0)
-    t = np.zeros((5, 3))
-    if o.category != "person":
-        return R, t
-    h = o.size[1]
-    seated = o.tint2[0] < 0
-    stride = 1.4 if not seated else 4.0
-    phase = 2 * np.pi * walked / stride
-    amp = 0.45 if not seated else 0.5
-    lift = 0.35 if seated else 0.0
-    for part, sign, pivot_y in ((1, 1, 0.48 * h + lift), (2, -1, 0.48 * h + lift), (3, -1, 0.8 * h + lift), (4, 1, 0.8 * h + lift)):
-        a = sign * amp * np.sin(phase) * (0.6 if part > 2 else 1.0)
-        if seated and part <= 2:
-            a += -0.6
-        if seated and part > 2:
-            a = -0.9
-        p = np.array([0, -pivot_y, 0])
-        R[part] = rot_x(a)
-        t[part] = p - R[part] @ p  # rotation about the hip or shoulder
-    return R, t
+def _in_view(M: np.ndarray, centres: np.ndarray, radii: np.ndarray, view: tuple[float, float, float]) -> np.ndarray:
+    """Which spheres (map frame) may show in a camera at pose M (camera to map) whose image spans
+    |x/z| ≤ view[0], |y/z| ≤ view[1], or in one moved sideways by up to view[2] (the stereo baseline)."""
+    tx, ty, margin = view
+    P = (centres - M[:3, 3]) @ M[:3, :3]  # map → camera frame
+    r = radii + margin
+    return ((P[:, 2] > -r) & (np.abs(P[:, 0]) - P[:, 2] * tx <= r * math.hypot(1, tx))
+            & (np.abs(P[:, 1]) - P[:, 2] * ty <= r * math.hypot(1, ty)))
 
 
-def frame_faces(scene: Scene, t: float):
-    """All faces near the ego at time t (map frame) and the visible-candidate objects' states."""
+def frame_faces(scene: Scene, t: float, view: tuple[float, float, float] | None = None):
+    """All faces near the ego at time t (map frame) and the visible-candidate objects' states.
+    ``view`` (tan of the half field of view across and down, sideways margin): leave out the
+    faces and objects no camera of the rig can see (none are left out without it)."""
     s_ego = scene.ego_arc(t)
     key = scene.static_rows[:, R_SKEY]
     sel = (key > s_ego - VIEW_BEHIND_M) & (key < s_ego + VIEW_AHEAD_M)
+    M = scene.camera_map(t)
+    if view is not None:
+        sel[sel] = _in_view(M, scene.static_centres[sel], scene.static_radii[sel], view)
     verts = [scene.static_verts[sel]]
     rows = [scene.static_rows[sel]]
     # terrain: one big square below the road, texture anchored at the map origin
-    c = scene.camera_map(t)[:3, 3]
+    c = M[:3, 3]
     g = np.array([round(c[0] / 16) * 16, GROUND_DROP_M, round(c[2] / 16) * 16])
     r = 400.0
     fl = FaceList(scene.atlas)
@@ -807,6 +669,9 @@ def frame_faces(scene: Scene, t: float):
         if o.faces is None:
             o.faces = build_mesh(o, scene.atlas)
         pos, yaw, walked, _ = st
+        if view is not None and not _in_view(M, (pos - [0.0, o.size[1] / 2, 0.0])[None],
+                                             np.array([0.5 * float(np.linalg.norm(o.size)) + VIEW_SLACK_M]), view)[0]:
+            continue
         Ro = rot_y(yaw)
         lv, lr = o.faces
         if o.category == "person":

@@ -10,7 +10,7 @@ left and right views and break stereo matching the way no real image does).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -38,6 +38,7 @@ class Atlas:
     levels: list[np.ndarray]  # uint8 (H/2^L, W/2^L, 3)
     tiles: dict[str, Tile]
     packed: np.ndarray | None = None  # all levels side by side; level L starts at x = 2·ATLAS_W·(1 − 2^−L)
+    cache: dict = field(default_factory=dict)  # meshes built once per atlas (their rows hold its tile places)
 
 
 # --------------------------------------------------------------------------- noise
@@ -206,60 +207,203 @@ def bark(rng, h, w) -> np.ndarray:
 
 
 def paint(rng, h, w) -> np.ndarray:
-    g = 0.85 + 0.08 * fbm(rng, h, w, 3, 5) + 0.06 * fbm(rng, h, w, 32, 2) + 0.08 * speckle(rng, h, w, 0.08)
+    g = 0.86 + 0.04 * fbm(rng, h, w, 3, 5) + 0.015 * fbm(rng, h, w, 32, 2)
     return _rgb(g, (1, 1, 1))
 
 
-def car_side(rng, h, w) -> np.ndarray:
-    """Body side stretched over the face: door seams, handles, dark sills, wheel-arch shadow."""
+def body_side(rng, h, w, part: str = "upper") -> np.ndarray:
+    """A car's body side, stretched along the car: the ``upper`` part (waist line to the shoulder:
+    sky-lit, a crease under the shoulder, door handles) or the ``lower`` part (waist to sill:
+    shading down as the panel turns away from the sky, a black plastic sill); door seams at
+    the same places on both."""
     img = paint(rng, h, w)
-    for fx in (0.32, 0.55, 0.78):
-        img[:, int(fx * w) : int(fx * w) + 2] *= 0.45
-    for fx in (0.45, 0.70):
-        img[int(0.22 * h) : int(0.32 * h), int(fx * w) : int(fx * w) + w // 28] *= 0.5
-    img[int(0.82 * h) :, :] *= 0.35
-    img[: int(0.06 * h), :] *= 1.15
-    yy, xx = np.mgrid[0:h, 0:w]
-    for cx in (0.18, 0.82):
-        arch = ((xx - cx * w) / (0.11 * w)) ** 2 + ((yy - h) / (0.62 * h)) ** 2 < 1
-        img[arch] = 0.08
-    return img
-
-
-def car_end(rng, h, w, front: bool) -> np.ndarray:
-    img = paint(rng, h, w)
-    img[int(0.8 * h) :, :] *= 0.35
-    light = (1.0, 0.95, 0.8) if front else (0.8, 0.08, 0.05)
-    for x0 in (0.05, 0.77):
-        img[int(0.2 * h) : int(0.42 * h), int(x0 * w) : int((x0 + 0.18) * w)] = light
-    if front:
-        img[int(0.42 * h) : int(0.7 * h), int(0.3 * w) : int(0.7 * w)] = (0.08 + 0.1 * (np.arange(int(0.7 * w) - int(0.3 * w)) % 6 < 2))[None, :, None]
+    y = (np.arange(h, dtype=np.float32) + 0.5) / h
+    if part == "upper":
+        shade = 1.08 - 0.12 * y
+        shade[y < 0.12] *= 1.06
+        shade[(y > 0.12) & (y < 0.2)] *= 0.8  # the crease under the shoulder
     else:
-        img[int(0.45 * h) : int(0.65 * h), int(0.38 * w) : int(0.62 * w)] = (0.92, 0.92, 0.9)
-        img[int(0.52 * h) : int(0.58 * h), int(0.41 * w) : int(0.59 * w)] = 0.1
+        shade = 0.98 - 0.3 * y ** 1.5
+    img *= shade[:, None, None]
+    for fx in (0.26, 0.53, 0.78):  # door seams: front wing | front door | rear door | rear quarter
+        y1 = h if part == "upper" else int(0.8 * h)
+        img[:y1, int(fx * w) : int(fx * w) + 2] *= 0.45
+    if part == "upper":
+        for fx in (0.46, 0.72):  # handles: a dark recess under a bright edge
+            x0, x1 = int(fx * w), int(fx * w) + max(3, w // 22)
+            img[int(0.4 * h) : int(0.48 * h), x0:x1] *= 1.25
+            img[int(0.48 * h) : int(0.6 * h), x0:x1] *= 0.35
+    else:
+        img[int(0.8 * h) :, :] = 0.16  # sill: black plastic (the tint barely shows)
     return img
+
+
+def rear_panel(rng, h, w) -> np.ndarray:
+    """A car's rear below the lamps, stretched (painted): a crease under the lamps, the recess
+    the plate sits in, the bumper's top seam with its reflectors, shading towards the bottom."""
+    img = paint(rng, h, w)
+    y = (np.arange(h, dtype=np.float32) + 0.5) / h
+    img *= (1.04 - 0.22 * y)[:, None, None]
+    img[int(0.08 * h) : int(0.12 * h)] *= 1.2
+    img[int(0.12 * h) : int(0.17 * h)] *= 0.7
+    img[int(0.3 * h) : int(0.62 * h), int(0.3 * w) : int(0.7 * w)] *= 0.8
+    img[int(0.62 * h) : int(0.66 * h)] *= 0.45
+    for x0 in (0.04, 0.9):
+        img[int(0.72 * h) : int(0.8 * h), int(x0 * w) : int((x0 + 0.06) * w)] = (0.6, 0.05, 0.04)
+    return img
+
+
+def glass(rng, h, w, frame: float = 0.06) -> np.ndarray:
+    """Tinted glass: dark, with the sky reflected brighter towards the top and one soft diagonal
+    streak, inside a black seal. Untinted faces: the colour is the glass's own."""
+    y = (np.arange(h, dtype=np.float32) + 0.5)[:, None] / h
+    x = (np.arange(w, dtype=np.float32) + 0.5)[None, :] / w
+    g = 0.11 + 0.3 * (1 - y) ** 2 + 0.05 * fbm(rng, h, w, 2, 3)
+    streak = np.exp(-(((x - 0.9 * y - rng.uniform(0.1, 0.6)) / 0.08) ** 2))
+    g = g + 0.12 * streak * (1 - y)
+    img = _rgb(g, (0.78, 0.86, 1.0))
+    fy, fx = max(1, int(frame * h)), max(1, int(frame * w * h / max(w, 1)))
+    img[:fy], img[-fy:], img[:, :fx], img[:, -fx:] = 0.05, 0.05, 0.05, 0.05
+    return img
+
+
+def headlight_band(rng, h, w) -> np.ndarray:
+    """The front between the bonnet and the bumper (untinted): headlight units at both ends
+    (chrome reflector, clear lens, a bright lamp), a black grille with bars between them."""
+    img = np.full((h, w, 3), 0.09, np.float32)
+    yy, xx = np.mgrid[0:h, 0:w]
+    for x0, x1 in ((0.02, 0.25), (0.75, 0.98)):
+        m = (xx >= x0 * w) & (xx < x1 * w) & (yy > 0.15 * h) & (yy < 0.8 * h)
+        refl = 0.42 + 0.14 * np.cos((xx - (x0 + x1) / 2 * w) / ((x1 - x0) * w) * 6.0) * np.cos((yy - h / 2) / h * 3)
+        img[m] = (refl[m][:, None] * np.array([0.95, 0.96, 1.0], np.float32))
+        cx = (x0 + 0.3 * (x1 - x0)) if x0 < 0.5 else (x1 - 0.3 * (x1 - x0))
+        lamp = ((xx - cx * w) / (0.05 * w)) ** 2 + ((yy - 0.47 * h) / (0.2 * h)) ** 2 < 1
+        img[lamp] = (0.78, 0.78, 0.76)  # daytime: the lamp unlit, a bright reflector
+    grille = (xx >= 0.32 * w) & (xx < 0.68 * w) & (yy > 0.2 * h) & (yy < 0.95 * h)
+    bars = (yy % max(3, h // 6)) < 1
+    img[grille] = 0.05
+    img[grille & bars] = 0.3
+    img[(xx >= 0.47 * w) & (xx < 0.53 * w) & (yy > 0.35 * h) & (yy < 0.75 * h)] = 0.75  # badge
+    return img
+
+
+def lamp(rng, h, w) -> np.ndarray:
+    """A headlamp's clear lens where it wraps round the corner (untinted): chrome and glass."""
+    y = (np.arange(h, dtype=np.float32) + 0.5)[:, None] / h
+    g = 0.38 + 0.12 * np.cos(y * 5.0) + 0.04 * fbm(rng, h, w, 2, 2)
+    return _rgb(np.broadcast_to(g, (h, w)).copy(), (0.95, 0.96, 1.0))
+
+
+def tail_light(rng, h, w) -> np.ndarray:
+    """A rear lamp cluster (untinted): red lens, brighter inner ring, a white reversing lamp."""
+    yy, xx = np.mgrid[0:h, 0:w]
+    r = np.hypot((xx + 0.5) / w - 0.5, (yy + 0.5) / h - 0.5) * 2
+    img = _rgb(0.55 + 0.25 * np.clip(1 - r, 0, 1) + 0.05 * fbm(rng, h, w, 2, 2), (1.0, 0.12, 0.08))
+    img[(r > 0.45) & (r < 0.6)] *= 1.35
+    img[int(0.62 * h) :, int(0.15 * w) : int(0.45 * w)] = (0.85, 0.85, 0.82)
+    img[:1], img[-1:], img[:, :1], img[:, -1:] = 0.1, 0.1, 0.1, 0.1
+    return np.clip(img, 0, 1)
+
+
+def number_plate(rng, h, w) -> np.ndarray:
+    """A European plate (untinted): white, a blue band on the left, black characters, a frame."""
+    img = np.full((h, w, 3), 0.92, np.float32)
+    img[:, : max(2, w // 11)] = (0.05, 0.15, 0.6)
+    x = w // 11 + 3
+    while x < w - 4:
+        cw = int(rng.integers(3, 5))
+        if rng.random() < 0.85:
+            img[int(0.2 * h) : int(0.8 * h), x : x + cw] = 0.08
+        x += cw + 2
+    img[:1], img[-1:], img[:, :1], img[:, -1:] = 0.2, 0.2, 0.2, 0.2
+    return img
+
+
+def wheel_face(rng, h, w) -> np.ndarray:
+    """A wheel seen from the side, stretched over its disc: tyre sidewall, five-spoke alloy rim
+    (the face's tint colours the rim: silver, dark or steel), hub."""
+    yy, xx = np.mgrid[0:h, 0:w]
+    dx, dy = (xx + 0.5) / w - 0.5, (yy + 0.5) / h - 0.5
+    r = np.hypot(dx, dy) * 2
+    ang = np.arctan2(dy, dx)
+    g = 0.08 + 0.04 * fbm(rng, h, w, 4, 3)
+    rim = r < 0.66
+    spokes = np.cos(ang * 5) > 0.1 - 0.6 * np.clip(0.4 - r, 0, 1)
+    g = np.where(rim, np.where(spokes | (r > 0.58) | (r < 0.2), 0.72 - 0.2 * r, 0.1), g)
+    g = np.where(r < 0.08, 0.35, g)
+    g = np.where((r > 0.66) & (r < 0.7), 0.2, g)
+    return _rgb(g.astype(np.float32), (1, 1, 1))
+
+
+def contact_shadow(rng, h, w) -> np.ndarray:
+    """The shadow under a vehicle or person, stretched over its footprint: dark asphalt in the
+    middle, fading towards the road's own brightness at the border (no alpha: the border is
+    the asphalt's mean grey, so it does not show as an edge)."""
+    y = ((np.arange(h, dtype=np.float32) + 0.5) / h - 0.5)[:, None] * 2
+    x = ((np.arange(w, dtype=np.float32) + 0.5) / w - 0.5)[None, :] * 2
+    d = np.clip((np.maximum(np.abs(x) ** 4 + np.abs(y) ** 4, 0) ** 0.25 - 0.55) / 0.45, 0, 1)
+    g = 0.34 * (0.12 + 0.88 * d * d * (3 - 2 * d)) + 0.05 * speckle(rng, h, w, 0.15)
+    return _rgb(g, (1.0, 1.0, 1.03))
 
 
 def glass_panes(rng, h, w, n_panes: int, pillar: float = 0.08) -> np.ndarray:
     """Window band: dark reflective panes separated by light pillars (painted, so tinted)."""
     img = paint(rng, h, w)
-    glass = 0.10 + 0.20 * np.linspace(1, 0.2, h, dtype=np.float32)[:, None] + 0.10 * fbm(rng, h, w, 2, 3)
-    glass = _rgb(glass, (0.7, 0.8, 0.95))
+    g = 0.10 + 0.20 * np.linspace(1, 0.2, h, dtype=np.float32)[:, None] + 0.10 * fbm(rng, h, w, 2, 3)
+    panes = _rgb(g, (0.7, 0.8, 0.95))
     x = (np.arange(w) + 0.5) / w * n_panes
     inside = np.abs(x - np.floor(x) - 0.5) < 0.5 - pillar / 2
     rows = (np.arange(h) > 0.1 * h) & (np.arange(h) < 0.9 * h)
     m = rows[:, None] & inside[None, :]
-    img[m] = glass[m]
+    img[m] = panes[m]
     return img
 
 
-def tyre(rng, h, w) -> np.ndarray:
+def rubber(rng, h, w) -> np.ndarray:
+    return _rgb(0.07 + 0.03 * fbm(rng, h, w, 4, 3), (1, 1, 1))
+
+
+def trim(rng, h, w) -> np.ndarray:
+    return _rgb(0.14 + 0.04 * fbm(rng, h, w, 4, 3) + 0.03 * speckle(rng, h, w, 0.2), (1, 1, 1))
+
+
+def barrier_stripes(rng, h, w) -> np.ndarray:
+    """A road barrier board (untinted): red and white diagonal stripes, a dirty edge."""
     yy, xx = np.mgrid[0:h, 0:w]
-    r = np.hypot((xx + 0.5) / w - 0.5, (yy + 0.5) / h - 0.5) * 2
-    g = 0.10 + 0.05 * fbm(rng, h, w, 4, 3)
-    g = np.where(r < 0.6, 0.55 + 0.1 * np.cos(np.arctan2(yy - h / 2, xx - w / 2) * 5), g)
-    g = np.where(r < 0.15, 0.3, g)
-    return _rgb(g.astype(np.float32), (1, 1, 1))
+    red = ((xx + yy) // max(2, h // 2)) % 2 == 0
+    img = np.where(red[..., None], np.array([0.75, 0.08, 0.06], np.float32), np.array([0.92, 0.92, 0.9], np.float32))
+    img = img * (0.92 + 0.08 * fbm(rng, h, w, 4, 3))[..., None]
+    e = max(1, h // 16)
+    img[:e] *= 0.7
+    img[-e:] *= 0.7
+    return img
+
+
+def cardboard(rng, h, w) -> np.ndarray:
+    """A cardboard box face, stretched: brown corrugated board, a tape strip across the middle."""
+    g = 0.8 + 0.08 * fbm(rng, h, w, 3, 4) + 0.04 * np.sin(np.arange(w) * 1.3)[None, :]
+    img = _rgb(g, (0.66, 0.5, 0.32))
+    img[int(0.44 * h) : int(0.56 * h)] = (0.78, 0.7, 0.55)
+    for edge in (img[:1], img[-1:], img[:, :1], img[:, -1:]):
+        edge[:] = (0.45, 0.34, 0.22)
+    return img
+
+
+def shell(rng, h, w) -> np.ndarray:
+    """A tortoise shell: dark-rimmed polygonal scutes with lighter centres."""
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    cell = 16.0
+    row = np.floor(yy / cell)
+    u = (xx + (row % 2) * cell / 2) / cell
+    fu, fv = u - np.floor(u) - 0.5, yy / cell - row - 0.5
+    r = np.maximum(np.abs(fu) * 1.15, np.abs(fv))
+    g = 0.75 - 0.5 * np.clip((r - 0.3) / 0.2, 0, 1) + 0.08 * fbm(rng, h, w, 4, 3)
+    return _rgb(g, (0.55, 0.42, 0.22))
+
+
+def hair(rng, h, w) -> np.ndarray:
+    streak = value_noise(rng, h, w, (2, 24))
+    return _rgb(0.75 + 0.25 * (streak - 0.5) + 0.06 * fbm(rng, h, w, 8, 3), (1, 1, 1))
 
 
 def corrugated(rng, h, w, period: int) -> np.ndarray:
@@ -331,12 +475,22 @@ def _tile_specs() -> dict[str, tuple[int, int, float, float]]:
         "foliage": (192, 192, 2.0, 2.0),
         "metal": (64, 64, 1.0, 1.0),
         "paint": (128, 128, 2.0, 2.0),
-        "car_side": (256, 64, 0, 0),
-        "car_front": (128, 64, 0, 0),
-        "car_rear": (128, 64, 0, 0),
-        "car_windows": (256, 64, 0, 0),
-        "windshield": (128, 64, 0, 0),
-        "tyre": (64, 64, 0, 0),
+        "body_side": (256, 32, 0, 0),
+        "body_lower": (256, 32, 0, 0),
+        "glass": (128, 64, 0, 0),
+        "rear_panel": (128, 64, 0, 0),
+        "headlights": (128, 32, 0, 0),
+        "tail_light": (32, 32, 0, 0),
+        "lamp": (16, 16, 0, 0),
+        "plate": (64, 16, 0, 0),
+        "wheel": (64, 64, 0, 0),
+        "shadow": (64, 64, 0, 0),
+        "rubber": (32, 32, 0.5, 0.5),
+        "trim": (32, 32, 0.5, 0.5),
+        "barrier": (128, 32, 0, 0),
+        "cardboard": (64, 64, 0, 0),
+        "shell": (96, 96, 0.4, 0.4),
+        "hair": (32, 32, 0.2, 0.2),
         "corrugated": (128, 128, 1.0, 1.0),
         "bus_side": (128, 192, 2.0, 3.0),
         "fabric": (64, 64, 0.5, 0.5),
@@ -393,18 +547,38 @@ def make_tile(name: str, rng: np.random.Generator, w: int, h: int) -> np.ndarray
         return _rgb(0.6 + 0.08 * fbm(rng, h, w, 4, 4), (0.9, 0.92, 0.95))
     if name == "paint":
         return paint(rng, h, w)
-    if name == "car_side":
-        return car_side(rng, h, w)
-    if name == "car_front":
-        return car_end(rng, h, w, True)
-    if name == "car_rear":
-        return car_end(rng, h, w, False)
-    if name == "car_windows":
-        return glass_panes(rng, h, w, 2, 0.1)
-    if name == "windshield":
-        return glass_panes(rng, h, w, 1, 0.1)
-    if name == "tyre":
-        return tyre(rng, h, w)
+    if name == "body_side":
+        return body_side(rng, h, w, "upper")
+    if name == "body_lower":
+        return body_side(rng, h, w, "lower")
+    if name == "rear_panel":
+        return rear_panel(rng, h, w)
+    if name == "glass":
+        return glass(rng, h, w)
+    if name == "headlights":
+        return headlight_band(rng, h, w)
+    if name == "lamp":
+        return lamp(rng, h, w)
+    if name == "tail_light":
+        return tail_light(rng, h, w)
+    if name == "plate":
+        return number_plate(rng, h, w)
+    if name == "wheel":
+        return wheel_face(rng, h, w)
+    if name == "shadow":
+        return contact_shadow(rng, h, w)
+    if name == "rubber":
+        return rubber(rng, h, w)
+    if name == "trim":
+        return trim(rng, h, w)
+    if name == "barrier":
+        return barrier_stripes(rng, h, w)
+    if name == "cardboard":
+        return cardboard(rng, h, w)
+    if name == "shell":
+        return shell(rng, h, w)
+    if name == "hair":
+        return hair(rng, h, w)
     if name == "corrugated":
         return corrugated(rng, h, w, 16)
     if name == "bus_side":
