@@ -313,7 +313,7 @@ def cmd_query(args: argparse.Namespace) -> int:
     from mining.catalog.query import run_query
 
     limits = {k: v for k, v in (("memory_limit", args.memory_limit), ("threads", args.threads),
-                                ("timeout_s", args.timeout)) if v is not None}  # unset: query.py's defaults
+                                ("timeout_s", args.timeout), ("limit", args.limit)) if v is not None}  # unset: query.py's defaults
     return run_query(args.sql, args.out, args.format, args.output, **limits)
 
 
@@ -386,6 +386,8 @@ def build_parser() -> argparse.ArgumentParser:
     qry.add_argument("--threads", type=int, help="threads the query may use (default: query.THREADS, 2)")
     qry.add_argument("--timeout", type=float, metavar="SECONDS",
                      help="stop the query after this many seconds (default: query.TIMEOUT_S, 60)")
+    qry.add_argument("--limit", type=int, metavar="N",
+                     help="table output shows at most N rows and the total count (default: query.LIMIT, 50; 0 = all)")
     qry.set_defaults(func=cmd_query)
 
     exp = sub.add_parser("export", help="tubes matching a SQL predicate, for other tools")

@@ -172,3 +172,19 @@ def test_bench_catalog_small(tmp_path, shared_data):
     n_selected = con.sql("SELECT count(*) FROM selected_tubes").fetchone()[0]
     assert r["query_rows"]["rerank"] == min(100, n_selected) > 0 and r["query_rows"]["one_tube_masks"] > 0
     assert r["query_rows"]["unknown_long_tubes"] == con.sql(r["queries"]["unknown_long_tubes"]).fetchall().__len__() > 0
+
+
+def test_table_output_shows_at_most_limit_rows_with_the_total(catalogue, capsys):
+    out, tables = catalogue
+    n = tables["tube_frames"].num_rows
+    assert n > 5
+    assert run_query("SELECT tube_id, frame FROM tube_frames ORDER BY ALL", str(out), limit=5) == 0
+    text = capsys.readouterr().out.splitlines()
+    assert len(text) == 2 + 5 + 1 and text[-1].startswith(f"(5 of {n} rows shown")
+    assert run_query("SELECT tube_id, frame FROM tube_frames", str(out), limit=0) == 0
+    assert capsys.readouterr().out.splitlines()[-1] == f"({n} rows)"
+    assert run_query("SELECT tube_id, frame FROM tube_frames", str(out), "csv") == 0  # programs get every row
+    assert len(capsys.readouterr().out.splitlines()) == n + 1
+    from mining.catalog.query import LIMIT
+
+    assert LIMIT == 50 and run_query("SELECT 1", str(out), limit=-1) == 2

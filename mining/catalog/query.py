@@ -28,6 +28,7 @@ MEMORY_LIMIT = "2GB"  # ours: `mine query --memory-limit` default; a shared logi
 THREADS = 2  # ours: `mine query --threads` default
 TIMEOUT_S = 60.0  # ours: `mine query --timeout` default; catalogue queries take well under a second (`mine bench pipeline`)
 MAX_CELL = 60  # ours: longer cells (RLE strings, posteriors) are cut in table output
+LIMIT = 50  # ours: `mine query --limit` default: table output shows this many rows and the total (0 = all)
 
 
 class QueryTimeout(MiningError):
@@ -65,9 +66,11 @@ def _cell(v) -> str:
     return s if len(s) <= MAX_CELL else s[: MAX_CELL - 1] + "…"
 
 
-def format_table(t: pa.Table) -> str:
-    """Aligned text: a header, a rule, one line per row (numbers right-aligned)."""
-    rows = [[_cell(v) for v in row.values()] for row in t.to_pylist()]
+def format_table(t: pa.Table, limit: int = 0) -> str:
+    """Aligned text: a header, a rule, one line per row (numbers right-aligned); at most
+    ``limit`` rows (0: all), then the total."""
+    shown = t.slice(0, limit) if limit and t.num_rows > limit else t
+    rows = [[_cell(v) for v in row.values()] for row in shown.to_pylist()]
     names = t.column_names
     widths = [max([len(n)] + [len(r[i]) for r in rows]) for i, n in enumerate(names)]
     numeric = [pa.types.is_integer(f.type) or pa.types.is_floating(f.type) for f in t.schema]
@@ -76,7 +79,11 @@ def format_table(t: pa.Table) -> str:
         return "  ".join(c.rjust(w) if num else c.ljust(w) for c, w, num in zip(cells, widths, numeric)).rstrip()
 
     out = [line(names), line(["-" * w for w in widths])] + [line(r) for r in rows]
-    out.append(f"({t.num_rows} row{'s' if t.num_rows != 1 else ''})")
+    if shown.num_rows < t.num_rows:
+        out.append(f"({shown.num_rows} of {t.num_rows} rows shown; --limit N for more, --limit 0 for all, "
+                   f"--format csv/json/parquet for every row)")
+    else:
+        out.append(f"({t.num_rows} row{'s' if t.num_rows != 1 else ''})")
     return "\n".join(out) + "\n"
 
 
@@ -111,11 +118,12 @@ def format_csv(t: pa.Table) -> str:
     return buf.getvalue().decode()
 
 
-def write_result(t: pa.Table, fmt: str, output: str | Path | None) -> None:
+def write_result(t: pa.Table, fmt: str, output: str | Path | None, limit: int = 0) -> None:
+    """Write ``t``; ``limit`` cuts table output only (csv, json and parquet are for programs: every row)."""
     if fmt == "parquet":
         pq.write_table(t, str(output), compression="zstd")
         return
-    text = {"table": format_table, "csv": format_csv, "json": format_json}[fmt](t)
+    text = format_table(t, limit) if fmt == "table" else {"csv": format_csv, "json": format_json}[fmt](t)
     if output is None:
         sys.stdout.write(text)
     else:
@@ -123,9 +131,13 @@ def write_result(t: pa.Table, fmt: str, output: str | Path | None) -> None:
 
 
 def run_query(sql: str, out: str | Path, fmt: str = "table", output: str | Path | None = None,
-              memory_limit: str = MEMORY_LIMIT, threads: int = THREADS, timeout_s: float = TIMEOUT_S) -> int:
+              memory_limit: str = MEMORY_LIMIT, threads: int = THREADS, timeout_s: float = TIMEOUT_S,
+              limit: int = LIMIT) -> int:
     """`mine query`: 0 on success; 2 with a message on standard error for bad SQL, a
     missing catalogue, a statement that would write or a query past its limits."""
+    if limit < 0:
+        print(f"mine query: --limit must be ≥ 0 (0 = all rows), got {limit}", file=sys.stderr)
+        return 2
     if threads < 1 or not timeout_s > 0:
         print(f"mine query: --threads must be ≥ 1 and --timeout > 0, got {threads} and {timeout_s}", file=sys.stderr)
         return 2
@@ -137,7 +149,7 @@ def run_query(sql: str, out: str | Path, fmt: str = "table", output: str | Path 
         return 2
     try:
         t = query_table(sql, out, memory_limit, threads, timeout_s)
-        write_result(t, fmt, output)
+        write_result(t, fmt, output, limit)
     except (MiningError, duckdb.Error) as e:
         print(f"mine query: {e}", file=sys.stderr)
         return 2
