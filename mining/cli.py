@@ -292,7 +292,9 @@ def cmd_submit(args: argparse.Namespace) -> int:
     if args.address and args.address.startswith("http"):
         from mining.pipeline.rayjobs import submit_ray_job
 
-        return submit_ray_job(args.address, args.argv, args.out)
+        return submit_ray_job(args.address, args.argv, args.out, wait=not args.no_wait)
+    if args.no_wait:
+        raise ConfigError("--no-wait needs --address http://HEAD:8265 (a job handed to a cluster through Ray Jobs)")
     from mining.pipeline.submit import mine_on_ray
 
     mode = "new" if args.new_run else "extend" if args.extend else "resume"
@@ -304,6 +306,12 @@ def cmd_submit(args: argparse.Namespace) -> int:
 
 
 def cmd_status(args: argparse.Namespace) -> int:
+    if args.address:
+        from mining.pipeline.rayjobs import ray_jobs_status
+
+        return ray_jobs_status(args.address, args.job)
+    if args.job:
+        raise ConfigError("--job needs --address http://HEAD:8265")
     from mining.pipeline.status import print_status
 
     return print_status(args.out, verify=args.verify)
@@ -352,6 +360,8 @@ def build_parser() -> argparse.ArgumentParser:
                                        "--root and --out are made absolute here and read on the cluster); "
                                        "HOST:PORT or auto: run the scheduler here, the work on that cluster; "
                                        "default: start a local Ray on this machine")
+    smt.add_argument("--no-wait", action="store_true", help="with --address http://…: print the submission id and "
+                                                            "return instead of following the job's logs")
     smt.add_argument("--workers", type=int, help="local Ray only: CPUs to use (default: all)")
     smt.add_argument("--host", metavar="IP", help="local Ray only: the interface every Ray port listens on (default: "
                                                   "the config's run.bind_host, 127.0.0.1). Ray's ports run code "
@@ -374,6 +384,8 @@ def build_parser() -> argparse.ArgumentParser:
     sts.add_argument("--out", default="out/catalog", help="catalogue folder or URI")
     sts.add_argument("--verify", action="store_true",
                      help="also check every file's sha256 against the manifest (reads the whole catalogue)")
+    sts.add_argument("--address", help="http://HEAD:8265: the cluster's Tube Miner jobs through Ray Jobs instead")
+    sts.add_argument("--job", help="with --address: one job's status and the end of its logs")
     sts.set_defaults(func=cmd_status)
 
     qry = sub.add_parser("query", help="read-only SQL (DuckDB) over the catalogue's tables and views")

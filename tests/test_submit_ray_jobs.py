@@ -164,3 +164,29 @@ def test_failed_job_fails_the_command(jobs):
     assert str(work / "no-such-root") in stdout  # resolved on the submitting side
     assert "FAILED" in stderr
     assert not (work / "catalog").exists()
+
+
+def test_no_wait_returns_the_submission_id_and_status_follows_it(head, jobs, tmp_path):
+    """--no-wait hands the job over and returns; `mine status --address` lists it and, with
+    --job, shows it finishing (the catalogue is written as with a followed job)."""
+    address, env = head
+    args = ["--dataset", "synthetic", "--sequences", "0000", "--option", "n_frames=6", "--set", "window.core=6",
+            "--set", "window.context_before=0", "--set", "window.context_after=0"]
+    r = subprocess.run([str(BIN / "mine"), "submit", *args, "--address", address, "--out", "catalog", "--no-wait"],
+                       cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    job_id = r.stdout.strip().splitlines()[-1]
+    assert job_id and "follow it with: mine status --address" in r.stderr
+    listed = subprocess.run([str(BIN / "mine"), "status", "--address", address], env=env, capture_output=True,
+                            text=True, timeout=60)
+    assert job_id in listed.stdout and "Tube Miner job(s)" in listed.stdout
+    t_end = time.monotonic() + JOB_TIMEOUT_S
+    while True:
+        one = subprocess.run([str(BIN / "mine"), "status", "--address", address, "--job", job_id], env=env,
+                             capture_output=True, text=True, timeout=60)
+        if "SUCCEEDED" in one.stdout.splitlines()[0] or time.monotonic() > t_end:
+            break
+        time.sleep(2)
+    assert one.returncode == 0 and one.stdout.startswith(f"{job_id}: SUCCEEDED"), one.stdout
+    assert "--no-wait" not in one.stdout.splitlines()[0]  # the driver on the cluster follows nothing
+    assert (tmp_path / "catalog" / "job.json").exists()

@@ -40,6 +40,8 @@ def _forwarded_argv(argv: list[str], out: str) -> list[str]:
             if not eq:
                 next(it, None)
             continue
+        if opt == "--no-wait":  # the submitting side's choice, not the driver's
+            continue
         if opt in _PATH_OPTIONS:
             value = value if eq else next(it, "")
             fwd += [opt, _absolute(value)]
@@ -50,24 +52,57 @@ def _forwarded_argv(argv: list[str], out: str) -> list[str]:
     return fwd
 
 
-def submit_ray_job(address: str, argv: list[str], out: str, poll_s: float = 1.0) -> int:
+def _client(address: str):
+    try:
+        from ray.job_submission import JobSubmissionClient
+    except ImportError as e:
+        raise ConfigError(f"--address {address} needs Ray Jobs: pip install '.[cluster]' ({e})") from None
+    try:
+        return JobSubmissionClient(address)
+    except ConnectionError as e:
+        raise ConfigError(f"no Ray Jobs server at --address {address}: {e}") from None
+
+
+def ray_jobs_status(address: str, job_id: str | None = None) -> int:
+    """``mine status --address http://HEAD:8265``: the cluster's Tube Miner jobs (entrypoint
+    ``mine …``), newest first, or one job's status and the last lines of its logs; exit 1
+    when the one job asked for failed (or any listed job did), 0 otherwise."""
+    client = _client(address)
+    if job_id:
+        info = client.get_job_info(job_id)
+        print(f"{job_id}: {info.status.value}  {info.entrypoint}")
+        tail = client.get_job_logs(job_id).rstrip().splitlines()[-15:]
+        for line in tail:
+            print(f"  {line}")
+        return 1 if info.status.value in ("FAILED", "STOPPED") else 0
+    jobs = [j for j in client.list_jobs() if (j.entrypoint or "").startswith("mine ")]
+    jobs.sort(key=lambda j: j.start_time or 0, reverse=True)
+    print(f"{address}: {len(jobs)} Tube Miner job(s)")
+    for j in jobs:
+        started = time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime(j.start_time / 1000)) if j.start_time else "-"
+        print(f"  {j.submission_id or j.job_id}  {j.status.value:9s}  started {started} UTC  {j.entrypoint}")
+    return 1 if any(j.status.value == "FAILED" for j in jobs) else 0
+
+
+def submit_ray_job(address: str, argv: list[str], out: str, poll_s: float = 1.0, wait: bool = True) -> int:
     """Hand the command line to a cluster through Ray Jobs, print its logs as they come, and
     return its driver's exit status (1 when the job failed without one, e.g. it was stopped).
+    With ``wait=False``: print the submission id and return at once (follow it with
+    ``mine status --address ADDRESS --job ID``).
 
     The entrypoint is ``mine ... --address auto``: ``mine`` must be on the PATH the cluster's
     Ray was started with, and the driver joins that cluster (Ray Jobs sets RAY_ADDRESS).
     """
-    try:
-        from ray.job_submission import JobStatus, JobSubmissionClient
-    except ImportError as e:
-        raise ConfigError(f"--address {address} needs Ray Jobs: pip install '.[cluster]' ({e})") from None
-    try:
-        client = JobSubmissionClient(address)
-    except ConnectionError as e:
-        raise ConfigError(f"no Ray Jobs server at --address {address}: {e}") from None
+    from ray.job_submission import JobStatus
+
+    client = _client(address)
     entry = shlex.join(["mine", *_forwarded_argv(argv, out), "--address", "auto", "--no-progress"])
     job_id = client.submit_job(entrypoint=entry)
     print(f"submitted Ray job {job_id}: {entry}", file=sys.stderr)
+    if not wait:
+        print(job_id)
+        print(f"follow it with: mine status --address {address} --job {job_id}", file=sys.stderr)
+        return 0
     shown = 0
     try:
         while True:
