@@ -88,3 +88,38 @@ def test_working_files_sit_where_hive_readers_skip_them(tmp_path):
     files = ds.dataset(str(out), format="parquet", exclude_invalid_files=False).files
     seen = {Path(f).relative_to(out).parts[0] for f in files if f.endswith(".parquet")}
     assert seen == {"catalog", "manifest"}
+
+
+def test_provisional_views_show_finished_windows_of_sequences_not_stitched_yet(tmp_path):
+    """While a sequence waits for its stitch, `provisional_tubes` has its finished windows'
+    pieces (provisional = true); the final views do not."""
+    import shutil
+
+    from mining.catalog.views import connect
+
+    cfg = load_config(REPO / "jobs" / "synthetic.toml", [
+        "source.options.n_frames=24", "source.options.width=621", "source.options.height=188",
+        "source.options.fx=360.77", "window.core=12", "window.context_before=4", "window.context_after=4"])
+    out = tmp_path / "cat"
+    summary = mine_job(cfg, str(out), sequences=["0000", "0001"], executor=LocalExecutor)
+    assert summary.ok == 4
+    con = connect(out)
+    final = {s: n for s, n in con.sql("SELECT sequence, count(*) FROM tubes GROUP BY 1").fetchall()}
+    assert final.get("0001", 0) > 0
+    assert con.sql("SELECT count(*) FROM provisional_tubes WHERE provisional").fetchone()[0] == 0
+    con.close()
+    # 0001 as it is before its stitch: windows done, parts written, no compacted files, no marker
+    for table in ("tubes", "tube_frames", "frames", "windows"):
+        shutil.rmtree(out / "catalog" / table / "dataset=synthetic" / "sequence=0001", ignore_errors=True)
+    (out / "catalog" / "_sequences" / "dataset=synthetic" / "sequence=0001.json").unlink()
+    con = connect(out)
+    assert con.sql("SELECT count(*) FROM tubes WHERE sequence = '0001'").fetchone()[0] == 0  # final: unchanged
+    rows = con.sql("SELECT sequence, provisional, \"window\" FROM provisional_tubes").fetchall()
+    assert {(s, p) for s, p, _ in rows} == {("0000", False), ("0001", True)}
+    assert sum(s == "0000" for s, _, _ in rows) == final["0000"]
+    assert {w for s, _, w in rows if s == "0001"} <= {"0001-0000000-0000012", "0001-0000012-0000024"}
+    frames = con.sql("SELECT count(*), count(DISTINCT (tube_id, frame, \"window\")) FROM provisional_tube_frames "
+                     "WHERE provisional").fetchone()
+    assert frames[0] > 0 and frames[0] == frames[1]
+    ids = {r[0] for r in con.sql("SELECT tube_id FROM provisional_tube_frames WHERE provisional").fetchall()}
+    assert ids <= {r[0] for r in con.sql("SELECT tube_id FROM provisional_tubes WHERE provisional").fetchall()}

@@ -37,8 +37,8 @@ import pyarrow as pa
 import pyarrow.dataset as ds
 
 from mining.catalog.integrity import Damage, catalogue_damage, unreadable_parquet
-from mining.catalog.layout import TABLE_DIRS
-from mining.catalog.schema import PARTITION, SCHEMAS, file_schema
+from mining.catalog.layout import PARTS, TABLE_DIRS
+from mining.catalog.schema import PARTITION, SCHEMAS, file_schema, part_schema
 from mining.catalog.store import Store
 from mining.errors import InputError
 
@@ -115,6 +115,32 @@ def _files_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, native
     con.execute(f"CREATE VIEW {table} AS SELECT {cols} FROM _arrow_{table}")
 
 
+PROVISIONAL = ("tubes", "tube_frames")  # the part tables the provisional views read
+
+
+def _part_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, native: bool) -> None:
+    """``_part_<table>``: the per-window parts of ``table`` (partition columns included), for
+    the provisional views; empty when there are none. A part that cannot be read makes the
+    provisional views fail naming it, never the final tables."""
+    name = f"_part_{table}"
+    schema = pa.schema(list(part_schema(table)) + [pa.field(n, pa.string()) for n in PARTITION])
+    folder = f"{PARTS}/{table}"
+    if not store.list(folder, ".parquet"):
+        con.register(f"_empty{name}", _as_read(schema).empty_table())
+        con.execute(f"CREATE VIEW {name} AS SELECT * FROM _empty{name}")
+        return
+    if native:
+        glob = _sql_string(f"{store.full(folder)}/*/*/*.parquet")
+        con.execute(f"CREATE VIEW {name} AS SELECT * FROM read_parquet({glob}, hive_partitioning = true, "
+                    "hive_types = {'dataset': 'VARCHAR', 'sequence': 'VARCHAR'})")
+        return
+    part = pa.schema([pa.field(n, pa.string()) for n in PARTITION])
+    dset = ds.dataset(store.full(folder), filesystem=store.fs, format="parquet",
+                      partitioning=ds.partitioning(part, flavor="hive"), schema=_as_read(schema))
+    con.register(f"_arrow{name}", dset)
+    con.execute(f"CREATE VIEW {name} AS SELECT * FROM _arrow{name}")
+
+
 def connect(out: str | Path, native: bool | None = None, memory_limit: str | None = None,
             threads: int | None = None) -> duckdb.DuckDBPyConnection:
     """An in-memory DuckDB with the catalogue's tables and views (see module docstring).
@@ -147,6 +173,8 @@ def connect(out: str | Path, native: bool | None = None, memory_limit: str | Non
     damage = catalogue_damage(store)
     for table in SCHEMAS:
         _base_view(con, store, table, native, damage.get(table))
+    for table in PROVISIONAL:
+        _part_view(con, store, table, native)
     con.execute(VIEWS_SQL.read_text())
     # From here on: no file access outside the catalogue, and no way to turn that back on.
     allowed = [store.root + "/"] if native else []

@@ -126,8 +126,8 @@ class UnionConfig:
     mask_iou: Fraction = 0.5  # ours: same object above it; 0005 box vs YOLO masks: same 0.56–0.86, other < 0.4
     # A class-agnostic proposal no classifier covers counts toward "unknown" with weight
     # 1 / (1 + exp(−(ln h − ln detect_h50_px) / detect_log_scale)), h its box height (union.py).
-    detect_h50_px: Positive = 20.0  # ours: box height at which the learned proposer finds half the COCO objects; `mine bench classify`
-    detect_log_scale: Positive = 0.3  # ours: spread of that curve in ln(height); same fit
+    detect_h50_px: Positive = 7.3  # ours: ML fit, `mine bench classify` (KITTI 0005 frames 0–15 + synthetic seeds 0000–0002, 611 objects)
+    detect_log_scale: Positive = 0.59  # ours: spread of that curve in ln(height); same fit
     better_mask: bool = True  # ours: a merged pair keeps the mask that agrees better with the object's depth
     better_mask_margin: Fraction = 0.2  # ours: the later mask must agree better by this much (IoU with the depth region); `mine bench classify`
     depth_band_m: float = 2.5  # ours: depth extent of an object around its median (half a car's length + margin)

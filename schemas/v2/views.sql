@@ -33,3 +33,25 @@ CREATE VIEW tube_tracks AS
 SELECT f.*, t.category, t.known, t.selected, t.score AS tube_score
 FROM tube_frames AS f
 JOIN tubes AS t USING (dataset, sequence, tube_id);
+
+-- While a job runs: the final tubes, plus the tubes of the windows finished so far in the
+-- sequences not stitched yet (per-window pieces, `provisional` = true, with their window;
+-- a tube crossing a window border appears once per window until the sequence is stitched).
+-- The final views above never show provisional rows.
+CREATE VIEW provisional_tubes AS
+SELECT t.*, CAST(NULL AS VARCHAR) AS "window", false AS provisional FROM tubes AS t
+UNION ALL BY NAME
+SELECT p.*, true AS provisional FROM _part_tubes AS p
+JOIN windows AS w ON w.dataset = p.dataset AND w.sequence = p.sequence AND w."window" = p."window"
+WHERE w.status = 'done'
+  AND NOT EXISTS (SELECT 1 FROM tubes AS t WHERE t.dataset = p.dataset AND t.sequence = p.sequence);
+
+-- Their frames: a provisional piece's frames in its window's core only (each frame once per window).
+CREATE VIEW provisional_tube_frames AS
+SELECT f.*, CAST(NULL AS VARCHAR) AS "window", false AS provisional FROM tube_frames AS f
+UNION ALL BY NAME
+SELECT p.* EXCLUDE (core, posterior, class_weight, footpoint_cam, velocity_cam), true AS provisional
+FROM _part_tube_frames AS p
+JOIN windows AS w ON w.dataset = p.dataset AND w.sequence = p.sequence AND w."window" = p."window"
+WHERE w.status = 'done' AND p.core
+  AND NOT EXISTS (SELECT 1 FROM tubes AS t WHERE t.dataset = p.dataset AND t.sequence = p.sequence);
