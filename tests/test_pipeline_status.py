@@ -123,3 +123,15 @@ def test_provisional_views_show_finished_windows_of_sequences_not_stitched_yet(t
     assert frames[0] > 0 and frames[0] == frames[1]
     ids = {r[0] for r in con.sql("SELECT tube_id FROM provisional_tube_frames WHERE provisional").fetchall()}
     assert ids <= {r[0] for r in con.sql("SELECT tube_id FROM provisional_tubes WHERE provisional").fetchall()}
+
+
+def test_progress_bar_shows_phases_eta_and_the_summarys_frames_per_second(tmp_path, capsys):
+    summary = mine_job(_cfg(), str(tmp_path / "cat"), executor=LocalExecutor, progress=True)
+    bar = capsys.readouterr().err
+    assert "windows 2/2 (0 failed)" in bar and "frames/s" in bar and "ETA" in bar
+    assert "track 1" in bar or "observe 1" in bar  # the phase of the step in flight
+    line = next(x for x in summary.lines() if x.startswith("time:"))
+    assert "frames/s (core frames tracked / mining time, as the bar)" in line
+    assert summary.frames == 12 and 0 < summary.mining_seconds <= summary.seconds
+    rate = float(line.split("mining: ")[1].split(" frames/s")[0])
+    assert rate == pytest.approx(summary.frames / summary.mining_seconds, rel=0.01)

@@ -29,8 +29,9 @@ class Executor(Protocol):
     def pending(self) -> int:
         """How many submitted steps ``wait`` has not returned yet."""
 
-    def wait(self) -> tuple[Any, StepResult | None, BaseException | None]:
-        """(reference, result, None) of a finished step, or (reference, None, error) when it could not run."""
+    def wait(self, timeout: float | None = None) -> tuple[Any, StepResult | None, BaseException | None] | None:
+        """(reference, result, None) of a finished step, or (reference, None, error) when it
+        could not run; None when none finished within ``timeout`` seconds (None: wait on)."""
 
     def shutdown(self) -> None: ...
 
@@ -70,8 +71,8 @@ class LocalExecutor:
     def pending(self) -> int:
         return len(self.done)
 
-    def wait(self) -> tuple[int, StepResult | None, BaseException | None]:
-        return self.done.popleft()
+    def wait(self, timeout: float | None = None) -> tuple[int, StepResult | None, BaseException | None]:
+        return self.done.popleft()  # steps run in submit: one is always finished
 
     def shutdown(self) -> None:
         pass
@@ -113,8 +114,10 @@ class RayExecutor:
     def pending(self) -> int:
         return len(self.busy)
 
-    def wait(self):
-        ready, _ = self.ray.wait(list(self.busy), num_returns=1)
+    def wait(self, timeout: float | None = None):
+        ready, _ = self.ray.wait(list(self.busy), num_returns=1, timeout=timeout)
+        if not ready:
+            return None
         ref = ready[0]
         self.idle.append(self.busy.pop(ref))
         try:

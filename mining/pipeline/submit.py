@@ -70,7 +70,8 @@ class Summary:
     known: int = 0
     unknown: int = 0
     unclassified: int = 0
-    seconds: float = 0.0
+    seconds: float = 0.0  # the whole command: preflight, planning, Ray start, mining
+    mining_seconds: float = 0.0  # run_job's: from the first step to the last result (the frames/s denominator)
     sequences_written: int = 0
     classifiers: str = ""  # which proposers classified (proposals.make.classifiers_line)
     recomputed: dict[str, str] = field(default_factory=dict)  # window → why its observation cache did not read back
@@ -80,7 +81,9 @@ class Summary:
                f"tubes written this run: {self.tubes} selected ({self.known} known, {self.unknown} unknown, "
                f"{self.unclassified} unclassified) of {self.candidates} candidates, in {self.sequences_written} sequence(s)",
                *([self.classifiers] if self.classifiers else []),
-               f"time: {self.seconds:.1f} s, {self.frames / max(self.seconds, 1e-9):.2f} frames/s"]
+               f"time: {self.seconds:.1f} s in all, {self.mining_seconds:.1f} s mining: "
+               f"{self.frames / max(self.mining_seconds, 1e-9):.2f} frames/s (core frames tracked / mining time, "
+               f"as the bar)"]
         for w, e in sorted(self.failed.items()):
             out.append(f"FAILED {w}: {e.strip().splitlines()[0] if e.strip() else 'unknown error'}")
         if self.unplanned:
@@ -219,21 +222,48 @@ def open_job(cfg: JobConfig, out: str, sequences: list[str] | None = None,
             pf.failed)
 
 
+PHASES = (("observe", "observe"), ("track", "track"), ("finalize", "stitch"))  # step → what the bar calls it
+REFRESH_S = 1.0  # ours: the bar redraws at least this often while steps run
+
+
 class Progress:
-    def __init__(self, total: int, enabled: bool):
+    """The bar of ``mine submit``: windows done, the phase of every step in flight, frames/s
+    and an ETA. Frames/s is the one definition the summary uses too: core frames of the
+    windows tracked this run over the mining time (``run_job``'s, from its first step)."""
+
+    def __init__(self, total: int, enabled: bool, total_frames: int = 0):
         self.total, self.enabled, self.t0 = total, enabled, time.perf_counter()
+        self.total_frames = total_frames
         self.done = self.failed = self.frames = 0
+        self.phases: dict[str, int] = {}
+
+    def rate(self) -> float:
+        return self.frames / max(time.perf_counter() - self.t0, 1e-9)
 
     def update(self, ok: bool, frames: int) -> None:
         self.done += 1
         self.failed += not ok
         self.frames += frames
-        if self.enabled:
-            dt = time.perf_counter() - self.t0
-            n = 30 * self.done // max(self.total, 1)
-            sys.stderr.write(f"\r[{'#' * n}{'.' * (30 - n)}] windows {self.done}/{self.total}"
-                             f" ({self.failed} failed)  {self.frames / max(dt, 1e-9):.2f} frames/s  {dt:.0f} s ")
-            sys.stderr.flush()
+        self.draw()
+
+    def running(self, steps: list[str]) -> None:
+        """The steps in flight now (their names), for the phase display."""
+        self.phases = {label: steps.count(step) for step, label in PHASES}
+        self.draw()
+
+    def draw(self) -> None:
+        if not self.enabled:
+            return
+        dt = time.perf_counter() - self.t0
+        n = 30 * self.done // max(self.total, 1)
+        phase = " · ".join(f"{label} {k}" for label, k in self.phases.items() if k) or "waiting"
+        rate = self.rate()
+        left = max(self.total_frames - self.frames, 0)
+        eta = f"ETA {left / rate:.0f} s" if rate > 0 and left else ("ETA —" if left else "stitching" if
+                                                                   self.phases.get("stitch") else "")
+        sys.stderr.write(f"\r[{'#' * n}{'.' * (30 - n)}] windows {self.done}/{self.total} ({self.failed} failed)  "
+                         f"{phase}  {rate:.2f} frames/s  {dt:.0f} s  {eta}   ")
+        sys.stderr.flush()
 
     def close(self) -> None:
         if self.enabled:
@@ -257,7 +287,7 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
     t0 = time.perf_counter()
     store, dataset = job.store(), job.cfg.source.dataset
     summary = Summary(windows=len(schedule.windows), skipped=schedule.skipped)
-    bar = Progress(len(schedule.todo), progress)
+    bar = Progress(len(schedule.todo), progress, sum(w.core[1] - w.core[0] for w in schedule.todo))
     running: dict[Any, Task] = {}
     markers = RunningMarkers(store, job.run_id, job.params_hash)
     todo = {w.name for w in schedule.todo}
@@ -270,7 +300,12 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
                 running[executor.submit(task.step, *task.args)] = task
             if not executor.pending():
                 continue
-            ref, result, err = executor.wait()
+            bar.running([t.step for t in running.values()])
+            got = executor.wait(REFRESH_S if progress else None)
+            if got is None:  # nothing finished yet: redraw (elapsed, ETA) and wait again
+                bar.draw()
+                continue
+            ref, result, err = got
             task = running.pop(ref)
             if err is not None:
                 result = system_failure(task, err, job.cfg.run.max_retries)
@@ -291,7 +326,7 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
     finally:
         bar.close()
         markers.clear_all()  # stopped early (an error, Ctrl-C): what was under way is pending again
-    summary.seconds = time.perf_counter() - t0
+    summary.seconds = summary.mining_seconds = time.perf_counter() - t0
     return summary
 
 
