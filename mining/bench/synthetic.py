@@ -19,6 +19,7 @@ from mining.errors import InputError
 from mining.eval.synthetic import GtFrame, evaluate_synthetic, format_synthetic, gt_frame
 from mining.pipeline.frames import frame_records
 from mining.pipeline.mine import mine_tubes
+from mining.progress import Ticker
 from mining.proposals.make import classifiers_line
 from mining.sources import open_source
 from mining.types import MinedTube, TrackingFrame
@@ -40,15 +41,19 @@ def run_synthetic(sequence: str, n_frames: int, cfg: JobConfig, start: int = 0, 
     truths: dict[int, GtFrame] = {}
     t0 = time.perf_counter()
 
+    ticker = Ticker(f"synthetic {sequence}", stop - start)
+
     def frames() -> Iterator[TrackingFrame]:
         # keep only the compact truth: a FrameRecord holds full-frame arrays
-        for rec in frame_records(src, plan, start, stop, cfg):
+        for k, rec in enumerate(frame_records(src, plan, start, stop, cfg)):
+            ticker.tick(k)
             if rec.frame.truth is None:
                 raise InputError("synthetic frame without ground truth", frame=rec.frame.index)
             truths[rec.frame.index] = gt_frame(rec.frame.truth)
             yield rec.tracking
 
     mined = mine_tubes(frames(), cfg)
+    ticker.close()
     t1 = time.perf_counter()
     results = evaluate_synthetic(mined, truths, **protocol)
     results["seconds"] = {"mine": t1 - t0, "eval": time.perf_counter() - t1}

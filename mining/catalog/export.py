@@ -51,6 +51,7 @@ from mining.catalog.views import connect, execute_read_only
 from mining.errors import InputError, MiningError
 from mining.formats.kitti_tracking import ResultFrame, ResultTrack, kitti_type, write_tracking_results
 from mining.names import check_name, inside, name_problem, tube_folder
+from mining.progress import Ticker
 
 FORMATS = ("kitti", "kitti-mots", "crops", "youtube-vis", "tao")
 # KITTI-MOTS class ids (MOTS annotation format): car 1, pedestrian 2, ignore region 10.
@@ -284,7 +285,9 @@ def export_crops(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path, margi
             folders[t["tube_id"]].mkdir(parents=True, exist_ok=True)
             for f in per_tube.get(t["tube_id"], []):
                 wanted.setdefault(f["frame"], []).append(f)
-        for frame in sorted(wanted):
+        ticker = Ticker(f"crops of {sequence}", len(wanted))
+        for k, frame in enumerate(sorted(wanted)):
+            ticker.tick(k)
             if frame not in position:
                 raise InputError(f"frame {frame} of the catalogue is not in the source's sequence {sequence!r}",
                                  src.get("root"), frame)
@@ -305,6 +308,7 @@ def export_crops(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path, margi
                 _write_png(folder / mask_name, mask[y0:y1, x0:x1] * np.uint8(255))
                 files[(f["tube_id"], frame)] = {"crop": crop_name, "mask": mask_name, "crop_box": [x0, y0, x1, y1]}
                 n += 1
+        ticker.close()
     write_index(tubes, per_tube, dest, files)
     return n
 

@@ -42,6 +42,7 @@ from pycocotools import mask as mask_utils
 from mining.catalog.export import _by_sequence, _export_settings, _frames_by_tube, category_label, frame_digits, job_source
 from mining.errors import InputError
 from mining.names import inside
+from mining.progress import Ticker
 from mining.proposals.coco import CLASS_INDEX, COCO_CATEGORY_IDS
 
 UNKNOWN_ID = 1000  # ours: category id of unknown tubes, outside COCO's 1..90
@@ -128,6 +129,18 @@ def _area(f: dict) -> float:
     return float(mask_utils.area({"size": [f["rle_h"], f["rle_w"]], "counts": f["rle_counts"].encode()}))
 
 
+def _ticking(label: str) -> Callable[[int, int], None]:
+    """A ``write_images`` progress hook on a ``Ticker`` made at the first call (the total known then)."""
+    state: dict = {}
+
+    def hook(done: int, total: int) -> None:
+        t = state.setdefault("t", Ticker(label, total))
+        t.tick(done)
+        if done >= total:
+            t.close()
+    return hook
+
+
 def write_images(job: dict, vids: list[Video], folder: Path, progress: Callable[[int, int], None] | None = None) -> int:
     """The rectified left frame of every video frame as ``folder/<file_name>``; the count."""
     source, src = job_source(job, "--images")
@@ -186,7 +199,7 @@ def export_youtube_vis(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path,
            "categories": categories(used)}
     (dest / YTVIS_JSON).write_text(json.dumps(doc) + "\n")
     if images:
-        write_images(job, vids, dest / YTVIS_IMAGES)
+        write_images(job, vids, dest / YTVIS_IMAGES, _ticking("youtube-vis images"))
     return len(anns)
 
 
@@ -221,6 +234,6 @@ def export_tao(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path,
            "annotations": anns, "categories": categories(used, tao=True)}
     (dest / TAO_JSON).write_text(json.dumps(doc) + "\n")
     if images:
-        write_images(job, vids, dest / TAO_IMAGES)
+        write_images(job, vids, dest / TAO_IMAGES, _ticking("tao images"))
     return len(anns)
 
