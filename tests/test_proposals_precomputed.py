@@ -521,11 +521,12 @@ def test_union_keeps_the_mask_that_agrees_with_the_objects_depth():
     post[0, 2] = 1
     learned = Proposals(frame.index, [rle(bleed)], box(bleed)[None], np.array([0.9], np.float32), post, ["onnx"])
     stereo = Proposals(frame.index, [rle(exact)], box(exact)[None], np.array([0.5], np.float32), None, ["stereo"])
-    u = union([learned, stereo], 0.3, UnionConfig(), disparity, truth.depth)
+    on = UnionConfig(better_mask=True)  # off by default (mine bench classify); the rule itself is tested here
+    u = union([learned, stereo], 0.3, on, disparity, truth.depth)
     assert len(u) == 1 and u.proposer == ["onnx"] and u.posterior[0, 2] == 1  # the learned row's class stands...
     assert mask_utils.iou([u.rles[0]], [rle(exact)], [0])[0, 0] == pytest.approx(1.0)  # ...with the better mask
     # and the other way round: an exact learned mask is kept over a stereo mask that bled
     learned2 = Proposals(frame.index, [rle(exact)], box(exact)[None], np.array([0.9], np.float32), post, ["onnx"])
     stereo2 = Proposals(frame.index, [rle(bleed)], box(bleed)[None], np.array([0.5], np.float32), None, ["stereo"])
-    u2 = union([learned2, stereo2], 0.3, UnionConfig(), disparity, truth.depth)
+    u2 = union([learned2, stereo2], 0.3, on, disparity, truth.depth)
     assert mask_utils.iou([u2.rles[0]], [rle(exact)], [0])[0, 0] == pytest.approx(1.0)
