@@ -1,7 +1,8 @@
 """What the viewer asks the catalogue: gallery pages, facets, one tube with its frames and track.
 
-Every query runs on a cursor of the read-only connection of ``mining.catalog.views.connect``
-(one cursor per request: DuckDB cursors may run in parallel threads), with user values as
+Every query runs on the read-only connection of ``mining.catalog.views.connect``, one at a
+time (a lock: the connection's registered tables — empty tables, non-local catalogues — are
+not visible to ``cursor()`` copies, and each query takes milliseconds), with user values as
 bound parameters only (``filters.py``). A tube id from a URL is looked up by parameter
 before anything else uses it; an id the catalogue does not hold is simply not found.
 """
@@ -11,6 +12,7 @@ from __future__ import annotations
 import math
 import re
 import shlex
+import threading
 from pathlib import Path
 
 import duckdb
@@ -62,6 +64,7 @@ class CatalogueBrowser:
     def __init__(self, out: str | Path):
         self.out = str(out)
         self.con = connect(out)  # InputError when ``out`` is not a catalogue folder
+        self._lock = threading.Lock()
         try:
             self.job = read_job(Store(out))
             self.job_error = None
@@ -72,12 +75,9 @@ class CatalogueBrowser:
         self.con.close()
 
     def _query(self, sql: str, params: list | None = None) -> list[dict]:
-        cur = self.con.cursor()
-        try:
-            cur.execute(sql, params or [])
-            return _rows(cur)
-        finally:
-            cur.close()
+        with self._lock:
+            self.con.execute(sql, params or [])
+            return _rows(self.con)
 
     def page(self, flt: TubeFilter) -> dict:
         """One gallery page: the total that match, and the tubes of ``flt``'s page."""
