@@ -322,7 +322,7 @@ def test_the_server_is_quiet_unless_asked(server, capsys):
     finally:
         srv.app.log_requests = False
     lines = capsys.readouterr().err.splitlines()
-    assert len(lines) == 2 and " 200 " in lines[0] and " 400 " in lines[1]
+    assert len(lines) == 2 and " 200 " in lines[0] and " 400 " in lines[1], lines
 
 
 def test_cli_view_refuses_a_missing_catalogue(tmp_path, capsys):

@@ -37,6 +37,7 @@ from mining.errors import ConfigError, MiningError
 RENDER_VERSION = 1  # bump when drawing changes: every cached file name changes with it
 THUMB_SIZE = (240, 180)  # ours: gallery thumbnail width × height (4:3)
 THUMB_CONTEXT = 0.75  # ours: context on each side of the box, as a fraction of the box's larger side
+THUMB_MIN_CONTEXT = 0.1  # ours: where the image is too small for that, at least this much beside the box
 THUMB_MIN_CROP_PX = 96  # ours: the crop is at least this tall, so a 30 px box still shows its surroundings
 STRIP_WIDTH = 200  # ours: width of a frame in the tube page's strip
 BORDER_PX = 2  # ours: a box this close to the image edge counts as cut by it
@@ -215,6 +216,8 @@ def thumb_crop(bbox, width: int, height: int) -> tuple[int, int, int, int]:
     cw = max(ch * THUMB_SIZE[0] / THUMB_SIZE[1], (x2 - x1) * (1 + 2 * THUMB_CONTEXT))
     ch = max(ch, cw * THUMB_SIZE[1] / THUMB_SIZE[0])
     cw, ch = min(cw, float(width)), min(ch, float(height))
+    # Cut to the image's height, the window gives up side context before it gives up 4:3.
+    cw = min(cw, max(ch * THUMB_SIZE[0] / THUMB_SIZE[1], min(float(width), (x2 - x1) * (1 + 2 * THUMB_MIN_CONTEXT))))
     cx, cy = (x1 + x2) / 2, (y1 + y2) / 2
     x0 = int(round(min(max(cx - cw / 2, 0.0), width - cw)))
     y0 = int(round(min(max(cy - ch / 2, 0.0), height - ch)))

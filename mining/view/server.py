@@ -145,48 +145,55 @@ class Handler(BaseHTTPRequestHandler):
         if self.command != "HEAD":
             self.wfile.write(body)
 
-    def _json(self, status: HTTPStatus, obj) -> None:
+    @staticmethod
+    def _json(status: HTTPStatus, obj) -> tuple[HTTPStatus, bytes, str, dict[str, str]]:
         body = json.dumps(obj, allow_nan=False, default=str).encode()
-        self._send(status, body, "application/json; charset=utf-8", {"Cache-Control": "no-store"})
+        return status, body, "application/json; charset=utf-8", {"Cache-Control": "no-store"}
 
-    def do_GET(self) -> None:  # noqa: N802 (the http.server name)
-        t0 = time.perf_counter()
+    def _answer(self) -> tuple[tuple[HTTPStatus, bytes, str, dict[str, str]], str | None]:
+        """(the response, a note for the log: why it failed, or None)."""
         url = urlsplit(self.path)
         query = parse_qs(url.query, keep_blank_values=True)
         app = self.app
-        status = HTTPStatus.OK
+        ok = HTTPStatus.OK
         try:
             if url.path in PAGES:
                 body, ctype = app.static[PAGES[url.path]]
-                self._send(status, body, ctype, {"Cache-Control": "no-cache"})
-            elif url.path.startswith("/static/") and url.path[len("/static/"):] in app.static:
+                return (ok, body, ctype, {"Cache-Control": "no-cache"}), None
+            if url.path.startswith("/static/") and url.path[len("/static/"):] in app.static:
                 body, ctype = app.static[url.path[len("/static/"):]]
-                self._send(status, body, ctype, {"Cache-Control": "no-cache"})
-            elif url.path in ViewApp.API:
-                self._json(status, ViewApp.API[url.path](app, query))
-            elif url.path in ViewApp.IMAGES:
+                return (ok, body, ctype, {"Cache-Control": "no-cache"}), None
+            if url.path in ViewApp.API:
+                return self._json(ok, ViewApp.API[url.path](app, query)), None
+            if url.path in ViewApp.IMAGES:
                 data, reason = ViewApp.IMAGES[url.path](app, query)
                 headers = {"Cache-Control": "no-cache" if reason else "max-age=3600"}
                 if reason:
                     headers["X-Placeholder"] = reason.encode("ascii", "replace").decode()
-                self._send(status, data, "image/jpeg", headers)
-            else:
-                raise HttpError(HTTPStatus.NOT_FOUND, f"no such page {url.path!r}")
+                return (ok, data, "image/jpeg", headers), None
+            raise HttpError(HTTPStatus.NOT_FOUND, f"no such page {url.path!r}")
         except HttpError as e:
-            status = e.status
-            self._json(status, {"error": str(e)})
+            return self._json(e.status, {"error": str(e)}), None
         except duckdb.Error as e:  # a damaged table names its file (catalog/views.py)
-            status = HTTPStatus.SERVICE_UNAVAILABLE
-            self._json(status, {"error": f"the catalogue cannot answer: {e}"})
-            self.log_error("%s", str(e).splitlines()[0])
+            note = str(e).splitlines()[0]
+            return self._json(HTTPStatus.SERVICE_UNAVAILABLE, {"error": f"the catalogue cannot answer: {e}"}), note
+        except Exception as e:  # a bug: answer 500 with its name, log it, keep serving
+            note = f"{type(e).__name__}: {e}"
+            return self._json(HTTPStatus.INTERNAL_SERVER_ERROR, {"error": note}), note
+
+    def do_GET(self) -> None:  # noqa: N802 (the http.server name)
+        t0 = time.perf_counter()
+        (status, body, ctype, headers), note = self._answer()
+        # At most one line per request, written before the answer leaves (so it is there when the client has it).
+        if self.app.log_requests:
+            tail = f" ({note})" if note else ""
+            sys.stderr.write(f"{self.command} {self.path} {int(status)} {1000 * (time.perf_counter() - t0):.0f} ms{tail}\n")
+        elif note:
+            self.log_error("%s %s %d: %s", self.command, self.path, int(status), note)
+        try:
+            self._send(status, body, ctype, headers)
         except (BrokenPipeError, ConnectionResetError):
-            return
-        except Exception as e:  # a bug: answer 500 with its name, log one line, keep serving
-            status = HTTPStatus.INTERNAL_SERVER_ERROR
-            self.log_error("%s %s: %s: %s", self.command, self.path, type(e).__name__, e)
-            self._json(status, {"error": f"{type(e).__name__}: {e}"})
-        if app.log_requests:
-            sys.stderr.write(f"{self.command} {self.path} {int(status)} {1000 * (time.perf_counter() - t0):.0f} ms\n")
+            pass
 
     do_HEAD = do_GET
 

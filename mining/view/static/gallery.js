@@ -73,7 +73,9 @@ async function loadFacets(p) {
   document.getElementById("catalogue").textContent = f.catalogue;
   document.getElementById("totals").textContent = `${f.selected} selected of ${f.tubes} candidate tubes`;
   for (const s of document.querySelectorAll("span.n[data-known]")) s.textContent = `(${f.known[s.dataset.known] || 0})`;
-  fillSelect(document.getElementById("category"), f.categories.map(c => [c.category, `${c.category} (${c.n})`]), p.getAll("category"));
+  const cats = document.getElementById("category");
+  fillSelect(cats, f.categories.map(c => [c.category, `${c.category} (${c.n})`]), p.getAll("category"));
+  if (!cats.options.length) cats.append(el("option", { disabled: "", text: "none: no tube is classified" }));
   fillSelect(document.getElementById("seq"), f.sequences.map(s => [`${s.dataset}/${s.sequence}`, `${s.dataset}/${s.sequence} (${s.n})`]), p.getAll("seq"));
   for (const [col] of RANGES) {
     const [lo, hi] = f.ranges[col] || [null, null];
