@@ -147,8 +147,9 @@ async function main() {
 
   const strip = document.getElementById("strip");
   strip.replaceChildren(...frames.map((f, k) => {
+    // Sized before it loads, so the lazy strip lays out (and scrolls to the current frame) at once.
     const img = el("img", { src: frameUrl(f, "strip"), alt: `frame ${f.frame}`, title: `frame ${f.frame}`, loading: "lazy",
-      class: f.observed ? "" : "gap" });
+      class: f.observed ? "" : "gap", height: "64", width: String(Math.round(64 * f.rle_w / Math.max(1, f.rle_h))) });
     img.addEventListener("click", () => { play(false); show(k); });
     return img;
   }));
