@@ -18,9 +18,18 @@ from _cdp import Browser, find_chromium
 from mining.catalog.views import connect
 from mining.view.server import make_server
 
-ALL_IMAGES_LOADED = ("Promise.all([...document.images].filter(i => i.loading !== 'lazy' || i.getBoundingClientRect()"
-                     ".top < innerHeight).map(i => i.complete ? 0 : new Promise(r => { i.onload = i.onerror = r; })))"
-                     ".then(() => [...document.images].map(i => i.naturalWidth))")
+# The natural widths of the images in view (a lazy image out of view, e.g. far along the tube page's
+# strip, is not fetched), once each has loaded or failed.
+ALL_IMAGES_LOADED = """(() => {
+  const inView = i => {
+    const r = i.getBoundingClientRect(), s = i.closest('#strip');
+    const c = s ? s.getBoundingClientRect() : { left: 0, right: innerWidth };
+    return r.top < innerHeight && r.left < Math.min(innerWidth, c.right) && r.right > Math.max(0, c.left);
+  };
+  const shown = [...document.images].filter(i => i.loading !== 'lazy' || inView(i));
+  return Promise.all(shown.map(i => i.complete ? 0 : new Promise(r => { i.onload = i.onerror = r; })))
+    .then(() => shown.map(i => i.naturalWidth));
+})()"""
 
 
 @pytest.fixture(scope="module")
