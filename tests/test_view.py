@@ -120,7 +120,7 @@ def test_filters_count_what_duckdb_counts(server, params, where, values):
 
 
 def test_a_narrowing_filter_narrows(server):
-    base, _, out = server
+    base, _, _ = server
     _, everything = api(base, "/api/tubes")
     _, narrowed = api(base, "/api/tubes", {"min_score": "50"})
     assert 0 < narrowed["total"] < everything["total"]
@@ -203,7 +203,7 @@ def test_tube_page_data(server, catalogue):
                                [np.asarray(p[1]).reshape(4, 4)[:3, 3] for p in poses])
     # Top classes: the posterior's largest entries, named, in order.
     post = np.asarray(tube["class_posterior"])
-    assert [c["name"] for c in d["top_classes"]][0] == tube["category"]
+    assert d["top_classes"][0]["name"] == tube["category"]
     np.testing.assert_allclose([c["p"] for c in d["top_classes"]], np.sort(post)[::-1][:5], rtol=1e-6)
     assert count(out, d["where"]) == 1
     assert d["export_command"] == (f"mine export --out {out} --where \"tube_id = '{tube['tube_id']}'\" "
@@ -232,7 +232,7 @@ def test_pictures_outline_the_mask_on_the_real_frame(server, catalogue, kitti_tr
     diff = np.abs(drawn - real).max(axis=2)
     assert np.median(diff[mask]) > 25, "the mask is not drawn"
     # Away from the mask (past the JPEG blocks it touches) the picture is the real frame, as JPEG.
-    ok, buf = cv2.imencode(".jpg", cv2.cvtColor(real.astype(np.uint8), cv2.COLOR_RGB2BGR),
+    _, buf = cv2.imencode(".jpg", cv2.cvtColor(real.astype(np.uint8), cv2.COLOR_RGB2BGR),
                            [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
     as_jpeg = _decode(buf.tobytes()).astype(np.int16)
     near = cv2.dilate(mask.astype(np.uint8), np.ones((41, 41), np.uint8)).astype(bool)
@@ -297,7 +297,7 @@ def test_an_empty_catalogue_browses(tmp_path):
         assert f["tubes"] == 0 and "job.json" in f["frames_unavailable"]
         status, page = api(base, "/api/tubes")
         assert status == 200 and page["total"] == 0 and page["tubes"] == []
-        status, headers, body = get(base, "/")
+        status, _, body = get(base, "/")
         assert status == 200 and b"gallery.js" in body
 
 

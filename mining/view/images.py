@@ -219,9 +219,9 @@ def thumb_crop(bbox, width: int, height: int) -> tuple[int, int, int, int]:
     # Cut to the image's height, the window gives up side context before it gives up 4:3.
     cw = min(cw, max(ch * THUMB_SIZE[0] / THUMB_SIZE[1], min(float(width), (x2 - x1) * (1 + 2 * THUMB_MIN_CONTEXT))))
     cx, cy = (x1 + x2) / 2, (y1 + y2) / 2
-    x0 = int(round(min(max(cx - cw / 2, 0.0), width - cw)))
-    y0 = int(round(min(max(cy - ch / 2, 0.0), height - ch)))
-    return x0, min(width, x0 + int(round(cw))), y0, min(height, y0 + int(round(ch)))
+    x0 = round(min(max(cx - cw / 2, 0.0), width - cw))
+    y0 = round(min(max(cy - ch / 2, 0.0), height - ch))
+    return x0, min(width, x0 + round(cw)), y0, min(height, y0 + round(ch))
 
 
 def _outline(image: np.ndarray, mask: np.ndarray, colour, fill: bool) -> np.ndarray:

@@ -24,6 +24,7 @@ from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from pathlib import Path
+from typing import ClassVar
 from urllib.parse import parse_qs, urlsplit
 
 import duckdb
@@ -123,8 +124,8 @@ class ViewApp:
             raise HttpError(HTTPStatus.NOT_FOUND, f"tube {tube['tube_id']!r} has no frame {n}")
         return self.images.frame(tube, frame, size)
 
-    API = {"/api/facets": api_facets, "/api/tubes": api_tubes, "/api/tube": api_tube}
-    IMAGES = {"/img/thumb": img_thumb, "/img/frame": img_frame}
+    API: ClassVar = {"/api/facets": api_facets, "/api/tubes": api_tubes, "/api/tube": api_tube}
+    IMAGES: ClassVar = {"/img/thumb": img_thumb, "/img/frame": img_frame}
 
 
 class Handler(BaseHTTPRequestHandler):
@@ -181,7 +182,7 @@ class Handler(BaseHTTPRequestHandler):
             note = f"{type(e).__name__}: {e}"
             return self._json(HTTPStatus.INTERNAL_SERVER_ERROR, {"error": note}), note
 
-    def do_GET(self) -> None:  # noqa: N802 (the http.server name)
+    def do_GET(self) -> None:  # the http.server name
         t0 = time.perf_counter()
         (status, body, ctype, headers), note = self._answer()
         # At most one line per request, written before the answer leaves (so it is there when the client has it).
@@ -197,10 +198,10 @@ class Handler(BaseHTTPRequestHandler):
 
     do_HEAD = do_GET
 
-    def log_message(self, format: str, *args) -> None:  # noqa: A002 (the http.server signature)
+    def log_message(self, format: str, *args) -> None:  # the http.server signature
         pass  # do_GET writes the one line per request (when asked)
 
-    def log_error(self, format: str, *args) -> None:  # noqa: A002
+    def log_error(self, format: str, *args) -> None:
         sys.stderr.write("mine view: " + (format % args) + "\n")
 
 
