@@ -336,3 +336,16 @@ def test_cli_view_names_a_busy_port(catalogue, capsys):
         port = srv.server_address[1]
         assert main(["view", "--out", str(out), "--port", str(port)]) == 2
     assert f"cannot listen on 127.0.0.1:{port}" in capsys.readouterr().err
+
+
+def test_a_damaged_table_is_503_naming_the_file(catalogue, tmp_path):
+    out, _ = catalogue
+    copy = tmp_path / "damaged"
+    shutil.copytree(out, copy)
+    part = next((copy / "catalog" / "tubes").rglob("*.parquet"))
+    part.write_bytes(part.read_bytes()[:100])
+    with serving(copy, None) as (base, _):
+        status, body = api(base, "/api/tubes")
+        assert status == 503 and part.name in body["error"]
+        status, _, page = get(base, "/")
+        assert status == 200, "the pages load and say what is wrong"
