@@ -347,5 +347,30 @@ def test_a_damaged_table_is_503_naming_the_file(catalogue, tmp_path):
     with serving(copy, None) as (base, _):
         status, body = api(base, "/api/tubes")
         assert status == 503 and part.name in body["error"]
-        status, _, page = get(base, "/")
+        status, _, _ = get(base, "/")
         assert status == 200, "the pages load and say what is wrong"
+
+
+def test_mine_view_serves_until_ctrl_c(catalogue, tmp_path):
+    import os
+    import re
+    import signal
+    import subprocess
+    import sys
+
+    out, _ = catalogue
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    proc = subprocess.Popen([sys.executable, "-m", "mining.cli", "view", "--out", str(out), "--port", "0",
+                             "--cache", str(tmp_path / "cache")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=env)
+    try:
+        line = proc.stdout.readline()
+        m = re.search(r"serving (http://127\.0\.0\.1:\d+)/", line)
+        assert m, line + proc.stderr.read()
+        assert f"{count(out, 'selected')} selected of {count(out, 'true')} tubes" in line
+        status, page = api(m.group(1), "/api/tubes")
+        assert status == 200 and page["total"] == count(out, "selected")
+    finally:
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0 and err == "", err

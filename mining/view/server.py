@@ -226,17 +226,22 @@ def run_view(out: str, host: str, port: int, cache_dir: str | None, log_requests
     t0 = time.perf_counter()
     server = make_server(out, host, port, Path(cache_dir) if cache_dir else None, log_requests)
     app = server.app
-    facets = app.browser.facets(False)
-    url = f"http://{host if ':' not in host else f'[{host}]'}:{server.server_address[1]}/"
-    print(f"mine view: {out}: {facets['selected']} selected of {facets['tubes']} tubes; serving {url} "
-          f"(started in {time.perf_counter() - t0:.1f} s; Ctrl-C stops)", flush=True)
-    if host not in ("127.0.0.1", "localhost", "::1"):
-        print(f"mine view: listening on {host}: anyone who can reach it can browse the catalogue (no login)",
-              file=sys.stderr)
-    reason = app.source.reason
-    if reason:
-        print(f"mine view: pictures are placeholders: {reason}", file=sys.stderr)
     try:
+        url = f"http://{host if ':' not in host else f'[{host}]'}:{server.server_address[1]}/"
+        try:
+            facets = app.browser.facets(False)
+            what = f"{facets['selected']} selected of {facets['tubes']} tubes"
+        except duckdb.Error as e:  # a damaged table: serve anyway, the pages say what is wrong
+            what = "the catalogue cannot answer"
+            print(f"mine view: {e}", file=sys.stderr)
+        print(f"mine view: {out}: {what}; serving {url} (started in {time.perf_counter() - t0:.1f} s; Ctrl-C stops)",
+              flush=True)
+        if host not in ("127.0.0.1", "localhost", "::1"):
+            print(f"mine view: listening on {host}: anyone who can reach it can browse the catalogue (no login)",
+                  file=sys.stderr)
+        reason = app.source.reason
+        if reason:
+            print(f"mine view: pictures are placeholders: {reason}", file=sys.stderr)
         server.serve_forever()
     except KeyboardInterrupt:
         pass
