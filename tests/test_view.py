@@ -374,3 +374,13 @@ def test_mine_view_serves_until_ctrl_c(catalogue, tmp_path):
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=20)
     assert proc.returncode == 0 and err == "", err
+
+
+def test_an_unusable_cache_folder_costs_speed_not_pictures(catalogue, tmp_path):
+    out, tables = catalogue
+    blocked = tmp_path / "a-file"
+    blocked.write_text("not a folder")
+    with serving(out, blocked / "cache") as (base, srv):
+        assert "memory only" in srv.app.images.cache.problem
+        status, headers, body = get(base, "/img/thumb", {"id": tables["tubes"].column("tube_id")[0].as_py()})
+        assert status == 200 and "X-Placeholder" not in headers and body.startswith(b"\xff\xd8")

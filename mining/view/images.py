@@ -54,8 +54,9 @@ JPEG_MAGIC = b"\xff\xd8\xff"
 
 
 def default_cache_dir() -> Path:
-    """The system temporary folder's ``tube-miner-view``."""
-    return Path(tempfile.gettempdir()) / "tube-miner-view"
+    """``tube-miner-view-<uid>`` in the system temporary folder (one per user: no one reads another's)."""
+    uid = os.getuid() if hasattr(os, "getuid") else os.getlogin()
+    return Path(tempfile.gettempdir()) / f"tube-miner-view-{uid}"
 
 
 class Unavailable(Exception):
@@ -142,8 +143,12 @@ class ImageCache:
         self._mem: OrderedDict[str, bytes] = OrderedDict()
         self._size = 0
         self._lock = threading.Lock()
+        self.problem: str | None = None
         if folder is not None:
-            folder.mkdir(parents=True, exist_ok=True)
+            try:
+                folder.mkdir(parents=True, exist_ok=True)
+            except OSError as e:  # pictures are still drawn, only not kept across restarts
+                self.folder, self.problem = None, f"cannot use {folder} as the picture cache ({e}): memory only"
 
     def _path(self, key: str) -> Path:
         assert len(key) == 64 and all(c in "0123456789abcdef" for c in key)  # a sha256 hex digest only

@@ -239,6 +239,8 @@ def run_view(out: str, host: str, port: int, cache_dir: str | None, log_requests
         if host not in ("127.0.0.1", "localhost", "::1"):
             print(f"mine view: listening on {host}: anyone who can reach it can browse the catalogue (no login)",
                   file=sys.stderr)
+        if app.images.cache.problem:
+            print(f"mine view: {app.images.cache.problem}", file=sys.stderr)
         reason = app.source.reason
         if reason:
             print(f"mine view: pictures are placeholders: {reason}", file=sys.stderr)
