@@ -29,7 +29,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 @contextmanager
-def serving(out: Path, cache: Path | None):
+def serving(out: Path, cache: Path):
     server = make_server(out, "127.0.0.1", 0, cache)
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()
@@ -275,7 +275,7 @@ def test_frames_not_on_this_machine_give_placeholders_that_say_why(catalogue, tm
     job["config"]["source"]["root"] = str(tmp_path / "elsewhere")
     (moved / "job.json").write_text(json.dumps(job))
     tid = tables["tubes"].column("tube_id")[0].as_py()
-    with serving(moved, None) as (base, _):
+    with serving(moved, tmp_path / "cache") as (base, _):
         _, f = api(base, "/api/facets")
         assert "not on this machine" in f["frames_unavailable"] and "elsewhere" in f["frames_unavailable"]
         status, headers, body = get(base, "/img/thumb", {"id": tid})
@@ -292,7 +292,7 @@ def test_frames_not_on_this_machine_give_placeholders_that_say_why(catalogue, tm
 
 def test_an_empty_catalogue_browses(tmp_path):
     (tmp_path / "empty").mkdir()
-    with serving(tmp_path / "empty", None) as (base, _):
+    with serving(tmp_path / "empty", tmp_path / "cache") as (base, _):
         _, f = api(base, "/api/facets")
         assert f["tubes"] == 0 and "job.json" in f["frames_unavailable"]
         status, page = api(base, "/api/tubes")
@@ -330,11 +330,11 @@ def test_cli_view_refuses_a_missing_catalogue(tmp_path, capsys):
     assert "catalogue folder not found" in capsys.readouterr().err
 
 
-def test_cli_view_names_a_busy_port(catalogue, capsys):
+def test_cli_view_names_a_busy_port(catalogue, capsys, tmp_path):
     out, _ = catalogue
-    with serving(out, None) as (_, srv):
+    with serving(out, tmp_path / "cache") as (_, srv):
         port = srv.server_address[1]
-        assert main(["view", "--out", str(out), "--port", str(port)]) == 2
+        assert main(["view", "--out", str(out), "--port", str(port), "--cache", str(tmp_path / "cache")]) == 2
     assert f"cannot listen on 127.0.0.1:{port}" in capsys.readouterr().err
 
 
@@ -344,7 +344,7 @@ def test_a_damaged_table_is_503_naming_the_file(catalogue, tmp_path):
     shutil.copytree(out, copy)
     part = next((copy / "catalog" / "tubes").rglob("*.parquet"))
     part.write_bytes(part.read_bytes()[:100])
-    with serving(copy, None) as (base, _):
+    with serving(copy, tmp_path / "cache") as (base, _):
         status, body = api(base, "/api/tubes")
         assert status == 503 and part.name in body["error"]
         status, _, _ = get(base, "/")
