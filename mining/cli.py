@@ -345,6 +345,12 @@ def _version_text() -> str:
     return f"mine (tube-miner) {__version__}, catalogue schema v{SCHEMA_VERSION}"
 
 
+def cmd_view(args: argparse.Namespace) -> int:
+    from mining.view.server import run_view
+
+    return run_view(args.out, args.host, args.port, args.cache, args.log)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="mine", description="Tube Miner: mine generic object tubes from stereo video.")
     parser.add_argument("--version", action="version", version=_version_text())
@@ -427,6 +433,16 @@ def build_parser() -> argparse.ArgumentParser:
     rnd.add_argument("--frames", type=_frames, default=None, metavar="A:B",
                      help="plan positions [A, B) (default: the frames the catalogue mined)")
     rnd.set_defaults(func=cmd_render)
+
+    viw = sub.add_parser("view", help="browse the catalogue in a web browser: a gallery of tubes, a page per tube")
+    viw.add_argument("--out", default="out/catalog", help="catalogue folder")
+    viw.add_argument("--port", type=int, default=8765, help="port to listen on (default 8765; 0 picks a free one)")
+    viw.add_argument("--host", default="127.0.0.1",
+                     help="address to listen on (default 127.0.0.1: this machine only; there is no login)")
+    viw.add_argument("--cache", help="folder for rendered pictures (default: tube-miner-view-<uid> in the system "
+                                     "temporary folder; not inside the catalogue)")
+    viw.add_argument("--log", action="store_true", help="log one line per request on standard error")
+    viw.set_defaults(func=cmd_view)
 
     inspect = sub.add_parser("inspect", help="run one stage on a frame range and write its raw outputs")
     isub = inspect.add_subparsers(dest="stage", required=True)

@@ -27,4 +27,19 @@ if [ ! -f "$stamp" ]; then
   fi
   touch "$stamp"
 fi
+if [[ ",$extras," == *",test,"* ]] && ! command -v chromium >/dev/null && ! command -v chromium-browser >/dev/null; then
+  # The browser test of `mine view` (tests/test_view_browser.py) drives Debian's headless Chromium
+  # (25 packages, ~120 MB download, ~400 MB on disk). Only as root with apt; elsewhere the test skips
+  # outside CI and fails in CI.
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+    echo "setup: installing Debian's chromium for the browser test (log: .venv/apt.log)" >&2
+    if ! { apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends \
+             chromium fonts-dejavu-core; } >.venv/apt.log 2>&1; then
+      tail -20 .venv/apt.log >&2
+      echo "setup: chromium did not install; the browser test cannot run" >&2
+    fi
+  else
+    echo "setup: no chromium (install Debian's chromium as root for the browser test)" >&2
+  fi
+fi
 export RAY_USAGE_STATS_ENABLED=0

@@ -1,0 +1,144 @@
+"""What the viewer asks the catalogue: gallery pages, facets, one tube with its frames and track.
+
+Every query runs on the read-only connection of ``mining.catalog.views.connect``, one at a
+time (a lock: the connection's registered tables — empty tables, non-local catalogues — are
+not visible to ``cursor()`` copies, and each query takes milliseconds), with user values as
+bound parameters only (``filters.py``). A tube id from a URL is looked up by parameter
+before anything else uses it; an id the catalogue does not hold is simply not found.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import shlex
+import threading
+from pathlib import Path
+
+import duckdb
+
+from mining.catalog.export import read_job
+from mining.catalog.store import Store
+from mining.catalog.views import connect
+from mining.errors import InputError
+from mining.proposals.coco import COCO_CLASSES
+from mining.types import UNKNOWN_CLASS
+from mining.view.filters import CARD_COLUMNS, RANGE_COLUMNS, TubeFilter, sql_string
+
+CLASS_NAMES = (*COCO_CLASSES, "unknown")
+assert len(CLASS_NAMES) == UNKNOWN_CLASS + 1
+TOP_CLASSES = 5  # ours: posterior entries a tube page lists
+FRAME_COLUMNS = ("frame", "t_ns", "observed", "bbox", "objectness", "position_world", "position_cam", "mask_iou",
+                 "motion_density", "rle_h", "rle_w")
+_SAFE_SHELL = re.compile(r"[A-Za-z0-9_@%+=:,./' <>()*-]*")  # needs no quoting inside "…" in a POSIX shell
+
+
+def shell_word(text: str) -> str:
+    """``text`` quoted for a POSIX shell: double quotes where they suffice (readable SQL), else shlex."""
+    if _SAFE_SHELL.fullmatch(text):
+        return text if text and shlex.quote(text) == text else f'"{text}"'
+    return shlex.quote(text)
+
+
+def export_command(out: str, where: str, dest: str) -> str:
+    """The ``mine export`` line that writes crops of the tubes matching ``where``."""
+    return f"mine export --out {shell_word(out)} --where {shell_word(where)} --format crops {shell_word(dest)}"
+
+
+def _clean(v):
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    if isinstance(v, list):
+        return [_clean(x) for x in v]
+    return v
+
+
+def _rows(cur: duckdb.DuckDBPyConnection) -> list[dict]:
+    names = [d[0] for d in cur.description]
+    return [{n: _clean(v) for n, v in zip(names, row)} for row in cur.fetchall()]
+
+
+class CatalogueBrowser:
+    """The queries behind the viewer's JSON API, over one catalogue folder."""
+
+    def __init__(self, out: str | Path):
+        self.out = str(out)
+        self.con = connect(out)  # InputError when ``out`` is not a catalogue folder
+        self._lock = threading.Lock()
+        try:
+            self.job = read_job(Store(out))
+            self.job_error = None
+        except InputError as e:  # a damaged job.json: browse the tables, say why there are no frames
+            self.job, self.job_error = {}, str(e)
+
+    def close(self) -> None:
+        self.con.close()
+
+    def _query(self, sql: str, params: list | None = None) -> list[dict]:
+        with self._lock:
+            self.con.execute(sql, params or [])
+            return _rows(self.con)
+
+    def page(self, flt: TubeFilter) -> dict:
+        """One gallery page: the total that match, and the tubes of ``flt``'s page."""
+        pred, values = flt.predicate()
+        total = self._query(f"SELECT count(*) AS n FROM tubes WHERE {pred}", values)[0]["n"]
+        cols = ", ".join(CARD_COLUMNS)
+        tubes = self._query(f"SELECT {cols} FROM tubes WHERE {pred} ORDER BY {flt.order_by()} LIMIT ? OFFSET ?",
+                            [*values, flt.limit, flt.offset])
+        where = flt.export_where()
+        return {"total": total, "offset": flt.offset, "limit": flt.limit, "tubes": tubes, "where": where,
+                "export_command": export_command(self.out, where, "crops")}
+
+    def facets(self, all_tubes: bool) -> dict:
+        """What the filter form offers: counts by class, category and sequence, and each range."""
+        pred = "true" if all_tubes else "selected"
+        counts = self._query("SELECT count(*) AS tubes, count(*) FILTER (WHERE selected) AS selected FROM tubes")[0]
+        known = {("null" if r["known"] is None else str(r["known"]).lower()): r["n"]
+                 for r in self._query(f"SELECT known, count(*) AS n FROM tubes WHERE {pred} GROUP BY known")}
+        categories = self._query(f"SELECT category, count(*) AS n FROM tubes WHERE {pred} AND category IS NOT NULL "
+                                 "GROUP BY category ORDER BY n DESC, category")
+        sequences = self._query(f"SELECT dataset, sequence, count(*) AS n FROM tubes WHERE {pred} "
+                                "GROUP BY dataset, sequence ORDER BY dataset, sequence")
+        agg = ", ".join(f"min({c}) AS min_{c}, max({c}) AS max_{c}" for c in RANGE_COLUMNS)
+        r = self._query(f"SELECT {agg} FROM tubes WHERE {pred}")[0]
+        ranges = {c: [r[f"min_{c}"], r[f"max_{c}"]] for c in RANGE_COLUMNS}
+        return {"catalogue": self.out, "tubes": counts["tubes"], "selected": counts["selected"], "known": known,
+                "categories": categories, "sequences": sequences, "ranges": ranges}
+
+    def tube(self, tube_id: str) -> dict | None:
+        """The tubes row of ``tube_id`` (looked up by parameter), or None."""
+        rows = self._query("SELECT * FROM tubes WHERE tube_id = ?", [tube_id])
+        return rows[0] if rows else None
+
+    def frames(self, tube: dict) -> list[dict]:
+        """The tube's frames in frame order, with their masks."""
+        return self._query("SELECT * FROM tube_frames WHERE dataset = ? AND sequence = ? AND tube_id = ? ORDER BY frame",
+                           [tube["dataset"], tube["sequence"], tube["tube_id"]])
+
+    def frame(self, tube: dict, frame: int) -> dict | None:
+        rows = self._query("SELECT * FROM tube_frames WHERE dataset = ? AND sequence = ? AND tube_id = ? AND frame = ?",
+                           [tube["dataset"], tube["sequence"], tube["tube_id"], frame])
+        return rows[0] if rows else None
+
+    def ego_path(self, tube: dict) -> list[dict]:
+        """The camera's positions over the tube's frames, in the world of the tube's segment."""
+        rows = self._query("SELECT frame, pose[4] AS x, pose[8] AS y, pose[12] AS z FROM frames WHERE dataset = ? "
+                           "AND sequence = ? AND segment = ? AND frame BETWEEN ? AND ? ORDER BY frame",
+                           [tube["dataset"], tube["sequence"], tube["segment"], tube["frame_start"], tube["frame_end"]])
+        return rows
+
+    def detail(self, tube_id: str) -> dict | None:
+        """Everything a tube page shows, or None for an id the catalogue does not hold."""
+        tube = self.tube(tube_id)
+        if tube is None:
+            return None
+        posterior = tube.pop("class_posterior")
+        top = []
+        if posterior:
+            order = sorted(range(len(posterior)), key=lambda k: -(posterior[k] or 0.0))[:TOP_CLASSES]
+            top = [{"name": CLASS_NAMES[k] if k < len(CLASS_NAMES) else str(k), "p": posterior[k]} for k in order]
+        frames = [{c: f[c] for c in FRAME_COLUMNS} for f in self.frames(tube)]
+        where = f"tube_id = {sql_string(tube_id)}"
+        return {"tube": tube, "top_classes": top, "frames": frames, "ego": self.ego_path(tube),
+                "where": where, "export_command": export_command(self.out, where, f"crops/{tube_id.replace('/', '_')}")}

@@ -1,0 +1,169 @@
+"""The gallery's filter: URL query parameters → one parameterised SQL predicate over ``tubes``.
+
+A filter reads only parameters it knows and checks each one (a bad value is a FilterError,
+which the server answers with 400 and the message). User values reach DuckDB as bound
+parameters (``?``), never as SQL text; the sort column comes from a fixed list. The same
+filter is also written out with literal values (``export_where``), quoted here, for the user
+to paste into ``mine export --where`` — that text is shown, never executed by the viewer.
+
+Parameters (each may repeat where it says so):
+
+* ``set``: ``selected`` (default: the mined result) or ``all`` (every candidate tube)
+* ``known``: ``true`` / ``false`` / ``null`` — known, unknown, unclassified (repeat for several)
+* ``category``: a category name (repeat for several)
+* ``seq``: ``DATASET/SEQUENCE`` (repeat for several)
+* ``min_C`` / ``max_C`` for C in ``RANGE_COLUMNS``: inclusive bounds
+* ``sort``: one of ``SORT_COLUMNS`` (default score), ``order``: ``desc`` (default) or ``asc``
+* ``offset`` ≥ 0 and ``limit`` in 1..``MAX_LIMIT`` (default ``DEFAULT_LIMIT``): the page
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+RANGE_COLUMNS = ("score", "score_motion", "score_mask", "score_objectness", "n_frames", "n_observed",
+                 "category_prob", "class_evidence", "speed", "path_length")
+INT_COLUMNS = frozenset({"n_frames", "n_observed"})
+SORT_COLUMNS = (*RANGE_COLUMNS, "tube_id", "sequence", "frame_start", "category")
+KNOWN_VALUES = {"true": "known = true", "false": "known = false", "null": "known IS NULL"}
+DEFAULT_LIMIT = 48  # ours: tubes per gallery page (a 6 × 8 grid)
+MAX_LIMIT = 500  # ours: the most one request may ask for
+# The columns a gallery card shows (the whole row is one `mine query` away).
+CARD_COLUMNS = ("tube_id", "dataset", "sequence", "frame_start", "frame_end", "n_frames", "n_observed", "score",
+                "score_motion", "score_mask", "score_objectness", "selected", "known", "category", "category_prob",
+                "best_known", "speed", "path_length")
+
+
+class FilterError(ValueError):
+    """A query parameter the gallery cannot use; the message says which and why."""
+
+
+def _one(params: dict[str, list[str]], name: str) -> str | None:
+    values = params.get(name, [])
+    if len(values) > 1:
+        raise FilterError(f"parameter {name!r} given {len(values)} times; it takes one value")
+    return values[0] if values else None
+
+
+def _number(name: str, text: str, integer: bool) -> float | int:
+    try:
+        v = int(text) if integer else float(text)
+    except ValueError:
+        raise FilterError(f"parameter {name!r} must be {'an integer' if integer else 'a number'}, got {text!r}") from None
+    if not math.isfinite(v):
+        raise FilterError(f"parameter {name!r} must be finite, got {text!r}")
+    return v
+
+
+def sql_string(s: str) -> str:
+    """``s`` as a SQL string literal (for the shown --where text only)."""
+    return "'" + s.replace("'", "''") + "'"
+
+
+@dataclass(frozen=True)
+class TubeFilter:
+    """One gallery request: which tubes, in which order, which page."""
+
+    all_tubes: bool = False
+    known: tuple[str, ...] = ()  # subset of KNOWN_VALUES
+    categories: tuple[str, ...] = ()
+    sequences: tuple[tuple[str, str], ...] = ()  # (dataset, sequence)
+    ranges: tuple[tuple[str, float | int | None, float | int | None], ...] = ()  # (column, min, max)
+    sort: str = "score"
+    descending: bool = True
+    offset: int = 0
+    limit: int = DEFAULT_LIMIT
+
+    @classmethod
+    def from_query(cls, params: dict[str, list[str]]) -> TubeFilter:
+        """Parse ``urllib.parse.parse_qs`` output (blank values kept); FilterError when bad."""
+        allowed = {"set", "known", "category", "seq", "sort", "order", "offset", "limit",
+                   *(f"{b}_{c}" for c in RANGE_COLUMNS for b in ("min", "max"))}
+        unknown = sorted(set(params) - allowed)
+        if unknown:
+            raise FilterError(f"unknown parameter {unknown[0]!r}; the gallery takes: {', '.join(sorted(allowed))}")
+        which = _one(params, "set") or "selected"
+        if which not in ("selected", "all"):
+            raise FilterError(f"parameter 'set' is 'selected' or 'all', got {which!r}")
+        known = tuple(dict.fromkeys(v for v in params.get("known", []) if v))
+        bad = [v for v in known if v not in KNOWN_VALUES]
+        if bad:
+            raise FilterError(f"parameter 'known' is true, false or null (known, unknown, unclassified), got {bad[0]!r}")
+        categories = tuple(dict.fromkeys(v for v in params.get("category", []) if v))
+        sequences = []
+        for v in params.get("seq", []):
+            if not v:
+                continue
+            dataset, sep, sequence = v.partition("/")
+            if not sep or not dataset or not sequence:
+                raise FilterError(f"parameter 'seq' is DATASET/SEQUENCE, got {v!r}")
+            sequences.append((dataset, sequence))
+        ranges = []
+        for c in RANGE_COLUMNS:
+            lo, hi = _one(params, f"min_{c}"), _one(params, f"max_{c}")
+            lo = None if lo in (None, "") else _number(f"min_{c}", lo, c in INT_COLUMNS)
+            hi = None if hi in (None, "") else _number(f"max_{c}", hi, c in INT_COLUMNS)
+            if lo is not None and hi is not None and lo > hi:
+                raise FilterError(f"min_{c} = {lo} is above max_{c} = {hi}")
+            if lo is not None or hi is not None:
+                ranges.append((c, lo, hi))
+        sort = _one(params, "sort") or "score"
+        if sort not in SORT_COLUMNS:
+            raise FilterError(f"cannot sort by {sort!r}; one of {', '.join(SORT_COLUMNS)}")
+        order = _one(params, "order") or "desc"
+        if order not in ("asc", "desc"):
+            raise FilterError(f"parameter 'order' is 'asc' or 'desc', got {order!r}")
+        offset = _number("offset", _one(params, "offset") or "0", True)
+        limit = _number("limit", _one(params, "limit") or str(DEFAULT_LIMIT), True)
+        if offset < 0:
+            raise FilterError(f"parameter 'offset' must be ≥ 0, got {offset}")
+        if not 1 <= limit <= MAX_LIMIT:
+            raise FilterError(f"parameter 'limit' must be in 1..{MAX_LIMIT}, got {limit}")
+        return cls(which == "all", known, categories, tuple(sequences), tuple(ranges), sort, order == "desc",
+                   int(offset), int(limit))
+
+    def _terms(self, literal: bool) -> tuple[list[str], list]:
+        """The predicate's AND-ed terms, with ``?`` and their values, or with literals."""
+        terms: list[str] = []
+        values: list = []
+
+        def bind(v) -> str:
+            if literal:
+                return sql_string(v) if isinstance(v, str) else repr(v)
+            values.append(v)
+            return "?"
+
+        if not self.all_tubes:
+            terms.append("selected")
+        if self.known:
+            parts = [KNOWN_VALUES[k] for k in self.known]
+            terms.append(parts[0] if len(parts) == 1 else "(" + " OR ".join(parts) + ")")
+        if self.categories:
+            terms.append(f"category IN ({', '.join(bind(c) for c in self.categories)})")
+        if self.sequences:
+            pairs = [f"(dataset = {bind(d)} AND sequence = {bind(s)})" for d, s in self.sequences]
+            terms.append(pairs[0][1:-1] if len(pairs) == 1 else "(" + " OR ".join(pairs) + ")")
+        for c, lo, hi in self.ranges:  # c is one of RANGE_COLUMNS: a fixed identifier
+            if lo is not None:
+                terms.append(f"{c} >= {bind(lo)}")
+            if hi is not None:
+                terms.append(f"{c} <= {bind(hi)}")
+        return terms, values
+
+    def predicate(self) -> tuple[str, list]:
+        """(SQL predicate with ``?`` placeholders, its parameter values)."""
+        terms, values = self._terms(literal=False)
+        return " AND ".join(terms) or "true", values
+
+    def export_where(self) -> str:
+        """The same predicate with literal values, for ``mine export --where``."""
+        terms, _ = self._terms(literal=True)
+        return " AND ".join(terms) or "true"
+
+    def order_by(self) -> str:
+        """ORDER BY clause: the whitelisted column, nulls last, then the tube id for a stable page."""
+        assert self.sort in SORT_COLUMNS
+        direction = "DESC" if self.descending else "ASC"
+        tie = "" if self.sort == "tube_id" else ", tube_id"
+        return f"{self.sort} {direction} NULLS LAST{tie}"

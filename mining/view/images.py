@@ -1,0 +1,346 @@
+"""The viewer's pictures: a tube's mask outlined on its real source frame, rendered on demand.
+
+The catalogue keeps masks (COCO RLE) and boxes, not pixels; the pixels are re-read through
+the source that ``OUT/job.json`` names (as ``mine export --format crops`` does), so a
+catalogue copied to a machine without its frames still browses: every picture is then a
+placeholder that says why (``FrameSource.reason``).
+
+Two pictures: a gallery *thumbnail* (the tube's best view — its largest observed box not
+cut by the image border — cropped with context around the box) and a *frame* (the full
+frame, or a strip-sized copy, with the mask filled lightly and outlined). Outlines are
+``cv2.findContours`` of the mask drawn after resizing, so they stay two pixels wide.
+
+Encoded JPEGs are cached twice: an LRU in memory, and files in a folder the user chooses
+(``--cache``; the system temporary folder by default, never inside the catalogue). A file's
+name is the sha256 of everything the picture depends on (the source, the frame, the mask,
+the box, the kind and size, ``RENDER_VERSION``), so no name is ever built from a tube id,
+and a changed catalogue cannot serve a stale picture. Cached files are only ever served as
+image bytes, and only when they start as a JPEG does.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+import threading
+from collections import OrderedDict
+from pathlib import Path
+
+import cv2
+import numpy as np
+from pycocotools import mask as mask_utils
+
+from mining.errors import ConfigError, MiningError
+
+RENDER_VERSION = 1  # bump when drawing changes: every cached file name changes with it
+THUMB_SIZE = (240, 180)  # ours: gallery thumbnail width × height (4:3)
+THUMB_CONTEXT = 0.75  # ours: context on each side of the box, as a fraction of the box's larger side
+THUMB_MIN_CONTEXT = 0.1  # ours: where the image is too small for that, at least this much beside the box
+THUMB_MIN_CROP_PX = 96  # ours: the crop is at least this tall, so a 30 px box still shows its surroundings
+STRIP_WIDTH = 200  # ours: width of a frame in the tube page's strip
+BORDER_PX = 2  # ours: a box this close to the image edge counts as cut by it
+JPEG_QUALITY = 85  # ours
+FILL_ALPHA = 0.35  # ours: opacity of the mask's fill on a frame
+OUTLINE_PX = 2  # ours
+MEMORY_CACHE_BYTES = 64 << 20  # ours: encoded pictures kept in memory
+FRAME_CACHE = 24  # ours: decoded source frames kept in memory (neighbouring tubes share frames)
+SIZES = ("full", "strip")
+# Outline colours (RGB) by the tube's class: known, unknown, unclassified; a predicted frame is white.
+COLOURS = {True: (70, 220, 90), False: (255, 150, 20), None: (40, 190, 255)}
+PREDICTED = (255, 255, 255)
+JPEG_MAGIC = b"\xff\xd8\xff"
+
+
+def default_cache_dir() -> Path:
+    """``tube-miner-view-<uid>`` in the system temporary folder (one per user: no one reads another's)."""
+    uid = os.getuid() if hasattr(os, "getuid") else os.getlogin()
+    return Path(tempfile.gettempdir()) / f"tube-miner-view-{uid}"
+
+
+class Unavailable(Exception):
+    """The frame cannot be read here; ``str()`` says why, for the placeholder."""
+
+
+class FrameSource:
+    """Left images of the catalogue's source, opened lazily; remembers why it cannot open."""
+
+    def __init__(self, job: dict | None, unavailable: str | None = None):
+        self.spec = (job or {}).get("source") or {}
+        self.identity = json.dumps({k: self.spec.get(k) for k in ("dataset", "root", "options")}, sort_keys=True,
+                                   default=str)
+        self._source = None
+        self._reason: str | None = unavailable
+        if self._reason is None and not self.spec.get("dataset"):
+            self._reason = "the catalogue has no job.json naming its source, so its frames cannot be found"
+        self._plans: dict[str, object] = {}
+        self._plan_errors: dict[str, str] = {}
+        self._frames: OrderedDict[tuple[str, int], np.ndarray] = OrderedDict()
+        self._lock = threading.Lock()  # sources are not promised to be thread-safe
+
+    def _open(self):
+        if self._source is None and self._reason is None:
+            from mining.sources import open_source
+
+            try:
+                self._source = open_source(self.spec["dataset"], self.spec.get("root") or None,
+                                           **self.spec.get("options", {}))
+            except (MiningError, ConfigError, OSError) as e:
+                self._reason = f"the frames are not on this machine ({e})"
+        if self._source is None:
+            raise Unavailable(self._reason)
+        return self._source
+
+    @property
+    def reason(self) -> str | None:
+        """Why no frame can be read (None when the source opens)."""
+        with self._lock:
+            try:
+                self._open()
+            except Unavailable:
+                pass
+            return self._reason
+
+    def left(self, dataset: str, sequence: str, frame: int) -> np.ndarray:
+        """The (H, W, 3) RGB left image of ``frame``; Unavailable with the reason otherwise."""
+        with self._lock:
+            key = (sequence, frame)
+            if key in self._frames:
+                self._frames.move_to_end(key)
+                return self._frames[key]
+            source = self._open()
+            if dataset != self.spec.get("dataset"):
+                raise Unavailable(f"the job's source is {self.spec.get('dataset')!r}, not {dataset!r}")
+            if sequence in self._plan_errors:
+                raise Unavailable(self._plan_errors[sequence])
+            if sequence not in self._plans:
+                try:
+                    plan = source.plan(sequence)
+                    self._plans[sequence] = (plan, {f: p for p, f in enumerate(plan.frames)})
+                except (MiningError, OSError) as e:
+                    self._plan_errors[sequence] = f"sequence {sequence} cannot be read here ({e})"
+                    raise Unavailable(self._plan_errors[sequence]) from None
+            plan, position = self._plans[sequence]
+            if frame not in position:
+                raise Unavailable(f"frame {frame} is not in the source's sequence {sequence}")
+            try:
+                image = source.read_frame(plan, position[frame]).left
+            except (MiningError, OSError) as e:
+                raise Unavailable(f"frame {frame} cannot be read ({e})") from None
+            self._frames[key] = image
+            while len(self._frames) > FRAME_CACHE:
+                self._frames.popitem(last=False)
+            return image
+
+
+class ImageCache:
+    """Encoded pictures by key: an LRU in memory over files in ``folder`` (None: memory only)."""
+
+    def __init__(self, folder: Path | None, memory_bytes: int = MEMORY_CACHE_BYTES):
+        self.folder = folder
+        self.memory_bytes = memory_bytes
+        self._mem: OrderedDict[str, bytes] = OrderedDict()
+        self._size = 0
+        self._lock = threading.Lock()
+        self.problem: str | None = None
+        if folder is not None:
+            try:
+                folder.mkdir(parents=True, exist_ok=True)
+            except OSError as e:  # pictures are still drawn, only not kept across restarts
+                self.folder, self.problem = None, f"cannot use {folder} as the picture cache ({e}): memory only"
+
+    def _path(self, key: str) -> Path:
+        assert len(key) == 64 and all(c in "0123456789abcdef" for c in key)  # a sha256 hex digest only
+        return self.folder / key[:2] / f"{key}.jpg"
+
+    def get(self, key: str) -> bytes | None:
+        with self._lock:
+            if key in self._mem:
+                self._mem.move_to_end(key)
+                return self._mem[key]
+        if self.folder is None:
+            return None
+        try:
+            data = self._path(key).read_bytes()
+        except OSError:
+            return None
+        if not data.startswith(JPEG_MAGIC):
+            return None
+        self._remember(key, data)
+        return data
+
+    def _remember(self, key: str, data: bytes) -> None:
+        with self._lock:
+            if key not in self._mem:
+                self._mem[key] = data
+                self._size += len(data)
+            while self._size > self.memory_bytes and self._mem:
+                _, old = self._mem.popitem(last=False)
+                self._size -= len(old)
+
+    def put(self, key: str, data: bytes) -> None:
+        self._remember(key, data)
+        if self.folder is None:
+            return
+        path = self._path(key)
+        try:
+            path.parent.mkdir(exist_ok=True)
+            tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
+            tmp.write_bytes(data)
+            os.replace(tmp, path)
+        except OSError:
+            pass  # a full or read-only cache folder costs speed, not pictures
+
+
+def best_frame(frames: list[dict], width: int | None = None, height: int | None = None) -> dict:
+    """The tube frame a thumbnail shows: the largest observed box not cut by the image border,
+    else the largest observed box, else the middle frame."""
+    observed = [f for f in frames if f["observed"]]
+    if not observed:
+        return frames[len(frames) // 2]
+
+    def area(f: dict) -> float:
+        x1, y1, x2, y2 = f["bbox"]
+        return max(0.0, x2 - x1) * max(0.0, y2 - y1)
+
+    def inside(f: dict) -> bool:
+        w, h = width or f["rle_w"], height or f["rle_h"]
+        x1, y1, x2, y2 = f["bbox"]
+        return x1 > BORDER_PX and y1 > BORDER_PX and x2 < w - BORDER_PX and y2 < h - BORDER_PX
+
+    whole = [f for f in observed if inside(f)]
+    return max(whole or observed, key=area)
+
+
+def thumb_crop(bbox, width: int, height: int) -> tuple[int, int, int, int]:
+    """[x0, x1) × [y0, y1): a 4:3 window centred on the box with context, shifted inside the image."""
+    x1, y1, x2, y2 = (float(v) for v in bbox)
+    side = max(x2 - x1, y2 - y1, 1.0)
+    ch = max(side * (1 + 2 * THUMB_CONTEXT), THUMB_MIN_CROP_PX)
+    cw = max(ch * THUMB_SIZE[0] / THUMB_SIZE[1], (x2 - x1) * (1 + 2 * THUMB_CONTEXT))
+    ch = max(ch, cw * THUMB_SIZE[1] / THUMB_SIZE[0])
+    cw, ch = min(cw, float(width)), min(ch, float(height))
+    # Cut to the image's height, the window gives up side context before it gives up 4:3.
+    cw = min(cw, max(ch * THUMB_SIZE[0] / THUMB_SIZE[1], min(float(width), (x2 - x1) * (1 + 2 * THUMB_MIN_CONTEXT))))
+    cx, cy = (x1 + x2) / 2, (y1 + y2) / 2
+    x0 = round(min(max(cx - cw / 2, 0.0), width - cw))
+    y0 = round(min(max(cy - ch / 2, 0.0), height - ch))
+    return x0, min(width, x0 + round(cw)), y0, min(height, y0 + round(ch))
+
+
+def _outline(image: np.ndarray, mask: np.ndarray, colour, fill: bool) -> np.ndarray:
+    """``image`` (RGB, modified copy) with ``mask`` outlined (and lightly filled)."""
+    out = image.copy()
+    if fill and mask.any():
+        sel = mask.astype(bool)
+        out[sel] = (out[sel] * (1 - FILL_ALPHA) + np.asarray(colour, np.float32) * FILL_ALPHA).astype(np.uint8)
+    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    cv2.drawContours(out, contours, -1, colour, OUTLINE_PX, lineType=cv2.LINE_AA)
+    return out
+
+
+def _jpeg(rgb: np.ndarray) -> bytes:
+    ok, buf = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+    if not ok:
+        raise RuntimeError("JPEG encoding failed")
+    return buf.tobytes()
+
+
+def placeholder(reason: str, size: tuple[int, int] = THUMB_SIZE) -> bytes:
+    """A grey JPEG of ``size`` saying ``reason`` (ASCII; wrapped to the width)."""
+    w, h = size
+    img = np.full((h, w, 3), 60, np.uint8)
+    scale = 0.4 if w < 400 else 0.6
+    text = reason.encode("ascii", "replace").decode()
+    max_chars = max(10, int(w / (scale * 20)))
+    lines, line = [], ""
+    for word in text.split():
+        if line and len(line) + 1 + len(word) > max_chars:
+            lines.append(line)
+            line = word
+        else:
+            line = f"{line} {word}".strip()
+    lines.append(line)
+    step = int(28 * scale) + 4
+    for k, ln in enumerate(lines[: max(1, (h - 10) // step)]):
+        cv2.putText(img, ln, (6, 6 + step * (k + 1)), cv2.FONT_HERSHEY_SIMPLEX, scale, (230, 230, 230), 1, cv2.LINE_AA)
+    return _jpeg(img)
+
+
+class TubeImages:
+    """Thumbnails and frames of tubes; (JPEG bytes, reason) where reason names a placeholder's cause."""
+
+    def __init__(self, source: FrameSource, cache: ImageCache):
+        self.source = source
+        self.cache = cache
+
+    def _key(self, kind: str, size: str, tube: dict, frame: dict) -> str:
+        material = json.dumps([RENDER_VERSION, kind, size, self.source.identity, tube["dataset"], tube["sequence"],
+                               frame["frame"], frame["rle_h"], frame["rle_w"], frame["rle_counts"],
+                               [round(float(v), 3) for v in frame["bbox"]], tube["known"], frame["observed"]])
+        return hashlib.sha256(material.encode()).hexdigest()
+
+    def _image_and_mask(self, tube: dict, frame: dict) -> tuple[np.ndarray, np.ndarray]:
+        image = self.source.left(tube["dataset"], tube["sequence"], frame["frame"])
+        h, w = image.shape[:2]
+        if (frame["rle_h"], frame["rle_w"]) != (h, w):
+            raise Unavailable(f"the mask is {frame['rle_w']}x{frame['rle_h']} but frame {frame['frame']} of the "
+                              f"source is {w}x{h}: the job's source is not the one this catalogue was mined from")
+        mask = mask_utils.decode({"size": [h, w], "counts": frame["rle_counts"].encode()})
+        return image, mask
+
+    def _cached(self, kind: str, size: str, tube: dict, frame: dict, draw) -> tuple[bytes, str | None]:
+        key = self._key(kind, size, tube, frame)
+        data = self.cache.get(key)
+        if data is not None:
+            return data, None
+        try:
+            image, mask = self._image_and_mask(tube, frame)
+        except Unavailable as e:
+            return None, str(e)
+        data = _jpeg(draw(image, mask))
+        self.cache.put(key, data)
+        return data, None
+
+    def thumbnail(self, tube: dict, frame: dict) -> tuple[bytes, str | None]:
+        """The gallery picture of ``tube`` on ``frame`` (best_frame's choice)."""
+        colour = COLOURS[tube["known"]]
+
+        def draw(image, mask):
+            h, w = image.shape[:2]
+            x0, x1, y0, y1 = thumb_crop(frame["bbox"], w, h)
+            crop, m = image[y0:y1, x0:x1], mask[y0:y1, x0:x1]
+            s = min(THUMB_SIZE[0] / crop.shape[1], THUMB_SIZE[1] / crop.shape[0])
+            cw, chh = max(1, round(crop.shape[1] * s)), max(1, round(crop.shape[0] * s))
+            crop = cv2.resize(crop, (cw, chh), interpolation=cv2.INTER_AREA if s < 1 else cv2.INTER_CUBIC)
+            m = cv2.resize(m, (cw, chh), interpolation=cv2.INTER_NEAREST)
+            canvas = np.full((THUMB_SIZE[1], THUMB_SIZE[0], 3), 30, np.uint8)
+            ox, oy = (THUMB_SIZE[0] - cw) // 2, (THUMB_SIZE[1] - chh) // 2
+            canvas[oy:oy + chh, ox:ox + cw] = _outline(crop, m, colour, fill=False)
+            return canvas
+
+        data, reason = self._cached("thumb", "thumb", tube, frame, draw)
+        return (data, None) if reason is None else (placeholder(reason, THUMB_SIZE), reason)
+
+    def frame(self, tube: dict, frame: dict, size: str) -> tuple[bytes, str | None]:
+        """Frame ``frame`` of ``tube`` with its mask, at ``size`` (one of SIZES)."""
+        if size not in SIZES:
+            raise ValueError(f"size is one of {SIZES}, got {size!r}")
+        colour = COLOURS[tube["known"]] if frame["observed"] else PREDICTED
+
+        def draw(image, mask):
+            if size == "strip":
+                h, w = image.shape[:2]
+                new = (STRIP_WIDTH, max(1, round(h * STRIP_WIDTH / w)))
+                image = cv2.resize(image, new, interpolation=cv2.INTER_AREA)
+                mask = cv2.resize(mask, new, interpolation=cv2.INTER_NEAREST)
+            return _outline(image, mask, colour, fill=True)
+
+        data, reason = self._cached("frame", size, tube, frame, draw)
+        if reason is None:
+            return data, None
+        w, h = int(frame["rle_w"]), int(frame["rle_h"])
+        if size == "strip":
+            w, h = STRIP_WIDTH, max(1, round(h * STRIP_WIDTH / max(w, 1)))
+        return placeholder(reason, (max(w, 120), max(h, 60))), reason

@@ -1,0 +1,59 @@
+// Shared by the gallery and the tube page: JSON fetches, small DOM helpers, class labels.
+"use strict";
+
+const KNOWN_LABEL = { true: "known", false: "unknown", null: "unclassified" };
+
+async function getJSON(url) {
+  const r = await fetch(url);
+  let body;
+  try { body = await r.json(); } catch (e) { body = { error: `${r.status} ${r.statusText}` }; }
+  if (!r.ok) throw new Error(body.error || `${r.status} ${r.statusText}`);
+  return body;
+}
+
+function el(tag, attrs = {}, ...children) {
+  const e = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) {
+    if (k === "class") e.className = v;
+    else if (k === "text") e.textContent = v;
+    else e.setAttribute(k, v);
+  }
+  for (const c of children) e.append(c);
+  return e;
+}
+
+function fmt(v, digits = 2) {
+  if (v === null || v === undefined) return "–";
+  if (typeof v === "number") return Number.isInteger(v) ? String(v) : v.toFixed(digits);
+  return String(v);
+}
+
+function knownKey(known) { return known === null || known === undefined ? "null" : String(known); }
+
+function classLabel(t) {
+  if (t.known === null || t.known === undefined) return "unclassified";
+  return t.known ? t.category : `unknown (best: ${t.best_known || "–"})`;
+}
+
+function showBanner(text) {
+  const b = document.getElementById("banner");
+  if (!text) { b.hidden = true; return; }
+  b.textContent = text;
+  b.hidden = false;
+}
+
+function wireCopyButtons() {
+  for (const b of document.querySelectorAll("button.copy")) {
+    b.addEventListener("click", async () => {
+      const text = document.getElementById(b.dataset.copy).textContent;
+      try { await navigator.clipboard.writeText(text); b.textContent = "copied"; }
+      catch (e) {  // no clipboard (plain http on another host): select the text instead
+        const range = document.createRange();
+        range.selectNodeContents(document.getElementById(b.dataset.copy));
+        const sel = window.getSelection(); sel.removeAllRanges(); sel.addRange(range);
+        b.textContent = "selected: press Ctrl-C";
+      }
+      setTimeout(() => { b.textContent = "copy"; }, 1500);
+    });
+  }
+}

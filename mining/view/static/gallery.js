@@ -1,0 +1,163 @@
+// The gallery: the filter form mirrors the URL's query (so a filter can be bookmarked or
+// shared), the server filters, sorts and pages (/api/tubes), this draws the cards.
+"use strict";
+
+const RANGES = [
+  ["score", "score"], ["score_motion", "motion"], ["score_mask", "mask"],
+  ["score_objectness", "objectness"], ["n_frames", "frames"], ["category_prob", "class prob."],
+];
+const form = document.getElementById("filters");
+const PAGE = 48;
+let request = 0;  // only the latest answer is drawn
+let facetsFor = null;
+
+function buildRanges() {
+  const box = document.getElementById("ranges");
+  for (const [col, label] of RANGES) {
+    const row = el("div", { class: "range" }, el("span", { text: label }),
+      el("input", { type: "number", step: "any", name: `min_${col}`, id: `min_${col}`, placeholder: "min" }),
+      el("input", { type: "number", step: "any", name: `max_${col}`, id: `max_${col}`, placeholder: "max" }));
+    box.append(row);
+  }
+}
+
+function formToParams() {
+  const p = new URLSearchParams();
+  const set = form.querySelector("input[name=set]:checked").value;
+  if (set !== "selected") p.set("set", set);
+  for (const c of form.querySelectorAll("input[name=known]:checked")) p.append("known", c.value);
+  for (const o of document.getElementById("category").selectedOptions) p.append("category", o.value);
+  for (const o of document.getElementById("seq").selectedOptions) p.append("seq", o.value);
+  for (const [col] of RANGES) {
+    for (const b of ["min", "max"]) {
+      const v = document.getElementById(`${b}_${col}`).value;
+      if (v !== "") p.set(`${b}_${col}`, v);
+    }
+  }
+  const sort = document.getElementById("sort").value, order = document.getElementById("order").value;
+  if (sort !== "score") p.set("sort", sort);
+  if (order !== "desc") p.set("order", order);
+  return p;
+}
+
+function paramsToForm(p) {
+  const set = p.get("set") || "selected";
+  for (const r of form.querySelectorAll("input[name=set]")) r.checked = r.value === set;
+  const known = p.getAll("known");
+  for (const c of form.querySelectorAll("input[name=known]")) c.checked = known.includes(c.value);
+  for (const [col] of RANGES) {
+    for (const b of ["min", "max"]) document.getElementById(`${b}_${col}`).value = p.get(`${b}_${col}`) || "";
+  }
+  document.getElementById("sort").value = p.get("sort") || "score";
+  document.getElementById("order").value = p.get("order") || "desc";
+}
+
+function fillSelect(select, items, wanted) {
+  select.replaceChildren();
+  for (const [value, text] of items) {
+    const o = el("option", { value, text });
+    o.selected = wanted.includes(value);
+    select.append(o);
+  }
+  // Keep a wanted value the facets do not list (e.g. from a shared link), so the filter shows.
+  for (const w of wanted) {
+    if (!items.some(([v]) => v === w)) select.append(Object.assign(el("option", { value: w, text: `${w} (0)` }), { selected: true }));
+  }
+}
+
+async function loadFacets(p) {
+  const set = p.get("set") || "selected";
+  if (facetsFor === set) return;
+  const f = await getJSON(`/api/facets?set=${encodeURIComponent(set)}`);
+  facetsFor = set;
+  document.getElementById("catalogue").textContent = f.catalogue;
+  document.getElementById("totals").textContent = `${f.selected} selected of ${f.tubes} candidate tubes`;
+  for (const s of document.querySelectorAll("span.n[data-known]")) s.textContent = `(${f.known[s.dataset.known] || 0})`;
+  const cats = document.getElementById("category");
+  fillSelect(cats, f.categories.map(c => [c.category, `${c.category} (${c.n})`]), p.getAll("category"));
+  if (!cats.options.length) cats.append(el("option", { disabled: "", text: "none: no tube is classified" }));
+  fillSelect(document.getElementById("seq"), f.sequences.map(s => [`${s.dataset}/${s.sequence}`, `${s.dataset}/${s.sequence} (${s.n})`]), p.getAll("seq"));
+  for (const [col] of RANGES) {
+    const [lo, hi] = f.ranges[col] || [null, null];
+    // The catalogue's range as the hint, rounded outwards so typing it back keeps every tube.
+    if (lo !== null) document.getElementById(`min_${col}`).placeholder = String(Math.floor(lo * 100) / 100);
+    if (hi !== null) document.getElementById(`max_${col}`).placeholder = String(Math.ceil(hi * 100) / 100);
+  }
+  showBanner(f.frames_unavailable ? `Pictures are placeholders: ${f.frames_unavailable}` : "");
+  if (f.tubes === 0) showBanner("This catalogue has no tubes yet (is a job still running? `mine status` says).");
+}
+
+function card(t, back) {
+  const id = encodeURIComponent(t.tube_id);
+  const img = el("img", { src: `/img/thumb?id=${id}`, alt: `tube ${t.tube_id}`, width: "240", height: "180", loading: "lazy" });
+  const badge = el("span", { class: `badge k-${knownKey(t.known)}`, text: classLabel(t) });
+  const prob = t.category_prob === null ? "" : t.category_prob.toFixed(2);
+  return el("a", { class: "card", href: `/tube?id=${id}&back=${encodeURIComponent(back)}`, "data-tube": t.tube_id },
+    img,
+    el("div", { class: "card-head" }, badge, el("span", { class: "muted", text: prob }),
+      el("span", { class: "score", text: fmt(t.score, 1) })),
+    el("div", { class: "card-id", text: t.tube_id }),
+    el("div", { class: "card-facts muted",
+      text: `motion ${fmt(t.score_motion, 1)} · mask ${fmt(t.score_mask, 1)} · obj ${fmt(t.score_objectness, 1)}` }),
+    el("div", { class: "card-facts muted",
+      text: `${t.n_frames} frames (${t.n_observed} seen) · ${t.frame_start}–${t.frame_end}${t.selected ? "" : " · not selected"}` }));
+}
+
+async function load() {
+  const mine = ++request;
+  document.body.dataset.state = "loading";
+  const p = formToParams();
+  const offset = Number(new URLSearchParams(location.search).get("offset") || 0);
+  try {
+    await loadFacets(p);
+    const api = new URLSearchParams(p);
+    api.set("offset", offset); api.set("limit", PAGE);
+    const page = await getJSON(`/api/tubes?${api}`);
+    if (mine !== request) return;
+    document.getElementById("count").textContent = page.total;
+    const pages = Math.max(1, Math.ceil(page.total / PAGE));
+    document.getElementById("pageinfo").textContent = page.total > PAGE ? ` · page ${Math.floor(offset / PAGE) + 1} of ${pages}` : "";
+    const back = location.search;
+    document.getElementById("grid").replaceChildren(...page.tubes.map(t => card(t, back)));
+    if (!page.tubes.length) document.getElementById("grid").append(el("p", { class: "muted", text: "No tube matches this filter." }));
+    document.getElementById("prev").disabled = offset <= 0;
+    document.getElementById("next").disabled = offset + PAGE >= page.total;
+    document.getElementById("export").textContent = page.export_command;
+    document.body.dataset.total = page.total;
+    document.body.dataset.state = "ready";
+  } catch (e) {
+    if (mine !== request) return;
+    showBanner(`Error: ${e.message}`);
+    document.body.dataset.state = "error";
+  }
+}
+
+function setOffset(offset) {
+  const p = new URLSearchParams(location.search);
+  if (offset > 0) p.set("offset", offset); else p.delete("offset");
+  history.pushState(null, "", `/?${p}`);
+  load();
+}
+
+let typing = null;
+function changed() {  // a filter changed: the URL says so, and the page starts at the first tube
+  const p = formToParams();
+  history.replaceState(null, "", p.toString() ? `/?${p}` : "/");
+  load();
+}
+
+buildRanges();
+paramsToForm(new URLSearchParams(location.search));
+form.addEventListener("change", changed);
+form.addEventListener("input", e => {
+  if (e.target.type !== "number") return;
+  clearTimeout(typing);
+  typing = setTimeout(changed, 500);
+});
+form.addEventListener("submit", e => { e.preventDefault(); changed(); });
+document.getElementById("reset").addEventListener("click", () => { history.pushState(null, "", "/"); paramsToForm(new URLSearchParams()); facetsFor = null; load(); });
+document.getElementById("prev").addEventListener("click", () => setOffset(Math.max(0, Number(new URLSearchParams(location.search).get("offset") || 0) - PAGE)));
+document.getElementById("next").addEventListener("click", () => setOffset(Number(new URLSearchParams(location.search).get("offset") || 0) + PAGE));
+window.addEventListener("popstate", () => { paramsToForm(new URLSearchParams(location.search)); facetsFor = null; load(); });
+wireCopyButtons();
+load();

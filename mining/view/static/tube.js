@@ -1,0 +1,173 @@
+// A tube page: the player (its frames with the mask on the full frame; play/pause, ←/→),
+// the strip of all its frames, the score components, the class posterior's top entries,
+// and the bird's-eye track (world x/z of the tube and of the camera) as SVG.
+"use strict";
+
+const params = new URLSearchParams(location.search);
+const tubeId = params.get("id");
+const FPS = 10;  // KITTI's frame rate; the player shows frames, not real time
+const PRELOAD = 4;  // frames fetched ahead while playing
+const SVG_NS = "http://www.w3.org/2000/svg";
+let frames = [], current = 0, timer = null, marker = null, toSvg = null;
+const cache = new Map();
+
+function frameUrl(f, size) { return `/img/frame?id=${encodeURIComponent(tubeId)}&frame=${f.frame}&size=${size}`; }
+
+function preload(k) {
+  if (k < 0 || k >= frames.length || cache.has(k)) return;
+  const img = new Image();
+  img.src = frameUrl(frames[k], "full");
+  cache.set(k, img);
+}
+
+function show(k) {
+  if (!frames.length) return;
+  current = (k + frames.length) % frames.length;
+  const f = frames[current];
+  document.getElementById("frame").src = frameUrl(f, "full");
+  document.getElementById("scrub").value = current;
+  document.getElementById("frame-label").textContent =
+    `frame ${f.frame} (${current + 1} of ${frames.length}) · ${f.observed ? "observed" : "predicted (gap)"}` +
+    (f.objectness === null ? "" : ` · objectness ${fmt(f.objectness)}`) +
+    (f.mask_iou === null ? "" : ` · mask IoU ${fmt(f.mask_iou)}`);
+  for (const [i, t] of document.querySelectorAll("#strip img").entries()) t.classList.toggle("current", i === current);
+  const strip = document.querySelectorAll("#strip img")[current];
+  if (strip) strip.scrollIntoView({ block: "nearest", inline: "nearest" });
+  if (marker && toSvg) {
+    const [x, y] = toSvg(f.position_world);
+    marker.setAttribute("cx", x); marker.setAttribute("cy", y);
+  }
+  for (let d = 1; d <= PRELOAD; d++) preload(current + d);
+}
+
+function play(on) {
+  const button = document.getElementById("play");
+  if (on === undefined) on = timer === null;
+  clearInterval(timer); timer = null;
+  if (on) {
+    timer = setInterval(() => {
+      const next = cache.get((current + 1) % frames.length);
+      if (next && !next.complete) return;  // wait for the next frame rather than skip it
+      show(current + 1);
+    }, 1000 / FPS);
+  }
+  button.textContent = on ? "❚❚ pause" : "▶ play";
+}
+
+function rows(table, items) {
+  table.replaceChildren(...items.map(([k, v]) => el("tr", {}, el("th", { text: k }), el("td", { text: v }))));
+}
+
+function bar(name, p) {
+  const w = Math.max(0, Math.min(1, p || 0)) * 100;
+  return el("div", { class: "prob" }, el("span", { class: "prob-name", text: name }),
+    el("span", { class: "prob-bar" }, el("span", { style: `width:${w.toFixed(1)}%` })),
+    el("span", { class: "prob-val", text: (p || 0).toFixed(3) }));
+}
+
+function svg(tag, attrs) {
+  const e = document.createElementNS(SVG_NS, tag);
+  for (const [k, v] of Object.entries(attrs)) e.setAttribute(k, v);
+  return e;
+}
+
+function drawTrack(tubeFrames, ego, known) {
+  const box = document.getElementById("track");
+  box.replaceChildren();
+  const pts = tubeFrames.map(f => f.position_world).filter(p => p);
+  const cam = ego.map(e => [e.x, e.y, e.z]);
+  const all = pts.concat(cam);
+  if (!all.length) return;
+  const size = 320, pad = 24;
+  let x0 = Math.min(...all.map(p => p[0])), x1 = Math.max(...all.map(p => p[0]));
+  let z0 = Math.min(...all.map(p => p[2])), z1 = Math.max(...all.map(p => p[2]));
+  const span = Math.max(x1 - x0, z1 - z0, 4);  // at least 4 m across, equal scale on both axes
+  const cx = (x0 + x1) / 2, cz = (z0 + z1) / 2;
+  const s = (size - 2 * pad) / span;
+  toSvg = p => [(size / 2 + (p[0] - cx) * s).toFixed(1), (size / 2 - (p[2] - cz) * s).toFixed(1)];  // forward (z) up
+  // Grid every 1, 2, 5, 10, … metres: about five lines across.
+  const step = [1, 2, 5, 10, 20, 50, 100, 200, 500].find(g => span / g <= 6) || 1000;
+  for (let g = Math.ceil((cx - span / 2) / step) * step; g <= cx + span / 2; g += step) {
+    const [x] = toSvg([g, 0, cz]);
+    box.append(svg("line", { x1: x, y1: 0, x2: x, y2: size, class: "grid" }));
+  }
+  for (let g = Math.ceil((cz - span / 2) / step) * step; g <= cz + span / 2; g += step) {
+    const [, y] = toSvg([cx, 0, g]);
+    box.append(svg("line", { x1: 0, y1: y, x2: size, y2: y, class: "grid" }));
+  }
+  const label = svg("text", { x: 4, y: size - 6, class: "grid-label" });
+  label.textContent = `grid ${step} m`;
+  box.append(label);
+  if (cam.length) {
+    box.append(svg("polyline", { points: cam.map(p => toSvg(p).join(",")).join(" "), class: "ego" }));
+    const [ex, ey] = toSvg(cam[cam.length - 1]);
+    box.append(svg("circle", { cx: ex, cy: ey, r: 3, class: "ego-end" }));
+  }
+  box.append(svg("polyline", { points: pts.map(p => toSvg(p).join(",")).join(" "), class: `tube k-${knownKey(known)}` }));
+  for (const f of tubeFrames) {
+    const [x, y] = toSvg(f.position_world);
+    box.append(svg("circle", { cx: x, cy: y, r: f.observed ? 2.2 : 1.4, class: f.observed ? "obs" : "gap" }));
+  }
+  marker = svg("circle", { cx: 0, cy: 0, r: 5, class: "now" });
+  box.append(marker);
+}
+
+async function main() {
+  const back = params.get("back");
+  if (back && back.startsWith("?")) document.getElementById("back").href = `/${back}`;
+  if (!tubeId) { showBanner("No tube id in the address (?id=…)."); document.body.dataset.state = "error"; return; }
+  let d;
+  try { d = await getJSON(`/api/tube?id=${encodeURIComponent(tubeId)}`); }
+  catch (e) { showBanner(`Error: ${e.message}`); document.body.dataset.state = "error"; return; }
+  const t = d.tube;
+  frames = d.frames;
+  document.title = `Tube Miner · ${t.tube_id}`;
+  document.getElementById("title").textContent = t.tube_id;
+  const badge = document.getElementById("badge");
+  badge.textContent = classLabel(t) + (t.selected ? "" : " · not selected");
+  badge.classList.add(`k-${knownKey(t.known)}`);
+  if (d.frames_unavailable) showBanner(`Pictures are placeholders: ${d.frames_unavailable}`);
+  rows(document.getElementById("scores"), [
+    ["score", fmt(t.score, 2)], ["motion", fmt(t.score_motion, 2)], ["mask", fmt(t.score_mask, 2)],
+    ["objectness", fmt(t.score_objectness, 2)], ["selected", t.selected ? "yes" : "no"]]);
+  rows(document.getElementById("class"), [
+    ["class", KNOWN_LABEL[knownKey(t.known)]], ["category", fmt(t.category)], ["probability", t.category_prob === null ? "–" : t.category_prob.toFixed(3)],
+    ["best COCO class", fmt(t.best_known)], ["classified frames", fmt(t.classified_frames)],
+    ["evidence", fmt(t.class_evidence, 2)]]);
+  const top = document.getElementById("top-classes");
+  top.replaceChildren(...d.top_classes.map(c => bar(c.name, c.p)));
+  if (!d.top_classes.length) top.append(el("p", { class: "muted", text: "No classifier looked at this tube." }));
+  rows(document.getElementById("facts"), [
+    ["sequence", `${t.dataset}/${t.sequence}`], ["frames", `${t.frame_start}–${t.frame_end} (${t.n_frames}, ${t.n_observed} observed)`],
+    ["size (w, h, l)", (t.size || []).map(v => fmt(v, 2)).join(" × ") + " m"], ["path length", `${fmt(t.path_length, 1)} m`],
+    ["speed", `${fmt(t.speed, 2)} m/s`], ["segment", fmt(t.segment)], ["windows stitched", fmt(t.n_windows)]]);
+  document.getElementById("export").textContent = d.export_command;
+  drawTrack(frames, d.ego, t.known);
+  document.querySelector(".swatch.tube").classList.add(`k-${knownKey(t.known)}`);
+
+  const strip = document.getElementById("strip");
+  strip.replaceChildren(...frames.map((f, k) => {
+    // Sized before it loads, so the lazy strip lays out (and scrolls to the current frame) at once.
+    const img = el("img", { src: frameUrl(f, "strip"), alt: `frame ${f.frame}`, title: `frame ${f.frame}`, loading: "lazy",
+      class: f.observed ? "" : "gap", height: "64", width: String(Math.round(64 * f.rle_w / Math.max(1, f.rle_h))) });
+    img.addEventListener("click", () => { play(false); show(k); });
+    return img;
+  }));
+  const scrub = document.getElementById("scrub");
+  scrub.max = Math.max(0, frames.length - 1);
+  scrub.addEventListener("input", () => { play(false); show(Number(scrub.value)); });
+  document.getElementById("play").addEventListener("click", () => play());
+  document.getElementById("step-back").addEventListener("click", () => { play(false); show(current - 1); });
+  document.getElementById("step-fwd").addEventListener("click", () => { play(false); show(current + 1); });
+  document.addEventListener("keydown", e => {
+    if (e.target.tagName === "INPUT" && e.target.type !== "range") return;
+    if (e.key === "ArrowRight") { play(false); show(current + 1); e.preventDefault(); }
+    else if (e.key === "ArrowLeft") { play(false); show(current - 1); e.preventDefault(); }
+    else if (e.key === " ") { play(); e.preventDefault(); }
+  });
+  wireCopyButtons();
+  show(0);
+  document.body.dataset.state = "ready";
+}
+
+main();

@@ -1,0 +1,386 @@
+"""`mine view`'s server on the real KITTI 0005 catalogue: the JSON API (filters, paging, bad
+parameters, unknown tubes), the pictures drawn on the real frames, the caches, the placeholders."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import threading
+import tomllib
+import urllib.error
+import urllib.request
+from contextlib import contextmanager
+from pathlib import Path
+from urllib.parse import urlencode
+
+import cv2
+import numpy as np
+import pytest
+from pycocotools import mask as mask_utils
+
+from _catalog_data import DATASET, SEQUENCE
+from mining.catalog.views import connect
+from mining.cli import main
+from mining.errors import InputError
+from mining.view.images import JPEG_QUALITY, THUMB_SIZE
+from mining.view.server import make_server
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@contextmanager
+def serving(out: Path, cache: Path):
+    server = make_server(out, "127.0.0.1", 0, cache)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield f"http://127.0.0.1:{server.server_address[1]}", server
+    finally:
+        server.shutdown()
+        server.server_close()
+        server.app.browser.close()
+        thread.join(5)
+
+
+def get(base: str, path: str, params: dict | list | None = None) -> tuple[int, dict, bytes]:
+    url = f"{base}{path}" + (f"?{urlencode(params, doseq=True)}" if params else "")
+    try:
+        with urllib.request.urlopen(url, timeout=60) as r:
+            return r.status, dict(r.headers), r.read()
+    except urllib.error.HTTPError as e:
+        return e.code, dict(e.headers), e.read()
+
+
+def api(base: str, path: str, params=None) -> tuple[int, dict]:
+    status, headers, body = get(base, path, params)
+    assert headers["Content-Type"].startswith("application/json")
+    return status, json.loads(body)
+
+
+def count(out: Path, where: str, values: list | None = None) -> int:
+    con = connect(out)
+    try:
+        return con.execute(f"SELECT count(*) FROM tubes WHERE {where}", values or []).fetchone()[0]
+    finally:
+        con.close()
+
+
+@pytest.fixture(scope="module")
+def server(catalogue, tmp_path_factory):
+    out, _ = catalogue
+    with serving(out, tmp_path_factory.mktemp("view-cache")) as (base, srv):
+        yield base, srv, out
+
+
+def test_gallery_pages_are_the_catalogues_tubes_in_score_order(server):
+    base, _, out = server
+    status, page = api(base, "/api/tubes")
+    assert status == 200
+    assert page["total"] == count(out, "selected") == len(page["tubes"]) > 0
+    con = connect(out)
+    ids = [r[0] for r in con.execute("SELECT tube_id FROM tubes ORDER BY score DESC, tube_id").fetchall()]
+    con.close()
+    status, every = api(base, "/api/tubes", {"set": "all"})
+    assert every["total"] == len(ids) > page["total"], "the fixture has tubes co-selection left out"
+    assert [t["tube_id"] for t in every["tubes"]] == ids
+    # Pages of two tile the whole list, in order.
+    paged = []
+    for offset in range(0, len(ids), 2):
+        status, p = api(base, "/api/tubes", {"set": "all", "limit": 2, "offset": offset})
+        assert status == 200 and p["total"] == len(ids) and len(p["tubes"]) <= 2
+        paged += [t["tube_id"] for t in p["tubes"]]
+    assert paged == ids
+    status, asc = api(base, "/api/tubes", {"set": "all", "order": "asc"})
+    scores = [t["score"] for t in asc["tubes"]]
+    assert scores == sorted(scores) and {t["tube_id"] for t in asc["tubes"]} == set(ids)
+    status, by_length = api(base, "/api/tubes", {"set": "all", "sort": "n_frames"})
+    lengths = [t["n_frames"] for t in by_length["tubes"]]
+    assert lengths == sorted(lengths, reverse=True)
+
+
+@pytest.mark.parametrize("params, where, values", [
+    ({"min_score": "50"}, "selected AND score >= ?", [50.0]),
+    ({"set": "all", "max_n_frames": "15"}, "n_frames <= ?", [15]),
+    ({"known": "true"}, "selected AND known = true", []),
+    ({"known": ["false", "null"]}, "selected AND (known = false OR known IS NULL)", []),
+    ({"category": "car", "min_score_mask": "85"}, "selected AND category = 'car' AND score_mask >= 85", []),
+    ({"seq": f"{DATASET}/{SEQUENCE}", "min_score_motion": "57", "max_score_objectness": "34"},
+     "selected AND score_motion >= 57 AND score_objectness <= 34", []),
+    ({"seq": "kitti/9999"}, "false", []),
+    ({"category": "car' OR true OR category = '"}, "false", []),  # a value, never SQL
+])
+def test_filters_count_what_duckdb_counts(server, params, where, values):
+    base, _, out = server
+    status, page = api(base, "/api/tubes", params)
+    assert status == 200, page
+    assert page["total"] == count(out, where, values) == len(page["tubes"])
+    # The shown --where expression selects exactly the same tubes.
+    assert count(out, page["where"]) == page["total"]
+    assert page["export_command"].startswith(f"mine export --out {out} --where ")
+
+
+def test_a_narrowing_filter_narrows(server):
+    base, _, _ = server
+    _, everything = api(base, "/api/tubes")
+    _, narrowed = api(base, "/api/tubes", {"min_score": "50"})
+    assert 0 < narrowed["total"] < everything["total"]
+
+
+@pytest.mark.parametrize("params, message", [
+    ({"min_score": "abc"}, "'min_score' must be a number"),
+    ({"min_n_frames": "2.5"}, "'min_n_frames' must be an integer"),
+    ({"min_score": "nan"}, "must be finite"),
+    ({"min_score": "9", "max_score": "1"}, "is above max_score"),
+    ({"sort": "score; DROP TABLE tubes"}, "cannot sort by"),
+    ({"order": "sideways"}, "'order' is 'asc' or 'desc'"),
+    ({"limit": "0"}, "'limit' must be in 1..500"),
+    ({"limit": "100000"}, "'limit' must be in 1..500"),
+    ({"offset": "-1"}, "'offset' must be ≥ 0"),
+    ({"known": "maybe"}, "'known' is true, false or null"),
+    ({"seq": "0005"}, "'seq' is DATASET/SEQUENCE"),
+    ({"set": "some"}, "'set' is 'selected' or 'all'"),
+    ({"min_score": ["1", "2"]}, "given 2 times"),
+    ({"score_min": "1"}, "unknown parameter 'score_min'"),
+])
+def test_bad_parameters_are_400_with_the_reason(server, params, message):
+    base, _, _ = server
+    status, body = api(base, "/api/tubes", params)
+    assert status == 400
+    assert message in body["error"]
+
+
+def test_unknown_tubes_and_frames_are_404_bad_ones_400(server):
+    base, _, _ = server
+    tid = f"{DATASET}/{SEQUENCE}/0000000.000"
+    for path in ("/api/tube", "/img/thumb"):
+        status, body = api(base, path, {"id": "kitti/0005/9999999.999"})
+        assert status == 404 and "no tube 'kitti/0005/9999999.999'" in body["error"]
+        status, body = api(base, path, {"id": "../../etc/passwd"})
+        assert status == 404
+        status, body = api(base, path)
+        assert status == 400 and "give one tube id" in body["error"]
+    assert api(base, "/img/frame", {"id": tid, "frame": 99})[0] == 404
+    status, body = api(base, "/img/frame", {"id": tid, "frame": "x"})
+    assert status == 400 and "frame must be an integer" in body["error"]
+    status, body = api(base, "/img/frame", {"id": tid, "frame": 0, "size": "huge"})
+    assert status == 400 and "size is one of" in body["error"]
+    assert api(base, "/api/facets", {"set": "none"})[0] == 400
+    assert api(base, "/no/such/page")[0] == 404
+    assert api(base, "/static/../server.py")[0] == 404
+
+
+def test_facets_count_the_catalogue(server):
+    base, _, out = server
+    status, f = api(base, "/api/facets")
+    assert status == 200
+    assert f["tubes"] == count(out, "true") and f["selected"] == count(out, "selected")
+    assert sum(f["known"].values()) == f["selected"]
+    assert f["sequences"] == [{"dataset": DATASET, "sequence": SEQUENCE, "n": f["selected"]}]
+    assert {c["category"]: c["n"] for c in f["categories"]} == {"car": count(out, "selected AND category = 'car'")}
+    lo, hi = f["ranges"]["score"]
+    assert count(out, "selected AND score BETWEEN ? AND ?", [lo, hi]) == f["selected"]
+    assert f["frames_unavailable"] is None
+
+
+def test_tube_page_data(server, catalogue):
+    base, _, out = server
+    _, tables = catalogue
+    tube = max(tables["tubes"].to_pylist(), key=lambda t: t["score"])
+    status, d = api(base, "/api/tube", {"id": tube["tube_id"]})
+    assert status == 200
+    assert d["tube"]["tube_id"] == tube["tube_id"] and d["tube"]["score"] == pytest.approx(tube["score"])
+    frames = sorted((f for f in tables["tube_frames"].to_pylist() if f["tube_id"] == tube["tube_id"]),
+                    key=lambda f: f["frame"])
+    assert [f["frame"] for f in d["frames"]] == [f["frame"] for f in frames] and len(frames) == tube["n_frames"]
+    np.testing.assert_allclose([f["position_world"] for f in d["frames"]], [f["position_world"] for f in frames])
+    # The camera path: the frames table's pose translations over the tube's frames.
+    con = connect(out)
+    poses = con.execute("SELECT frame, pose FROM frames WHERE frame BETWEEN ? AND ? ORDER BY frame",
+                        [tube["frame_start"], tube["frame_end"]]).fetchall()
+    con.close()
+    assert [e["frame"] for e in d["ego"]] == [p[0] for p in poses]
+    np.testing.assert_allclose([[e["x"], e["y"], e["z"]] for e in d["ego"]],
+                               [np.asarray(p[1]).reshape(4, 4)[:3, 3] for p in poses])
+    # Top classes: the posterior's largest entries, named, in order.
+    post = np.asarray(tube["class_posterior"])
+    assert d["top_classes"][0]["name"] == tube["category"]
+    np.testing.assert_allclose([c["p"] for c in d["top_classes"]], np.sort(post)[::-1][:5], rtol=1e-6)
+    assert count(out, d["where"]) == 1
+    assert d["export_command"] == (f"mine export --out {out} --where \"tube_id = '{tube['tube_id']}'\" "
+                                   f"--format crops crops/{tube['tube_id'].replace('/', '_')}")
+
+
+def _decode(body: bytes) -> np.ndarray:
+    image = cv2.imdecode(np.frombuffer(body, np.uint8), cv2.IMREAD_COLOR)
+    assert image is not None, "not an image"
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def test_pictures_outline_the_mask_on_the_real_frame(server, catalogue, kitti_tracking_root):
+    from mining.sources.kitti import read_rgb
+
+    base, _, _ = server
+    _, tables = catalogue
+    tube = max(tables["tubes"].to_pylist(), key=lambda t: t["score"])
+    f = next(f for f in tables["tube_frames"].to_pylist() if f["tube_id"] == tube["tube_id"] and f["frame"] == 3)
+    status, headers, body = get(base, "/img/frame", {"id": tube["tube_id"], "frame": 3})
+    assert status == 200 and headers["Content-Type"] == "image/jpeg" and "X-Placeholder" not in headers
+    drawn = _decode(body).astype(np.int16)
+    real = read_rgb(kitti_tracking_root / "training" / "image_02" / SEQUENCE / "000003.png", 3).astype(np.int16)
+    assert drawn.shape == real.shape
+    mask = mask_utils.decode({"size": [f["rle_h"], f["rle_w"]], "counts": f["rle_counts"].encode()}).astype(bool)
+    diff = np.abs(drawn - real).max(axis=2)
+    assert np.median(diff[mask]) > 25, "the mask is not drawn"
+    # Away from the mask (past the JPEG blocks it touches) the picture is the real frame, as JPEG.
+    _, buf = cv2.imencode(".jpg", cv2.cvtColor(real.astype(np.uint8), cv2.COLOR_RGB2BGR),
+                           [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+    as_jpeg = _decode(buf.tobytes()).astype(np.int16)
+    near = cv2.dilate(mask.astype(np.uint8), np.ones((41, 41), np.uint8)).astype(bool)
+    assert np.abs(drawn - as_jpeg).max(axis=2)[~near].max() <= 2, "the picture is not the real frame"
+    # The thumbnail: the fixed size, with the outline's colour (known: green) on it.
+    status, headers, body = get(base, "/img/thumb", {"id": tube["tube_id"]})
+    thumb = _decode(body)
+    assert status == 200 and thumb.shape == (THUMB_SIZE[1], THUMB_SIZE[0], 3)
+    green = (thumb[..., 1] > 180) & (thumb[..., 0] < 120) & (thumb[..., 2] < 140)
+    assert green.sum() > 50
+    status, _, body = get(base, "/img/frame", {"id": tube["tube_id"], "frame": 3, "size": "strip"})
+    assert _decode(body).shape[1] == 200
+
+
+def test_pictures_are_cached_on_disk_by_content_and_only_jpegs_are_served(catalogue, tmp_path):
+    out, tables = catalogue
+    tid = tables["tubes"].column("tube_id")[0].as_py()
+    cache = tmp_path / "cache"
+    with serving(out, cache) as (base, _):
+        _, _, first = get(base, "/img/thumb", {"id": tid})
+    files = list(cache.rglob("*.jpg"))
+    assert len(files) == 1 and len(files[0].stem) == 64 and files[0].read_bytes() == first
+    assert tid.replace("/", "_") not in str(files[0])
+    with serving(out, cache) as (base, _):  # a new server: the memory cache is empty, the disk one answers
+        _, _, again = get(base, "/img/thumb", {"id": tid})
+    assert again == first
+    files[0].write_bytes(b"<script>not a picture</script>")
+    with serving(out, cache) as (base, _):
+        _, headers, redrawn = get(base, "/img/thumb", {"id": tid})
+    assert redrawn.startswith(b"\xff\xd8") and headers["Content-Type"] == "image/jpeg"
+    with pytest.raises(InputError, match="may not live inside the catalogue"):
+        make_server(out, "127.0.0.1", 0, out / "cache")
+
+
+def test_frames_not_on_this_machine_give_placeholders_that_say_why(catalogue, tmp_path):
+    out, tables = catalogue
+    moved = tmp_path / "moved"
+    shutil.copytree(out, moved)
+    job = json.loads((moved / "job.json").read_text())
+    job["config"]["source"]["root"] = str(tmp_path / "elsewhere")
+    (moved / "job.json").write_text(json.dumps(job))
+    tid = tables["tubes"].column("tube_id")[0].as_py()
+    with serving(moved, tmp_path / "cache") as (base, _):
+        _, f = api(base, "/api/facets")
+        assert "not on this machine" in f["frames_unavailable"] and "elsewhere" in f["frames_unavailable"]
+        status, headers, body = get(base, "/img/thumb", {"id": tid})
+        assert status == 200 and "not on this machine" in headers["X-Placeholder"]
+        assert _decode(body).shape == (THUMB_SIZE[1], THUMB_SIZE[0], 3)
+        status, headers, body = get(base, "/img/frame", {"id": tid, "frame": int(tables["tube_frames"]
+                                                                                  .column("frame")[0].as_py())})
+        assert status == 200 and "X-Placeholder" in headers and _decode(body).shape[:2] == (375, 1242)
+        _, d = api(base, "/api/tube", {"id": tid})
+        assert "not on this machine" in d["frames_unavailable"]
+        status, page = api(base, "/api/tubes")
+        assert status == 200 and page["total"] > 0, "the gallery still works"
+
+
+def test_an_empty_catalogue_browses(tmp_path):
+    (tmp_path / "empty").mkdir()
+    with serving(tmp_path / "empty", tmp_path / "cache") as (base, _):
+        _, f = api(base, "/api/facets")
+        assert f["tubes"] == 0 and "job.json" in f["frames_unavailable"]
+        status, page = api(base, "/api/tubes")
+        assert status == 200 and page["total"] == 0 and page["tubes"] == []
+        status, _, body = get(base, "/")
+        assert status == 200 and b"gallery.js" in body
+
+
+def test_pages_and_their_files_are_served_and_shipped():
+    static = REPO / "mining" / "view" / "static"
+    globs = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]["mining.view"]
+    shipped = {p for g in globs for p in static.parent.glob(g)}
+    assert set(static.iterdir()) <= shipped, "a static file pyproject's package-data leaves out"
+    html = (static / "index.html").read_text() + (static / "tube.html").read_text()
+    for name in ("app.css", "common.js", "gallery.js", "tube.js"):
+        assert f"/static/{name}" in html
+
+
+def test_the_server_is_quiet_unless_asked(server, capsys):
+    base, srv, _ = server
+    get(base, "/api/tubes")
+    assert capsys.readouterr().err == ""
+    srv.app.log_requests = True
+    try:
+        get(base, "/api/tubes", {"min_score": "1"})
+        get(base, "/api/tubes", {"min_score": "x"})
+    finally:
+        srv.app.log_requests = False
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 2 and " 200 " in lines[0] and " 400 " in lines[1], lines
+
+
+def test_cli_view_refuses_a_missing_catalogue(tmp_path, capsys):
+    assert main(["view", "--out", str(tmp_path / "nothing"), "--port", "0"]) == 2
+    assert "catalogue folder not found" in capsys.readouterr().err
+
+
+def test_cli_view_names_a_busy_port(catalogue, capsys, tmp_path):
+    out, _ = catalogue
+    with serving(out, tmp_path / "cache") as (_, srv):
+        port = srv.server_address[1]
+        assert main(["view", "--out", str(out), "--port", str(port), "--cache", str(tmp_path / "cache")]) == 2
+    assert f"cannot listen on 127.0.0.1:{port}" in capsys.readouterr().err
+
+
+def test_a_damaged_table_is_503_naming_the_file(catalogue, tmp_path):
+    out, _ = catalogue
+    copy = tmp_path / "damaged"
+    shutil.copytree(out, copy)
+    part = next((copy / "catalog" / "tubes").rglob("*.parquet"))
+    part.write_bytes(part.read_bytes()[:100])
+    with serving(copy, tmp_path / "cache") as (base, _):
+        status, body = api(base, "/api/tubes")
+        assert status == 503 and part.name in body["error"]
+        status, _, _ = get(base, "/")
+        assert status == 200, "the pages load and say what is wrong"
+
+
+def test_mine_view_serves_until_ctrl_c(catalogue, tmp_path):
+    import os
+    import re
+    import signal
+    import subprocess
+    import sys
+
+    out, _ = catalogue
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    proc = subprocess.Popen([sys.executable, "-m", "mining.cli", "view", "--out", str(out), "--port", "0",
+                             "--cache", str(tmp_path / "cache")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=env)
+    try:
+        line = proc.stdout.readline()
+        m = re.search(r"serving (http://127\.0\.0\.1:\d+)/", line)
+        assert m, line + proc.stderr.read()
+        assert f"{count(out, 'selected')} selected of {count(out, 'true')} tubes" in line
+        status, page = api(m.group(1), "/api/tubes")
+        assert status == 200 and page["total"] == count(out, "selected")
+    finally:
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0 and err == "", err
+
+
+def test_an_unusable_cache_folder_costs_speed_not_pictures(catalogue, tmp_path):
+    out, tables = catalogue
+    blocked = tmp_path / "a-file"
+    blocked.write_text("not a folder")
+    with serving(out, blocked / "cache") as (base, srv):
+        assert "memory only" in srv.app.images.cache.problem
+        status, headers, body = get(base, "/img/thumb", {"id": tables["tubes"].column("tube_id")[0].as_py()})
+        assert status == 200 and "X-Placeholder" not in headers and body.startswith(b"\xff\xd8")

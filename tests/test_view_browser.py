@@ -1,0 +1,130 @@
+"""`mine view` in a real headless Chromium (Debian's, installed by scripts/setup.sh test), over
+the real KITTI 0005 catalogue: the gallery shows the selected tubes, a filter narrows them to
+what DuckDB counts, a tube page shows its frames and steps through them with the arrow keys.
+
+Screenshots go to the test's tmp folder, or to $TUBE_MINER_VIEW_SHOTS when set (to look at).
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from pathlib import Path
+
+import cv2
+import pytest
+
+from _cdp import Browser, find_chromium
+from mining.catalog.views import connect
+from mining.view.server import make_server
+
+# The natural widths of the images in view (a lazy image out of view, e.g. far along the tube page's
+# strip, is not fetched), once each has loaded or failed.
+ALL_IMAGES_LOADED = """(() => {
+  const inView = i => {
+    const r = i.getBoundingClientRect(), s = i.closest('#strip');
+    const c = s ? s.getBoundingClientRect() : { left: 0, right: innerWidth };
+    return r.top < innerHeight && r.left < Math.min(innerWidth, c.right) && r.right > Math.max(0, c.left);
+  };
+  const shown = [...document.images].filter(i => i.loading !== 'lazy' || inView(i));
+  return Promise.all(shown.map(i => i.complete ? 0 : new Promise(r => { i.onload = i.onerror = r; })))
+    .then(() => shown.map(i => i.naturalWidth));
+})()"""
+
+
+@pytest.fixture(scope="module")
+def chromium() -> str:
+    path = find_chromium()
+    if path is None:
+        if os.environ.get("CI"):
+            pytest.fail("no chromium in CI: scripts/setup.sh test installs it (apt-get install chromium)")
+        pytest.skip("no chromium on PATH: `apt-get install chromium` (scripts/setup.sh test does it as root)")
+    return path
+
+
+def _count(out: Path, where: str) -> int:
+    con = connect(out)
+    try:
+        return con.execute(f"SELECT count(*) FROM tubes WHERE {where}").fetchone()[0]
+    finally:
+        con.close()
+
+
+def _shots(tmp_path: Path) -> Path:
+    folder = Path(os.environ.get("TUBE_MINER_VIEW_SHOTS") or tmp_path)
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder
+
+
+def _looks_like_a_page(path: Path, width: int, height: int) -> None:
+    image = cv2.imread(str(path))
+    assert image is not None and image.shape[:2] == (height, width)
+    assert image.std() > 20, "a blank screenshot"
+
+
+def test_gallery_filter_and_tube_page_in_chromium(catalogue, chromium, tmp_path):
+    out, tables = catalogue
+    n_selected = _count(out, "selected")
+    n_narrowed = _count(out, "selected AND score >= 50")
+    n_all = _count(out, "true")
+    assert 0 < n_narrowed < n_selected < n_all
+    shots = _shots(tmp_path)
+    server = make_server(out, "127.0.0.1", 0, tmp_path / "cache")
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    base = f"http://127.0.0.1:{server.server_address[1]}"
+    try:
+        with Browser(chromium, width=1400, height=900) as b:
+            # The gallery: one card per selected tube, every thumbnail a real picture.
+            b.goto(f"{base}/")
+            b.wait_for("document.body.dataset.state === 'ready'")
+            assert b.evaluate("document.querySelectorAll('.card').length") == n_selected
+            assert b.evaluate("document.getElementById('count').textContent") == str(n_selected)
+            assert b.evaluate(ALL_IMAGES_LOADED) == [240] * n_selected
+            assert b.evaluate("document.getElementById('banner').hidden")
+            b.screenshot(shots / "gallery.png")
+            # A filter typed into the form narrows the gallery to DuckDB's count, and the URL keeps it.
+            b.evaluate("(() => { const i = document.getElementById('min_score'); i.value = '50';"
+                       " i.dispatchEvent(new Event('change', { bubbles: true })); })()")
+            b.wait_for(f"document.body.dataset.state === 'ready' && document.body.dataset.total === '{n_narrowed}'")
+            assert b.evaluate("document.querySelectorAll('.card').length") == n_narrowed
+            assert "min_score=50" in b.evaluate("location.search")
+            assert "score >= 50" in b.evaluate("document.getElementById('export').textContent")
+            # The toggle for all candidates, the score bound cleared.
+            b.evaluate("(() => { const i = document.getElementById('min_score'); i.value = '';"
+                       " document.querySelector('input[name=set][value=all]').checked = true;"
+                       " i.dispatchEvent(new Event('change', { bubbles: true })); })()")
+            b.wait_for(f"document.body.dataset.state === 'ready' && document.body.dataset.total === '{n_all}'")
+            assert b.evaluate("document.querySelectorAll('.card').length") == n_all
+            # A tube page, reached by clicking the best card: its frames load, the arrow keys step.
+            best = max(tables["tubes"].to_pylist(), key=lambda t: t["score"])
+            b.evaluate(f"document.querySelector('.card[data-tube=\"{best['tube_id']}\"]').click()")
+            b.wait_for("location.pathname === '/tube' && document.body.dataset.state === 'ready'")
+            b.wait_for("document.getElementById('frame').complete && document.getElementById('frame').naturalWidth > 0")
+            assert b.evaluate("document.getElementById('frame').naturalWidth") == 1242
+            assert b.evaluate("document.querySelectorAll('#strip img').length") == best["n_frames"]
+            widths = b.evaluate(ALL_IMAGES_LOADED)
+            assert widths[0] == 1242 and 200 in widths[1:] and 0 not in widths
+            assert b.evaluate("document.getElementById('frame-label').textContent").startswith(
+                f"frame {best['frame_start']} (1 of {best['n_frames']})")
+            b.key("ArrowRight", key_code=39)
+            b.key("ArrowRight", key_code=39)
+            b.key("ArrowLeft", key_code=37)
+            assert b.evaluate("document.getElementById('frame-label').textContent").startswith("frame 1 (2 of")
+            b.wait_for("document.getElementById('frame').complete")
+            assert b.evaluate("document.querySelectorAll('#track polyline').length") == 2  # tube and camera
+            assert best["tube_id"] in b.evaluate("document.getElementById('export').textContent")
+            b.screenshot(shots / "tube.png")
+            # Play runs through the frames by itself.
+            b.evaluate("document.getElementById('play').click()")
+            b.wait_for("!document.getElementById('frame-label').textContent.startsWith('frame 1 ')", timeout=10)
+            b.evaluate("document.getElementById('play').click()")
+            # An unknown tube says so.
+            b.goto(f"{base}/tube?id=kitti/0005/nothing")
+            b.wait_for("document.body.dataset.state === 'error'")
+            assert "no tube" in b.evaluate("document.getElementById('banner').textContent")
+    finally:
+        server.shutdown()
+        server.server_close()
+        server.app.browser.close()
+    _looks_like_a_page(shots / "gallery.png", 1400, 900)
+    _looks_like_a_page(shots / "tube.png", 1400, 900)
