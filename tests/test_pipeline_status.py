@@ -35,6 +35,7 @@ def test_status_of_a_finished_job_and_of_a_window_planned_later(tmp_path, capsys
     shown = capsys.readouterr().out
     assert "2 windows: 2 done, 0 failed, 0 pending" in shown
     assert "no classifier ran (proposer stereo)" in shown  # status says which proposers classified
+    assert "  synthetic/0000: 2/2 windows done; stitched" in shown  # per-sequence progress
 
     # A window planned but never run (e.g. a job interrupted before it started) is pending.
     store = Store(out)

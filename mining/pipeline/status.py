@@ -148,6 +148,11 @@ def print_status(out: str, verify: bool = False) -> int:
     stitched = {s: sum(q.status == s for q in seqs) for s in ("stitched", "failed", "pending")}
     print(f"sequences: {stitched['stitched']} stitched, {stitched['failed']} failed to stitch, "
           f"{stitched['pending']} not stitched yet (of {len(seqs)})")
+    for q in seqs:  # per sequence: how far its windows are
+        own = [r for r in rows if (r.dataset, r.sequence) == (q.dataset, q.sequence)]
+        n = {s: sum(r.status == s for r in own) for s in ("done", "running", "failed")}
+        extra = "".join(f", {n[s]} {s}" for s in ("running", "failed") if n[s])
+        print(f"  {q.dataset}/{q.sequence}: {n['done']}/{len(own)} windows done{extra}; {q.status}")
     job = JobRecord.load(Store(out))
     proposer = (job.config.get("proposals") or {}).get("proposer") if job else None
     if proposer:
