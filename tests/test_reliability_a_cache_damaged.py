@@ -29,8 +29,8 @@ REPO = Path(__file__).resolve().parents[1]
 
 def _cfg():
     return load_config(REPO / "jobs" / "synthetic.toml", [
-        "source.options.n_frames=12", "source.options.width=320", "source.options.height=96",
-        "source.options.fx=186.0", "window.core=6", "window.context_before=2", "window.context_after=2"])
+        "source.options.n_frames=12", "source.options.width=621", "source.options.height=188",
+        "source.options.fx=360.77", "window.core=6", "window.context_before=2", "window.context_after=2"])
 
 
 def _observed(out: str):

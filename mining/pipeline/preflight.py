@@ -64,7 +64,7 @@ def check_output(out: str) -> None:
     probe = f".preflight-{uuid.uuid4().hex[:12]}"
     try:
         store.write_bytes(probe, b"")
-        store.remove(probe)
+        store.remove(probe)  # the folder stays: the job writes there next
     except OSError as e:
         reason = e.strerror or str(e)
         raise InputError(f"the output folder cannot be written ({reason}); choose another --out", store.root) from None
@@ -152,7 +152,7 @@ def preflight(cfg: JobConfig, out: str, sequences: list[str] | None = None,
     if sequences or cfg.source.sequences:  # names the user gave: refused before anything is written
         given = sequences or cfg.source.sequences
         [check_name(s, "sequence", "--sequences" if sequences else "the config's source.sequences") for s in given]
-    check_output(out)
     pf = plan_sequences(cfg, sequences, frames)
     check_proposer(cfg, pf.plans)
+    check_output(out)  # last: a job refused for anything else leaves no --out folder behind
     return pf
