@@ -136,3 +136,32 @@ def test_progress_bar_shows_phases_eta_and_the_summarys_frames_per_second(tmp_pa
     assert summary.frames == 12 and 0 < summary.mining_seconds <= summary.seconds
     rate = float(line.split("mining: ")[1].split(" frames/s")[0])
     assert rate == pytest.approx(summary.frames / summary.mining_seconds, rel=0.01)
+
+
+def test_an_observe_step_reports_its_frames_as_it_goes(tmp_path):
+    """The worker writes its core-frame count while it observes (what the driver's bar shows
+    between window results) and removes it when the step ends."""
+    from mining.catalog.layout import observed_path
+    from mining.pipeline import steps
+    from mining.pipeline.submit import open_job
+
+    cfg = _cfg()
+    job, schedule, _ = open_job(cfg, str(tmp_path / "cat"))
+    window = schedule.windows[0]
+    store = job.store()
+    seen = []
+    real = steps._FrameReport.__call__
+
+    def spy(self, done):  # the real report, and what the file says right after it
+        real(self, done)
+        if store.exists(self.path):
+            seen.append(steps.observed_so_far(store, [window]))
+    steps.FRAME_REPORT_S, old = 0.0, steps.FRAME_REPORT_S
+    steps._FrameReport.__call__ = spy
+    try:
+        result = steps.Observe(job).run(window)
+    finally:
+        steps._FrameReport.__call__, steps.FRAME_REPORT_S = real, old
+    assert result.ok and seen == list(range(1, window.core[1] - window.core[0] + 1))
+    assert not store.exists(observed_path(window.dataset, window.sequence, window.name))
+    assert steps.observed_so_far(store, [window]) == 0

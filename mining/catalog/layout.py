@@ -88,6 +88,12 @@ def stitch_path(dataset: str, sequence: str) -> str:
     return f"{MANIFEST}/dataset={dataset}/sequence={sequence}/{STITCH_ROW}.parquet"
 
 
+def observed_path(dataset: str, sequence: str, window: str) -> str:
+    """How many core frames a window's observe step has done so far (its worker writes it as it
+    goes, for the driver's progress bar; removed when the step ends)."""
+    return f"{RUNNING}/{_where(dataset, sequence, window)}.frames"
+
+
 def running_path(dataset: str, sequence: str, window: str) -> str:
     """The marker of a window a driver has started (its observe or track step) and not finished."""
     return f"{RUNNING}/dataset={dataset}/sequence={sequence}/{window}.json"

@@ -24,8 +24,8 @@ import numpy as np
 import pyarrow as pa
 
 from mining.catalog.integrity import sequence_files, window_files
-from mining.catalog.layout import (PART_TABLES, STITCH_ROW, cache_path, done_path, files_path, manifest_path, part_path,
-                                   stitch_path)
+from mining.catalog.layout import (PART_TABLES, STITCH_ROW, cache_path, done_path, files_path, manifest_path,
+                                   observed_path, part_path, stitch_path)
 from mining.catalog.rows import RunInfo, frame_rows, frames_row, to_table, tube_row
 from mining.catalog.store import Store, write_sequence
 from mining.config import JobConfig
@@ -103,11 +103,14 @@ class Observe:
                 return StepResult(window.name, True, extra={"cached": True})
             except InputError as e:  # damaged, foreign or of another version: made again below
                 recomputed = str(e)
+        report = _FrameReport(store, window)
         try:
             frames = observe_window(job_source(self.job), self.job.plans[window.sequence], window, self.job.cfg,
-                                    self._proposer(window))
+                                    self._proposer(window), report)
         except (InputError, MiningError) as e:
             return StepResult(window.name, False, _error(e), time.perf_counter() - t0)
+        finally:
+            report.close()
         store.write_bytes(path, encode_frames(frames))
         return StepResult(window.name, True, seconds=time.perf_counter() - t0, frames=len(frames),
                           extra={"recomputed": recomputed} if recomputed else {})
@@ -119,6 +122,45 @@ class Observe:
         if self.proposer is None:
             self.proposer = make_proposer(self.job.cfg.proposals, (calib.height, calib.width))
         return self.proposer
+
+
+FRAME_REPORT_S = 1.0  # ours: a worker reports its observed frame count at most this often
+
+
+class _FrameReport:
+    """``observe_window``'s ``on_frame``: the worker's frame count in ``layout.observed_path``,
+    written at most every ``FRAME_REPORT_S`` (the driver's bar reads it), removed at the end."""
+
+    def __init__(self, store: Store, window: Window):
+        self.store, self.window, self.last = store, window, 0.0
+        self.path = observed_path(window.dataset, window.sequence, window.name)
+
+    def __call__(self, done: int) -> None:
+        now = time.perf_counter()
+        if now - self.last >= FRAME_REPORT_S:
+            self.last = now
+            try:
+                self.store.write_bytes(self.path, str(done).encode())
+            except OSError:
+                pass  # progress is best effort: never fail a window over it
+
+    def close(self) -> None:
+        try:
+            if self.store.exists(self.path):
+                self.store.remove(self.path)
+        except OSError:
+            pass
+
+
+def observed_so_far(store: Store, windows: list[Window]) -> int:
+    """Core frames the observe steps of ``windows`` have reported so far (``_FrameReport``)."""
+    n = 0
+    for w in windows:
+        try:
+            n += int(store.read_bytes(observed_path(w.dataset, w.sequence, w.name)).decode() or 0)
+        except (MiningError, OSError, ValueError):
+            pass  # not started, finished, or mid-write
+    return n
 
 
 def read_cache(store: Store, window: Window) -> list[ObservedFrame]:

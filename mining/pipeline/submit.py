@@ -52,7 +52,7 @@ from mining.pipeline.localray import init_local_ray, prepare_local_ray
 from mining.pipeline.preflight import Preflight, preflight
 from mining.pipeline.running import RunningMarkers
 from mining.pipeline.schedule import Resume, Schedule, Task
-from mining.pipeline.steps import Job, StepResult, write_manifest, write_stitch_failure
+from mining.pipeline.steps import Job, StepResult, observed_so_far, write_manifest, write_stitch_failure
 from mining.proposals.make import classifiers_line
 from mining.types import Window
 
@@ -236,6 +236,7 @@ class Progress:
         self.total_frames = total_frames
         self.done = self.failed = self.frames = 0
         self.phases: dict[str, int] = {}
+        self.observing = 0  # core frames the observe steps in flight have reported (steps.observed_so_far)
 
     def rate(self) -> float:
         return self.frames / max(time.perf_counter() - self.t0, 1e-9)
@@ -256,7 +257,8 @@ class Progress:
             return
         dt = time.perf_counter() - self.t0
         n = 30 * self.done // max(self.total, 1)
-        phase = " · ".join(f"{label} {k}" for label, k in self.phases.items() if k) or "waiting"
+        phase = " · ".join(f"{label} {k}" + (f" ({self.observing} frames in)" if label == "observe" and self.observing
+                                               else "") for label, k in self.phases.items() if k) or "waiting"
         rate = self.rate()
         left = max(self.total_frames - self.frames, 0)
         eta = f"ETA {left / rate:.0f} s" if rate > 0 and left else ("ETA —" if left else "stitching" if
@@ -302,7 +304,8 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
                 continue
             bar.running([t.step for t in running.values()])
             got = executor.wait(REFRESH_S if progress else None)
-            if got is None:  # nothing finished yet: redraw (elapsed, ETA) and wait again
+            if got is None:  # nothing finished yet: redraw (frames the workers report, elapsed, ETA), wait again
+                bar.observing = observed_so_far(store, [t.target for t in running.values() if t.step == "observe"])
                 bar.draw()
                 continue
             ref, result, err = got

@@ -18,6 +18,7 @@ Neither step knows about Ray: the executors in ``mining/pipeline/executors.py`` 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,22 +53,24 @@ class ObservedFrame:
 
 
 def observe_window(source: Source, plan: SequencePlan, window: Window, cfg: JobConfig,
-                   proposer: Proposer | None = None) -> list[ObservedFrame]:
-    """Geometry, proposals and localisation for the window's core frames."""
+                   proposer: Proposer | None = None,
+                   on_frame: Callable[[int], None] | None = None) -> list[ObservedFrame]:
+    """Geometry, proposals and localisation for the window's core frames; ``on_frame(k)``
+    after each (k core frames done), for progress."""
     s, e = window.core
     start = max(0, s - WARMUP_FRAMES)
     try:
-        return _observe(source, plan, start, s, e, cfg, proposer)
+        return _observe(source, plan, start, s, e, cfg, proposer, on_frame)
     except InputError as err:
         if err.frame is None or start == s or err.frame not in plan.frames[start:s]:
             raise
     # A bad warm-up frame belongs to the window before, which fails on it; this window
     # starts without a previous frame (its first egomotion is absent, a new pose segment).
-    return _observe(source, plan, s, s, e, cfg, proposer)
+    return _observe(source, plan, s, s, e, cfg, proposer, on_frame)
 
 
 def _observe(source: Source, plan: SequencePlan, start: int, s: int, e: int, cfg: JobConfig,
-             proposer: Proposer | None) -> list[ObservedFrame]:
+             proposer: Proposer | None, on_frame: Callable[[int], None] | None = None) -> list[ObservedFrame]:
     out = []
     for rec in frame_records(source, plan, start, e, cfg, proposer):
         if rec.position >= s:
@@ -84,6 +87,8 @@ def _observe(source: Source, plan: SequencePlan, start: int, s: int, e: int, cfg
                 n_proposals=len(rec.proposals),
                 observations=obs,
             ))
+            if on_frame is not None:
+                on_frame(len(out))
     return out
 
 
