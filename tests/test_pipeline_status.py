@@ -82,13 +82,18 @@ def test_working_files_sit_where_hive_readers_skip_them(tmp_path):
     out = tmp_path / "cat"
     cfg = _cfg()
     assert mine_job(cfg, str(out), executor=LocalExecutor, keep_cache=True).ok == 2
-    parts = list((out / "_parts").rglob("*.parquet"))
+    parts = list((out / "_parts").rglob("*.part"))
     caches = list((out / "_cache").rglob("*.npz.zst"))
     assert parts and caches, "the job left its working files"
     assert not [p for p in out.iterdir() if p.name in ("parts", "cache", "running")], "no unprefixed working folder"
     files = ds.dataset(str(out), format="parquet", exclude_invalid_files=False).files
     seen = {Path(f).relative_to(out).parts[0] for f in files if f.endswith(".parquet")}
     assert seen == {"catalog", "manifest"}
+    # and DuckDB's own glob over the whole folder (which does not skip "_" folders) finds no part
+    import duckdb
+
+    files = duckdb.sql(f"SELECT DISTINCT filename FROM read_parquet('{out}/**/*.parquet', filename = true)").fetchall()
+    assert files and {Path(f).relative_to(out).parts[0] for (f,) in files} == {"catalog", "manifest"}
 
 
 def test_provisional_views_show_finished_windows_of_sequences_not_stitched_yet(tmp_path):

@@ -25,7 +25,7 @@ def test_a_failed_stitch_is_a_manifest_row_that_status_shows(tmp_path):
     out = tmp_path / "cat"
     rc, stdout, stderr = submit(out, *TINY, logs=tmp_path / "logs1")
     assert rc == 0, stdout + stderr
-    part = out / "_parts" / "tubes" / SEQ / f"{TINY_WINDOWS[1]}.parquet"
+    part = out / "_parts" / "tubes" / SEQ / f"{TINY_WINDOWS[1]}.part"
     data = bytearray(part.read_bytes())
     data[-4:] = b"XXXX"  # Parquet's closing magic: an unreadable file of the same size
     part.write_bytes(bytes(data))

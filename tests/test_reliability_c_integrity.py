@@ -108,7 +108,7 @@ def test_status_verify_finds_a_file_damaged_in_place(base_catalogue, tmp_path, c
 
 def test_a_damaged_part_runs_its_window_again(base_catalogue, tmp_path, capsys):
     out = copy_of(base_catalogue, tmp_path / "out")
-    part = f"_parts/tube_frames/{D}/{W1}.parquet"
+    part = f"_parts/tube_frames/{D}/{W1}.part"
     _truncate(out / part)
 
     rc, text = _status(capsys, out)
@@ -122,7 +122,7 @@ def test_a_damaged_part_runs_its_window_again(base_catalogue, tmp_path, capsys):
 def test_a_damaged_compacted_file_without_its_parts_runs_their_windows_again(base_catalogue, tmp_path, capsys):
     out = copy_of(base_catalogue, tmp_path / "out")
     _truncate(out / TUBES)
-    for p in (out / "_parts").rglob("*.parquet"):
+    for p in (out / "_parts").rglob("*.part"):
         p.unlink()
 
     rc, text = _status(capsys, out)

@@ -2,7 +2,7 @@
 
 Each output a later step or a reader trusts is recorded when it is written:
 
-* a window's parts (``_parts/<table>/…/<window>.parquet``) in ``manifest/…/<window>.files.json``,
+* a window's parts (``_parts/<table>/…/<window>.part``) in ``manifest/…/<window>.files.json``,
   written after the parts and before the window's manifest row says done;
 * a sequence's compacted files (``catalog/<table>/…/part-<k>.parquet``, all four tables) in
   its finished marker ``catalog/_sequences/…``, written after them.

@@ -12,7 +12,7 @@ draws the same tree); ``store.py`` does the I/O on them::
     manifest/dataset=D/sequence=S/<window>.files.json         size and sha256 of the window's parts (integrity.py)
     manifest/dataset=D/sequence=S/stitch.parquet              a sequence whose stitch failed (its row, until one succeeds)
     _running/dataset=D/sequence=S/<window>.json               a window a driver has started and not finished
-    _parts/<table>/dataset=D/sequence=S/<window>.parquet      a window's parts before stitching
+    _parts/<table>/dataset=D/sequence=S/<window>.part         a window's parts before stitching (Parquet)
     _cache/obs/dataset=D/sequence=S/<window>.npz.zst          a window's observations, until no track needs them
 
 Every path is built from names checked by ``mining/names.py`` (dataset, sequence, window),
@@ -46,6 +46,7 @@ MANIFEST = "manifest"
 # which Hive-style readers (DuckDB, Spark, pyarrow datasets) skip: a glob over the output
 # folder finds the catalogue and the manifest, never a half-stitched piece.
 PARTS = "_parts"
+PART_SUFFIX = ".part"  # Parquet inside, but not "*.parquet": a DuckDB glob over the output folder (which does not skip "_" folders) never picks a part up
 CACHE = "_cache/obs"
 LOCK = ".mine.lock"  # a dot name: every reader skips it (store.is_temporary)
 REPLACED = "_replaced"  # catalogues moved aside by --new-run, one folder each
@@ -72,7 +73,7 @@ def part_path(table: str, dataset: str, sequence: str, window: str) -> str:
     """A window's part of ``table`` (one of ``PART_TABLES``)."""
     if table not in PART_TABLES:
         raise ValueError(f"no part table {table!r}")
-    return f"{PARTS}/{table}/{_where(dataset, sequence, window)}.parquet"
+    return f"{PARTS}/{table}/{_where(dataset, sequence, window)}{PART_SUFFIX}"
 
 
 def manifest_path(dataset: str, sequence: str, window: str) -> str:

@@ -37,7 +37,7 @@ import pyarrow as pa
 import pyarrow.dataset as ds
 
 from mining.catalog.integrity import Damage, catalogue_damage, unreadable_parquet
-from mining.catalog.layout import PARTS, TABLE_DIRS
+from mining.catalog.layout import PART_SUFFIX, PARTS, TABLE_DIRS
 from mining.catalog.schema import PARTITION, SCHEMAS, file_schema, part_schema
 from mining.catalog.store import Store
 from mining.errors import InputError
@@ -125,12 +125,12 @@ def _part_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, native:
     name = f"_part_{table}"
     schema = pa.schema(list(part_schema(table)) + [pa.field(n, pa.string()) for n in PARTITION])
     folder = f"{PARTS}/{table}"
-    if not store.list(folder, ".parquet"):
+    if not store.list(folder, PART_SUFFIX):
         con.register(f"_empty{name}", _as_read(schema).empty_table())
         con.execute(f"CREATE VIEW {name} AS SELECT * FROM _empty{name}")
         return
     if native:
-        glob = _sql_string(f"{store.full(folder)}/*/*/*.parquet")
+        glob = _sql_string(f"{store.full(folder)}/*/*/*{PART_SUFFIX}")
         con.execute(f"CREATE VIEW {name} AS SELECT * FROM read_parquet({glob}, hive_partitioning = true, "
                     "hive_types = {'dataset': 'VARCHAR', 'sequence': 'VARCHAR'})")
         return
