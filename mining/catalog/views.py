@@ -94,25 +94,34 @@ def _base_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, native:
         _damaged_view(con, store, table, damage)
 
 
-def _files_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, native: bool) -> None:
-    cols = ", ".join(f'"{n}"' for n in SCHEMAS[table].names)
-    folder = TABLE_DIRS[table]
-    if not store.list(folder):
-        # No files yet: an empty table with the schema's columns and types.
-        con.register(f"_empty_{table}", _as_read(SCHEMAS[table]).empty_table())
-        con.execute(f"CREATE VIEW {table} AS SELECT {cols} FROM _empty_{table}")
+def _folder_view(con: duckdb.DuckDBPyConnection, store: Store, name: str, folder: str, suffix: str,
+                 schema: pa.Schema, cols: str, native: bool) -> None:
+    """View ``name`` over the hive-partitioned files ``folder/*/*/*<suffix>`` of ``schema``
+    (partition columns included; empty when there are no files): DuckDB's own Parquet reader,
+    or a registered pyarrow dataset (``native`` False)."""
+    if not store.list(folder, suffix):
+        con.register(f"_empty_{name}", _as_read(schema).empty_table())
+        con.execute(f"CREATE VIEW {name} AS SELECT {cols} FROM _empty_{name}")
         return
     if native:
-        glob = _sql_string(f"{store.full(folder)}/*/*/*.parquet")
-        con.execute(f"CREATE VIEW {table} AS SELECT {cols} FROM read_parquet({glob}, hive_partitioning = true, "
+        glob = _sql_string(f"{store.full(folder)}/*/*/*{suffix}")
+        con.execute(f"CREATE VIEW {name} AS SELECT {cols} FROM read_parquet({glob}, hive_partitioning = true, "
                     "hive_types = {'dataset': 'VARCHAR', 'sequence': 'VARCHAR'})")
         return
     part = pa.schema([pa.field(n, pa.string()) for n in PARTITION])
     dset = ds.dataset(store.full(folder), filesystem=store.fs, format="parquet",
-                      partitioning=ds.partitioning(part, flavor="hive"),
-                      schema=_as_read(pa.schema(list(file_schema(table)) + list(part))))
-    con.register(f"_arrow_{table}", dset)
-    con.execute(f"CREATE VIEW {table} AS SELECT {cols} FROM _arrow_{table}")
+                      partitioning=ds.partitioning(part, flavor="hive"), schema=_as_read(schema))
+    con.register(f"_arrow_{name}", dset)
+    con.execute(f"CREATE VIEW {name} AS SELECT {cols} FROM _arrow_{name}")
+
+
+def _with_partition(schema: pa.Schema) -> pa.Schema:
+    return pa.schema(list(schema) + [pa.field(n, pa.string()) for n in PARTITION])
+
+
+def _files_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, native: bool) -> None:
+    cols = ", ".join(f'"{n}"' for n in SCHEMAS[table].names)
+    _folder_view(con, store, table, TABLE_DIRS[table], ".parquet", _with_partition(file_schema(table)), cols, native)
 
 
 PROVISIONAL = ("tubes", "tube_frames")  # the part tables the provisional views read
@@ -122,23 +131,8 @@ def _part_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, native:
     """``_part_<table>``: the per-window parts of ``table`` (partition columns included), for
     the provisional views; empty when there are none. A part that cannot be read makes the
     provisional views fail naming it, never the final tables."""
-    name = f"_part_{table}"
-    schema = pa.schema(list(part_schema(table)) + [pa.field(n, pa.string()) for n in PARTITION])
-    folder = f"{PARTS}/{table}"
-    if not store.list(folder, PART_SUFFIX):
-        con.register(f"_empty{name}", _as_read(schema).empty_table())
-        con.execute(f"CREATE VIEW {name} AS SELECT * FROM _empty{name}")
-        return
-    if native:
-        glob = _sql_string(f"{store.full(folder)}/*/*/*{PART_SUFFIX}")
-        con.execute(f"CREATE VIEW {name} AS SELECT * FROM read_parquet({glob}, hive_partitioning = true, "
-                    "hive_types = {'dataset': 'VARCHAR', 'sequence': 'VARCHAR'})")
-        return
-    part = pa.schema([pa.field(n, pa.string()) for n in PARTITION])
-    dset = ds.dataset(store.full(folder), filesystem=store.fs, format="parquet",
-                      partitioning=ds.partitioning(part, flavor="hive"), schema=_as_read(schema))
-    con.register(f"_arrow{name}", dset)
-    con.execute(f"CREATE VIEW {name} AS SELECT * FROM _arrow{name}")
+    _folder_view(con, store, f"_part_{table}", f"{PARTS}/{table}", PART_SUFFIX,
+                 _with_partition(part_schema(table)), "*", native)
 
 
 def connect(out: str | Path, native: bool | None = None, memory_limit: str | None = None,
