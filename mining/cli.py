@@ -423,8 +423,8 @@ def build_parser() -> argparse.ArgumentParser:
     exp.set_defaults(func=cmd_export)
 
     rnd = sub.add_parser("render", help="a sequence with its selected tubes drawn (mask, id, category), as a video")
-    rnd.add_argument("dest", help="DEST.mp4 (H.264 where OpenCV has it, else MPEG-4 Part 2, which browsers do not "
-                                  "play) or DEST.webm (VP8, plays in browsers)")
+    rnd.add_argument("dest", help="DEST.mp4 (H.264 with PyAV, the `video` extra; without it MPEG-4 Part 2, which "
+                                  "browsers do not play) or DEST.webm (VP8); H.264 and VP8 play in browsers")
     rnd.add_argument("--out", default="out/catalog", help="catalogue folder")
     rnd.add_argument("--sequence", required=True)
     rnd.add_argument("--where", help="SQL predicate over the tubes table: draw only the selected tubes it matches")

@@ -5,7 +5,7 @@
 # `mine submit` (e.g. --workers 2). Running it again resumes (a finished job does nothing).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-scripts/setup.sh onnx
+scripts/setup.sh onnx,video
 
 export RAY_USAGE_STATS_ENABLED=0
 out="${OUT:-out}/catalog"

@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
@@ -104,14 +109,39 @@ def test_depth_doubles_the_width(catalogue, tmp_path):
     assert (panel.std(axis=(0, 1)) > 20).all(), "a colour-mapped depth image, not a blank panel"
 
 
+def _codec(path) -> str:
+    cap = cv2.VideoCapture(str(path))
+    try:
+        return int(cap.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, "little").decode()
+    finally:
+        cap.release()
+
+
+def test_mp4_is_h264(mp4):
+    """With the `video` extra (PyAV, which the test set-up installs) MP4 is H.264, the codec every
+    browser plays (tests/test_view_browser.py plays it in Chromium)."""
+    assert _codec(mp4) in {"h264", "avc1"}
+
+
+def test_without_pyav_mp4_is_mpeg4_part2_and_says_so(catalogue, tmp_path):
+    """A machine without PyAV still gets an MP4, MPEG-4 Part 2, and is told that browsers will not play it."""
+    out, _ = catalogue
+    dest = tmp_path / "no-pyav.mp4"
+    code = ("import sys; sys.modules['av'] = None; from mining.cli import main; "  # `import av` fails, as without it
+            f"sys.exit(main(['render', '--out', {str(out)!r}, '--sequence', {SEQUENCE!r}, '--frames', '0:2', {str(dest)!r}]))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
+    assert done.returncode == 0, done.stderr
+    assert _codec(dest) in {"mp4v", "FMP4"} and len(_frames(dest)) == 2  # FFmpeg reads MPEG-4 Part 2 back as FMP4
+    assert "browsers do not" in done.stdout and "tube-miner[video]" in done.stdout
+
+
 def test_webm_is_vp8(catalogue, tmp_path):
     """WebM is written as VP8, which browsers play."""
     out, _ = catalogue
     dest = tmp_path / "v.webm"
     assert run_render(str(out), SEQUENCE, str(dest), frames=(0, 3)) == 0
-    cap = cv2.VideoCapture(str(dest))
-    fourcc = int(cap.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, "little").decode()
-    assert fourcc == "VP80" and len(_frames(dest)) == 3
+    assert _codec(dest) == "VP80" and len(_frames(dest)) == 3
 
 
 def test_nothing_matched_writes_nothing(catalogue, tmp_path, capsys):

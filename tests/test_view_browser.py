@@ -128,3 +128,61 @@ def test_gallery_filter_and_tube_page_in_chromium(catalogue, chromium, tmp_path)
         server.app.browser.close()
     _looks_like_a_page(shots / "gallery.png", 1400, 900)
     _looks_like_a_page(shots / "tube.png", 1400, 900)
+
+
+# Loads video `src` into a <video>, waits for its first frame (or an error), and reports its size,
+# duration, error code and the mean of the first frame's pixels as the browser decoded them.
+PLAY_VIDEO = """(src => new Promise(done => {
+  const v = document.createElement('video');
+  v.muted = true; v.preload = 'auto';
+  const report = () => {
+    let mean = null;
+    if (v.readyState >= 2) {
+      const c = document.createElement('canvas'); c.width = v.videoWidth; c.height = v.videoHeight;
+      const g = c.getContext('2d'); g.drawImage(v, 0, 0);
+      const px = g.getImageData(0, 0, c.width, c.height).data; let s = 0, n = 0;
+      for (let i = 0; i < px.length; i += 4) { s += px[i] + px[i + 1] + px[i + 2]; n += 3; }
+      mean = s / n;
+    }
+    done({ width: v.videoWidth, height: v.videoHeight, duration: v.duration, error: v.error && v.error.code, mean });
+  };
+  v.onloadeddata = report; v.onerror = report;
+  v.src = src; document.body.appendChild(v);
+}))"""
+
+
+def test_rendered_mp4_plays_in_chromium(catalogue, chromium, tmp_path):
+    """`mine render`'s MP4 (H.264) plays in Chromium and shows the picture OpenCV reads back; an
+    MPEG-4 Part 2 MP4 (what OpenCV alone writes) does not play: the check can fail."""
+    import functools
+    from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
+
+    import numpy as np
+
+    from _catalog_data import SEQUENCE
+    from mining.catalog.render import run_render
+
+    out, _ = catalogue
+    assert run_render(str(out), SEQUENCE, str(tmp_path / "h264.mp4"), frames=(0, 6), fps=10) == 0
+    ok, first = cv2.VideoCapture(str(tmp_path / "h264.mp4")).read()
+    assert ok
+    control = cv2.VideoWriter(str(tmp_path / "mp4v.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 10, first.shape[1::-1])
+    for _ in range(6):
+        control.write(first)
+    control.release()
+    handler = functools.partial(SimpleHTTPRequestHandler, directory=str(tmp_path))
+    server = ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    base = f"http://127.0.0.1:{server.server_address[1]}"
+    try:
+        with Browser(chromium, width=800, height=600) as b:
+            b.goto(f"{base}/")
+            played = b.evaluate(f"{PLAY_VIDEO}('{base}/h264.mp4')", timeout=30)
+            refused = b.evaluate(f"{PLAY_VIDEO}('{base}/mp4v.mp4')", timeout=30)
+    finally:
+        server.shutdown()
+        server.server_close()
+    assert played["error"] is None and (played["width"], played["height"]) == (1242, 376)
+    assert abs(played["duration"] - 0.6) < 0.05
+    assert abs(played["mean"] - float(np.mean(first))) < 3, "the browser shows the picture OpenCV reads"
+    assert refused["error"] == 4 and refused["mean"] is None  # MEDIA_ERR_SRC_NOT_SUPPORTED

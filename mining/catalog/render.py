@@ -13,11 +13,15 @@ geometry stage (its disparity step with the job's ``[geometry]``: ``stereo_depth
 OpenCV's turbo map on a fixed logarithmic range (near red, far blue; no depth black) with
 its legend, and the tubes' outlines. The video is then twice as wide.
 
-Container and codec: OpenCV's wheel (opencv-python-headless) carries no H.264 encoder, so
-``.mp4`` is written as H.264 (``avc1``) only where the OpenCV build has one, else as
-MPEG-4 Part 2 (``mp4v``), which OpenCV, ffmpeg and VLC play but browsers do not; ``.webm``
-is VP8, which OpenCV and browsers (Chromium, Firefox) play. The written file is read back
-with ``cv2.VideoCapture`` (frame count and size) before the command reports success.
+Container and codec: ``.mp4`` is H.264 (yuv420p, the index at the front so a browser starts
+playing before the whole file has arrived), which OpenCV, ffmpeg, VLC and every browser play.
+OpenCV's wheel (opencv-python-headless) carries no H.264 encoder, so it is written with PyAV
+(the ``video`` extra: ``pip install 'tube-miner[video]'``; its wheel bundles FFmpeg with
+libx264, GPL-licensed). Without PyAV, an OpenCV build with H.264 (``avc1``) is used, else
+MPEG-4 Part 2 (``mp4v``), which OpenCV, ffmpeg and VLC play but browsers do not, and the
+command says so. ``.webm`` is VP8 (OpenCV), which OpenCV and browsers (Chromium, Firefox)
+play. The written file is read back with ``cv2.VideoCapture`` (frame count and size)
+before the command reports success.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
+from fractions import Fraction
 from pathlib import Path
 
 import cv2
@@ -49,9 +54,11 @@ FONT_SCALE = 0.5  # ours: label text size (≈ 11 px high)
 DEFAULT_FPS = 10.0  # ours: frame rate when the plan's timestamps give none (KITTI records at 10 Hz)
 DEPTH_NEAR_M = 2.0  # ours: the depth colour map's near end (red); KITTI's 128 px search reaches ≈ 3 m
 DEPTH_TICKS_M = (2, 5, 10, 20, 50, 90)  # ours: legend ticks (the far end is the job's geometry.stereo.max_depth_m)
-# Fourccs by container, tried in order: the first OpenCV can open is used.
-FOURCCS = {".mp4": ("avc1", "mp4v"), ".webm": ("VP80",)}
-BROWSER_FOURCCS = {"avc1", "VP80"}
+H264_CRF = 18  # ours: x264's constant rate factor (0 lossless … 51); 18 is visually lossless, so masks read true
+H264_PRESET = "veryfast"  # ours: x264's speed / size trade-off; encoding stays a small part of a render's time
+# Codecs by container, tried in order: the first this machine can write is used.
+CODECS = {".mp4": ("h264", "avc1", "mp4v"), ".webm": ("VP80",)}
+BROWSER_CODECS = {"h264", "avc1", "VP80"}
 
 
 def tube_colours(tube_ids: list[str]) -> dict[str, tuple[int, int, int]]:
@@ -176,19 +183,84 @@ def _quiet_stderr() -> Iterator[None]:
         os.close(saved)
 
 
-def open_video(dest: Path, fps: float, size: tuple[int, int]) -> tuple[cv2.VideoWriter, str]:
-    """A writer for ``dest`` (``.mp4`` or ``.webm``) and the fourcc it uses (``FOURCCS`` order)."""
+class VideoWriter:
+    """Frames (BGR, all of one size) into a video file: ``write`` each, then ``close``."""
+
+    codec: str
+
+    def write(self, bgr: np.ndarray) -> None:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+
+class OpenCVWriter(VideoWriter):
+    """``cv2.VideoWriter`` with a fourcc (``avc1``, ``mp4v``, ``VP80``)."""
+
+    def __init__(self, writer: cv2.VideoWriter, fourcc: str):
+        self._writer, self.codec = writer, fourcc
+
+    def write(self, bgr: np.ndarray) -> None:
+        self._writer.write(bgr)
+
+    def close(self) -> None:
+        self._writer.release()
+
+
+class H264Writer(VideoWriter):
+    """H.264 in MP4 through PyAV's libx264: yuv420p (what browsers decode), ``+faststart``."""
+
+    codec = "h264"
+
+    def __init__(self, dest: Path, fps: float, size: tuple[int, int]):
+        import av  # the `video` extra
+
+        self._av = av
+        self._container = av.open(str(dest), "w", format="mp4", options={"movflags": "+faststart"})
+        self._stream = self._container.add_stream("libx264", rate=Fraction(fps).limit_denominator(1001))
+        self._stream.width, self._stream.height = size
+        self._stream.pix_fmt = "yuv420p"
+        self._stream.options = {"crf": str(H264_CRF), "preset": H264_PRESET}
+
+    def write(self, bgr: np.ndarray) -> None:
+        frame = self._av.VideoFrame.from_ndarray(np.ascontiguousarray(bgr), format="bgr24")
+        self._container.mux(self._stream.encode(frame))
+
+    def close(self) -> None:
+        try:
+            self._container.mux(self._stream.encode(None))  # flush the encoder's delayed frames
+        finally:
+            self._container.close()
+
+
+def _pyav_h264() -> bool:
+    """PyAV is installed and its FFmpeg has libx264."""
+    try:
+        import av
+    except ImportError:
+        return False
+    return "libx264" in av.codecs_available
+
+
+def open_video(dest: Path, fps: float, size: tuple[int, int]) -> VideoWriter:
+    """A writer for ``dest`` (``.mp4`` or ``.webm``) with the first codec of ``CODECS`` this
+    machine can write."""
     ext = dest.suffix.lower()
-    if ext not in FOURCCS:
-        raise InputError(f"the video must end in {' or '.join(FOURCCS)} (MP4: H.264 where OpenCV has it, else "
-                         "MPEG-4 Part 2; WebM: VP8, which browsers play)", dest)
-    for fourcc in FOURCCS[ext]:
+    if ext not in CODECS:
+        raise InputError(f"the video must end in {' or '.join(CODECS)} (MP4: H.264, with PyAV; WebM: VP8; "
+                         "both play in browsers)", dest)
+    for codec in CODECS[ext]:
+        if codec == "h264":
+            if _pyav_h264():
+                return H264Writer(dest, fps, size)
+            continue
         with _quiet_stderr():
-            writer = cv2.VideoWriter(str(dest), cv2.VideoWriter_fourcc(*fourcc), fps, size)
+            writer = cv2.VideoWriter(str(dest), cv2.VideoWriter_fourcc(*codec), fps, size)
         if writer.isOpened():
-            return writer, fourcc
+            return OpenCVWriter(writer, codec)
         writer.release()
-    raise InputError(f"OpenCV cannot write {ext} here (tried {', '.join(FOURCCS[ext])})", dest)
+    raise InputError(f"cannot write {ext} here (tried {', '.join(CODECS[ext])})", dest)
 
 
 def check_video(dest: Path, n_frames: int, size: tuple[int, int]) -> None:
@@ -241,7 +313,7 @@ class RenderResult:
     tubes: int
     width: int
     height: int
-    fourcc: str
+    codec: str  # h264, avc1, mp4v or VP80
     fps: float
     seconds: float
 
@@ -321,7 +393,7 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
     size = (width + width % 2, h + h % 2)
     tmp = dest.with_name(f".{dest.stem}.partial{dest.suffix}")
     dest.parent.mkdir(parents=True, exist_ok=True)
-    writer, fourcc = open_video(tmp, fps, size)
+    writer = open_video(tmp, fps, size)
     bar = _Progress(stop - start, f"mine render {sequence}") if progress else None
     try:
         for k, pos in enumerate(range(start, stop)):
@@ -348,17 +420,22 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
             if bar is not None:
                 bar.update(k + 1)
     except BaseException:
-        writer.release()
+        with contextlib.suppress(Exception):
+            writer.close()
         tmp.unlink(missing_ok=True)
         raise
-    writer.release()
+    try:
+        writer.close()
+    except Exception as e:
+        tmp.unlink(missing_ok=True)
+        raise MiningError(f"the video for {dest} did not finish writing: {e}") from None
     try:
         check_video(tmp, stop - start, size)
     except MiningError:
         tmp.unlink(missing_ok=True)
         raise
     os.replace(tmp, dest)
-    return RenderResult(dest, stop - start, len(tube_rows), size[0], size[1], fourcc, fps, time.perf_counter() - t0)
+    return RenderResult(dest, stop - start, len(tube_rows), size[0], size[1], writer.codec, fps, time.perf_counter() - t0)
 
 
 class NothingToRender(InputError):
@@ -376,8 +453,9 @@ def run_render(out: str | Path, sequence: str, dest: str | Path, where: str | No
     except (MiningError, duckdb.Error) as e:
         print(f"mine render: {e}", file=sys.stderr)
         return 2
-    note = "" if r.fourcc in BROWSER_FOURCCS else (" — MPEG-4 Part 2: OpenCV, ffmpeg and VLC play it, browsers do not; "
-                                                    "write a .webm for a browser")
-    print(f"mine render: {r.frames} frames, {r.tubes} tubes, {r.width}×{r.height} {r.fourcc} at {r.fps:g} fps → "
+    note = "" if r.codec in BROWSER_CODECS else (" — MPEG-4 Part 2: OpenCV, ffmpeg and VLC play it, browsers do not; "
+                                                  "for H.264 install PyAV (pip install 'tube-miner[video]'), or "
+                                                  "write a .webm")
+    print(f"mine render: {r.frames} frames, {r.tubes} tubes, {r.width}×{r.height} {r.codec} at {r.fps:g} fps → "
           f"{r.dest} ({r.seconds:.1f} s){note}")
     return 0
