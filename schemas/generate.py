@@ -1,4 +1,6 @@
-"""Write schemas/v<N>/*.json from mining/catalog/schema.py, the one source of truth.
+"""Write schemas/v<N>/ from the package, the one source of truth: the tables' JSON from
+mining/catalog/schema.py, and views.sql copied from mining/catalog/views.sql (which ships in
+the package, so that an installed `mine` opens catalogues).
 
     python schemas/generate.py          # rewrite the JSON files
     python schemas/generate.py --check  # exit 1 when the committed files differ
@@ -22,6 +24,7 @@ sys.path.insert(0, str(HERE.parent))
 from mining.catalog import schema  # noqa: E402
 
 SCHEMA_PY = Path(schema.__file__)
+VIEWS_SQL = SCHEMA_PY.with_name("views.sql")
 
 
 def field_comments() -> dict[str, dict[str, str]]:
@@ -60,6 +63,7 @@ def generate() -> dict[str, str]:
         doc = {"table": table, "schema_version": schema.SCHEMA_VERSION, "partitioning": list(schema.PARTITION),
                "fields": fields, "part_only_fields": part_only}
         files[f"{table}.json"] = json.dumps(doc, indent=2, ensure_ascii=False) + "\n"
+    files["views.sql"] = VIEWS_SQL.read_text()
     return files
 
 

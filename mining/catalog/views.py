@@ -42,7 +42,7 @@ from mining.catalog.schema import PARTITION, SCHEMAS, file_schema, part_schema
 from mining.catalog.store import Store
 from mining.errors import InputError
 
-VIEWS_SQL = Path(__file__).resolve().parents[2] / "schemas" / "v2" / "views.sql"
+VIEWS_SQL = Path(__file__).with_name("views.sql")  # package data; schemas/v2/views.sql is its published copy
 READ_STATEMENTS = {duckdb.StatementType.SELECT}
 
 
@@ -148,7 +148,7 @@ def connect(out: str | Path, native: bool | None = None, memory_limit: str | Non
     if not store.root_exists():
         raise InputError("catalogue folder not found", out)
     if not VIEWS_SQL.is_file():
-        raise InputError("the catalogue views are missing (schemas/v2/views.sql ships with the source tree)", VIEWS_SQL)
+        raise InputError("the catalogue views are missing: a broken install (views.sql ships inside the mining.catalog package)", VIEWS_SQL)
     native = store.local if native is None else native
     if native and not store.local:
         raise InputError("DuckDB's own reader needs a local catalogue; use pyarrow datasets", out)
