@@ -145,3 +145,15 @@ def test_an_unreadable_manifest_row_is_named_and_its_window_runs_again(base_cata
     assert (s.ok, s.skipped) == (1, 1), s.lines()
     assert tables(out) == base_catalogue[1]
     assert _status(capsys, out)[0] == 0
+
+
+def test_an_export_over_a_damaged_table_names_the_file_not_the_predicate(base_catalogue, tmp_path, capsys):
+    out = copy_of(base_catalogue, tmp_path / "out")
+    _truncate(out / TUBE_FRAMES)
+    dest = tmp_path / "crops"
+    rc, o, e = _cli(capsys, "export", "--out", str(out), "--where", "selected", "--format", "youtube-vis", str(dest))
+    assert rc == 2 and str(out / TUBE_FRAMES) in e and "predicate" not in e, o + e
+    assert not dest.exists() or not any(dest.iterdir())
+    rc, o, e = _cli(capsys, "export", "--out", str(out), "--where", "no_such_column > 1", "--format", "youtube-vis",
+                    str(dest))
+    assert rc == 2 and "--where" in e and "no_such_column" in e, o + e

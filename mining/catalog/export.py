@@ -69,6 +69,12 @@ def read_job(store: Store) -> dict:
     return {} if record is None else record.config
 
 
+# What a predicate can cause: unknown names, wrong types, a value that does not convert. The rest
+# (a damaged table, a full disk) is the catalogue's, not the predicate's.
+PREDICATE_ERRORS = (duckdb.ParserException, duckdb.BinderException, duckdb.CatalogException,
+                    duckdb.ConversionException, duckdb.TypeMismatchException, duckdb.OutOfRangeException)
+
+
 def selected_rows(con: duckdb.DuckDBPyConnection, where: str) -> tuple[pa.Table, pa.Table]:
     """(tubes, tube_frames) of the tubes matching ``where``, frames in (tube, frame) order.
 
@@ -80,8 +86,10 @@ def selected_rows(con: duckdb.DuckDBPyConnection, where: str) -> tuple[pa.Table,
         frames = execute_read_only(con, f"SELECT f.* FROM tube_frames AS f SEMI JOIN ({tubes_sql}) AS t "
                                         "USING (dataset, sequence, tube_id) ORDER BY f.dataset, f.sequence, f.tube_id, f.frame")
         return tubes.to_arrow_table(), frames.to_arrow_table()
-    except duckdb.Error as e:
+    except PREDICATE_ERRORS as e:
         raise InputError(f"bad --where predicate {where!r}: {e}") from None
+    except duckdb.Error as e:  # a damaged or missing file (the message names it), out of memory, …
+        raise InputError(f"cannot read the catalogue: {e}") from None
 
 
 def job_source(job: dict, what: str):
