@@ -143,6 +143,24 @@ def test_progress_bar_shows_phases_eta_and_the_summarys_frames_per_second(tmp_pa
     assert rate == pytest.approx(summary.frames / summary.mining_seconds, rel=0.01)
 
 
+def test_before_a_window_is_tracked_the_eta_comes_from_observed_frames():
+    """No frames/s yet (none tracked), but the observed frames give an estimate, marked ≈; the
+    first tracked window switches the ETA to the bar's frames/s."""
+    from mining.pipeline.submit import Progress
+
+    bar = Progress(4, False, total_frames=400)
+    bar.t0 -= 10.0  # ten seconds into the job
+    assert bar.eta() == "ETA —"
+    bar.observing = 50  # 5 frames/s observed: 350 left
+    assert bar.eta().startswith("ETA ≈ ") and float(bar.eta().split()[2]) == pytest.approx(70, abs=2)
+    bar.observed, bar.observing = 100, 0
+    assert float(bar.eta().split()[2]) == pytest.approx(30, abs=1)
+    bar.update(True, 50)  # 5 frames/s tracked: 350 left
+    assert "≈" not in bar.eta() and float(bar.eta().split()[1]) == pytest.approx(70, abs=2)
+    bar.update(True, 350)
+    assert bar.eta() == ""
+
+
 def test_an_observe_step_reports_its_frames_as_it_goes(tmp_path):
     """The worker writes its core-frame count while it observes (what the driver's bar shows
     between window results) and removes it when the step ends."""

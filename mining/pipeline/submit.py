@@ -229,7 +229,11 @@ REFRESH_S = 1.0  # ours: the bar redraws at least this often while steps run
 class Progress:
     """The bar of ``mine submit``: windows done, the phase of every step in flight, frames/s
     and an ETA. Frames/s is the one definition the summary uses too: core frames of the
-    windows tracked this run over the mining time (``run_job``'s, from its first step)."""
+    windows tracked this run over the mining time (``run_job``'s, from its first step).
+
+    Until a window is tracked that rate is zero, so the ETA is estimated from observation,
+    most of a window's work: core frames observed (finished observe steps and what the
+    running ones report) over the elapsed time, shown as ``ETA ≈``."""
 
     def __init__(self, total: int, enabled: bool, total_frames: int = 0):
         self.total, self.enabled, self.t0 = total, enabled, time.perf_counter()
@@ -237,6 +241,7 @@ class Progress:
         self.done = self.failed = self.frames = 0
         self.phases: dict[str, int] = {}
         self.observing = 0  # core frames the observe steps in flight have reported (steps.observed_so_far)
+        self.observed = 0  # core frames of the observe steps finished this run
 
     def rate(self) -> float:
         return self.frames / max(time.perf_counter() - self.t0, 1e-9)
@@ -252,6 +257,18 @@ class Progress:
         self.phases = {label: steps.count(step) for step, label in PHASES}
         self.draw()
 
+    def eta(self) -> str:
+        left = max(self.total_frames - self.frames, 0)
+        if not left:
+            return "stitching" if self.phases.get("stitch") else ""
+        if self.frames:
+            return f"ETA {left / self.rate():.0f} s"
+        seen = self.observed + self.observing
+        if seen:
+            dt = max(time.perf_counter() - self.t0, 1e-9)
+            return f"ETA ≈ {max(self.total_frames - seen, 0) / (seen / dt):.0f} s"
+        return "ETA —"
+
     def draw(self) -> None:
         if not self.enabled:
             return
@@ -259,12 +276,8 @@ class Progress:
         n = 30 * self.done // max(self.total, 1)
         phase = " · ".join(f"{label} {k}" + (f" ({self.observing} frames in)" if label == "observe" and self.observing
                                                else "") for label, k in self.phases.items() if k) or "waiting"
-        rate = self.rate()
-        left = max(self.total_frames - self.frames, 0)
-        eta = f"ETA {left / rate:.0f} s" if rate > 0 and left else ("ETA —" if left else "stitching" if
-                                                                   self.phases.get("stitch") else "")
         sys.stderr.write(f"\r[{'#' * n}{'.' * (30 - n)}] windows {self.done}/{self.total} ({self.failed} failed)  "
-                         f"{phase}  {rate:.2f} frames/s  {dt:.0f} s  {eta}   ")
+                         f"{phase}  {self.rate():.2f} frames/s  {dt:.0f} s  {self.eta()}   ")
         sys.stderr.flush()
 
     def close(self) -> None:
@@ -317,6 +330,8 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
             if task.step == "finalize" and not result.ok:  # a row in the manifest, for `mine status`
                 write_stitch_failure(job, task.target, schedule.by_seq[task.target], result.error)
             served = schedule.on_result(task, result)
+            if task.step == "observe" and result.ok:
+                bar.observed += task.target.core[1] - task.target.core[0]
             if task.step == "track":
                 markers.clear(task.target)
                 bar.update(result.ok, result.frames)
