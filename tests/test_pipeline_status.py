@@ -143,21 +143,25 @@ def test_progress_bar_shows_phases_eta_and_the_summarys_frames_per_second(tmp_pa
     assert rate == pytest.approx(summary.frames / summary.mining_seconds, rel=0.01)
 
 
-def test_before_a_window_is_tracked_the_eta_comes_from_observed_frames():
-    """No frames/s yet (none tracked), but the observed frames give an estimate, marked ≈; the
-    first tracked window switches the ETA to the bar's frames/s."""
+def test_the_eta_counts_the_work_inside_windows():
+    """Before any step has finished, the frames the observe steps report give an estimate (≈);
+    then each step's measured seconds per frame weigh the frames observed and tracked."""
     from mining.pipeline.submit import Progress
 
     bar = Progress(4, False, total_frames=400)
     bar.t0 -= 10.0  # ten seconds into the job
     assert bar.eta() == "ETA —"
-    bar.observing = 50  # 5 frames/s observed: 350 left
+    bar.observing = 50  # 50 of 400 frames observed in 10 s: 70 s left
     assert bar.eta().startswith("ETA ≈ ") and float(bar.eta().split()[2]) == pytest.approx(70, abs=2)
-    bar.observed, bar.observing = 100, 0
-    assert float(bar.eta().split()[2]) == pytest.approx(30, abs=1)
-    bar.update(True, 50)  # 5 frames/s tracked: 350 left
-    assert "≈" not in bar.eta() and float(bar.eta().split()[1]) == pytest.approx(70, abs=2)
-    bar.update(True, 350)
+    bar.observing = 0
+    bar.step_finished("observe", 100, 8.0)  # track's cost still unknown: observation alone, 30 s left
+    assert bar.eta().startswith("ETA ≈ ") and float(bar.eta().split()[2]) == pytest.approx(30, abs=1)
+    bar.step_finished("track", 100, 2.0)  # a quarter of both steps' work done in 10 s: 30 s left
+    assert "≈" not in bar.eta() and float(bar.eta().split()[1]) == pytest.approx(30, abs=1)
+    bar.observing = 100  # the next window half observed: (300 - 100)·0.08 + 300·0.02 = 22 of 40 s of work left
+    assert float(bar.eta().split()[1]) == pytest.approx(10 * 22 / 18, abs=0.6)
+    bar.step_finished("observe", 300, 24.0)
+    bar.step_finished("track", 300, 6.0)
     assert bar.eta() == ""
 
 

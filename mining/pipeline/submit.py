@@ -231,9 +231,12 @@ class Progress:
     and an ETA. Frames/s is the one definition the summary uses too: core frames of the
     windows tracked this run over the mining time (``run_job``'s, from its first step).
 
-    Until a window is tracked that rate is zero, so the ETA is estimated from observation,
-    most of a window's work: core frames observed (finished observe steps and what the
-    running ones report) over the elapsed time, shown as ``ETA ≈``."""
+    The ETA counts the work inside windows too, since a window's observation (most of its
+    cost) runs well ahead of its track: each step's seconds per core frame, measured on the
+    steps finished so far, weigh the frames observed (finished observe steps and what running
+    ones report) and tracked; the elapsed time over the work done so far gives the time
+    left. Until a track step has finished its cost is unknown and the estimate counts
+    observation alone (``ETA ≈``)."""
 
     def __init__(self, total: int, enabled: bool, total_frames: int = 0):
         self.total, self.enabled, self.t0 = total, enabled, time.perf_counter()
@@ -241,7 +244,9 @@ class Progress:
         self.done = self.failed = self.frames = 0
         self.phases: dict[str, int] = {}
         self.observing = 0  # core frames the observe steps in flight have reported (steps.observed_so_far)
-        self.observed = 0  # core frames of the observe steps finished this run
+        self.observed = self.tracked = 0  # core frames of the windows' finished observe / track steps
+        self.step_frames = {"observe": 0, "track": 0}  # core frames and seconds of the steps timed so far
+        self.step_seconds = {"observe": 0.0, "track": 0.0}
 
     def rate(self) -> float:
         return self.frames / max(time.perf_counter() - self.t0, 1e-9)
@@ -252,22 +257,42 @@ class Progress:
         self.frames += frames
         self.draw()
 
+    def step_finished(self, step: str, core_frames: int, seconds: float) -> None:
+        """A window's observe or track step ended after ``seconds`` (ok or not)."""
+        if step == "observe":
+            self.observed += core_frames
+        elif step == "track":
+            self.tracked += core_frames
+        if step in self.step_frames and seconds > 0:
+            self.step_frames[step] += core_frames
+            self.step_seconds[step] += seconds
+
     def running(self, steps: list[str]) -> None:
         """The steps in flight now (their names), for the phase display."""
         self.phases = {label: steps.count(step) for step, label in PHASES}
         self.draw()
 
+    def _cost(self, step: str) -> float | None:
+        n = self.step_frames[step]
+        return self.step_seconds[step] / n if n else None
+
     def eta(self) -> str:
-        left = max(self.total_frames - self.frames, 0)
-        if not left:
+        if self.tracked >= self.total_frames:
             return "stitching" if self.phases.get("stitch") else ""
-        if self.frames:
-            return f"ETA {left / self.rate():.0f} s"
-        seen = self.observed + self.observing
-        if seen:
-            dt = max(time.perf_counter() - self.t0, 1e-9)
-            return f"ETA ≈ {max(self.total_frames - seen, 0) / (seen / dt):.0f} s"
-        return "ETA —"
+        seen = min(self.observed + self.observing, self.total_frames)
+        c_obs, c_trk = self._cost("observe"), self._cost("track")
+        if c_obs is None and seen:  # the first observe steps still running: their reports alone
+            c_obs = 1.0
+        if c_obs is None:
+            return "ETA —"
+        approx = c_trk is None
+        c_trk = c_trk or 0.0
+        done = seen * c_obs + self.tracked * c_trk
+        if done <= 0:
+            return "ETA —"
+        left = (self.total_frames - seen) * c_obs + (self.total_frames - self.tracked) * c_trk
+        dt = max(time.perf_counter() - self.t0, 1e-9)
+        return f"ETA {'≈ ' if approx else ''}{dt * left / done:.0f} s"
 
     def draw(self) -> None:
         if not self.enabled:
@@ -304,6 +329,7 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
     summary = Summary(windows=len(schedule.windows), skipped=schedule.skipped)
     bar = Progress(len(schedule.todo), progress, sum(w.core[1] - w.core[0] for w in schedule.todo))
     running: dict[Any, Task] = {}
+    started: dict[Any, float] = {}  # when each step in flight was submitted (its time, for the ETA)
     markers = RunningMarkers(store, job.run_id, job.params_hash)
     todo = {w.name for w in schedule.todo}
     markers.sweep(todo)
@@ -312,7 +338,8 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
             while executor.free() and (task := schedule.next_task()) is not None:
                 if task.step != "finalize" and task.target.name in todo:
                     markers.mark(task.target, task.step)
-                running[executor.submit(task.step, *task.args)] = task
+                ref = executor.submit(task.step, *task.args)
+                running[ref], started[ref] = task, time.perf_counter()
             if not executor.pending():
                 continue
             bar.running([t.step for t in running.values()])
@@ -330,8 +357,9 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
             if task.step == "finalize" and not result.ok:  # a row in the manifest, for `mine status`
                 write_stitch_failure(job, task.target, schedule.by_seq[task.target], result.error)
             served = schedule.on_result(task, result)
-            if task.step == "observe" and result.ok:
-                bar.observed += task.target.core[1] - task.target.core[0]
+            if task.step in ("observe", "track") and task.target.name in todo:
+                bar.step_finished(task.step, task.target.core[1] - task.target.core[0],
+                                  time.perf_counter() - started.pop(ref, time.perf_counter()))
             if task.step == "track":
                 markers.clear(task.target)
                 bar.update(result.ok, result.frames)
