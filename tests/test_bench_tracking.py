@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from pathlib import Path
 
 from mining.bench.iou_tracker import iou_track
@@ -31,6 +33,7 @@ def test_iou_baseline_links_real_detections(kitti_tracking_root):
     assert len(set(ids.tolist())) < 0.5 * len(ids), "boxes are linked into tracks"
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_tracking_bench_reports_what_an_independent_evaluation_gives(shared_data, tmp_path, capsys):
     """The bench's rows for 0005 equal our tracker's and the baseline's results written here
     and scored by the KITTI MOT evaluation on the real labels."""

@@ -325,6 +325,7 @@ CROSS_CHECKED = [("HOTA", f, f) for f in ("HOTA", "DetA", "AssA", "DetRe", "DetP
 ]
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_agrees_with_trackeval_on_perturbed_real_sequences(kitti, tmp_path):
     trackeval = pytest.importorskip("trackeval")
     labels, seqmap = kitti

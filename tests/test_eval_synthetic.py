@@ -213,6 +213,7 @@ def test_rendered_truth_with_tubes_made_from_it(rendered):
     assert evaluate_synthetic(tubes, gts, similarity="box")["all"]["TP"] == known + unknown
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_real_pipeline_on_a_short_synthetic_sequence():
     # Stereo proposer (no weights), 20 frames of sequence 0001 (10–45 s, by load). Sequence
     # 0000 was used until the renderer's objects changed (issue 10): its first 20 frames now

@@ -67,6 +67,7 @@ def test_robotcar_missing_chunk_no_tube_crosses_the_gap(robotcar_gap, shared_dat
     assert all(m.tube.segment == segment[m.tube.first_frame] for m in mined)
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_synthetic_forced_gap_in_a_windowed_job(tmp_path):
     """Frames 16-21 dropped; 8-frame windows (the gap falls inside a window core and in the
     warm-up and context of its neighbours)."""

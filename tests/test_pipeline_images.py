@@ -3,6 +3,8 @@ KITTI 0005 frames, through the `mine` command line, scored by the KITTI MOT prot
 
 from __future__ import annotations
 
+import pytest
+
 
 from mining.cli import main
 from conftest import MODELS
@@ -27,6 +29,7 @@ def _run(kitti_tracking_root, tmp_path, capsys, *settings: str) -> dict:
     return evaluate_kitti_mot({"0005": gt}, out, ["0005"], ("Car",), seqmap)["Car"]
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_onnx_pipeline_tracks_the_cars(kitti_tracking_root, tmp_path, capsys):
     model = MODELS / "yolov8n-seg_int8.onnx"
     assert model.exists()

@@ -24,6 +24,7 @@ def _cfg():
         "source.options.fx=186.0", "window.core=6", "window.context_before=2", "window.context_after=2"])
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_status_of_a_finished_job_and_of_a_window_planned_later(tmp_path, capsys):
     out = str(tmp_path / "cat")
     summary = mine_job(_cfg(), out, executor=LocalExecutor)
@@ -54,6 +55,7 @@ def test_status_without_a_job_names_the_folder(tmp_path):
     assert "job.json" in str(e.value) and str(tmp_path) in str(e.value)
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_a_stereo_only_job_labels_no_tube_known_or_unknown(tmp_path):
     from mining.catalog.views import connect
 
@@ -96,6 +98,7 @@ def test_working_files_sit_where_hive_readers_skip_them(tmp_path):
     assert files and {Path(f).relative_to(out).parts[0] for (f,) in files} == {"catalog", "manifest"}
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_provisional_views_show_finished_windows_of_sequences_not_stitched_yet(tmp_path):
     """While a sequence waits for its stitch, `provisional_tubes` has its finished windows'
     pieces (provisional = true); the final views do not."""

@@ -28,6 +28,7 @@ def _copy(src: Path, dst: Path) -> Path:
     return dst
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_bad_warm_up_frame_fails_only_the_window_that_owns_it(kitti_tracking_root, tmp_path):
     root = _copy(kitti_tracking_root, tmp_path / "kitti")
     cfg = load_config(REPO / "jobs" / "kitti.toml", ['proposals.proposer="stereo"'])

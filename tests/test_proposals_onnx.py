@@ -124,6 +124,7 @@ def test_every_float_conv_reproduces_its_int8_chain(model_path, square_proposer,
         assert np.abs(out[a] - out[b]).max() <= 1e-5 * scale, a
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_float_model_agrees_with_int8_at_320(model_path, square_proposer, frames):
     """Same input, same decoding: predictions of the int8 and the converted float model match.
 
@@ -169,6 +170,7 @@ def _recall(proposer, frames, cars, iou_min, score_min=0.0) -> float:
     return hit / total
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_full_aspect_finds_far_more_cars_than_320(full_proposer, square_proposer, frames, cars):
     # Measured on frames 0–3 (12 cars): full aspect 1.00 / 1.00; 320 letterbox 0.17 (IoU 0.7) and
     # 0.00 (score ≥ 0.25). At IoU 0.5 with every proposal down to score 0.01 both reach 1.00:

@@ -50,6 +50,7 @@ def test_car_recall_on_kitti(kitti_frames, labels):
     assert np.mean(hits[20]) >= 0.65
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_proposals_are_valid(kitti_frames):
     for f, _, p in kitti_frames:
         H, W = f.calib.height, f.calib.width

@@ -97,12 +97,14 @@ def test_output_contract(proposer, frames):
         assert ys.min() >= box[1] - pad[1] - 1 and ys.max() <= box[3] + pad[1]
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_two_runs_and_two_loads_give_the_same_proposals(proposer, checkpoint, frames):
     first = proposer(0, frames[1])
     _same(first, proposer(0, frames[1]))
     _same(first, TorchProposer(_cfg(checkpoint))(0, frames[1]))
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_batched_equals_per_frame(proposer, checkpoint, frames):
     batched = TorchProposer(_cfg(checkpoint, batch_size=2))  # one batch of 2, then one of 1
     together = batched.propose_batch([10, 11, 12], frames)
@@ -116,6 +118,7 @@ def test_batched_equals_per_frame(proposer, checkpoint, frames):
         assert (mask_utils.iou(p.rles, alone.rles, [0] * len(p)).diagonal() > 0.99).all()
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_max_proposals_and_score_threshold_cut(proposer, checkpoint, frames):
     everything = proposer(0, frames[0])
     few = TorchProposer(_cfg(checkpoint, max_proposals=5))(0, frames[0])
@@ -126,6 +129,7 @@ def test_max_proposals_and_score_threshold_cut(proposer, checkpoint, frames):
     assert 0 < len(high) < len(everything) and (high.objectness >= cut).all()
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_torchvision_layout_converts_to_two_head_exactly(checkpoint, proposer, frames, tmp_path):
     state = read_checkpoint(checkpoint)
     two = torchvision_to_two_head(state)
@@ -148,6 +152,7 @@ def test_torchvision_layout_converts_to_two_head_exactly(checkpoint, proposer, f
         _same(proposer(i, frames[i]), converted(i, frames[i]))
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_paper_layout_heads_play_their_own_parts(checkpoint, frames, tmp_path):
     """The paper's MP R-CNN: a 2-way objectness head, box deltas and masks for "object" only.
     Objectness comes from the objectness head alone, the posterior from the class head alone."""
@@ -180,6 +185,7 @@ def test_paper_layout_heads_play_their_own_parts(checkpoint, frames, tmp_path):
     np.testing.assert_allclose(renorm.posterior[:, :80], 1.0 / 80, rtol=1e-4)
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_bad_checkpoints_are_config_errors_naming_the_file(checkpoint, tmp_path):
     def fails(path: Path, reason: str) -> None:
         with pytest.raises(ConfigError, match=reason) as e:
@@ -275,6 +281,7 @@ def test_make_proposer_knows_torch(checkpoint, frames):
     assert out.frame == 7 and len(out) > 0 and set(out.proposer) == {"torch"}
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_torch_and_stereo_through_the_image_pipeline(kitti_tracking_root, checkpoint):
     """What `mine track images --set proposals.proposer='"torch+stereo"'` runs, on three frames."""
     from mining.config import load_config
@@ -303,6 +310,7 @@ def test_torch_and_stereo_through_the_image_pipeline(kitti_tracking_root, checkp
     mine_tubes((r.tracking for r in records), cfg)  # tubes → score → select take them (3 frames start no tube)
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_bench_proposals_times_the_torch_proposer(shared_data, tmp_path, capsys):
     from mining.cli import main
 

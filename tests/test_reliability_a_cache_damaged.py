@@ -49,6 +49,7 @@ def _tubes(out: str) -> list[tuple]:
         con.close()
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_resubmit_recomputes_a_truncated_cache(tmp_path):
     clean = str(tmp_path / "clean")
     assert mine_job(_cfg(), clean, executor=LocalExecutor).ok == 2
@@ -63,6 +64,7 @@ def test_resubmit_recomputes_a_truncated_cache(tmp_path):
     assert any(line.startswith(f"RECOMPUTED {windows[0].name}: ") for line in summary.lines())
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_a_track_that_meets_a_damaged_cache_fails_its_window_with_the_reason(tmp_path):
     out = str(tmp_path / "out")
     job, (first, second) = _observed(out)
@@ -103,6 +105,7 @@ def _flip(data: bytes, at: float) -> bytes:
     return bytes(b)
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_every_kind_of_bad_cache_is_an_input_error_naming_the_file(tmp_path):
     from mining.pipeline.cache import decode_frames, encode_frames
 

@@ -7,6 +7,8 @@ a payload whose ``__reduce__`` writes a marker file, and the job is resubmitted.
 
 from __future__ import annotations
 
+import pytest
+
 import builtins
 import pickle
 from pathlib import Path
@@ -48,6 +50,7 @@ def _tubes(out: str) -> list[tuple]:
         con.close()
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_planted_pickles_never_run_on_resubmit(tmp_path):
     marker = tmp_path / "pwned"
     payload = pickle.dumps(_Payload(f"open({str(marker)!r}, 'w').write('ran')"))

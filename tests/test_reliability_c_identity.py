@@ -97,6 +97,7 @@ def test_narrowed_frames_are_refused_even_with_extend(base_catalogue, tmp_path):
     assert tables(out) == base_catalogue[1]
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_extend_gives_the_catalogue_of_a_clean_run_of_the_wide_range(base_catalogue, tmp_path):
     wide = (0, 24)
     extended = copy_of(base_catalogue, tmp_path / "extended")

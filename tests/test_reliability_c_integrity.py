@@ -11,6 +11,8 @@ catalogue of the undamaged job. Real files, real DuckDB, ``LocalExecutor``.
 
 from __future__ import annotations
 
+import pytest
+
 from pathlib import Path
 
 from mining.cli import main
@@ -106,6 +108,7 @@ def test_status_verify_finds_a_file_damaged_in_place(base_catalogue, tmp_path, c
     assert _status(capsys, out, "--verify")[0] == 0
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_a_damaged_part_runs_its_window_again(base_catalogue, tmp_path, capsys):
     out = copy_of(base_catalogue, tmp_path / "out")
     part = f"_parts/tube_frames/{D}/{W1}.part"
@@ -119,6 +122,7 @@ def test_a_damaged_part_runs_its_window_again(base_catalogue, tmp_path, capsys):
     assert _status(capsys, out, "--verify")[0] == 0
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_a_damaged_compacted_file_without_its_parts_runs_their_windows_again(base_catalogue, tmp_path, capsys):
     out = copy_of(base_catalogue, tmp_path / "out")
     _truncate(out / TUBES)
@@ -132,6 +136,7 @@ def test_a_damaged_compacted_file_without_its_parts_runs_their_windows_again(bas
     assert tables(out) == base_catalogue[1]
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_an_unreadable_manifest_row_is_named_and_its_window_runs_again(base_catalogue, tmp_path, capsys):
     out = copy_of(base_catalogue, tmp_path / "out")
     row = f"manifest/{D}/{W0}.parquet"

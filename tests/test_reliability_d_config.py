@@ -91,6 +91,7 @@ def _unwritable(tmp_path: Path) -> Path:
     return ro if not os.access(ro, os.W_OK) else Path("/sys/tube-miner-read-only-test")
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_read_only_output_folder_is_a_clear_error(tmp_path):
     # The real command line, as a subprocess: this one also shows the CLI's exit path.
     out = _unwritable(tmp_path)

@@ -200,6 +200,7 @@ def test_multibranch_widths_narrow_like_the_original():
 # --------------------------------------------------------------------------- production solver quality
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_solve_is_exact_and_heuristics_within_1_percent(kitti_tracks):
     """300 problems of 2–20 candidates: solve() is exact; the heuristic path (forced) is
     within 1 % on every one; and it misses the optimum no more often than multi-branch."""
@@ -248,6 +249,7 @@ def test_heuristics_on_21_to_23_candidates(kitti_tracks):
     assert misses["solve"] <= misses["multibranch"]
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_never_worse_than_multibranch_on_large_problems(kitti_tracks):
     """No optimum is known here; the original's search is the bar."""
     better = 0
@@ -400,6 +402,7 @@ def _cpu_ms(fn, repeats: int = 3) -> float:
     return min(times) * 1e3
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_timing_100_500_2000(kitti_tracks):
     """CPU time (min of 3) of solve() against the original's search on the whole problem."""
     rng = np.random.default_rng(43)

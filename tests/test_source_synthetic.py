@@ -158,6 +158,7 @@ def test_instance_masks_match_depth_and_boxes(frame):
     assert union.max() == 1  # masks are disjoint
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_known_and_unknown_objects_come_and_go():
     """Over 200 frames (sampled), both known and unknown kinds appear; tracks start and end."""
     s = SyntheticSource(n_frames=200, width=621, height=188, fx=360.77)
@@ -264,6 +265,7 @@ def test_shading_band_height_changes_no_bit(src):
     assert np.array_equal(a[ids < 0], sky[ids < 0]) and a[ids >= 0].std() > 10
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_module_writes_frames_for_a_look(tmp_path):
     from mining.sources.synthetic.__main__ import main
 

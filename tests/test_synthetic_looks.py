@@ -90,6 +90,7 @@ def test_walking_feet_stay_on_the_ground_and_riders_sit_on_the_saddle(scene):
     assert -P[R[:, R_OBJ] > 0][..., 1].max() > 0.05  # feet on the pedals, off the ground
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_view_culling_changes_no_bit():
     a, b = SyntheticSource(n_frames=120), SyntheticSource(n_frames=120)
     b._view = lambda: None  # no culling
@@ -124,6 +125,7 @@ def test_new_unknown_kinds_appear_outside_coco():
     assert {"tyre", "barrier", "box", "branch", "cart", "tortoise"} <= cats, cats
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_bench_looks_on_kitti_and_synthetic(tmp_path, shared_data):
     """The real frames give the reference (cars found with their class), and a few synthetic
     frames run through the same counting, with the drawn frames written."""

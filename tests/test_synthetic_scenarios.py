@@ -81,6 +81,7 @@ def ego_speed(name: str, t: float) -> float:
 TIMES = np.arange(0.1, N / 10, 0.1)  # every frame but the first (whose truth velocity is one-sided)
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_every_scenario_has_moving_targets_and_parked_references():
     assert set(SCENARIOS) == {"alongside", "oncoming", "border", "crossing", "far", "textureless", "stopgo"}
     for name in SCENARIOS:
@@ -97,6 +98,7 @@ def test_unknown_scenario_and_random_world():
     assert plain.scenario is None and plain.scene("0000").roles == {}
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_deterministic_by_seed_and_any_length():
     a = SyntheticSource(n_frames=30, scenario="border", width=160, height=64, fx=90.0)
     b = SyntheticSource(n_frames=30, scenario="border", width=160, height=64, fx=90.0)
@@ -146,6 +148,7 @@ def test_oncoming_vehicles_close_in_from_the_left():
     assert min(o.center_cam[2] for f in vis.values() for o in f.values()) < 15
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_border_car_enters_at_the_right_border_and_passes_5_to_9_m_ahead():
     (tid,) = roles("border")
     vis = seen("border", range(50))[tid]
@@ -238,6 +241,7 @@ def test_stop_and_go():
     assert person in vis and {30, 40} <= set(vis[person])  # in view while it stands
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_bench_harness_on_a_short_scenario():
     """The harness end to end on 30 half-resolution frames of ``border`` (plumbing, not targets)."""
     from mining.bench.scenarios import (

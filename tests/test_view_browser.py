@@ -62,6 +62,7 @@ def _looks_like_a_page(path: Path, width: int, height: int) -> None:
     assert image.std() > 20, "a blank screenshot"
 
 
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_gallery_filter_and_tube_page_in_chromium(catalogue, chromium, tmp_path):
     out, tables = catalogue
     n_selected = _count(out, "selected")
