@@ -169,3 +169,23 @@ def test_cli_render(catalogue, tmp_path):
     assert main(["render", "--out", str(out), "--sequence", SEQUENCE, "--frames", "0:2", "--fps", "5", str(dest)]) == 0
     cap = cv2.VideoCapture(str(dest))
     assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 2 and cap.get(cv2.CAP_PROP_FPS) == 5
+
+
+def test_labels_of_neighbouring_tubes_do_not_cover_each_other():
+    """Two tubes with the same box get their labels one above the other, both inside the image."""
+    from mining.catalog.render import Drawn, _label, _overlaps, draw_tubes
+
+    img = np.zeros((200, 300, 3), np.uint8)
+    placed: list = []
+    for _ in range(3):
+        _label(img, "12.3 unclassified", (40, 100, 120, 160), (0, 200, 0), placed)
+    assert len(placed) == 3 and not any(_overlaps(a, b) for i, a in enumerate(placed) for b in placed[i + 1:])
+    assert all(0 <= y1 and y2 < 200 for _, y1, _, y2 in placed)
+    mask = np.zeros((200, 300), np.uint8)
+    mask[100:160, 40:120] = 1
+    items = [Drawn(f"t{k}", f"{k}.0 car", (0, 0, 255) if k else (255, 0, 0), mask, (40, 100, 120, 160), True)
+             for k in range(2)]
+    out = draw_tubes(np.zeros((200, 300, 3), np.uint8), items)
+    above = out[:100, 40:200]
+    assert ((above == (255, 0, 0)).all(axis=2).any() and (above == (0, 0, 255)).all(axis=2).any()), \
+        "both labels' boxes are visible above the mask"

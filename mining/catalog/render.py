@@ -108,20 +108,36 @@ def draw_tubes(image_bgr: np.ndarray, items: list[Drawn], fill: bool = True) -> 
     for it in items:
         contours, _ = cv2.findContours(it.mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
         cv2.drawContours(out, contours, -1, it.colour, OUTLINE_PX, cv2.LINE_AA)
+    placed: list[tuple[int, int, int, int]] = []
     for it in items:
-        _label(out, it.label if it.observed else it.label + " (predicted)", it.bbox, it.colour)
+        _label(out, it.label if it.observed else it.label + " (predicted)", it.bbox, it.colour, placed)
     return out
 
 
-def _label(img: np.ndarray, text: str, bbox, colour: tuple[int, int, int]) -> None:
-    """``text`` on a box of ``colour`` just above ``bbox`` (inside the image)."""
+def _overlaps(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool:
+    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
+
+
+def _label(img: np.ndarray, text: str, bbox, colour: tuple[int, int, int],
+           placed: list[tuple[int, int, int, int]] | None = None) -> None:
+    """``text`` on a box of ``colour`` just above ``bbox`` (inside the image); where that box
+    would cover a label already ``placed`` (x1, y1, x2, y2), the first free place stepping up,
+    then down, by a label's height (labels of neighbouring tubes stay readable)."""
     (tw, th), base = cv2.getTextSize(text, FONT, FONT_SCALE, 1)
     h, w = img.shape[:2]
     x = int(np.clip(bbox[0], 0, max(0, w - tw - 4)))
     y = int(bbox[1]) - 3
     if y - th - base < 0:
         y = min(h - base - 1, int(bbox[1]) + th + 3)
-    cv2.rectangle(img, (x, y - th - base), (x + tw + 4, y + base - 1), colour, cv2.FILLED)
+    step = th + base + 1
+    box = lambda yy: (x, yy - th - base, x + tw + 4, yy + base - 1)  # noqa: E731
+    if placed is not None:
+        tries = [y] + [y + k * d * step for k in range(1, 8) for d in (-1, 1)]
+        tries = [t for t in tries if t - th - base >= 0 and t + base - 1 < h]
+        y = next((t for t in tries if not any(_overlaps(box(t), b) for b in placed)), y)
+        placed.append(box(y))
+    x1, y1, x2, y2 = box(y)
+    cv2.rectangle(img, (x1, y1), (x2, y2), colour, cv2.FILLED)
     ink = (0, 0, 0) if sum(colour) > 382 else (255, 255, 255)
     cv2.putText(img, text, (x + 2, y - 1), FONT, FONT_SCALE, ink, 1, cv2.LINE_AA)
 
@@ -310,7 +326,7 @@ def _fps(t_ns: tuple[int, ...]) -> float:
 class RenderResult:
     dest: Path
     frames: int
-    tubes: int
+    tubes: int  # tubes drawn in at least one rendered frame
     width: int
     height: int
     codec: str  # h264, avc1, mp4v or VP80
@@ -395,6 +411,7 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
     dest.parent.mkdir(parents=True, exist_ok=True)
     writer = open_video(tmp, fps, size)
     bar = _Progress(stop - start, f"mine render {sequence}") if progress else None
+    drawn: set[str] = set()  # the tubes present in the rendered frames
     try:
         for k, pos in enumerate(range(start, stop)):
             frame = source.read_frame(plan, pos)
@@ -409,6 +426,7 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
                 label, colour = info[f["tube_id"]]
                 mask = mask_utils.decode({"size": [h, w], "counts": f["rle_counts"].encode()})
                 items.append(Drawn(f["tube_id"], label, colour, mask, tuple(f["bbox"]), f["observed"]))
+                drawn.add(f["tube_id"])
             left = draw_tubes(cv2.cvtColor(frame.left, cv2.COLOR_RGB2BGR), items)
             _caption(left, f"{dataset}/{sequence} frame {frame.index}  {len(items)} tubes")
             if matcher is not None:
@@ -435,7 +453,7 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
         tmp.unlink(missing_ok=True)
         raise
     os.replace(tmp, dest)
-    return RenderResult(dest, stop - start, len(tube_rows), size[0], size[1], writer.codec, fps, time.perf_counter() - t0)
+    return RenderResult(dest, stop - start, len(drawn), size[0], size[1], writer.codec, fps, time.perf_counter() - t0)
 
 
 class NothingToRender(InputError):
