@@ -33,7 +33,7 @@ def robotcar(kitti_tracking_root, tmp_path_factory) -> Path:
     return root
 
 
-def test_a_badly_named_traversal_fails_alone_and_the_others_run(robotcar, shared_data, tmp_path):
+def test_a_badly_named_traversal_fails_alone_and_the_others_run(robotcar, shared_data, tmp_path, capsys):
     folder = shared_data / "proposals_4dgvt_format" / "kitti_tracking_0005" / "top20"
     cfg = load_config(None, ['source.dataset="oxford"', f'source.root="{robotcar}"', 'proposals.proposer="json"',
                              f'proposals.json.folder="{folder}"', "window.core=3"])
@@ -51,6 +51,15 @@ def test_a_badly_named_traversal_fails_alone_and_the_others_run(robotcar, shared
 
     written = [p.relative_to(out).as_posix() for p in out.rglob("*")]
     assert not [p for p in written if any(b in p for b in BAD)], "nothing of the bad traversals is written"
+    # `mine status` names them too (job.json keeps why; no path is made from the names).
+    from mining.pipeline.status import print_status
+
+    capsys.readouterr()
+    assert print_status(str(out)) == 1
+    text = capsys.readouterr().out
+    assert f"sequences not planned: {len(BAD)}" in text
+    for name in BAD:
+        assert any(x.startswith(f"failed   oxford/{name} planning") and "listing" in x for x in text.splitlines()), text
     con = connect(out)
     try:
         assert con.execute("SELECT DISTINCT sequence FROM frames").fetchall() == [(GOOD,)]

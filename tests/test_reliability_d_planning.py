@@ -54,8 +54,17 @@ def _break(split, seq: str, how: str):
     raise AssertionError(how)
 
 
+def _status(capsys, out: str) -> tuple[int, str]:
+    from mining.cli import main
+
+    capsys.readouterr()
+    rc = main(["status", "--out", out])
+    got = capsys.readouterr()
+    return rc, got.out + got.err
+
+
 @pytest.mark.parametrize("how", ["right-image", "calib-file", "empty-folder"])
-def test_a_planning_problem_fails_its_sequence_and_the_other_runs(tmp_path, kitti_tracking_root, how):
+def test_a_planning_problem_fails_its_sequence_and_the_other_runs(tmp_path, kitti_tracking_root, how, capsys):
     root = kitti_copy(tmp_path / "kitti", kitti_tracking_root, ("0005", "0006"), n_frames=4)
     named, repair = _break(root / "training", "0006", how)
     out = str(tmp_path / "out")
@@ -64,11 +73,18 @@ def test_a_planning_problem_fails_its_sequence_and_the_other_runs(tmp_path, kitt
     assert list(summary.unplanned) == ["kitti/0006"] and named in summary.unplanned["kitti/0006"]
     assert any(line.startswith("FAILED kitti/0006 (planning):") and named in line for line in summary.lines())
     assert _frames_in_catalogue(out) == {"0005": 4}
-    # Repaired, the same command runs only what is missing.
+    # `mine status` keeps saying so after the submit has gone, and exits 1.
+    rc, text = _status(capsys, out)
+    assert rc == 1 and "sequences not planned: 1" in text, text
+    line = next(x for x in text.splitlines() if x.startswith("failed   kitti/0006 planning"))
+    assert named in line, text
+    # Repaired, the same command runs only what is missing, and status is clean.
     repair()
     again = mine_job(_cfg(root), out, ["0005", "0006"], (0, 4), executor=LocalExecutor)
     assert (again.ok, again.skipped, again.unplanned) == (1, 1, {})
     assert _frames_in_catalogue(out) == {"0005": 4, "0006": 4}
+    rc, text = _status(capsys, out)
+    assert rc == 0 and "not planned" not in text and not any(x.startswith("failed") for x in text.splitlines()), text
 
 
 def test_a_problem_outside_frames_does_not_matter(tmp_path, kitti_tracking_root):

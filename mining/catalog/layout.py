@@ -147,6 +147,9 @@ def _record_problem(d: object) -> str | None:
             if not (isinstance(v, list) and len(v) == 2 and all(isinstance(x, int) and not isinstance(x, bool)
                                                                   and x >= 0 for x in v) and v[0] < v[1]):
                 return f"windows[{i}].{key} is {v!r}, expected [start, end] frame positions"
+    unplanned = d.get("unplanned", {})
+    if not (isinstance(unplanned, dict) and all(isinstance(v, str) for v in unplanned.values())):
+        return "key 'unplanned' is not a mapping of sequence to reason"
     return None
 
 
@@ -159,6 +162,7 @@ class JobRecord:
     config: dict  # the resolved JobConfig, as JobConfig.to_dict()
     windows: list[Window]  # the job's windows, in planning order
     identity: dict[str, Any] = field(default_factory=dict)  # identity.job_identity; legacy_identity for old records
+    unplanned: dict[str, str] = field(default_factory=dict)  # sequence asked for → why it could not be planned (last submit)
 
     @classmethod
     def load(cls, store: Store) -> JobRecord | None:
@@ -181,7 +185,7 @@ class JobRecord:
         for w in windows:
             check_name(w.dataset, "dataset", "job.json", store.full(JOB))
             check_name(w.sequence, "sequence", "job.json", store.full(JOB))
-        return cls(d["run_id"], d["params_hash"], d["config"], windows, identity)
+        return cls(d["run_id"], d["params_hash"], d["config"], windows, identity, d.get("unplanned") or {})
 
     def check(self, params_hash: str, out: str) -> None:
         """Refuse a job of other params than the catalogue at ``out`` was made with (the
@@ -193,4 +197,6 @@ class JobRecord:
     def save(self, store: Store) -> None:
         record = {"run_id": self.run_id, "params_hash": self.params_hash, "identity": self.identity,
                   "config": self.config, "windows": [_window_entry(w) for w in self.windows]}
+        if self.unplanned:
+            record["unplanned"] = self.unplanned
         store.write_bytes(JOB, json.dumps(record, indent=1, default=str).encode())

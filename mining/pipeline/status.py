@@ -12,7 +12,7 @@ A sequence is ``stitched`` (its catalogue holds exactly its done windows), ``fai
 (its stitch failed: the manifest's ``stitch`` row, with the error) or ``pending``.
 Every output file that is not as the manifest recorded it (``integrity.py``: sizes, and
 checksums with ``--verify``) is named, with what a resubmission recomputes.
-Exits 1 when any window or stitch failed or any file is damaged.
+Exits 1 when any window or stitch failed, a sequence could not be planned, or any file is damaged.
 """
 
 from __future__ import annotations
@@ -132,6 +132,12 @@ def sequence_status(out: str, windows: list[WindowStatus] | None = None) -> list
     return out_rows
 
 
+def _printable(name: str) -> str:
+    """A sequence name as it can be printed: itself, or its repr when it holds anything odd (a
+    name that failed planning may be why it failed)."""
+    return name if name.isprintable() and name.strip() == name and name else repr(name)
+
+
 def _first_line(text: str) -> str:
     return text.strip().splitlines()[0] if text.strip() else ""
 
@@ -148,12 +154,15 @@ def print_status(out: str, verify: bool = False) -> int:
     stitched = {s: sum(q.status == s for q in seqs) for s in ("stitched", "failed", "pending")}
     print(f"sequences: {stitched['stitched']} stitched, {stitched['failed']} failed to stitch, "
           f"{stitched['pending']} not stitched yet (of {len(seqs)})")
+    job = JobRecord.load(Store(out))
+    unplanned = job.unplanned if job else {}
+    if unplanned:
+        print(f"sequences not planned: {len(unplanned)} (the last submit left them out; fix them and submit again)")
     for q in seqs:  # per sequence: how far its windows are
         own = [r for r in rows if (r.dataset, r.sequence) == (q.dataset, q.sequence)]
         n = {s: sum(r.status == s for r in own) for s in ("done", "running", "failed")}
         extra = "".join(f", {n[s]} {s}" for s in ("running", "failed") if n[s])
         print(f"  {q.dataset}/{q.sequence}: {n['done']}/{len(own)} windows done{extra}; {q.status}")
-    job = JobRecord.load(Store(out))
     proposer = (job.config.get("proposals") or {}).get("proposer") if job else None
     if proposer:
         print(classifiers_line(str(proposer)))
@@ -169,6 +178,9 @@ def print_status(out: str, verify: bool = False) -> int:
     for q in seqs:
         if q.status == "failed":
             print(f"{'failed':8s} {q.dataset}/{q.sequence} stitching  attempts {q.attempts}  {_first_line(q.error)}")
+    dataset = (job.config.get("source") or {}).get("dataset", "?") if job else "?"
+    for seq, why in sorted(unplanned.items()):
+        print(f"{'failed':8s} {dataset}/{_printable(seq)} planning  {_first_line(why)}")
     writer = current_writer(Store(out))
     if writer:
         print(f"being written now by {describe(writer)}: files of steps in flight may show as damaged below")
@@ -177,4 +189,4 @@ def print_status(out: str, verify: bool = False) -> int:
         print(f"damaged  {d.path}: {d.reason} (a resubmission {_repair(d)})")
     checked = "sizes and checksums" if verify else "sizes; --verify also checks checksums"
     print(f"integrity: {len(damage)} damaged or missing file(s) ({checked})")
-    return 1 if counts["failed"] or stitched["failed"] or damage else 0
+    return 1 if counts["failed"] or stitched["failed"] or damage or unplanned else 0

@@ -145,8 +145,10 @@ def _move_aside(store: Store, old: JobRecord) -> str:
     return dest
 
 
-def record_job(store: Store, cfg: JobConfig, windows: list[Window], identity: dict, mode: str = "resume") -> JobRecord:
-    """Write (or check and update) ``job.json``.
+def record_job(store: Store, cfg: JobConfig, windows: list[Window], identity: dict, mode: str = "resume",
+               unplanned: dict[str, str] | None = None) -> JobRecord:
+    """Write (or check and update) ``job.json``; ``unplanned``: the sequences this submit could
+    not plan and why (``mine status`` shows them).
 
     ``mode`` (``identity.MODES``): ``resume`` refuses another identity, naming every
     differing key; ``extend`` admits wider frame ranges and added sequences, and retires
@@ -164,8 +166,9 @@ def record_job(store: Store, cfg: JobConfig, windows: list[Window], identity: di
         old.check(cfg.params_hash, store.uri)  # every config key is in the identity: never reached
         _retire(store, old.windows, windows)
     record = JobRecord(old.run_id if old is not None else uuid.uuid4().hex[:12], cfg.params_hash, cfg.to_dict(),
-                       list(windows), identity)
-    if old is None or record.windows != old.windows or record.identity != old.identity:
+                       list(windows), identity, dict(unplanned or {}))
+    if (old is None or record.windows != old.windows or record.identity != old.identity
+            or record.unplanned != old.unplanned):
         record.save(store)  # a resubmission of the same job changes nothing
     return record
 
@@ -216,7 +219,8 @@ def open_job(cfg: JobConfig, out: str, sequences: list[str] | None = None,
     be mined). Call it holding the catalogue's lock (``mine_job`` does)."""
     store = Store(out)
     pf = pf if pf is not None else preflight(cfg, out, sequences, frames)
-    record = record_job(store, cfg, pf.windows, job_identity(cfg, pf.plans, frames, list(pf.failed)), mode)
+    why = {seq: (e.strip().splitlines() or ["unknown error"])[0] for seq, e in pf.failed.items()}
+    record = record_job(store, cfg, pf.windows, job_identity(cfg, pf.plans, frames, list(pf.failed)), mode, why)
     job = Job(cfg, out, record.run_id, pf.plans)
     return (job, Schedule(pf.windows, read_resume(store, cfg.source.dataset, pf.windows, job.params_hash, verify)),
             pf.failed)
