@@ -130,7 +130,10 @@ def _label(img: np.ndarray, text: str, bbox, colour: tuple[int, int, int],
     if y - th - base < 0:
         y = min(h - base - 1, int(bbox[1]) + th + 3)
     step = th + base + 1
-    box = lambda yy: (x, yy - th - base, x + tw + 4, yy + base - 1)  # noqa: E731
+
+    def box(yy: int) -> tuple[int, int, int, int]:
+        return x, yy - th - base, x + tw + 4, yy + base - 1
+
     if placed is not None:
         tries = [y] + [y + k * d * step for k in range(1, 8) for d in (-1, 1)]
         tries = [t for t in tries if t - th - base >= 0 and t + base - 1 < h]
