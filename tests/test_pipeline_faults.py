@@ -29,6 +29,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from mining.catalog.views import connect
+from _reliability_b import kill_session, session_pids
 from conftest import REPO
 
 pytestmark = pytest.mark.slow  # `mine submit` processes on local Rays, killed and resumed
@@ -45,30 +46,6 @@ SUMMARY = re.compile(r"windows: (\d+) ok, (\d+) failed, (\d+) already done \(of 
 
 
 # -- processes ------------------------------------------------------------------------
-
-def _session_pids(sid: int) -> dict[int, str]:
-    """Processes of session ``sid`` (the driver and every Ray process it started): pid → command line."""
-    ps = subprocess.run(["ps", "-eo", "pid=,sid=,stat=,args="], capture_output=True, text=True, check=True).stdout
-    out = {}
-    for line in ps.splitlines():
-        pid, s, stat, args = (line.split(None, 3) + [""])[:4]
-        if int(s) == sid and int(pid) != os.getpid() and not stat.startswith("Z"):  # a zombie runs nothing
-            out[int(pid)] = args
-    return out
-
-
-def _kill_session(sid: int) -> None:
-    """SIGKILL every process of the session (Ray's workers have process groups of their own) until none is left."""
-    deadline = time.monotonic() + 20
-    while pids := _session_pids(sid):
-        for pid in pids:
-            try:
-                os.kill(pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
-        assert time.monotonic() < deadline, f"processes of session {sid} survive SIGKILL: {pids}"
-        time.sleep(0.2)
-
 
 def _mine_cmd(*args: str) -> list[str]:
     return [sys.executable, "-m", "mining.cli", *args]
@@ -102,11 +79,11 @@ class Mine:
         return rc, *texts
 
     def kill(self) -> None:
-        _kill_session(self.proc.pid)  # the session id is the driver's pid
+        kill_session(self.proc.pid)  # the session id is the driver's pid
         self.proc.wait(10)
 
     def running(self) -> dict[int, str]:
-        return _session_pids(self.proc.pid)
+        return session_pids(self.proc.pid)
 
 
 def submit(out: Path, *args: str, logs: Path) -> tuple[int, str, str]:

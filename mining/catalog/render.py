@@ -40,7 +40,7 @@ import duckdb
 import numpy as np
 from pycocotools import mask as mask_utils
 
-from mining.catalog.export import category_label, job_source, read_job, selected_rows
+from mining.catalog.export import NothingMatched, category_label, job_source, read_job, selected_rows
 from mining.catalog.store import Store
 from mining.catalog.views import _sql_string, connect
 from mining.errors import InputError, MiningError
@@ -372,7 +372,7 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
     tube_rows = [t for t in tubes.to_pylist() if t["selected"] and t["sequence"] == sequence and t["dataset"] == dataset]
     keep = {t["tube_id"] for t in tube_rows}
     if not tube_rows:
-        raise NothingToRender(f"no selected tube of sequence {sequence!r} matches"
+        raise NothingMatched(f"no selected tube of sequence {sequence!r} matches"
                               + ("" if where is None else f" --where {where!r}"))
     plan = source.survey(sequence)
     if frames is not None:
@@ -459,16 +459,12 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
     return RenderResult(dest, stop - start, len(drawn), size[0], size[1], writer.codec, fps, time.perf_counter() - t0)
 
 
-class NothingToRender(InputError):
-    """The sequence has no selected tube matching the predicate."""
-
-
 def run_render(out: str | Path, sequence: str, dest: str | Path, where: str | None = None, depth: bool = False,
                fps: float | None = None, frames: tuple[int, int | None] | None = None) -> int:
     """`mine render`: 0 on success; 1 when no tube matches; 2 with a message otherwise."""
     try:
         r = render(out, sequence, dest, where, depth, fps, frames)
-    except NothingToRender as e:
+    except NothingMatched as e:
         print(f"mine render: {e}; nothing written", file=sys.stderr)
         return 1
     except (MiningError, duckdb.Error) as e:

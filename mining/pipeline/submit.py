@@ -248,8 +248,7 @@ class Progress:
         self.done = self.failed = self.frames = 0
         self.phases: dict[str, int] = {}
         self.observing = 0  # core frames the observe steps in flight have reported (steps.observed_so_far)
-        self.observed = self.tracked = 0  # core frames of the windows' finished observe / track steps
-        self.step_frames = {"observe": 0, "track": 0}  # core frames and seconds of the steps timed so far
+        self.step_frames = {"observe": 0, "track": 0}  # core frames and seconds of the windows' finished steps
         self.step_seconds = {"observe": 0.0, "track": 0.0}
 
     def rate(self) -> float:
@@ -263,13 +262,8 @@ class Progress:
 
     def step_finished(self, step: str, core_frames: int, seconds: float) -> None:
         """A window's observe or track step ended after ``seconds`` (ok or not)."""
-        if step == "observe":
-            self.observed += core_frames
-        elif step == "track":
-            self.tracked += core_frames
-        if step in self.step_frames and seconds > 0:
-            self.step_frames[step] += core_frames
-            self.step_seconds[step] += seconds
+        self.step_frames[step] += core_frames
+        self.step_seconds[step] += seconds
 
     def running(self, steps: list[str]) -> None:
         """The steps in flight now (their names), for the phase display."""
@@ -281,9 +275,10 @@ class Progress:
         return self.step_seconds[step] / n if n else None
 
     def eta(self) -> str:
-        if self.tracked >= self.total_frames:
+        tracked = self.step_frames["track"]
+        if tracked >= self.total_frames:
             return "stitching" if self.phases.get("stitch") else ""
-        seen = min(self.observed + self.observing, self.total_frames)
+        seen = min(self.step_frames["observe"] + self.observing, self.total_frames)
         c_obs, c_trk = self._cost("observe"), self._cost("track")
         if c_obs is None and seen:  # the first observe steps still running: their reports alone
             c_obs = 1.0
@@ -291,10 +286,10 @@ class Progress:
             return "ETA —"
         approx = c_trk is None
         c_trk = c_trk or 0.0
-        done = seen * c_obs + self.tracked * c_trk
+        done = seen * c_obs + tracked * c_trk
         if done <= 0:
             return "ETA —"
-        left = (self.total_frames - seen) * c_obs + (self.total_frames - self.tracked) * c_trk
+        left = (self.total_frames - seen) * c_obs + (self.total_frames - tracked) * c_trk
         dt = max(time.perf_counter() - self.t0, 1e-9)
         return f"ETA {'≈ ' if approx else ''}{dt * left / done:.0f} s"
 
