@@ -192,13 +192,29 @@ def cmd_eval_recall(args: argparse.Namespace) -> int:
     stop = len(plan) if stop is None else min(stop, len(plan))
     labels = Path(args.labels) if args.labels else Path(cfg.source.root) / "training" / "label_02" / f"{args.sequence}.txt"
     rows = read_kitti_tracking(labels)
-    props, frames = [], []
-    for rec in frame_records(source, plan, start, stop, cfg):
-        props.append(rec.proposals)
-        frames.append(rec.frame.index)
+    funnel = None
+    if args.funnel:
+        from mining.bench.funnel import run_kitti_funnel
+        from mining.eval.funnel import format_funnel
+
+        props, frames, _, funnel = run_kitti_funnel(source, plan, start, stop, cfg, rows)
+    else:
+        props, frames = [], []
+        for rec in frame_records(source, plan, start, stop, cfg):
+            props.append(rec.proposals)
+            frames.append(rec.frame.index)
     boxes, known = kitti_ground_truth(rows, frames)
+    recall = recall_at_n(props, boxes, known)
     print(f"Proposal recall (box IoU > 0.5), {cfg.proposals.proposer} proposer, {args.sequence} frames {start}:{stop}")
-    print(_format_recall(recall_at_n(props, boxes, known)))
+    print(_format_recall(recall))
+    if funnel is not None:
+        print(format_funnel(funnel))
+    if args.json:
+        import json
+
+        doc = {"sequence": args.sequence, "frames": [start, stop], "proposer": cfg.proposals.proposer,
+               "recall_at_n": recall} | ({"funnel": funnel} if funnel is not None else {})
+        Path(args.json).write_text(json.dumps(doc, indent=1))
     return 0
 
 
@@ -613,6 +629,11 @@ def build_parser() -> argparse.ArgumentParser:
     erec.add_argument("--labels", help="KITTI label_02 file (default: <root>/training/label_02/<sequence>.txt)")
     erec.add_argument("--oxford-labels", help="RobotCar: the 4D-GVT labels_4dgvt folder")
     erec.add_argument("--proposals-json", help="RobotCar: proposal JSON files laid out like the label files")
+    erec.add_argument("--funnel", action="store_true", help="KITTI: also mine tubes and print the recall funnel "
+                                                             "(proposed → observed → candidate → selected, box IoU "
+                                                             "≥ 0.5, per distance and height bin)")
+    erec.add_argument("--json", default=None, metavar="PATH", help="KITTI: also write recall@N (and the funnel) "
+                                                                   "as JSON here")
     erec.set_defaults(func=cmd_eval_recall)
     esyn = esub.add_parser("synthetic", help="mine a synthetic sequence and score known and unknown objects against "
                                              "its exact truth", description="Mine a synthetic sequence and score it "

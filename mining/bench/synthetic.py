@@ -2,7 +2,9 @@
 
 The driver of the synthetic protocol (``mining/eval/synthetic.py``, which defines the
 protocol and its metrics): it runs the pipeline on the synthetic source, keeps each
-frame's ground truth compactly, and hands both to ``evaluate_synthetic``.
+frame's ground truth compactly, and hands both to ``evaluate_synthetic``. It also keeps
+each frame's proposal masks, before and after the geometric filter, for the recall funnel
+(``mining/eval/funnel.py``: where between proposal and selection each object is lost).
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import numpy as np
 
 from mining.config import JobConfig
 from mining.errors import InputError
+from mining.eval.funnel import StageFrame, evaluate_funnel, format_funnel, stage_frame
 from mining.eval.synthetic import GtFrame, evaluate_synthetic, format_synthetic, gt_frame
 from mining.pipeline.frames import frame_records
 from mining.pipeline.mine import mine_tubes
@@ -31,14 +34,17 @@ def run_synthetic(sequence: str, n_frames: int, cfg: JobConfig, start: int = 0, 
 
     ``n_frames`` is the source's sequence length (it fixes the world); ``stop`` defaults to it.
     ``protocol`` takes ``evaluate_synthetic``'s keyword arguments. The results carry the
-    ground truth as ``results["truths"]`` (frame → GtFrame) for re-evaluation and the wall
-    time as ``results["seconds"]``.
+    ground truth as ``results["truths"]`` (frame → GtFrame) for re-evaluation, the recall
+    funnel (``evaluate_funnel``, same protocol) as ``results["funnel"]`` and the wall time as
+    ``results["seconds"]``.
     """
     options = {k: v for k, v in cfg.source.options.items() if k != "n_frames"}
     src = open_source("synthetic", None, n_frames=n_frames, **options)
     plan = src.plan(sequence)
     stop = len(plan) if stop is None else stop
     truths: dict[int, GtFrame] = {}
+    # the funnel's proposal stages: the proposer's masks, and those the geometric filter kept
+    stages: dict[str, dict[int, StageFrame]] = {"proposed": {}, "observed": {}}
     t0 = time.perf_counter()
 
     ticker = Ticker(f"synthetic {sequence}", stop - start)
@@ -50,12 +56,17 @@ def run_synthetic(sequence: str, n_frames: int, cfg: JobConfig, start: int = 0, 
             if rec.frame.truth is None:
                 raise InputError("synthetic frame without ground truth", frame=rec.frame.index)
             truths[rec.frame.index] = gt_frame(rec.frame.truth)
+            stages["proposed"][rec.frame.index] = stage_frame(rec.proposals)
+            stages["observed"][rec.frame.index] = stage_frame(rec.tracking.observations.proposals)
             yield rec.tracking
 
     mined = mine_tubes(frames(), cfg)
     ticker.close()
     t1 = time.perf_counter()
     results = evaluate_synthetic(mined, truths, **protocol)
+    shared = ("iou_threshold", "similarity", "min_visible_px", "max_depth_m", "track_cover")
+    results["funnel"] = evaluate_funnel(truths, mined, stages, alpha=cfg.score.alpha, beta=cfg.score.beta,
+                                        **{k: v for k, v in protocol.items() if k in shared})
     results["seconds"] = {"mine": t1 - t0, "eval": time.perf_counter() - t1}
     results["sequence"] = sequence
     results["truths"] = truths
@@ -68,6 +79,7 @@ def run_synthetic_eval(sequence: str, n_frames: int, cfg: JobConfig, json_out: s
     print(f"synthetic {sequence}, {n_frames} frames, proposer {cfg.proposals.proposer}: "
           f"mined in {results['seconds']['mine']:.0f} s")
     print(format_synthetic(results))
+    print(format_funnel(results["funnel"]))
     print(classifiers_line(cfg.proposals.proposer))
     if json_out:
         doc = {k: v for k, v in results.items() if k != "truths"}

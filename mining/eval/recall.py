@@ -20,7 +20,9 @@ import numpy as np
 
 from mining.errors import InputError
 from mining.boxes import box_iou
+from mining.eval.synthetic import GtFrame
 from mining.formats.kitti_tracking import KittiTrackingRows
+from mining.masks import areas, box_rle
 from mining.types import Proposals
 
 RECALL_IOU = 0.5  # REFERENCE: proposal recall counts box IoU > 0.5
@@ -100,3 +102,23 @@ def kitti_ground_truth(rows: KittiTrackingRows, frames: Sequence[int],
         boxes.append(rows.box[sel])
         known.append(np.isin(rows.type[sel], list(KITTI_KNOWN)))
     return boxes, known
+
+
+def kitti_truths(rows: KittiTrackingRows, frames: Sequence[int], size: tuple[int, int]) -> dict[int, GtFrame]:
+    """Per-frame ground truth of KITTI tracking labels in the synthetic protocol's form, for the
+    recall funnel (``funnel.py``, with ``similarity="box"``): each label's box as its mask and
+    its box area as its visible pixels, the z of its 3D location (bottom centre, rectified
+    camera; the centre has the same z) as its depth; known and unknown as ``kitti_ground_truth``.
+    ``size`` is the image's (height, width)."""
+    boxes, known = kitti_ground_truth(rows, frames)
+    use = ~np.isin(rows.type, list(KITTI_IGNORED))
+    h, w = size
+    out = {}
+    for f, b, kn in zip(frames, boxes, known):
+        sel = use & (rows.frame == f)
+        b = np.asarray(b, np.float64).reshape(-1, 4)
+        rles = [box_rle(x, h, w) for x in b]
+        out[int(f)] = GtFrame(track_ids=rows.track_id[sel].astype(np.int64), known=np.asarray(kn, bool),
+                              categories=[str(x) for x in rows.type[sel]], rles=rles, areas=areas(rles),
+                              boxes=b, depth=rows.location[sel, 2].astype(np.float64), size=(h, w))
+    return out
