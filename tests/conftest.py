@@ -74,3 +74,31 @@ def catalogue(tmp_path_factory, kitti_tracking_root):
 
     out = tmp_path_factory.mktemp("catalogue")
     return out, build_catalogue(out, kitti_tracking_root)
+
+
+# ── Ray stays out of the pytest process (tests/_own_process.py, issue 17) ──────────────
+from _own_process import MARKER as _OWN_PROCESS, RAY_IN_PYTEST, in_child, ray_was_started_here, run_in_own_process  # noqa: E402
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", f"{_OWN_PROCESS}: runs in a pytest process of its own (it starts Ray in-process); "
+                                       "fails if that process ends in a signal")
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_protocol(item, nextitem):
+    if item.get_closest_marker(_OWN_PROCESS) is None or in_child():
+        return None
+    item.ihook.pytest_runtest_logstart(nodeid=item.nodeid, location=item.location)
+    for report in run_in_own_process(item):
+        item.ihook.pytest_runtest_logreport(report=report)
+    item.ihook.pytest_runtest_logfinish(nodeid=item.nodeid, location=item.location)
+    return True
+
+
+@pytest.fixture(autouse=True)
+def _ray_stays_out_of_the_pytest_process():
+    before = ray_was_started_here()
+    yield
+    if not in_child() and not before and ray_was_started_here():
+        pytest.fail(RAY_IN_PYTEST, pytrace=False)

@@ -24,7 +24,7 @@ from mining.config import JobConfig  # noqa: E402
 from mining.pipeline.executors import RayExecutor  # noqa: E402
 from mining.pipeline.submit import mine_job  # noqa: E402
 
-pytestmark = pytest.mark.slow  # a three-node Ray cluster
+pytestmark = [pytest.mark.slow, pytest.mark.own_process]  # a three-node Ray cluster, in a process of its own
 
 N_FRAMES = 20
 JOB_TIMEOUT_S = 300  # a hung job (a step waiting for an actor that never restarts) fails here

@@ -51,11 +51,13 @@ def test_observations_do_not_depend_on_the_window():
 
 @pytest.fixture(scope="module")
 def local_ray():
+    # Only in the test's own process (the marker below): the pytest process never starts Ray.
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     yield
     ray.shutdown()
 
 
+@pytest.mark.own_process
 def test_100_frame_windows_give_the_tubes_of_one_500_frame_window(local_ray, tmp_path):
     cfg = load_config(REPO / "jobs" / "synthetic.toml")
     assert cfg.window.core == 100

@@ -27,6 +27,9 @@ from __future__ import annotations
 import copy
 import json
 import os
+import signal
+import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -164,7 +167,40 @@ def window_peaks(out: Path, rows: list[dict[str, Any]], samples: list[tuple[floa
 
 
 def measure_run(cfg: JobConfig, out: str | Path, workers: int) -> dict[str, Any]:
-    """Mine ``cfg`` into a fresh ``out`` on a local Ray of ``workers`` CPUs; time, overhead, memory."""
+    """Mine ``cfg`` into a fresh ``out`` on a local Ray of ``workers`` CPUs; time, overhead, memory.
+
+    Each run is a process of its own (``python -m mining.bench.pipeline``): Ray's core
+    worker is made once per process, and a second ``ray.init`` after ``ray.shutdown`` in
+    one process (the bench runs 1 and 2 workers, then the long run) can crash it at exit.
+    RuntimeError names the run's exit status or signal when the child does not end with 0.
+    """
+    out = Path(out)
+    if out.exists() and any(out.iterdir()):
+        raise FileExistsError(f"{out} is not empty: the bench needs a fresh catalogue")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="bench-run-", dir=out.parent) as tmp:
+        job_json, result_json = Path(tmp) / "job.json", Path(tmp) / "result.json"
+        job_json.write_text(json.dumps(cfg.to_dict()))
+        cmd = [sys.executable, "-m", "mining.bench.pipeline", str(job_json), str(out), str(int(workers)), str(result_json)]
+        p = subprocess.run(cmd, capture_output=True, text=True)
+        if p.returncode != 0 or not result_json.exists():
+            tail = "\n".join((p.stdout + p.stderr).splitlines()[-20:])
+            raise RuntimeError(f"bench run on {workers} worker(s) into {out} ended with {_exit_reason(p.returncode)}:\n{tail}")
+        return json.loads(result_json.read_text())
+
+
+def _exit_reason(rc: int) -> str:
+    if rc < 0:
+        try:
+            return f"signal {signal.Signals(-rc).name}"
+        except ValueError:
+            return f"signal {-rc}"
+    return f"exit status {rc}"
+
+
+def measure_run_here(cfg: JobConfig, out: str | Path, workers: int) -> dict[str, Any]:
+    """``measure_run`` in this process, which must not have started Ray before (and will
+    not start it again): the body of the bench's child process."""
     from mining.pipeline.localray import init_local_ray, prepare_local_ray
 
     prepare_local_ray(cfg.run.bind_host)  # before `import ray`: loopback unless run.bind_host says otherwise
@@ -176,14 +212,14 @@ def measure_run(cfg: JobConfig, out: str | Path, workers: int) -> dict[str, Any]
     out = Path(out)
     if out.exists() and any(out.iterdir()):
         raise FileExistsError(f"{out} is not empty: the bench needs a fresh catalogue")
-    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     if ray.is_initialized():
-        ray.shutdown()
+        raise RuntimeError("the bench measures a Ray of its own: this process already runs one")
+    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     t0 = time.perf_counter()
     init_local_ray(workers, cfg.run.bind_host, runtime_env={"env_vars": {"OPENCV_FOR_THREADS_NUM": "1"}})
     init_s = time.perf_counter() - t0
     try:
-        with RssSampler(local_raylet_pid()) as sampler:
+        with RssSampler(local_raylet_pid()) as sampler:  # the sampler's thread ends before Ray does
             summary = mine_job(cfg, str(out), executor=lambda job: RayExecutor(job, workers), keep_cache=True)
     finally:
         ray.shutdown()
@@ -297,3 +333,19 @@ def run_pipeline_bench(cfg: JobConfig, frames: int = 200, sequences: list[str] |
     if json_out:
         Path(json_out).write_text(json.dumps(results, indent=1, default=float))
     return 0 if all(ok for _, ok in checks) else 1
+
+
+def _main(argv: list[str]) -> int:
+    """``python -m mining.bench.pipeline JOB.json OUT WORKERS RESULT.json``: one measured run
+    (``measure_run``'s child); the job is the JSON of ``JobConfig.to_dict``."""
+    from mining.config import JobConfig, section_from_dict
+
+    job_json, out, workers, result_json = argv
+    cfg = section_from_dict(JobConfig, json.loads(Path(job_json).read_text()), job_json)
+    result = measure_run_here(cfg, out, int(workers))
+    Path(result_json).write_text(json.dumps(result, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(_main(sys.argv[1:]))

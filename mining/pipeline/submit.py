@@ -419,17 +419,25 @@ def mine_on_ray(cfg: JobConfig, out: str, sequences: list[str] | None = None,
         prepare_local_ray(cfg.run.bind_host)  # before `import ray`; a bad --host fails before planning
     import ray
 
+    started = []  # Ray is started (and so shut down) here at most once: see the docstring
+
     def on_ray(job: Job) -> RayExecutor:
         if not ray.is_initialized():
             if address:  # join a running cluster (e.g. as a Ray job's entrypoint)
                 ray.init(address=address, log_to_driver=False)
             else:  # every port on run.bind_host (loopback by default)
                 init_local_ray(workers, cfg.run.bind_host)
+            started.append(True)
         return RayExecutor(job, workers if not address else None)
 
     try:
         return mine_job(cfg, out, sequences, frames, executor=on_ray, progress=progress, mode=mode, verify=verify,
                         lock_wait=lock_wait)
     finally:
-        if ray.is_initialized():
+        # Only the Ray this call started, after the executor's actors are gone (mine_job shut
+        # them down) and no thread of ours waits on Ray. A process starts Ray once: Ray's core
+        # worker does not survive ray.init after ray.shutdown in one process (it can crash at
+        # exit), so `mine` commands start it at most once and tests run Ray in processes of
+        # their own (tests/_own_process.py).
+        if started and ray.is_initialized():
             ray.shutdown()
