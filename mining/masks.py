@@ -166,6 +166,22 @@ def mask_ioa(a: list[dict], b: list[dict]) -> np.ndarray:
     return np.asarray(mask_utils.iou(a, b, [1] * len(b)), np.float64).reshape(len(a), len(b))
 
 
+def mask_overlap_min(a: list[dict], b: list[dict]) -> np.ndarray:
+    """(len(a), len(b)) intersection over the smaller of the two masks (the overlap
+    coefficient |A∩B| / min(|A|, |B|)): 1 when one mask lies inside the other, whatever
+    their sizes; 0 where either mask is empty.
+
+    One batched pycocotools call: its crowd rule gives |A∩B| / |A| (A from ``a``), which
+    times |A| is the intersection (rounded: it is a pixel count).
+    """
+    if not a or not b:
+        return np.zeros((len(a), len(b)))
+    area_a, area_b = areas(a).astype(np.float64), areas(b).astype(np.float64)
+    inter = np.rint(mask_ioa(a, b) * area_a[:, None])
+    smaller = np.minimum(area_a[:, None], area_b[None, :])
+    return np.divide(inter, smaller, out=np.zeros_like(inter), where=smaller > 0)
+
+
 def rle_box(rle: dict) -> np.ndarray:
     """x1, y1, x2, y2 of a mask (pycocotools gives x, y, w, h)."""
     x, y, w, h = mask_utils.toBbox(rle)

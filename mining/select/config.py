@@ -13,11 +13,18 @@ from mining.checks import Count, Fraction, OneOf, Range, Signed
 
 @dataclass
 class SelectConfig:
-    # --- the energy: maximise mᵀQm, Q_ii = score_i − ε1, Q_ij = −½·ε2·Σ_t maskIoU_t(i, j)
+    # --- the energy: maximise mᵀQm, Q_ii = score_i − ε1, Q_ij = −½·ε2·Σ_t o_t(i, j), o per ``overlap``
     epsilon1: Signed = 20.0  # REFERENCE: ε1, price of selecting a tube (unary offset)
+    # ε2 stays 30 for overlap="min" too. o_min ≥ IoU, but it grows only where one mask lies
+    # (mostly) inside the other: a duplicate of equal size changes little (IoU 0.8 → o 0.89),
+    # a part jumps from IoU ≈ its area share (~0.1) to ≈ 1, i.e. 30 a frame, far above any
+    # tube's score per frame (~2–8). Two real neighbours that touch or occlude each other
+    # (parked cars in a row) keep o small, since visible masks share only boundary pixels
+    # (a few columns: o ≈ 0.05 → 1.5 a frame), so they stay selected (tests/test_select_parts.py).
     epsilon2: float = 30.0  # REFERENCE: ε2, weight of the pairwise overlap penalty
     window_frames: Count = 100  # REFERENCE/paper: batches of 100 frames (original: ±50 frames around each frame)
-    box_iou_gate: Fraction = 0.1  # REFERENCE: a frame's mask IoU counts only when the boxes' IoU exceeds this
+    box_iou_gate: Fraction = 0.1  # REFERENCE: a frame's overlap counts only when the boxes' overlap (IoU; for "min": intersection over the smaller box) exceeds this
+    overlap: Annotated[str, OneOf(("iou", "min"))] = "iou"  # "iou" = REFERENCE Σ_t mask IoU; "min" = ours: Σ_t |A∩B| / min(|A|, |B|) (intersection over the smaller mask, the overlap coefficient), so a part inside another tube costs as much as a duplicate
 
     # --- the original's greedy multi-branch search (Schindler et al. ECCV 2006)
     # The first two branch widths narrow as the problem grows: problems with fewer than

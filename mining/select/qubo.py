@@ -1,8 +1,24 @@
 """Co-selection as a QUBO: choose the binary vector m that maximises mᵀQm.
 
-Q_ii = score_i − ε1 rewards a tube for its score; Q_ij = −½·ε2·(summed mask IoU) ≤ 0
-punishes two selected tubes that explain the same pixels (paper Eq. "F(b)", with the
-sign flipped: minimising F is maximising mᵀQm).
+    Q_ii = θ_i − ε1,        Q_ij = −½·ε2·Σ_t o_t(i, j)  (i ≠ j, t over the frames both tubes span)
+
+Q_ii rewards a tube for its score θ_i; Q_ij ≤ 0 punishes two selected tubes that explain
+the same pixels, so selecting both costs ε2·Σ_t o_t (paper Eq. "F(b)", with the sign
+flipped: minimising F is maximising mᵀQm). The per-frame overlap o of masks A, B is one of
+(``SelectConfig.overlap``):
+
+* REFERENCE (``"iou"``, the default): o = |A∩B| / |A∪B|, the mask IoU, where the boxes'
+  IoU > 0.1. A duplicate (the same object twice) costs nearly ε2 a frame, but a part of
+  an object (a wheel arch inside a car) only its share of the object's area, ~0.1·ε2, or
+  nothing once its box IoU with the object's is under the gate: part and object both win.
+* ours (``"min"``): o = |A∩B| / min(|A|, |B|), intersection over the smaller mask, where
+  the boxes' intersection over the smaller box > 0.1. A part inside a selected object costs
+  ε2 a frame, as a duplicate does, so it loses to the object it belongs to; two distinct
+  objects that touch share only boundary pixels and stay cheap (why ε2 stays 30:
+  ``mining.select.config``).
+
+The paper prints φ = Σ_t ln IoU; REFERENCE.md sums the IoU itself, as here (ln IoU ≤ 0
+would reward overlap).
 
 Solvers, all plain numpy:
 
@@ -42,8 +58,9 @@ def build_qubo(unary: np.ndarray, overlap: np.ndarray, cfg: SelectConfig | None 
     """Q from tube scores and summed pairwise overlaps.
 
     ``unary[i]`` is tube i's score θ(T_i); ``overlap[i, j]`` is Σ over the frames both
-    tubes share in the window of their mask IoU (frames whose box IoU ≤ cfg.box_iou_gate
-    already left out). Returns Q with Q_ii = θ_i − ε1 and Q_ij = −½·ε2·overlap_ij.
+    tubes share in the window of their per-frame overlap o (mask IoU, or intersection over
+    the smaller mask; gated frames already left out: ``mining.select.coselect``). Returns Q
+    with Q_ii = θ_i − ε1 and Q_ij = −½·ε2·overlap_ij.
     """
     cfg = cfg or SelectConfig()
     unary = np.asarray(unary, dtype=np.float64)
@@ -56,7 +73,7 @@ def build_qubo(unary: np.ndarray, overlap: np.ndarray, cfg: SelectConfig | None 
     if not (np.isfinite(unary).all() and np.isfinite(overlap).all()):
         raise InputError("co-selection: scores and overlaps must be finite")
     if (overlap < 0).any():
-        raise InputError("co-selection: summed mask IoU must not be negative")
+        raise InputError("co-selection: summed mask overlap must not be negative")
     if not np.array_equal(overlap, overlap.T):
         raise InputError("co-selection: overlap matrix must be symmetric")
     if np.any(np.diagonal(overlap) != 0):
