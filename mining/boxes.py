@@ -86,3 +86,47 @@ def box_gates(pred: np.ndarray, obs: np.ndarray, min_iou: float, min_similarity:
         sim = (np.minimum(pw[:, None], ow[None]) / np.maximum(pw[:, None], ow[None])
                * np.minimum(ph[:, None], oh[None]) / np.maximum(ph[:, None], oh[None]))
     return ok & (sim > min_similarity)
+
+
+def shifted_iou(w: np.ndarray, h: np.ndarray, delta: float) -> np.ndarray:
+    """IoU of a ``w`` × ``h`` box with itself shifted by ``delta`` pixels in x and in y:
+    (w−δ)(h−δ) / (2wh − (w−δ)(h−δ)), in [0, 1].
+
+    How much of an IoU gate ``delta`` pixels of jitter use up: a 20 px box loses a third
+    of its IoU to a 2 px shift (0.68), a 200 px box 4 % (0.96). 1 at δ = 0, also for an
+    empty box (no jitter, no relaxation).
+    """
+    w, h = np.asarray(w, np.float64), np.asarray(h, np.float64)
+    inter = np.maximum(w - delta, 0) * np.maximum(h - delta, 0)
+    union = 2 * w * h - inter
+    with np.errstate(divide="ignore", invalid="ignore"):
+        j = np.where(union > 0, inter / union, 1.0 if delta <= 0 else 0.0)
+    return np.clip(j, 0.0, 1.0)
+
+
+def jittered_box_gates(pred: np.ndarray, obs: np.ndarray, min_iou: float, min_similarity: float,
+                       jitter_px: float) -> np.ndarray:
+    """(T, N) bool: ``box_gates`` tolerant of ``jitter_px`` pixels of box jitter.
+
+    Prediction i's IoU gate is ``min_iou × shifted_iou(w_i, h_i, jitter_px)`` (its own box's
+    IoU with itself shifted by the jitter: the IoU a perfect match jittered that much
+    keeps), and the 2D size similarity compares the sizes with ``jitter_px`` added to both
+    widths and both heights (a few pixels of a small box's size are boundary noise). With
+    ``jitter_px`` = 0 this is ``box_gates`` itself.
+    """
+    if jitter_px <= 0:
+        return box_gates(pred, obs, min_iou, min_similarity)
+    pw, ph = pred[:, 2] - pred[:, 0], pred[:, 3] - pred[:, 1]
+    ow, oh = obs[:, 2] - obs[:, 0], obs[:, 3] - obs[:, 1]
+    iw = np.minimum(pred[:, None, 2], obs[None, :, 2]) - np.maximum(pred[:, None, 0], obs[None, :, 0])
+    ih = np.minimum(pred[:, None, 3], obs[None, :, 3]) - np.maximum(pred[:, None, 1], obs[None, :, 1])
+    inter = np.maximum(iw, 0) * np.maximum(ih, 0)
+    union = (pw * ph)[:, None] + (ow * oh)[None, :] - inter
+    gate = min_iou * shifted_iou(pw, ph, jitter_px)
+    # A box of width or height ≤ 0 never gates, as in box_gates (the added jitter would make its size look fine).
+    real = ((pw > 0) & (ph > 0))[:, None] & ((ow > 0) & (oh > 0))[None, :]
+    pw, ph, ow, oh = pw + jitter_px, ph + jitter_px, ow + jitter_px, oh + jitter_px
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sim = (np.minimum(pw[:, None], ow[None]) / np.maximum(pw[:, None], ow[None])
+               * np.minimum(ph[:, None], oh[None]) / np.maximum(ph[:, None], oh[None]))
+    return real & (inter > gate[:, None] * union) & (sim > min_similarity)

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Annotated
 
-from mining.checks import Count, Fraction, Positive
+from mining.checks import Count, Fraction, OneOf, Positive
 
 
 @dataclass
@@ -29,9 +30,12 @@ class TubeConfig:
     gate_box_iou: Fraction = 0.3  # REFERENCE: box IoU of predicted and observed > 0.3
     gate_size_similarity: Fraction = 0.6  # REFERENCE: 2D size similarity > 0.6
     gate_mask_iou: Fraction = 0.5  # REFERENCE: mask IoU > 0.5
+    gate_jitter_px: float = 0.0  # ours: δ px of jitter the IoU gates tolerate (gate × shifted_iou(w, h, δ): 20 px box 0.68, 200 px 0.96; sizes compared +δ); 0 = REFERENCE; with "normalised" use 2 (±1 px mask-boundary quantisation + ~1 px warp error)
     # Association.
     density_extra_var: float = 0.2  # REFERENCE: Gaussian density with observation covariance + 0.2·I
     min_association: float = 0.02  # REFERENCE: a tube takes its best gated observation if score > 0.02
+    association: Annotated[str, OneOf(("reference", "normalised"))] = "reference"  # "reference" = REFERENCE: IoU × Gaussian density > min_association; "normalised" = ours: the density is replaced by its value relative to its peak, exp(−½·m²), so the score means the same at every depth (the Mahalanobis gate already bounds the distance in σ), threshold min_association_normalised
+    min_association_normalised: Fraction = 0.068  # ours: 0.02 / 0.296 = the reference's floor over the density's peak at 10 m on KITTI (f 721 px, b 0.54 m, 0.5 px: σx 0.71, σz 0.46 m, +0.2·I → 1/(2π·0.84·0.64)), so both rules accept the same pairs there (at 50 m, σz 4.6 m, the reference's floor is 0.48 in these units)
     # Mask prediction by 3D warping.
     warp_close_px: Count = 9  # REFERENCE: holes closed with a 9×9 box
     min_predicted_mask_px: int = 100  # REFERENCE: a predicted mask ≤ 100 px ends the tube

@@ -1,15 +1,32 @@
 """Gating and association score of predictions against observations (REFERENCE.md "Extend").
 
 Gates: box IoU and 2D size similarity of the predicted and observed boxes
-(``mining.boxes.box_gates``), mask IoU (box IoU for box-only predictions) and the
-footpoint's Mahalanobis distance on the ground plane. Score: mask IoU × Gaussian density
-of the footpoint. Everything works on arrays of (prediction, observation) pairs, so many
-tubes are gated in one pass.
+(``mining.boxes.jittered_box_gates``), mask IoU (box IoU for box-only predictions) and the
+footpoint's Mahalanobis distance on the ground plane. Score (``TubeConfig.association``):
+
+* "reference": mask IoU × Gaussian density of the footpoint, > ``min_association``. The
+  density's peak falls with the stereo covariance (∝ depth² along the ray), so the same
+  match, equally many σ off, scores ~7× lower at 50 m than at 10 m and a far object's
+  tube breaks apart.
+* "normalised": mask IoU × exp(−½·m²), the density relative to its peak (a likelihood
+  ratio against the perfect match), > ``min_association_normalised``: the same at every
+  depth for the same distance in σ.
+
+With ``gate_jitter_px`` = δ > 0 the IoU gates are relaxed to gate × the IoU a perfect
+match of the predicted box keeps when shifted δ px in x and y (``mining.boxes.shifted_iou``):
+a few pixels of jitter are a third of a 20 px object's IoU and nothing of a 200 px one's.
+
+The density itself (the motion term of the tube's score) is the same in both modes.
+Everything works on arrays of (prediction, observation) pairs, so many tubes are gated in
+one pass; the forward association and the backward probe share ``best_pairs``.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from mining.boxes import shifted_iou
+from mining.tubes.config import TubeConfig
 
 GROUND = [0, 2]  # x and z: the footpoint's coordinates on the ground plane (y is the plane's height)
 
@@ -37,25 +54,56 @@ def mahalanobis2(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray
     return _inv_quad_2x2((x - mean)[:, GROUND], cov[:, GROUND][:, :, GROUND])[0]
 
 
+def association_scores(iou: np.ndarray, foot: np.ndarray, mean: np.ndarray, cov: np.ndarray,
+                       cfg: TubeConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Each pair's association score (``cfg.association``'s rule) and its Gaussian density.
+
+    The density is N(foot; mean, cov + density_extra_var·I) on the ground plane (the
+    score's motion term in both modes); the "normalised" score replaces it by
+    exp(−½·m²) = density / its peak, with m the Mahalanobis distance under the same
+    covariance. One closed-form pass gives both (the reference's arithmetic unchanged).
+    """
+    dcov = cov + cfg.density_extra_var * np.eye(3)
+    m2, det = _inv_quad_2x2((foot - mean)[:, GROUND], dcov[:, GROUND][:, :, GROUND])
+    relative = np.exp(-0.5 * m2)
+    dens = relative / (2 * np.pi * np.sqrt(det))
+    return iou * (dens if cfg.association == "reference" else relative), dens
+
+
+def association_floor(cfg: TubeConfig) -> float:
+    """The score a pair must exceed under ``cfg.association``'s rule."""
+    return cfg.min_association if cfg.association == "reference" else cfg.min_association_normalised
+
+
+def iou_gate(pred_box: np.ndarray, cfg: TubeConfig, gate: float) -> np.ndarray | float:
+    """An IoU gate for each predicted box (K, 4): ``gate`` × ``shifted_iou`` of the box
+    with ``cfg.gate_jitter_px``; ``gate`` itself without jitter tolerance."""
+    if cfg.gate_jitter_px <= 0:
+        return gate
+    return gate * shifted_iou(pred_box[:, 2] - pred_box[:, 0], pred_box[:, 3] - pred_box[:, 1], cfg.gate_jitter_px)
+
+
 def best_pairs(rows: np.ndarray, cols: np.ndarray, iou: np.ndarray, mean: np.ndarray, pos_cov: np.ndarray,
-               foot: np.ndarray, cov: np.ndarray, cfg) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+               foot: np.ndarray, cov: np.ndarray, cfg: TubeConfig, *,
+               pred_box: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Each prediction's best gated observation among (row, col) pairs.
 
     ``rows``/``cols`` index predictions and observations (rows ascending, cols ascending
     within a row); ``iou`` is the pair's mask (or box) IoU; ``mean`` and ``pos_cov`` are the
     pair's predicted footpoint (K, 3) and its covariance (K, 3, 3); ``foot`` and ``cov``
-    the observed footpoint and covariance. ``cfg`` is a ``TubeConfig``. Returns the rows
-    that take an observation, their observation, mask IoU and density. Ties go to the
-    lower observation index, as ``np.argmax`` would.
+    the observed footpoint and covariance; ``pred_box`` the pair's predicted box (K, 4),
+    whose size sets the jitter-tolerant IoU gate. ``cfg`` is a ``TubeConfig``. Returns the
+    rows that take an observation, their observation, mask IoU and density. The highest
+    score wins; ties go to the lower observation index, as ``np.argmax`` would.
     """
-    ok = (iou > cfg.gate_mask_iou) & (mahalanobis2(foot, mean, pos_cov + cov) < cfg.gate_mahalanobis**2)
+    ok = ((iou > iou_gate(pred_box, cfg, cfg.gate_mask_iou))
+          & (mahalanobis2(foot, mean, pos_cov + cov) < cfg.gate_mahalanobis**2))
     rows, cols, iou, mean, foot, cov = (a[ok] for a in (rows, cols, iou, mean, foot, cov))
-    dens = gaussian_density(foot, mean, cov + cfg.density_extra_var * np.eye(3))
-    score = iou * dens
+    score, dens = association_scores(iou, foot, mean, cov, cfg)
     order = np.lexsort((-score, rows))  # stable: equal scores keep the column order
     ro = rows[order]
     first = order[np.concatenate(([True], ro[1:] != ro[:-1]))] if order.size else order
-    first = first[score[first] > cfg.min_association]
+    first = first[score[first] > association_floor(cfg)]
     nan = np.isnan(score)
     if nan.any():  # np.argmax would pick a NaN score, which then fails the threshold: such rows take nothing
         first = first[~np.isin(rows[first], rows[nan])]

@@ -4,8 +4,10 @@ Frame by frame (REFERENCE.md "Tube generation"):
 
 1. **Extend** every live tube: Kalman prediction over the frame interval from the
    timestamps, mask prediction by 3D warping, gating (footpoint Mahalanobis distance, box
-   IoU, 2D size similarity, mask IoU) and the association score mask IoU × Gaussian
-   density of the footpoint. Each tube takes its best gated observation; one observation
+   IoU, 2D size similarity, mask IoU; optionally tolerant of a few pixels of jitter) and
+   the association score mask IoU × Gaussian density of the footpoint (or, with
+   ``association = "normalised"``, × the density relative to its peak, which means the same
+   at every depth: ``gating.py``). Each tube takes its best gated observation; one observation
    may feed several tubes (co-selection resolves them later).
 2. **End** tubes that leave the view, whose gap grows too long, or whose predicted mask
    vanishes.
@@ -52,7 +54,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mining.boxes import box_gates, box_ioa, paired_box_iou
+from mining.boxes import box_ioa, jittered_box_gates, paired_box_iou
 from mining.masks import areas, mask_ioa, mask_iou
 from mining.tubes.config import TubeConfig
 from mining.tubes.gating import GROUND, best_pairs
@@ -183,7 +185,8 @@ class TubeGenerator:
             return choice, terms
         obs = world.frame.observations
         pboxes = np.array([p.box for p in preds], np.float64)
-        gate = box_gates(pboxes, world.boxes, self.cfg.gate_box_iou, self.cfg.gate_size_similarity)
+        gate = jittered_box_gates(pboxes, world.boxes, self.cfg.gate_box_iou, self.cfg.gate_size_similarity,
+                                  self.cfg.gate_jitter_px)
         gate &= world.usable[None, :]
         r, c = np.nonzero(gate)
         if r.size == 0:
@@ -197,7 +200,7 @@ class TubeGenerator:
         mean = np.array([t.kf.x[POS] for t in tubes])
         pos_cov = np.array([t.kf.P[POS, POS] for t in tubes])
         took, j, iou, dens = best_pairs(r, c, iou, mean[r], pos_cov[r], world.footpoint[c], world.covariance[c],
-                                        self.cfg)
+                                        self.cfg, pred_box=pboxes[r])
         choice[took] = j
         for i, a, d in zip(took, iou, dens):
             terms[i] = (float(a), float(d))

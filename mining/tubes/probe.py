@@ -5,14 +5,16 @@ frames and needs an inlier in each of the first three back-steps; the earliest i
 where the tube is re-initialised and replayed forwards. The probe only proposes that
 start, so it compares warped boxes (``TubeConfig.probe_with_boxes``). Here the filters of
 all candidates are rows of one array: one Kalman step, one warp of all their points and
-one gating pass over candidates × observations per back-step.
+one gating pass over candidates × observations per back-step, under the forward
+association's gates and score (``gating.best_pairs``: ``TubeConfig.association``,
+``gate_jitter_px``).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from mining.boxes import box_gates, paired_box_iou, size_similarity
+from mining.boxes import jittered_box_gates, paired_box_iou, size_similarity
 from mining.tubes.config import TubeConfig
 from mining.tubes.gating import GROUND, best_pairs
 from mining.tubes.kalman import POS, VEL, initial_states, predict_states, update_states
@@ -56,11 +58,12 @@ def probe_back(world: WorldObservations, cands: np.ndarray, past: list[WorldObse
         boxes = predict_boxes([pts[c] for c in idx], shifts, w.frame.pose, w.frame.calib)
         has_box = np.isfinite(boxes[:, 0])
         idx, boxes = idx[has_box], boxes[has_box]
-        gate = box_gates(boxes, w.boxes, cfg.gate_box_iou, cfg.gate_size_similarity) & w.usable[None, :]
+        gate = jittered_box_gates(boxes, w.boxes, cfg.gate_box_iou, cfg.gate_size_similarity, cfg.gate_jitter_px)
+        gate &= w.usable[None, :]
         r, c = np.nonzero(gate)
         cr = idx[r]
         rows, obs, _, _ = best_pairs(r, c, paired_box_iou(boxes[r], w.boxes[c]), x[cr][:, POS],
-                                     P[cr][:, POS, POS], w.footpoint[c], w.covariance[c], cfg)
+                                     P[cr][:, POS, POS], w.footpoint[c], w.covariance[c], cfg, pred_box=boxes[r])
         m = idx[rows]
         if k < cfg.backward_required:
             alive[:] = False
@@ -106,7 +109,9 @@ def displacement_hypotheses(world: WorldObservations, cands: np.ndarray, prev: W
     # sizes disagree beyond that fails the probe's first size gate, so it is not probed (the
     # gate here is looser, squared, since a box cut at the image border does not scale).
     # Boxes scaled by their own depth compare as the depth-ratio-scaled boxes do.
-    reach &= size_similarity(_at_unit_depth(world, cands), _at_unit_depth(prev, usable)) > cfg.gate_size_similarity**2
+    # Sizes grow by the gates' jitter tolerance as the probe's size gate does (δ px at depth z is δ·z px·m).
+    reach &= size_similarity(_at_unit_depth(world, cands, cfg.gate_jitter_px),
+                             _at_unit_depth(prev, usable, cfg.gate_jitter_px)) > cfg.gate_size_similarity**2
     order = np.argsort(np.where(reach, speed, np.inf), axis=1, kind="stable")[:, :cfg.start_hypotheses]
     rows = np.repeat(np.arange(cands.size), order.shape[1])
     cols = order.ravel()
@@ -123,7 +128,9 @@ def displacement_hypotheses(world: WorldObservations, cands: np.ndarray, prev: W
     return rows, vel, cov / (dt * dt)
 
 
-def _at_unit_depth(w: WorldObservations, idx: np.ndarray) -> np.ndarray:
-    """Boxes of observations ``idx`` scaled by their camera depth (their size at 1 m, in px·m)."""
+def _at_unit_depth(w: WorldObservations, idx: np.ndarray, pad_px: float = 0.0) -> np.ndarray:
+    """Boxes of observations ``idx``, ``pad_px`` wider and taller, scaled by their camera
+    depth (their size at 1 m, in px·m)."""
     b, z = w.boxes[idx], w.frame.observations.position[idx, 2]
-    return np.stack([np.zeros_like(z), np.zeros_like(z), (b[:, 2] - b[:, 0]) * z, (b[:, 3] - b[:, 1]) * z], axis=1)
+    bw, bh = b[:, 2] - b[:, 0] + pad_px, b[:, 3] - b[:, 1] + pad_px
+    return np.stack([np.zeros_like(z), np.zeros_like(z), bw * z, bh * z], axis=1)
