@@ -34,7 +34,7 @@ class TubeConfig:
     # Association.
     density_extra_var: float = 0.2  # REFERENCE: Gaussian density with observation covariance + 0.2·I
     min_association: float = 0.02  # REFERENCE: a tube takes its best gated observation if score > 0.02
-    association: Annotated[str, OneOf(("reference", "normalised"))] = "reference"  # "reference" = REFERENCE: IoU × Gaussian density > min_association; "normalised" = ours: the density is replaced by its value relative to its peak, exp(−½·m²), so the score means the same at every depth (the Mahalanobis gate already bounds the distance in σ), threshold min_association_normalised
+    association: Annotated[str, OneOf(("reference", "normalised", "innovation"))] = "reference"  # "reference" = REFERENCE: IoU × Gaussian density > min_association; "normalised" = ours: the density is replaced by its value relative to its peak, exp(−½·m²), so the score means the same at every depth (the Mahalanobis gate already bounds the distance in σ), threshold min_association_normalised; "innovation" = ours: the same with m under the Kalman innovation covariance (prediction + observation + 0.2·I, the gate's), the textbook normalised innovation
     min_association_normalised: Fraction = 0.068  # ours: 0.02 / 0.296 = the reference's floor over the density's peak at 10 m on KITTI (f 721 px, b 0.54 m, 0.5 px: σx 0.71, σz 0.46 m, +0.2·I → 1/(2π·0.84·0.64)), so both rules accept the same pairs there (at 50 m, σz 4.6 m, the reference's floor is 0.48 in these units)
     # Mask prediction by 3D warping.
     warp_close_px: Count = 9  # REFERENCE: holes closed with a 9×9 box

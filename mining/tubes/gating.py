@@ -55,19 +55,28 @@ def mahalanobis2(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray
 
 
 def association_scores(iou: np.ndarray, foot: np.ndarray, mean: np.ndarray, cov: np.ndarray,
-                       cfg: TubeConfig) -> tuple[np.ndarray, np.ndarray]:
+                       cfg: TubeConfig, pos_cov: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Each pair's association score (``cfg.association``'s rule) and its Gaussian density.
 
     The density is N(foot; mean, cov + density_extra_var·I) on the ground plane (the
-    score's motion term in both modes); the "normalised" score replaces it by
+    score's motion term in every mode); the "normalised" score replaces it by
     exp(−½·m²) = density / its peak, with m the Mahalanobis distance under the same
-    covariance. One closed-form pass gives both (the reference's arithmetic unchanged).
+    covariance; "innovation" takes m under the Kalman innovation covariance
+    S = P_pred + R_obs + density_extra_var·I (``pos_cov`` is P_pred), the covariance the
+    Mahalanobis gate uses, so a young tube's own uncertainty counts too. One closed-form
+    pass gives the density (the reference's arithmetic unchanged).
     """
     dcov = cov + cfg.density_extra_var * np.eye(3)
     m2, det = _inv_quad_2x2((foot - mean)[:, GROUND], dcov[:, GROUND][:, :, GROUND])
     relative = np.exp(-0.5 * m2)
     dens = relative / (2 * np.pi * np.sqrt(det))
-    return iou * (dens if cfg.association == "reference" else relative), dens
+    if cfg.association == "reference":
+        return iou * dens, dens
+    if cfg.association == "innovation":
+        if pos_cov is None:
+            raise ValueError("association='innovation' needs the prediction's covariance")
+        relative = np.exp(-0.5 * mahalanobis2(foot, mean, pos_cov + dcov))
+    return iou * relative, dens
 
 
 def association_floor(cfg: TubeConfig) -> float:
@@ -98,8 +107,8 @@ def best_pairs(rows: np.ndarray, cols: np.ndarray, iou: np.ndarray, mean: np.nda
     """
     ok = ((iou > iou_gate(pred_box, cfg, cfg.gate_mask_iou))
           & (mahalanobis2(foot, mean, pos_cov + cov) < cfg.gate_mahalanobis**2))
-    rows, cols, iou, mean, foot, cov = (a[ok] for a in (rows, cols, iou, mean, foot, cov))
-    score, dens = association_scores(iou, foot, mean, cov, cfg)
+    rows, cols, iou, mean, foot, cov, pos_cov = (a[ok] for a in (rows, cols, iou, mean, foot, cov, pos_cov))
+    score, dens = association_scores(iou, foot, mean, cov, cfg, pos_cov)
     order = np.lexsort((-score, rows))  # stable: equal scores keep the column order
     ro = rows[order]
     first = order[np.concatenate(([True], ro[1:] != ro[:-1]))] if order.size else order
