@@ -5,7 +5,8 @@ frame renders the same bits whatever was rendered before (random access, nothing
 between calls except pure caches). See ``scene.py`` for the world and the object
 categories, ``render.py`` for the rasteriser, ``textures.py`` for the materials, and
 ``scenarios.py`` for the staged scenarios (option ``scenario``) that replace the random
-traffic by one failure mode at a time.
+traffic by one failure mode at a time, and ``roadside.py`` for the background clutter
+(verge, fence, hedge) that one of them adds.
 """
 
 from __future__ import annotations

@@ -9,9 +9,14 @@ length works: the builders repeat their event over the whole duration.
 
 Every staged object has a ``Role``: ``moving`` (a target: what the scenario is about) or
 ``parked`` (a static reference seen at similar range, so moving and parked recall can be
-compared in one scene). Map coordinates are road coordinates: arc length s (the ego starts at
-s = 0 and moves to +s) and lateral offset d (right of the centreline > 0; traffic keeps right,
-so lanes with d > 0 drive to +s and lanes with d < 0 are oncoming).
+compared in one scene). In the scenarios of static things (parkedpair, barriers, verge, debris)
+every staged object is ``parked``; the note says which are the targets, and the known/unknown
+split tells the barriers and debris from the cars. Staged background (``verge``'s hedge, fence
+and grass, ``roadside.py``) is no object at all: static faces with no truth.
+
+Map coordinates are road coordinates: arc length s (the ego starts at s = 0 and moves to +s)
+and lateral offset d (right of the centreline > 0; traffic keeps right, so lanes with d > 0
+drive to +s and lanes with d < 0 are oncoming).
 
 Choose one with the source option ``scenario`` (e.g. ``--option scenario=border``):
 
@@ -26,6 +31,18 @@ far        cars moving with the ego at 30–60 m and parked cars passing through
 textureless uniformly coloured ("flat" material) cars moving slowly, and parked ones
 stopgo     a car ahead that brakes to a stop, waits and pulls away again (every 10 s), and a
            pedestrian on the far sidewalk who stops and walks on
+parkedpair pairs of parked cars nose to tail, ~1 m apart (the nearer hides part of the other),
+           every 18 m on alternate sides; the ego at 6 m/s keeps a whole pair in 35–55 m ~80 %
+           of the time
+barriers   rows of 4–8 construction barriers (unknown: striped boards on trestles, or concrete
+           kerb barriers) with small gaps in the right parking strip, a row every 40 m, seen at
+           8–30 m (ego 6 m/s); parked cars on the left
+verge      roadside clutter as background (no truth): a grass verge with tufts, a post-and-rail
+           fence with gaps and a clipped hedge 1.2–1.9 m tall behind it, the right side's lots
+           set back; a few ordinary parked cars as references (ego 8 m/s)
+debris     small unknown debris (a box, a rock, a tyre and a branch, the last two just beyond a
+           parked car) on the left of the road, each in view (≥ 100 px at full resolution)
+           only 5–8 frames as the ego passes at 14 m/s, between ~25 and ~13 m
 ========== ==================================================================================
 """
 
@@ -37,7 +54,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from mining.errors import InputError
-from mining.sources.synthetic.scene import Motion, Obj, Scene
+from mining.sources.synthetic.roadside import BACK_M, build_roadside
+from mining.sources.synthetic.scene import VIEW_AHEAD_M, VIEW_BEHIND_M, Motion, Obj, Scene
 from mining.sources.synthetic.textures import LANE_M, PARKING_M
 
 
@@ -45,7 +63,7 @@ from mining.sources.synthetic.textures import LANE_M, PARKING_M
 class Role:
     """What a staged object is for."""
 
-    role: str  # "moving": a target of the scenario; "parked": a static reference
+    role: str  # "moving": a target of the scenario; "parked": a static object (a reference, or a static target)
     note: str  # how it was staged, in words
     textureless: bool = False  # drawn in the uniform "flat" material
 
@@ -62,6 +80,7 @@ class Scenario:
     build: Callable[[Scene, np.random.Generator], dict[int, Role]]  # places the objects, returns their roles
     n_frames: int = 80  # ours: the bench's default length (10 Hz)
     band_m: tuple[float, float] | None = None  # targets count only while their centre lies this deep (camera z)
+    right_setback_m: float = 0.0  # the right side's lots stand this much further back (room for a staged roadside)
 
 
 def lane_d(k: int, direction: int = 1) -> float:
@@ -81,8 +100,9 @@ class _Stage:
         self.scene, self.rng = scene, rng
         self.roles: dict[int, Role] = {}
 
-    def add(self, category: str, motion: Motion, role: str, note: str, textureless: bool = False) -> Obj:
-        o = self.scene.add_object(self.rng, category, motion)
+    def add(self, category: str, motion: Motion, role: str, note: str, textureless: bool = False,
+            shape: str | None = None, size: tuple[float, float, float] | None = None) -> Obj:
+        o = self.scene.add_object(self.rng, category, motion, size, shape=shape)
         if textureless:
             o.material = "flat"
         self.roles[o.track_id] = Role(role, note, textureless)
@@ -218,6 +238,91 @@ def _stopgo(scene: Scene, rng: np.random.Generator) -> dict[int, Role]:
     return st.roles
 
 
+PAIR_GAP_M = (0.8, 1.2)  # ours: bumper to bumper within a parked pair, uniform range (the issue's "~1 m")
+PAIR_PITCH_M = 18.0  # ours: a pair every 18 m, on alternate sides: at 6 m/s a whole pair lies in 35–55 m ~80 % of the time
+
+
+def _parkedpair(scene: Scene, rng: np.random.Generator) -> dict[int, Role]:
+    st = _Stage(scene, rng)
+    s, k = 37.0 + rng.uniform(0, 1), 0  # ours: the first pair starts inside the band
+    while s < st.end_s + 60.0:
+        side = -1 if k % 2 == 0 else 1  # the left strip first: seen at a wider angle, the rear car less hidden
+        where = "left" if side < 0 else "right"
+        yaw = 0.0 if side > 0 else np.pi
+        near = st.add("car", Motion("static", s0=s, d=strip_d(scene, side), yaw=yaw + rng.normal(0, 0.02)), "parked",
+                      f"parked pair {k}, nearer car, {where} strip")
+        far = st.add("car", Motion("static", d=strip_d(scene, side) + rng.normal(0, 0.05), yaw=yaw + rng.normal(0, 0.02)),
+                     "parked", f"parked pair {k}, farther car, {where} strip, ~1 m behind the nearer one")
+        far.motion.s0 = s + near.size[2] / 2 + rng.uniform(*PAIR_GAP_M) + far.size[2] / 2  # nose to tail
+        s += PAIR_PITCH_M + rng.uniform(-1, 1)
+        k += 1
+    return st.roles
+
+
+BARRIER_GAP_M = (0.2, 0.5)  # ours: gaps within a row of construction barriers, uniform range
+BARRIER_ROW_PITCH_M = 40.0  # ours: a row every 40 m (at 6 m/s: one row in 8–30 m most of the time)
+BARRIERS_PER_ROW = (4, 8)  # the issue: 4–8 in a row
+
+
+def _barriers(scene: Scene, rng: np.random.Generator) -> dict[int, Role]:
+    st = _Stage(scene, rng)
+    s_row, k = 18.0 + rng.uniform(0, 1), 0  # ours: the first row starts inside the band
+    while s_row < st.end_s + 60.0:
+        shape = "board" if k % 2 == 0 else "jersey"  # red-and-white boards on trestles; concrete kerb barriers
+        n = int(rng.integers(BARRIERS_PER_ROW[0], BARRIERS_PER_ROW[1] + 1))
+        d = strip_d(scene, 1) + 0.4  # ours: in the right parking strip, near the curb
+        s = s_row
+        for j in range(n):
+            o = st.add("barrier", Motion("static", d=d + rng.normal(0, 0.04), yaw=rng.normal(0, 0.03)), "parked",
+                       f"construction barrier row {k} ({shape}), {j + 1} of {n}, right strip", shape=shape)
+            o.motion.s0 = s + o.size[2] / 2
+            s += o.size[2] + rng.uniform(*BARRIER_GAP_M)
+        s_row += BARRIER_ROW_PITCH_M + rng.uniform(-2, 2)
+        k += 1
+    st.parked_row(-1, 15.0, st.end_s + 60.0, (14.0, 24.0))
+    return st.roles
+
+
+# ours: the debris kinds, each (category, shape, size w × h × l m, lateral offset d m, behind a parked car);
+# sizes fixed so each reaches 100 px (full resolution) at a known distance, and d so it leaves the image's
+# left border at 13–17 m: in view (≥ 100 px) 5–8 frames at the ego's 14 m/s (tuned by rendering seeds
+# 0000–0004). A tyre, and a branch with its leaves, would reach 100 px too far away for that: they lie
+# just beyond a car parked in the left strip, which hides them until the ego is near.
+DEBRIS_KINDS = (
+    ("box", None, (0.26, 0.21, 0.26), -5.6, False),
+    ("tyre", "lying1", None, -8.1, True),
+    ("branch", None, (0.6, 0.21, 0.7), -8.1, True),  # (its mesh needs w ≥ 0.6, h > 0.2)
+    ("debris", None, (0.55, 0.35, 0.62), -5.6, False),
+)
+DEBRIS_PITCH_M = 35.0  # ours: one piece every 35 m (2.5 s at 14 m/s): no two in view at once
+DEBRIS_BEHIND_M = 1.5  # ours: from the hiding car's bumper to the piece beyond it (tuned with DEBRIS_KINDS)
+
+
+def _debris(scene: Scene, rng: np.random.Generator) -> dict[int, Role]:
+    st = _Stage(scene, rng)
+    s, k = 32.0 + rng.uniform(0, 1), 0  # ours: the first piece comes into view within the first second
+    while s < st.end_s + 60.0:
+        kind, shape, size, d, hidden = DEBRIS_KINDS[k % len(DEBRIS_KINDS)]
+        o = st.add(kind, Motion("static", s0=s, d=d, yaw=rng.normal(0, 0.1)), "parked",
+                   f"{kind} lying on the road, left{', beyond a parked car' if hidden else ''}: in view only briefly",
+                   shape=shape, size=size)
+        if hidden:
+            car = st.add("car", Motion("static", d=strip_d(scene, -1), yaw=np.pi + rng.normal(0, 0.02)), "parked",
+                         f"parked, left strip: hides the {kind} beyond it until the ego is near")
+            car.motion.s0 = s - o.size[2] / 2 - DEBRIS_BEHIND_M - car.size[2] / 2
+        s += DEBRIS_PITCH_M + rng.uniform(-1, 1)
+        k += 1
+    return st.roles
+
+
+def _verge(scene: Scene, rng: np.random.Generator) -> dict[int, Role]:
+    st = _Stage(scene, rng)
+    build_roadside(scene, rng, -VIEW_BEHIND_M - 5.0, st.end_s + VIEW_AHEAD_M + 10.0)
+    st.parked_row(1, 20.0, st.end_s + 60.0, (30.0, 45.0))  # a couple of ordinary cars in front of the clutter
+    st.parked_row(-1, 30.0, st.end_s + 60.0, (25.0, 40.0))
+    return st.roles
+
+
 SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
     Scenario("alongside", "a vehicle driving alongside at ego speed (adjacent lane)", 2, 0, ((0.0,), (10.0,)),
              _alongside),
@@ -229,6 +334,14 @@ SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
     Scenario("textureless", "textureless objects (uniform material), moving slowly and parked", 2, 0,
              ((0.0,), (6.0,)), _textureless),
     Scenario("stopgo", "objects that stop and restart", 2, 0, ((0.0,), (4.0,)), _stopgo),
+    Scenario("parkedpair", "two parked cars nose to tail, ~1 m apart, at 35–55 m", 2, 0, ((0.0,), (6.0,)), _parkedpair,
+             band_m=(35.0, 55.0)),
+    Scenario("barriers", "rows of 4–8 construction barriers (unknown) at the roadside, 8–30 m", 1, 0, ((0.0,), (6.0,)),
+             _barriers, band_m=(8.0, 30.0)),
+    Scenario("verge", "a grass verge, a fence with gaps and a hedge (background, no truth), parked cars", 1, 0,
+             ((0.0,), (8.0,)), _verge, right_setback_m=BACK_M),
+    Scenario("debris", "small debris (unknown) on the road, each in view 5–8 frames as the ego passes", 2, 1,
+             ((0.0,), (14.0,)), _debris, band_m=(10.0, 30.0)),
 )}
 
 

@@ -317,16 +317,32 @@ class Scene:
                 fl.add([outer_a + y, outer_b + y, outer_b + g, outer_a + g], side * right, outer_a + y, chord, DOWN,
                        "concrete", skey=key, offset=(a % 4.0, 0))
         for side in (-1, 1):
-            self._lots(fl, rng, side, s_lo + 5, s_hi - 5)
+            back = self.scenario.right_setback_m if side > 0 and self.scenario is not None else 0.0
+            self._lots(fl, rng, side, s_lo + 5, s_hi - 5, back)
         self.static_verts, self.static_rows = fl.arrays()
-        # bounding spheres for the view test (padded vertices repeat a real one: the box is exact)
+        self._static_spheres()
+
+    def _static_spheres(self) -> None:
+        """Bounding spheres of the static faces for the view test (padded vertices repeat a real
+        one: the box is exact)."""
         lo, hi = self.static_verts.min(1), self.static_verts.max(1)
         self.static_centres = (lo + hi) / 2
         self.static_radii = np.linalg.norm(hi - lo, axis=1) / 2
 
-    def _lots(self, fl: FaceList, rng, side: int, s_lo: float, s_hi: float) -> None:
+    def add_static(self, fl: FaceList) -> None:
+        """More static structure (a staged scenario's roadside): background faces (object id 0,
+        so no ``ObjectTruth``), drawn like the rest, each kept within view by its ``R_SKEY``."""
+        v, r = fl.arrays()
+        if len(v):
+            self.static_verts = np.concatenate([self.static_verts, v])
+            self.static_rows = np.concatenate([self.static_rows, r])
+            self._static_spheres()
+
+    def _lots(self, fl: FaceList, rng, side: int, s_lo: float, s_hi: float, back_m: float = 0.0) -> None:
+        """Buildings, walls, fences, trees and street furniture along one side; ``back_m`` moves
+        the lots (not the street furniture) that much further from the sidewalk."""
         road = self.road
-        front = self.half + SIDEWALK_M
+        front = self.half + SIDEWALK_M + back_m
         s = s_lo
         facades = ["facade_brick", "facade_plaster", "facade_glass", "facade_stone"]
         while s < s_hi:
@@ -388,19 +404,26 @@ class Scene:
 
     # ----- objects
 
-    def add_object(self, rng: np.random.Generator, category: str, motion: Motion, size=None) -> Obj:
-        """One more object (its track id is the next free one); size, tint and mesh seed from ``rng``."""
-        return self._new(rng, category, motion, size)
+    def add_object(self, rng: np.random.Generator, category: str, motion: Motion, size=None,
+                   shape: str | None = None) -> Obj:
+        """One more object (its track id is the next free one); size, tint and mesh seed from ``rng``;
+        ``shape``: the variant (a car's body, a tyre's pose, a barrier's kind) instead of a random one."""
+        return self._new(rng, category, motion, size, shape=shape)
 
-    def _new(self, rng, category: str, motion: Motion, size=None, riding: bool = False) -> Obj:
-        shape = ""
-        if category == "car":
+    def _new(self, rng, category: str, motion: Motion, size=None, riding: bool = False, shape: str | None = None) -> Obj:
+        if shape is not None:  # chosen by the caller (a staged scenario): no draw for it
+            body = next((c for c in CAR_SHAPES if c.name == shape), None) if category == "car" else None
+            if category == "car" and body is None:
+                raise KeyError(f"no car body {shape!r}")
+        elif category == "car":
             body = CAR_SHAPES[int(rng.choice(len(CAR_SHAPES), p=CAR_WEIGHTS))]
             shape = body.name
         elif category == "tyre":
             shape = str(rng.choice(["lying1", "lying2", "lying3", "upright"], p=[0.35, 0.2, 0.1, 0.35]))
         elif category == "barrier":
             shape = "jersey" if rng.random() < 0.35 else "board"
+        else:
+            shape = ""
         if size is None:
             if category == "car":
                 size = (rng.uniform(*body.width), rng.uniform(*body.height), rng.uniform(*body.length))

@@ -440,6 +440,61 @@ def mottled(rng, h, w) -> np.ndarray:
     return _rgb(g, (1, 1, 1))
 
 
+def _wrapped_leaves(rng, h: int, w: int, n: int, size_px: tuple[float, float], colours: np.ndarray) -> np.ndarray:
+    """``n`` leaf-shaped ellipses of random size, angle and colour (rows of ``colours`` mixed),
+    painted in random order over a dark ground; a leaf that crosses the tile's edge is drawn
+    again shifted by the tile size, so the tile wraps without a seam."""
+    img = np.empty((h, w, 3), np.float32)
+    img[:] = colours[0] * 0.35  # the shadowed inside of the bush between leaves
+    xy = rng.random((n, 2)) * (w, h)
+    ax = rng.uniform(*size_px, (n, 1)) * (1.0, 0.5)  # a leaf about twice as long as wide
+    ang = rng.uniform(0, 180, n)
+    mix = rng.random((n, len(colours)))
+    mix /= mix.sum(1, keepdims=True)
+    cols = (mix @ colours) * rng.uniform(0.55, 1.25, (n, 1))
+    sub = 4  # cv2's 2 fractional bits: sub-texel leaf shapes
+    for (x, y), (a, b), t, col in zip(xy.tolist(), ax.tolist(), ang.tolist(), cols.tolist()):
+        for dy in (-h, 0, h):
+            if not -a < y + dy < h + a:
+                continue
+            for dx in (-w, 0, w):
+                if -a < x + dx < w + a:
+                    cv2.ellipse(img, (round((x + dx) * sub), round((y + dy) * sub)),
+                                (max(1, round(a * sub)), max(1, round(b * sub))), t, 0, 360, col, -1, cv2.LINE_AA, 2)
+    return img
+
+
+HEDGE_LEAVES = 1400  # ours: leaves per hedge tile (1.5 m square): they cover it about twice over
+HEDGE_LEAF_PX = (2.0, 4.5)  # ours: a leaf's half length in texels (128 a metre: leaves 3–7 cm, privet's size)
+
+
+def hedge(rng, h, w) -> np.ndarray:
+    """A clipped hedge's surface (privet, beech): a mat of small overlapping leaves in several
+    greens, darker hollows between them and a faint large-scale mottling."""
+    colours = np.array([[0.20, 0.36, 0.10], [0.30, 0.45, 0.14], [0.16, 0.28, 0.09], [0.36, 0.46, 0.18]], np.float32)
+    img = _wrapped_leaves(rng, h, w, HEDGE_LEAVES, HEDGE_LEAF_PX, colours)
+    hollow = np.clip(-fbm(rng, h, w, 6, 4) - 0.15, 0, 1)[..., None]  # gaps into the dark inside
+    img = img * (1 - 0.7 * hollow) * (0.9 + 0.15 * fbm(rng, h, w, 2, 3))[..., None]
+    return np.clip(img, 0, 1)
+
+
+def lawn(rng, h, w) -> np.ndarray:
+    """Mown verge grass: fine blades (short streaks along v), yellower and browner patches."""
+    blades = value_noise(rng, h, w, (h // 6, w // 2)) - 0.5  # cells 2 texels wide, 6 long: blade-like
+    g = 0.62 + 0.45 * blades + 0.2 * fbm(rng, h, w, 8, 4) + 0.15 * speckle(rng, h, w, 0.25)
+    dry = np.clip(fbm(rng, h, w, 4, 4) * 1.5, 0, 1)[..., None]
+    green = _rgb(g, (0.30, 0.48, 0.16))
+    straw = _rgb(g, (0.50, 0.50, 0.26))
+    return np.clip(green * (1 - dry) + straw * dry, 0, 1)
+
+
+def timber(rng, h, w) -> np.ndarray:
+    """Weathered softwood (fence posts and rails): grey-brown, the grain along v."""
+    grain = value_noise(rng, h, w, (2, w // 3)) - 0.5
+    g = 0.62 + 0.3 * grain + 0.1 * fbm(rng, h, w, 4, 4) + 0.05 * speckle(rng, h, w, 0.2)
+    return _rgb(g, (0.62, 0.55, 0.45))
+
+
 def sky_clouds(rng, h, w) -> np.ndarray:
     """Cloud cover in [0, 1] over azimuth (x, periodic) × elevation (y, row 0 = zenith)."""
     c = fbm(rng, h, w, 8, 6, 0.55)
@@ -509,6 +564,10 @@ def _tile_specs() -> dict[str, tuple[int, int, float, float]]:
 # main tile and draws no random number of theirs, so the worlds drawn before stay bit-identical.
 EXTRA_TILES = {
     "flat": (64, 64, 1.0, 1.0),  # ours: one uniform grey, a textureless surface (scenario "textureless")
+    # the roadside clutter of scenario "verge" (names sort after "flat": its seed index stays 0)
+    "hedge": (192, 192, 1.5, 1.5),  # ours: 0.8 cm a texel, fine enough for 3–7 cm leaves
+    "lawn": (256, 256, 2.0, 2.0),  # ours: mown grass, blades ~1 cm
+    "timber": (64, 128, 0.5, 1.0),  # ours: weathered fence wood, grain along v
 }
 
 
@@ -607,6 +666,12 @@ def make_tile(name: str, rng: np.random.Generator, w: int, h: int) -> np.ndarray
         return sky_clouds(rng, h, w)
     if name == "flat":
         return np.full((h, w, 3), 0.75, np.float32)
+    if name == "hedge":
+        return hedge(rng, h, w)
+    if name == "lawn":
+        return lawn(rng, h, w)
+    if name == "timber":
+        return timber(rng, h, w)
     raise KeyError(name)
 
 
