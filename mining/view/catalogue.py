@@ -5,6 +5,9 @@ time (a lock: the connection's registered tables — empty tables, non-local cat
 not visible to ``cursor()`` copies, and each query takes milliseconds), with user values as
 bound parameters only (``filters.py``). A tube id from a URL is looked up by parameter
 before anything else uses it; an id the catalogue does not hold is simply not found.
+
+A request reads at most ``MAX_TUBE_FRAMES`` frames of a tube (a longer tube is TooLarge,
+answered 413), and only the columns it shows: masks are read one frame at a time.
 """
 
 from __future__ import annotations
@@ -23,13 +26,17 @@ from mining.catalog.views import connect
 from mining.errors import InputError
 from mining.proposals.coco import COCO_CLASSES
 from mining.types import UNKNOWN_CLASS
-from mining.view.filters import CARD_COLUMNS, RANGE_COLUMNS, TubeFilter, sql_string
+from mining.view.filters import CARD_COLUMNS, RANGE_COLUMNS, TooLarge, TubeFilter, sql_string
 
 CLASS_NAMES = (*COCO_CLASSES, "unknown")
 assert len(CLASS_NAMES) == UNKNOWN_CLASS + 1
 TOP_CLASSES = 5  # ours: posterior entries a tube page lists
 FRAME_COLUMNS = ("frame", "t_ns", "observed", "bbox", "objectness", "position_world", "position_cam", "mask_iou",
                  "motion_density", "rle_h", "rle_w")
+CHOICE_COLUMNS = ("frame", "observed", "bbox", "rle_h", "rle_w")  # what images.best_frame looks at
+# ours: a tube page shows at most this many frames (17 minutes at 10 fps); mine query and mine export
+# read a longer tube whole.
+MAX_TUBE_FRAMES = 10_000
 _SAFE_SHELL = re.compile(r"[A-Za-z0-9_@%+=:,./' <>()*-]*")  # needs no quoting inside "…" in a POSIX shell
 
 
@@ -111,10 +118,15 @@ class CatalogueBrowser:
         rows = self._query("SELECT * FROM tubes WHERE tube_id = ?", [tube_id])
         return rows[0] if rows else None
 
-    def frames(self, tube: dict) -> list[dict]:
-        """The tube's frames in frame order, with their masks."""
-        return self._query("SELECT * FROM tube_frames WHERE dataset = ? AND sequence = ? AND tube_id = ? ORDER BY frame",
-                           [tube["dataset"], tube["sequence"], tube["tube_id"]])
+    def frames(self, tube: dict, columns: tuple[str, ...] = FRAME_COLUMNS) -> list[dict]:
+        """The tube's frames in frame order (``columns`` of each, fixed names); TooLarge past MAX_TUBE_FRAMES."""
+        rows = self._query(f"SELECT {', '.join(columns)} FROM tube_frames WHERE dataset = ? AND sequence = ? "
+                           "AND tube_id = ? ORDER BY frame LIMIT ?",
+                           [tube["dataset"], tube["sequence"], tube["tube_id"], MAX_TUBE_FRAMES + 1])
+        if len(rows) > MAX_TUBE_FRAMES:
+            raise TooLarge(f"tube {tube['tube_id']!r} has more than {MAX_TUBE_FRAMES} frames, more than the viewer "
+                           "reads for one request; `mine query` and `mine export` read it whole")
+        return rows
 
     def frame(self, tube: dict, frame: int) -> dict | None:
         rows = self._query("SELECT * FROM tube_frames WHERE dataset = ? AND sequence = ? AND tube_id = ? AND frame = ?",
@@ -123,10 +135,11 @@ class CatalogueBrowser:
 
     def ego_path(self, tube: dict) -> list[dict]:
         """The camera's positions over the tube's frames, in the world of the tube's segment."""
-        rows = self._query("SELECT frame, pose[4] AS x, pose[8] AS y, pose[12] AS z FROM frames WHERE dataset = ? "
-                           "AND sequence = ? AND segment = ? AND frame BETWEEN ? AND ? ORDER BY frame",
-                           [tube["dataset"], tube["sequence"], tube["segment"], tube["frame_start"], tube["frame_end"]])
-        return rows
+        # At most one pose per frame the page may show (frame_start and frame_end come from the row).
+        return self._query("SELECT frame, pose[4] AS x, pose[8] AS y, pose[12] AS z FROM frames WHERE dataset = ? "
+                           "AND sequence = ? AND segment = ? AND frame BETWEEN ? AND ? ORDER BY frame LIMIT ?",
+                           [tube["dataset"], tube["sequence"], tube["segment"], tube["frame_start"], tube["frame_end"],
+                            MAX_TUBE_FRAMES])
 
     def detail(self, tube_id: str) -> dict | None:
         """Everything a tube page shows, or None for an id the catalogue does not hold."""
@@ -138,7 +151,7 @@ class CatalogueBrowser:
         if posterior:
             order = sorted(range(len(posterior)), key=lambda k: -(posterior[k] or 0.0))[:TOP_CLASSES]
             top = [{"name": CLASS_NAMES[k] if k < len(CLASS_NAMES) else str(k), "p": posterior[k]} for k in order]
-        frames = [{c: f[c] for c in FRAME_COLUMNS} for f in self.frames(tube)]
+        frames = self.frames(tube)
         where = f"tube_id = {sql_string(tube_id)}"
         return {"tube": tube, "top_classes": top, "frames": frames, "ego": self.ego_path(tube),
                 "where": where, "export_command": export_command(self.out, where, f"crops/{tube_id.replace('/', '_')}")}

@@ -10,17 +10,23 @@ Parameters (each may repeat where it says so):
 
 * ``set``: ``selected`` (default: the mined result) or ``all`` (every candidate tube)
 * ``known``: ``true`` / ``false`` / ``null`` — known, unknown, unclassified (repeat for several)
-* ``category``: a category name (repeat for several)
-* ``seq``: ``DATASET/SEQUENCE`` (repeat for several)
+* ``category``: one of ``CATEGORIES``, the 80 COCO class names or ``unknown`` (repeat for several)
+* ``seq``: ``DATASET/SEQUENCE``, both safe names (``mining/names.py``; repeat for several)
 * ``min_C`` / ``max_C`` for C in ``RANGE_COLUMNS``: inclusive bounds
 * ``sort``: one of ``SORT_COLUMNS`` (default score), ``order``: ``desc`` (default) or ``asc``
-* ``offset`` ≥ 0 and ``limit`` in 1..``MAX_LIMIT`` (default ``DEFAULT_LIMIT``): the page
+* ``offset`` in 0..``MAX_OFFSET`` and ``limit`` in 1..``MAX_LIMIT`` (default ``DEFAULT_LIMIT``): the page
+
+A value outside its vocabulary is an error, never ignored: a shared address that the
+server does not understand must say so rather than show other tubes than it names.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+
+from mining.names import NAME_RULE, name_problem
+from mining.proposals.coco import COCO_CLASSES
 
 RANGE_COLUMNS = ("score", "score_motion", "score_mask", "score_objectness", "n_frames", "n_observed",
                  "category_prob", "class_evidence", "speed", "path_length")
@@ -29,6 +35,9 @@ SORT_COLUMNS = (*RANGE_COLUMNS, "tube_id", "sequence", "frame_start", "category"
 KNOWN_VALUES = {"true": "known = true", "false": "known = false", "null": "known IS NULL"}
 DEFAULT_LIMIT = 48  # ours: tubes per gallery page (a 6 × 8 grid)
 MAX_LIMIT = 500  # ours: the most one request may ask for
+MAX_OFFSET = 1_000_000_000  # ours: far past any catalogue, and inside DuckDB's BIGINT OFFSET
+# What tube_category writes into the category column (mining/tubes/category.py).
+CATEGORIES = frozenset((*COCO_CLASSES, "unknown"))
 # The columns a gallery card shows (the whole row is one `mine query` away).
 CARD_COLUMNS = ("tube_id", "dataset", "sequence", "frame_start", "frame_end", "n_frames", "n_observed", "score",
                 "score_motion", "score_mask", "score_objectness", "selected", "known", "category", "category_prob",
@@ -37,6 +46,11 @@ CARD_COLUMNS = ("tube_id", "dataset", "sequence", "frame_start", "frame_end", "n
 
 class FilterError(ValueError):
     """A query parameter the gallery cannot use; the message says which and why."""
+
+
+class TooLarge(ValueError):
+    """A request that would cost more than the viewer lets one request cost (answered 413);
+    the message says what and the limit."""
 
 
 def _one(params: dict[str, list[str]], name: str) -> str | None:
@@ -91,6 +105,9 @@ class TubeFilter:
         if bad:
             raise FilterError(f"parameter 'known' is true, false or null (known, unknown, unclassified), got {bad[0]!r}")
         categories = tuple(dict.fromkeys(v for v in params.get("category", []) if v))
+        bad = [v for v in categories if v not in CATEGORIES]
+        if bad:
+            raise FilterError(f"parameter 'category' is a COCO class name (car, person, …) or 'unknown', got {bad[0]!r}")
         sequences = []
         for v in params.get("seq", []):
             if not v:
@@ -98,6 +115,9 @@ class TubeFilter:
             dataset, sep, sequence = v.partition("/")
             if not sep or not dataset or not sequence:
                 raise FilterError(f"parameter 'seq' is DATASET/SEQUENCE, got {v!r}")
+            problem = name_problem(dataset) or name_problem(sequence)
+            if problem:
+                raise FilterError(f"parameter 'seq' is DATASET/SEQUENCE of names ({NAME_RULE}), got {v!r}: {problem}")
             sequences.append((dataset, sequence))
         ranges = []
         for c in RANGE_COLUMNS:
@@ -118,6 +138,8 @@ class TubeFilter:
         limit = _number("limit", _one(params, "limit") or str(DEFAULT_LIMIT), True)
         if offset < 0:
             raise FilterError(f"parameter 'offset' must be ≥ 0, got {offset}")
+        if offset > MAX_OFFSET:
+            raise FilterError(f"parameter 'offset' must be at most {MAX_OFFSET}, got {offset}")
         if not 1 <= limit <= MAX_LIMIT:
             raise FilterError(f"parameter 'limit' must be in 1..{MAX_LIMIT}, got {limit}")
         return cls(which == "all", known, categories, tuple(sequences), tuple(ranges), sort, order == "desc",

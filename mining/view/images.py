@@ -10,19 +10,31 @@ cut by the image border — cropped with context around the box) and a *frame* (
 frame, or a strip-sized copy, with the mask filled lightly and outlined). Outlines are
 ``cv2.findContours`` of the mask drawn after resizing, so they stay two pixels wide.
 
-Encoded JPEGs are cached twice: an LRU in memory, and files in a folder the user chooses
-(``--cache``; the system temporary folder by default, never inside the catalogue). A file's
-name is the sha256 of everything the picture depends on (the source, the frame, the mask,
-the box, the kind and size, ``RENDER_VERSION``), so no name is ever built from a tube id,
-and a changed catalogue cannot serve a stale picture. Cached files are only ever served as
-image bytes, and only when they start as a JPEG does.
+Encoded JPEGs are cached twice: an LRU in memory, and files in a folder (``--cache``; by
+default ``tube-miner/view`` in the user's own cache folder, never inside the catalogue). The
+folder is only used when it is the user's and nobody else may write in it (created 0700;
+one owned by someone else, or with group or other write bits, is refused: memory only, with
+a note). It holds a secret ``key`` (32 random bytes, 0600); a file's name is the HMAC-SHA256
+under that key of everything the picture depends on (the source, the frame, the mask, the
+box, the kind and size, ``RENDER_VERSION``), so no name is built from a tube id, a changed
+catalogue cannot serve a stale picture, and nobody without the key can tell which name a
+picture will have. Each file also carries, in a JPEG comment after its start marker, an
+HMAC of its name and its bytes: a file this viewer did not write is never served (it is
+drawn again and replaced). Files are 0600, subfolders 0700.
+
+One picture costs at most ``MAX_PICTURE_PIXELS``: a catalogue row whose mask is larger is
+refused (``TooLarge``, answered 413) before any pixel is read or allocated, and a mask whose
+runs do not add up to its size is a placeholder, never decoded.
 """
 
 from __future__ import annotations
 
 import hashlib
+import hmac
 import json
 import os
+import secrets
+import stat
 import tempfile
 import threading
 from collections import OrderedDict
@@ -33,6 +45,8 @@ import numpy as np
 from pycocotools import mask as mask_utils
 
 from mining.errors import ConfigError, MiningError
+from mining.masks import rle_counts
+from mining.view.filters import TooLarge
 
 RENDER_VERSION = 1  # bump when drawing changes: every cached file name changes with it
 THUMB_SIZE = (240, 180)  # ours: gallery thumbnail width × height (4:3)
@@ -47,6 +61,13 @@ OUTLINE_PX = 2  # ours
 MEMORY_CACHE_BYTES = 64 << 20  # ours: encoded pictures kept in memory
 FRAME_CACHE = 24  # ours: decoded source frames kept in memory (neighbouring tubes share frames)
 SIZES = ("full", "strip")
+MAX_PICTURE_PIXELS = 7680 * 4320  # ours: an 8K UHD frame (KITTI's is 0.47 MP); a larger mask is refused, 413
+PLACEHOLDER_MAX_SIDE = 2048  # ours: a placeholder keeps the frame's shape, not its size
+MAX_CACHED_FILE_BYTES = 16 << 20  # ours: a cache file larger than this is not read (ours are ~20-300 KB)
+KEY_FILE = "key"
+KEY_BYTES = 32
+TAG_MARK = b"tube-miner-view\0"  # starts the JPEG comment that carries a cache file's HMAC
+COM = b"\xff\xfe"  # JPEG comment marker
 # Outline colours (RGB) by the tube's class: known, unknown, unclassified; a predicted frame is white.
 COLOURS = {True: (70, 220, 90), False: (255, 150, 20), None: (40, 190, 255)}
 PREDICTED = (255, 255, 255)
@@ -54,9 +75,17 @@ JPEG_MAGIC = b"\xff\xd8\xff"
 
 
 def default_cache_dir() -> Path:
-    """``tube-miner-view-<uid>`` in the system temporary folder (one per user: no one reads another's)."""
-    uid = os.getuid() if hasattr(os, "getuid") else os.getlogin()
-    return Path(tempfile.gettempdir()) / f"tube-miner-view-{uid}"
+    """``tube-miner/view`` in the user's cache folder (``$XDG_CACHE_HOME``, else ``~/.cache``):
+    a folder of the user's own, not a shared one such as /tmp where another user could
+    have made it first. Without a home folder, ``tube-miner-view-<uid>`` in the system
+    temporary folder (ImageCache still refuses it when it is not the user's alone)."""
+    base = os.environ.get("XDG_CACHE_HOME", "")
+    if not os.path.isabs(base):  # the XDG rule: a relative value is ignored
+        try:
+            base = str(Path.home() / ".cache")
+        except RuntimeError:
+            return Path(tempfile.gettempdir()) / f"tube-miner-view-{os.getuid()}"
+    return Path(base) / "tube-miner" / "view"
 
 
 class Unavailable(Exception):
@@ -134,63 +163,184 @@ class FrameSource:
             return image
 
 
+class CacheRefused(Exception):
+    """The cache folder is not safe to use; ``str()`` says why."""
+
+
+def _owned_folder(folder: Path) -> None:
+    """Make ``folder`` (0700) or check a pre-existing one: the user's, and nobody else may write in it."""
+    try:
+        folder.mkdir(parents=True, mode=0o700)
+    except FileExistsError:
+        pass
+    st = os.stat(folder)
+    if not stat.S_ISDIR(st.st_mode):
+        raise CacheRefused("it is not a folder")
+    if st.st_uid != os.getuid():
+        raise CacheRefused(f"it belongs to uid {st.st_uid}, not to you (uid {os.getuid()})")
+    if st.st_mode & 0o022:
+        raise CacheRefused(f"others may write in it (mode {stat.S_IMODE(st.st_mode):04o}); "
+                           "chmod go-w it or choose another --cache")
+
+
+def _secret_key(path: Path) -> bytes:
+    """The folder's HMAC key: read (it must be the user's alone, 0600) or made once, atomically."""
+    nofollow = getattr(os, "O_NOFOLLOW", 0)
+    for _ in range(3):
+        try:
+            fd = os.open(path, os.O_RDONLY | nofollow)
+        except FileNotFoundError:
+            # Written to a private temporary file, then linked into place: a reader never sees half a key,
+            # and of two viewers starting at once the second finds the first's key.
+            key = secrets.token_bytes(KEY_BYTES)
+            tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | nofollow, 0o600)
+            try:
+                with os.fdopen(fd, "wb") as f:
+                    f.write(key)
+                os.link(tmp, path)
+                return key
+            except FileExistsError:
+                continue
+            finally:
+                tmp.unlink(missing_ok=True)
+        with os.fdopen(fd, "rb") as f:
+            st = os.fstat(f.fileno())
+            if not stat.S_ISREG(st.st_mode) or st.st_uid != os.getuid() or st.st_mode & 0o077:
+                raise CacheRefused(f"its key file {path} is not yours alone (mode {stat.S_IMODE(st.st_mode):04o}, "
+                                   f"uid {st.st_uid})")
+            key = f.read(KEY_BYTES + 1)
+        if len(key) != KEY_BYTES:
+            raise CacheRefused(f"its key file {path} is not {KEY_BYTES} bytes; delete it")
+        return key
+    raise CacheRefused(f"its key file {path} keeps changing")
+
+
 class ImageCache:
-    """Encoded pictures by key: an LRU in memory over files in ``folder`` (None: memory only)."""
+    """Encoded pictures by name: an LRU in memory over files in ``folder`` (None: memory only).
+
+    ``name(material)`` is the keyed hash of what a picture depends on; ``put`` returns the
+    bytes to serve (the JPEG with its HMAC comment), which ``get`` gives back only when the
+    HMAC checks out."""
 
     def __init__(self, folder: Path | None, memory_bytes: int = MEMORY_CACHE_BYTES):
-        self.folder = folder
+        self.folder: Path | None = None
         self.memory_bytes = memory_bytes
         self._mem: OrderedDict[str, bytes] = OrderedDict()
         self._size = 0
         self._lock = threading.Lock()
         self.problem: str | None = None
+        self._key = secrets.token_bytes(KEY_BYTES)  # memory only: a key of this process alone
         if folder is not None:
             try:
-                folder.mkdir(parents=True, exist_ok=True)
-            except OSError as e:  # pictures are still drawn, only not kept across restarts
-                self.folder, self.problem = None, f"cannot use {folder} as the picture cache ({e}): memory only"
+                _owned_folder(folder)
+                self._key = _secret_key(folder / KEY_FILE)
+                self.folder = folder
+            except (CacheRefused, OSError) as e:  # pictures are still drawn, only not kept across restarts
+                self.problem = f"cannot use {folder} as the picture cache ({e}): memory only"
 
-    def _path(self, key: str) -> Path:
-        assert len(key) == 64 and all(c in "0123456789abcdef" for c in key)  # a sha256 hex digest only
-        return self.folder / key[:2] / f"{key}.jpg"
+    def name(self, material: bytes) -> str:
+        """The file name (64 hex digits) of the picture that ``material`` describes."""
+        return hmac.new(self._key, material, hashlib.sha256).hexdigest()
 
-    def get(self, key: str) -> bytes | None:
+    def _path(self, name: str) -> Path:
+        assert len(name) == 64 and all(c in "0123456789abcdef" for c in name)  # a hex digest only
+        return self.folder / name[:2] / f"{name}.jpg"
+
+    def _tag(self, name: str, jpeg: bytes) -> bytes:
+        return hmac.new(self._key, name.encode() + b"\0" + jpeg, hashlib.sha256).digest()
+
+    def _sealed(self, name: str, jpeg: bytes) -> bytes:
+        """``jpeg`` with a comment segment right after its start marker holding the HMAC."""
+        body = TAG_MARK + self._tag(name, jpeg)
+        return jpeg[:2] + COM + (2 + len(body)).to_bytes(2, "big") + body + jpeg[2:]
+
+    def _genuine(self, name: str, data: bytes) -> bool:
+        """Whether ``data`` is a picture this cache sealed under ``name``."""
+        head = 2 + 4 + len(TAG_MARK)  # start marker, comment marker and length, mark
+        end = head + hashlib.sha256().digest_size
+        if len(data) < end or data[2:4] != COM or data[6:head] != TAG_MARK:
+            return False
+        jpeg = data[:2] + data[end:]
+        return jpeg.startswith(JPEG_MAGIC) and hmac.compare_digest(data[head:end], self._tag(name, jpeg))
+
+    def get(self, name: str) -> bytes | None:
         with self._lock:
-            if key in self._mem:
-                self._mem.move_to_end(key)
-                return self._mem[key]
+            if name in self._mem:
+                self._mem.move_to_end(name)
+                return self._mem[name]
         if self.folder is None:
             return None
         try:
-            data = self._path(key).read_bytes()
+            fd = os.open(self._path(name), os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0))
+            with os.fdopen(fd, "rb") as f:
+                st = os.fstat(f.fileno())
+                if not stat.S_ISREG(st.st_mode) or st.st_size > MAX_CACHED_FILE_BYTES:
+                    return None
+                data = f.read(MAX_CACHED_FILE_BYTES + 1)
         except OSError:
             return None
-        if not data.startswith(JPEG_MAGIC):
-            return None
-        self._remember(key, data)
+        if not self._genuine(name, data):
+            return None  # not ours (planted, damaged, another key's): drawn again and replaced
+        self._remember(name, data)
         return data
 
-    def _remember(self, key: str, data: bytes) -> None:
+    def _remember(self, name: str, data: bytes) -> None:
         with self._lock:
-            if key not in self._mem:
-                self._mem[key] = data
+            if name not in self._mem:
+                self._mem[name] = data
                 self._size += len(data)
             while self._size > self.memory_bytes and self._mem:
                 _, old = self._mem.popitem(last=False)
                 self._size -= len(old)
 
-    def put(self, key: str, data: bytes) -> None:
-        self._remember(key, data)
+    def put(self, name: str, jpeg: bytes) -> bytes:
+        """Keep ``jpeg`` under ``name``; returns the sealed bytes to serve."""
+        data = self._sealed(name, jpeg)
+        self._remember(name, data)
         if self.folder is None:
-            return
-        path = self._path(key)
+            return data
+        path = self._path(name)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
         try:
-            path.parent.mkdir(exist_ok=True)
-            tmp = path.with_name(f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp")
-            tmp.write_bytes(data)
+            path.parent.mkdir(mode=0o700, exist_ok=True)
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o600)
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
             os.replace(tmp, path)
         except OSError:
-            pass  # a full or read-only cache folder costs speed, not pictures
+            tmp.unlink(missing_ok=True)  # a full or read-only cache folder costs speed, not pictures
+        return data
+
+
+def check_size(tube: dict, frame: dict) -> None:
+    """TooLarge when ``frame``'s mask (the size of the picture drawn from it) is over MAX_PICTURE_PIXELS."""
+    h, w = frame["rle_h"], frame["rle_w"]
+    if isinstance(h, int) and isinstance(w, int) and h * w > MAX_PICTURE_PIXELS:
+        raise TooLarge(f"frame {frame['frame']} of tube {tube['tube_id']!r} has a {w}x{h} mask "
+                       f"({h * w / 1e6:.0f} MP); a picture may have at most {MAX_PICTURE_PIXELS / 1e6:.1f} MP")
+
+
+def decode_mask(frame: dict) -> np.ndarray:
+    """The (H, W) uint8 mask of a tube_frames row; Unavailable when its RLE is malformed (its runs
+    must be non-negative and cover exactly H × W pixels: pycocotools trusts them)."""
+    h, w, counts = frame["rle_h"], frame["rle_w"], frame["rle_counts"]
+    problem = None
+    if not (isinstance(h, int) and isinstance(w, int) and h > 0 and w > 0):
+        problem = f"its size {w}x{h} is not positive"
+    elif not isinstance(counts, str) or not counts.isascii():
+        problem = "its counts are not an RLE string"
+    else:
+        try:
+            runs = rle_counts({"size": [h, w], "counts": counts})
+        except (ValueError, IndexError):  # a number cut off at the end of the string
+            runs = np.array([-1])
+        # Each run within 0..H·W first, so that their sum cannot wrap around.
+        if runs.size == 0 or runs.min() < 0 or runs.max() > h * w or int(runs.sum()) != h * w:
+            problem = f"its runs do not cover exactly {w}x{h} pixels"
+    if problem:
+        raise Unavailable(f"the catalogue's mask of frame {frame['frame']} is malformed ({problem})")
+    return mask_utils.decode({"size": [h, w], "counts": counts.encode()})
 
 
 def best_frame(frames: list[dict], width: int | None = None, height: int | None = None) -> dict:
@@ -275,36 +425,35 @@ class TubeImages:
         self.source = source
         self.cache = cache
 
-    def _key(self, kind: str, size: str, tube: dict, frame: dict) -> str:
+    def _name(self, kind: str, size: str, tube: dict, frame: dict) -> str:
         material = json.dumps([RENDER_VERSION, kind, size, self.source.identity, tube["dataset"], tube["sequence"],
                                frame["frame"], frame["rle_h"], frame["rle_w"], frame["rle_counts"],
                                [round(float(v), 3) for v in frame["bbox"]], tube["known"], frame["observed"]])
-        return hashlib.sha256(material.encode()).hexdigest()
+        return self.cache.name(material.encode())
 
     def _image_and_mask(self, tube: dict, frame: dict) -> tuple[np.ndarray, np.ndarray]:
+        mask = decode_mask(frame)  # first: a malformed row costs no image read
         image = self.source.left(tube["dataset"], tube["sequence"], frame["frame"])
         h, w = image.shape[:2]
-        if (frame["rle_h"], frame["rle_w"]) != (h, w):
+        if mask.shape != (h, w):
             raise Unavailable(f"the mask is {frame['rle_w']}x{frame['rle_h']} but frame {frame['frame']} of the "
                               f"source is {w}x{h}: the job's source is not the one this catalogue was mined from")
-        mask = mask_utils.decode({"size": [h, w], "counts": frame["rle_counts"].encode()})
         return image, mask
 
     def _cached(self, kind: str, size: str, tube: dict, frame: dict, draw) -> tuple[bytes, str | None]:
-        key = self._key(kind, size, tube, frame)
-        data = self.cache.get(key)
+        check_size(tube, frame)  # before the cache, the image and any allocation
+        name = self._name(kind, size, tube, frame)
+        data = self.cache.get(name)
         if data is not None:
             return data, None
         try:
             image, mask = self._image_and_mask(tube, frame)
         except Unavailable as e:
             return None, str(e)
-        data = _jpeg(draw(image, mask))
-        self.cache.put(key, data)
-        return data, None
+        return self.cache.put(name, _jpeg(draw(image, mask))), None
 
     def thumbnail(self, tube: dict, frame: dict) -> tuple[bytes, str | None]:
-        """The gallery picture of ``tube`` on ``frame`` (best_frame's choice)."""
+        """The gallery picture of ``tube`` on ``frame`` (best_frame's choice); TooLarge over the limit."""
         colour = COLOURS[tube["known"]]
 
         def draw(image, mask):
@@ -324,7 +473,7 @@ class TubeImages:
         return (data, None) if reason is None else (placeholder(reason, THUMB_SIZE), reason)
 
     def frame(self, tube: dict, frame: dict, size: str) -> tuple[bytes, str | None]:
-        """Frame ``frame`` of ``tube`` with its mask, at ``size`` (one of SIZES)."""
+        """Frame ``frame`` of ``tube`` with its mask, at ``size`` (one of SIZES); TooLarge over the limit."""
         if size not in SIZES:
             raise ValueError(f"size is one of {SIZES}, got {size!r}")
         colour = COLOURS[tube["known"]] if frame["observed"] else PREDICTED
@@ -340,7 +489,7 @@ class TubeImages:
         data, reason = self._cached("frame", size, tube, frame, draw)
         if reason is None:
             return data, None
-        w, h = int(frame["rle_w"]), int(frame["rle_h"])
-        if size == "strip":
-            w, h = STRIP_WIDTH, max(1, round(h * STRIP_WIDTH / max(w, 1)))
+        w, h = max(1, int(frame["rle_w"] or 1)), max(1, int(frame["rle_h"] or 1))
+        scale = STRIP_WIDTH / w if size == "strip" else min(1.0, PLACEHOLDER_MAX_SIDE / max(w, h))
+        w, h = min(round(w * scale), PLACEHOLDER_MAX_SIDE), min(round(h * scale), PLACEHOLDER_MAX_SIDE)
         return placeholder(reason, (max(w, 120), max(h, 60))), reason

@@ -1,15 +1,22 @@
-// The gallery: the filter form mirrors the URL's query (so a filter can be bookmarked or
-// shared), the server filters, sorts and pages (/api/tubes), this draws the cards.
+// The gallery: the address's query is the filter (so a filter can be bookmarked or shared).
+// It goes to /api/tubes as it is, every parameter of it, so the page shows exactly what the
+// address names, or the server's error saying which parameter it cannot use; the form mirrors
+// it, and a change in the form writes a new address. The server filters, sorts and pages; this
+// draws the cards.
 "use strict";
 
 const RANGES = [
   ["score", "score"], ["score_motion", "motion"], ["score_mask", "mask"],
-  ["score_objectness", "objectness"], ["n_frames", "frames"], ["category_prob", "class prob."],
+  ["score_objectness", "objectness"], ["n_frames", "frames"], ["n_observed", "frames seen"],
+  ["category_prob", "class prob."], ["class_evidence", "class evidence"], ["speed", "speed m/s"],
+  ["path_length", "path m"],
 ];
 const form = document.getElementById("filters");
-const PAGE = 48;
+const PAGE = 48;  // the page size when the address gives no limit
 let request = 0;  // only the latest answer is drawn
-let facetsFor = null;
+let facetsFor = null, facets = null;
+
+function address() { return new URLSearchParams(location.search); }
 
 function buildRanges() {
   const box = document.getElementById("ranges");
@@ -23,8 +30,9 @@ function buildRanges() {
 
 function formToParams() {
   const p = new URLSearchParams();
-  const set = form.querySelector("input[name=set]:checked").value;
-  if (set !== "selected") p.set("set", set);
+  const checked = form.querySelector("input[name=set]:checked");
+  const set = checked ? checked.value : address().get("set");  // none checked: the address's (bad) value stays
+  if (set !== null && set !== "selected") p.set("set", set);
   for (const c of form.querySelectorAll("input[name=known]:checked")) p.append("known", c.value);
   for (const o of document.getElementById("category").selectedOptions) p.append("category", o.value);
   for (const o of document.getElementById("seq").selectedOptions) p.append("seq", o.value);
@@ -37,7 +45,15 @@ function formToParams() {
   const sort = document.getElementById("sort").value, order = document.getElementById("order").value;
   if (sort !== "score") p.set("sort", sort);
   if (order !== "desc") p.set("order", order);
+  const limit = address().get("limit");  // the page size the address chose stays
+  if (limit !== null) p.set("limit", limit);
   return p;
+}
+
+// Select ``value`` in ``select``, adding it when the form does not offer it (the server judges it).
+function choose(select, value) {
+  if (![...select.options].some(o => o.value === value)) select.append(el("option", { value, text: value }));
+  select.value = value;
 }
 
 function paramsToForm(p) {
@@ -48,8 +64,9 @@ function paramsToForm(p) {
   for (const [col] of RANGES) {
     for (const b of ["min", "max"]) document.getElementById(`${b}_${col}`).value = p.get(`${b}_${col}`) || "";
   }
-  document.getElementById("sort").value = p.get("sort") || "score";
-  document.getElementById("order").value = p.get("order") || "desc";
+  choose(document.getElementById("sort"), p.get("sort") || "score");
+  choose(document.getElementById("order"), p.get("order") || "desc");
+  if (facets) fillSelects(p);
 }
 
 function fillSelect(select, items, wanted) {
@@ -65,26 +82,36 @@ function fillSelect(select, items, wanted) {
   }
 }
 
+// The category and sequence lists: the facets' values, the address's chosen.
+function fillSelects(p) {
+  const cats = document.getElementById("category");
+  fillSelect(cats, facets.categories.map(c => [c.category, `${c.category} (${c.n})`]), p.getAll("category"));
+  if (!cats.options.length) cats.append(el("option", { disabled: "", text: "none: no tube is classified" }));
+  fillSelect(document.getElementById("seq"), facets.sequences.map(s => [`${s.dataset}/${s.sequence}`, `${s.dataset}/${s.sequence} (${s.n})`]), p.getAll("seq"));
+}
+
 async function loadFacets(p) {
   const set = p.get("set") || "selected";
-  if (facetsFor === set) return;
-  const f = await getJSON(`/api/facets?set=${encodeURIComponent(set)}`);
-  facetsFor = set;
+  if (facetsFor !== set) {
+    facets = await getJSON(`/api/facets?set=${encodeURIComponent(set)}`);
+    facetsFor = set;
+  }
+  const f = facets;
   document.getElementById("catalogue").textContent = f.catalogue;
   document.getElementById("totals").textContent = `${f.selected} selected of ${f.tubes} candidate tubes`;
   for (const s of document.querySelectorAll("span.n[data-known]")) s.textContent = `(${f.known[s.dataset.known] || 0})`;
-  const cats = document.getElementById("category");
-  fillSelect(cats, f.categories.map(c => [c.category, `${c.category} (${c.n})`]), p.getAll("category"));
-  if (!cats.options.length) cats.append(el("option", { disabled: "", text: "none: no tube is classified" }));
-  fillSelect(document.getElementById("seq"), f.sequences.map(s => [`${s.dataset}/${s.sequence}`, `${s.dataset}/${s.sequence} (${s.n})`]), p.getAll("seq"));
+  fillSelects(p);
   for (const [col] of RANGES) {
     const [lo, hi] = f.ranges[col] || [null, null];
     // The catalogue's range as the hint, rounded outwards so typing it back keeps every tube.
     if (lo !== null) document.getElementById(`min_${col}`).placeholder = String(Math.floor(lo * 100) / 100);
     if (hi !== null) document.getElementById(`max_${col}`).placeholder = String(Math.ceil(hi * 100) / 100);
   }
-  showBanner(f.frames_unavailable ? `Pictures are placeholders: ${f.frames_unavailable}` : "");
-  if (f.tubes === 0) showBanner("This catalogue has no tubes yet (is a job still running? `mine status` says).");
+}
+
+function facetsNote() {
+  if (facets && facets.tubes === 0) return "This catalogue has no tubes yet (is a job still running? `mine status` says).";
+  return facets && facets.frames_unavailable ? `Pictures are placeholders: ${facets.frames_unavailable}` : "";
 }
 
 function card(t, back) {
@@ -106,34 +133,44 @@ function card(t, back) {
 async function load() {
   const mine = ++request;
   document.body.dataset.state = "loading";
-  const p = formToParams();
-  const offset = Number(new URLSearchParams(location.search).get("offset") || 0);
+  const p = address();
   try {
     await loadFacets(p);
-    const api = new URLSearchParams(p);
-    api.set("offset", offset); api.set("limit", PAGE);
+    const api = new URLSearchParams(p);  // every parameter of the address, so the server judges each
+    if (!api.has("limit")) api.set("limit", PAGE);
     const page = await getJSON(`/api/tubes?${api}`);
     if (mine !== request) return;
+    const size = page.limit, offset = page.offset;
+    showBanner(facetsNote());
     document.getElementById("count").textContent = page.total;
-    const pages = Math.max(1, Math.ceil(page.total / PAGE));
-    document.getElementById("pageinfo").textContent = page.total > PAGE ? ` · page ${Math.floor(offset / PAGE) + 1} of ${pages}` : "";
+    const pages = Math.max(1, Math.ceil(page.total / size));
+    document.getElementById("pageinfo").textContent = page.total > size ? ` · page ${Math.floor(offset / size) + 1} of ${pages}` : "";
     const back = location.search;
     document.getElementById("grid").replaceChildren(...page.tubes.map(t => card(t, back)));
     if (!page.tubes.length) document.getElementById("grid").append(el("p", { class: "muted", text: "No tube matches this filter." }));
     document.getElementById("prev").disabled = offset <= 0;
-    document.getElementById("next").disabled = offset + PAGE >= page.total;
+    document.getElementById("next").disabled = offset + size >= page.total;
     document.getElementById("export").textContent = page.export_command;
     document.body.dataset.total = page.total;
     document.body.dataset.state = "ready";
   } catch (e) {
     if (mine !== request) return;
+    // Nothing of another filter stays on screen: no cards, no count, no export line.
     showBanner(`Error: ${e.message}`);
+    document.getElementById("count").textContent = "–";
+    document.getElementById("pageinfo").textContent = "";
+    document.getElementById("grid").replaceChildren(el("p", { class: "muted", text: "The address's filter cannot be used (see above); change it in the form or reset." }));
+    document.getElementById("prev").disabled = document.getElementById("next").disabled = true;
+    document.getElementById("export").textContent = "";
+    document.body.dataset.total = "";
     document.body.dataset.state = "error";
   }
 }
 
+function pageSize() { return Number(address().get("limit")) || PAGE; }
+
 function setOffset(offset) {
-  const p = new URLSearchParams(location.search);
+  const p = address();
   if (offset > 0) p.set("offset", offset); else p.delete("offset");
   history.pushState(null, "", `/?${p}`);
   load();
@@ -147,7 +184,7 @@ function changed() {  // a filter changed: the URL says so, and the page starts 
 }
 
 buildRanges();
-paramsToForm(new URLSearchParams(location.search));
+paramsToForm(address());
 form.addEventListener("change", changed);
 form.addEventListener("input", e => {
   if (e.target.type !== "number") return;
@@ -156,8 +193,8 @@ form.addEventListener("input", e => {
 });
 form.addEventListener("submit", e => { e.preventDefault(); changed(); });
 document.getElementById("reset").addEventListener("click", () => { history.pushState(null, "", "/"); paramsToForm(new URLSearchParams()); facetsFor = null; load(); });
-document.getElementById("prev").addEventListener("click", () => setOffset(Math.max(0, Number(new URLSearchParams(location.search).get("offset") || 0) - PAGE)));
-document.getElementById("next").addEventListener("click", () => setOffset(Number(new URLSearchParams(location.search).get("offset") || 0) + PAGE));
-window.addEventListener("popstate", () => { paramsToForm(new URLSearchParams(location.search)); facetsFor = null; load(); });
+document.getElementById("prev").addEventListener("click", () => setOffset(Math.max(0, Number(address().get("offset") || 0) - pageSize())));
+document.getElementById("next").addEventListener("click", () => setOffset(Number(address().get("offset") || 0) + pageSize()));
+window.addEventListener("popstate", () => { paramsToForm(address()); facetsFor = null; load(); });
 wireCopyButtons();
 load();
