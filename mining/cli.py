@@ -350,7 +350,8 @@ def cmd_export(args: argparse.Namespace) -> int:
 def cmd_render(args: argparse.Namespace) -> int:
     from mining.catalog.render import run_render
 
-    return run_render(args.out, args.sequence, args.dest, args.where, args.depth, args.fps, args.frames)
+    return run_render(args.out, args.sequence, args.dest, args.where, args.depth, args.fps, args.frames,
+                      overwrite=args.overwrite)
 
 
 def _version_text() -> str:
@@ -393,8 +394,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="--out holds this job with a narrower --frames or fewer --sequences: widen it (what differs "
                           "from a clean run of the new range is recomputed); anything else that differs is refused")
     smt.add_argument("--new-run", action="store_true",
-                     help="--out holds another job: move its catalogue aside (to OUT/_replaced/<run id>-<time>/, "
-                          "local folders only) and start a new one")
+                     help="--out holds another job, or catalogue data without a readable job.json: move it aside "
+                          "(to OUT/_replaced/<run id>-<time>/, local folders only) and start a new one")
     smt.add_argument("--verify", action="store_true",
                      help="check every recorded checksum before resuming (default: sizes only); damaged files are "
                           "recomputed")
@@ -448,6 +449,8 @@ def build_parser() -> argparse.ArgumentParser:
     rnd.add_argument("--fps", type=float, help="frame rate (default: the sequence's, from its timestamps)")
     rnd.add_argument("--frames", type=_frames, default=None, metavar="A:B",
                      help="plan positions [A, B) (default: the frames the catalogue mined)")
+    rnd.add_argument("--overwrite", action="store_true",
+                     help="DEST exists: replace it (a plain file only; without this flag an existing DEST is refused)")
     rnd.set_defaults(func=cmd_render)
 
     viw = sub.add_parser("view", help="browse the catalogue in a web browser: a gallery of tubes, a page per tube")

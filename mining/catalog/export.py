@@ -22,9 +22,20 @@ crops index's ``bbox_xywh``) get x, y, width, height.
 
 DEST: an export refuses a DEST that is not empty, unless ``--overwrite`` and DEST holds
 the record (``.mine-export.json``) of an earlier export: then exactly the entries that
-record lists are removed first (files, and folders with what is in them; links are removed,
+record lists are replaced (files, and folders with what is in them; links are removed,
 not followed), anything else in DEST is kept, and nothing outside DEST is touched. A
 predicate that matches no tube writes and removes nothing and exits 1.
+
+Links: an export never writes a link, so a DEST that holds one (at any depth) holds
+something it did not write; it is refused, naming the link, before anything is removed
+or written (a link at ``index.json`` or ``JPEGImages`` would send the files elsewhere).
+The exporters write into a private folder inside DEST (``mine-export-partial-<random>``,
+made by ``mkdir`` under an unpredictable name: no link can be planted in it beforehand);
+only when they have all finished are the earlier export's entries removed and the new
+ones renamed into DEST (``safe_files.move_in``: never onto an existing entry). So a
+failed export (bad data, a full disk) leaves the earlier one as it was. The record is
+written first listing the old entries, the new ones and the private folder, so even an
+export killed half-way leaves a record that a later ``--overwrite`` cleans up.
 
 Names read from the catalogue are data: the dataset and sequence names and the tube ids
 must pass ``mining/names.py`` before a file name is made from them, two tubes may not
@@ -34,6 +45,7 @@ share a folder, and every file written must resolve inside DEST.
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -44,6 +56,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from pycocotools import mask as mask_utils
 
+from mining.catalog import safe_files
 from mining.catalog.layout import JobRecord
 from mining.catalog.predicate import tubes_query
 from mining.catalog.store import Store
@@ -382,6 +395,7 @@ VIDEO_FORMATS = ("youtube-vis", "tao")  # one video per sequence: they take the 
 ITEMS = {"kitti": "rows", "kitti-mots": "masks", "crops": "crops", "youtube-vis": "tube annotations",
          "tao": "frame annotations"}
 RECORD = ".mine-export.json"  # in DEST: what the export wrote there, so --overwrite replaces exactly that
+STAGING_PREFIX = "mine-export-partial-"  # the exporters' private folder in DEST (a safe name: a record may list it)
 
 
 class NothingMatched(InputError):
@@ -411,7 +425,8 @@ def _recorded(dest: Path) -> list[str]:
 
 def check_dest(dest: Path, overwrite: bool) -> list[str]:
     """Refuse a DEST that is not an empty or absent folder, unless ``overwrite`` and DEST
-    holds an earlier export's RECORD; returns the entries that replacing will remove."""
+    holds an earlier export's RECORD and no link; returns the entries that replacing will
+    remove."""
     if dest.exists() and not dest.is_dir():
         raise InputError("DEST is not a folder", dest)
     present = _entries(dest)
@@ -421,6 +436,11 @@ def check_dest(dest: Path, overwrite: bool) -> list[str]:
         raise InputError(f"DEST is not empty ({len(present)} entries: {', '.join(present[:5])}"
                          f"{', …' if len(present) > 5 else ''}); choose an empty folder, or pass --overwrite to replace "
                          "an earlier export there", dest)
+    links = safe_files.links_under(dest)
+    if links:
+        raise InputError(f"DEST holds links, which no export writes: {safe_files.describe_links(links, dest)}; an "
+                         "export never writes through a link (the files would land elsewhere) and nothing was "
+                         "removed: remove the links yourself or choose another folder", dest)
     if RECORD not in present:
         raise InputError(f"--overwrite replaces only what an earlier `mine export` recorded in {RECORD}, and DEST "
                          f"has none ({len(present)} other entries): remove them yourself or choose another folder", dest)
@@ -429,15 +449,13 @@ def check_dest(dest: Path, overwrite: bool) -> list[str]:
 
 def _remove(dest: Path, names: list[str]) -> None:
     """Delete the entries ``names`` of ``dest`` (links themselves, never what they point to)."""
-    import shutil
-
     for name in names:
-        p = dest / name
-        if p.is_symlink() or not p.is_dir():
-            p.unlink(missing_ok=True)
-        else:
-            shutil.rmtree(p)
-    (dest / RECORD).unlink(missing_ok=True)
+        safe_files.remove_tree(dest / name)
+
+
+def _write_record(dest: Path, record: dict) -> None:
+    """DEST's RECORD, written atomically and never through a link (``safe_files``)."""
+    safe_files.write_atomic(dest, RECORD, (json.dumps(record, indent=1) + "\n").encode())
 
 
 def _video_frames(con: duckdb.DuckDBPyConnection, tubes: pa.Table) -> dict[tuple[str, str], list[int]]:
@@ -455,8 +473,9 @@ def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: floa
     """Export the tubes of catalogue ``out`` matching ``where``; (tubes, items written).
 
     DEST must be empty (or absent); with ``overwrite`` the entries an earlier export
-    recorded in DEST's RECORD are removed first (nothing else in DEST, nothing outside it).
-    NothingMatched, before anything is written or removed, when no tube matches."""
+    recorded in DEST's RECORD are replaced (nothing else in DEST, nothing outside it), once
+    the new export is complete in a private folder (module docstring). NothingMatched,
+    before anything is written or removed, when no tube matches."""
     if fmt not in EXPORTERS:
         raise InputError(f"unknown export format {fmt!r}; one of {', '.join(EXPORTERS)}")
     options: dict = {}
@@ -480,14 +499,27 @@ def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: floa
         con.close()
     if not tubes.num_rows:
         raise NothingMatched(f"no tube matches --where {where!r}; nothing written")
-    _remove(dest, replaced)
-    kept = _entries(dest)
     dest.mkdir(parents=True, exist_ok=True)
-    n = EXPORTERS[fmt](tubes, frames, job, dest, **options)
-    written = [e for e in _entries(dest) if e not in kept]
-    record = {"format": fmt, "catalogue": str(out), "where": where, "tubes": tubes.num_rows, "items": n,
-              "options": {k: v for k, v in options.items() if k != "video_frames"}, "written": written}
-    (dest / RECORD).write_text(json.dumps(record, indent=1) + "\n")
+    staging = safe_files.private_dir(dest, STAGING_PREFIX)
+    try:
+        n = EXPORTERS[fmt](tubes, frames, job, staging, **options)
+        written = sorted(os.listdir(staging))
+        kept = set(_entries(dest)) - set(replaced) - {staging.name}
+        clash = sorted(set(written) & (kept | {RECORD}))
+        if clash:
+            raise InputError(f"this export writes {', '.join(clash)}, which DEST holds and no earlier export recorded; "
+                             "nothing was removed or written: move them away or choose another folder", dest)
+        record = {"format": fmt, "catalogue": str(out), "where": where, "tubes": tubes.num_rows, "items": n,
+                  "options": {k: v for k, v in options.items() if k != "video_frames"}}
+        # Until the new entries are in, the record names old, new and partial alike: an export
+        # killed in between leaves nothing that a later --overwrite would not remove.
+        _write_record(dest, record | {"written": sorted(set(replaced) | set(written) | {staging.name})})
+        _remove(dest, replaced)
+        for name in written:
+            safe_files.move_in(staging, name, dest)
+        _write_record(dest, record | {"written": written})
+    finally:
+        safe_files.remove_tree(staging)
     return tubes.num_rows, n
 
 
@@ -501,6 +533,9 @@ def run_export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: 
         return 1
     except (MiningError, duckdb.Error) as e:
         print(f"mine export: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:  # a writer that raised the system's error (a full disk…): one line naming the file
+        print(f"mine export: {safe_files.write_error(e, e.filename or dest)}", file=sys.stderr)
         return 2
     print(f"mine export: {n_tubes} tubes, {n_items} {ITEMS[fmt]} → {dest}")
     return 0

@@ -23,6 +23,8 @@ checked when it is read.
 (``identity.py``: config, source root, recording fingerprint, sequences, frame ranges),
 the run id and the windows of the job; a resubmission of another identity is refused
 (``identity.check_resubmit``). ``REPLACED`` holds catalogues a ``--new-run`` moved aside.
+A job.json that does not read as a job record is an ``UnreadableRecord``: the catalogue
+beside it is kept, and ``mine submit --new-run`` moves both aside (the message says so).
 """
 
 from __future__ import annotations
@@ -60,6 +62,16 @@ PART_TABLES = ("tubes", "tube_frames", "frames")  # what a tracked window writes
 # The folder of each table a query reads: the compacted tables, and the manifest as ``windows``.
 TABLE_DIRS = {"tubes": f"{CATALOG}/tubes", "tube_frames": f"{CATALOG}/tube_frames", "frames": f"{CATALOG}/frames",
               "windows": MANIFEST}
+
+
+# What a refusal over a lost or unreadable job.json offers: never "move job.json away", which
+# leaves the catalogue without its record (the next submit would then mine over it).
+FRESH_START = (f"mine submit --new-run moves the old catalogue (job.json included) to {REPLACED}/ inside --out "
+               "and starts a new one; or use another --out")
+
+
+class UnreadableRecord(InputError):
+    """OUT/job.json exists but is not a job record."""
 
 
 def _where(dataset: str, sequence: str, window: str | None = None) -> str:
@@ -172,19 +184,21 @@ class JobRecord:
         try:
             d = json.loads(store.read_bytes(JOB))
         except ValueError as e:  # not UTF-8, not JSON (a truncated or overwritten file)
-            raise InputError(f"job.json is not a job record: not valid JSON ({e}); move it away to start afresh",
-                             store.full(JOB)) from None
+            raise UnreadableRecord(f"job.json is not a job record: not valid JSON ({e}); {FRESH_START}",
+                                   store.full(JOB)) from None
         if (problem := _record_problem(d)) is not None:
-            raise InputError(f"job.json is not a job record: {problem}; move it away to start afresh",
-                             store.full(JOB))
+            raise UnreadableRecord(f"job.json is not a job record: {problem}; {FRESH_START}", store.full(JOB))
         identity = d["identity"] if "identity" in d else legacy_identity(d["config"])
         if not isinstance(identity, dict):
-            raise InputError("job.json is not a job record: key 'identity' is not a mapping; move it away to start "
-                             "afresh", store.full(JOB))
+            raise UnreadableRecord(f"job.json is not a job record: key 'identity' is not a mapping; {FRESH_START}",
+                                   store.full(JOB))
         windows = [Window(w["dataset"], w["sequence"], tuple(w["core"]), tuple(w["context"])) for w in d["windows"]]
-        for w in windows:
-            check_name(w.dataset, "dataset", "job.json", store.full(JOB))
-            check_name(w.sequence, "sequence", "job.json", store.full(JOB))
+        try:
+            for w in windows:
+                check_name(w.dataset, "dataset", "job.json", store.full(JOB))
+                check_name(w.sequence, "sequence", "job.json", store.full(JOB))
+        except InputError as e:
+            raise UnreadableRecord(f"{e.reason}; {FRESH_START}", store.full(JOB)) from None
         return cls(d["run_id"], d["params_hash"], d["config"], windows, identity, d.get("unplanned") or {})
 
     def check(self, params_hash: str, out: str) -> None:

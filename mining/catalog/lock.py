@@ -16,6 +16,10 @@ back to creating ``OUT/.mine.lock.excl`` with ``O_CREAT | O_EXCL``; a leftover o
 process on this host (its pid gone) is taken over with a message, one of another host
 must be removed by hand (the message says so).
 
+The lock file is opened with ``O_NOFOLLOW`` and must be a plain file with one name: a
+link planted at ``OUT/.mine.lock`` (or a hard link to a file elsewhere) is refused, naming
+it, instead of being "taken over" and emptied (``safe_files.py``: no write follows a link).
+
 Other pyarrow filesystems (``s3://``, ``gs://``…) have no atomic create-if-absent that
 pyarrow exposes, so the lock is taken on this machine only, on a file in the system
 temporary folder named by the URI's hash: two submits from one machine are serialised,
@@ -31,6 +35,7 @@ import hashlib
 import json
 import os
 import socket
+import stat
 import sys
 import tempfile
 import time
@@ -38,6 +43,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from mining.catalog.layout import LOCK
+from mining.catalog.safe_files import link_error, write_error
 from mining.catalog.store import Store
 from mining.errors import InputError, MiningError
 
@@ -58,6 +64,8 @@ def describe(holder: dict) -> str:
     """``pid 12 on host h since 2025-01-01T00:00:00+00:00 (mine submit …)``."""
     if not holder:
         return "another process (it has not written its name yet)"
+    if "pid" not in holder:  # not a holder's record (a damaged lock file): say what it held
+        return f"an unknown holder (the lock file held {holder.get('unreadable', holder)!r})"
     text = f"pid {holder.get('pid')} on host {holder.get('host')} since {holder.get('started')}"
     return text + (f" ({holder['command']})" if holder.get("command") else "")
 
@@ -88,12 +96,39 @@ def lock_file(store: Store) -> Path:
     return Path(tempfile.gettempdir()) / "tube-miner-locks" / f"{digest}.lock"
 
 
+def _read(path: Path) -> bytes:
+    """The start of a lock file, never read through a link."""
+    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    try:
+        return os.pread(fd, 4096, 0)
+    finally:
+        os.close(fd)
+
+
+def _open_lock(path: Path, flags: int) -> int:
+    """``path`` opened for the lock (``O_NOFOLLOW``); a LinkError for a link, an InputError
+    for anything but a plain file with one name (a hard link's writes would land elsewhere too)."""
+    try:
+        fd = os.open(path, flags | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
+    except OSError as e:
+        if e.errno == errno.ELOOP and path.is_symlink():
+            raise link_error(path) from None
+        raise
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode) or st.st_nlink != 1:
+        os.close(fd)
+        kind = "not a plain file" if not stat.S_ISREG(st.st_mode) else f"a file with {st.st_nlink} names (hard links)"
+        raise InputError(f"the lock file is {kind}, so writing it could change another file; remove it and run "
+                         "the command again", path)
+    return fd
+
+
 def read_holder(store: Store) -> dict:
     """Who holds (or last held without releasing) ``store``'s lock; {} when nobody."""
     path = lock_file(store)
     for p in (path, path.with_name(path.name + ".excl")):
         try:
-            d = _parse(p.read_bytes())
+            d = _parse(_read(p))
         except OSError:
             continue
         if d:
@@ -127,7 +162,9 @@ class OutputLock:
     def acquire(self) -> OutputLock:
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            if self.path.parent.is_symlink() and not self.store.local:  # the shared temporary folder: ours only
+                raise link_error(self.path.parent)
+            fd = _open_lock(self.path, os.O_RDWR | os.O_CREAT)
         except OSError as e:
             raise InputError(f"{self.path.parent}: the output folder cannot be written (its lock file: {e.strerror})",
                              self.path) from None
@@ -151,20 +188,28 @@ class OutputLock:
             if fd >= 0:
                 os.close(fd)
             raise
-        self.fd = fd
         previous = _parse(os.pread(fd, 4096, 0))
+        try:
+            self._write(fd)
+        except BaseException:
+            fcntl.flock(fd, fcntl.LOCK_UN)
+            os.close(fd)
+            raise
+        self.fd = fd
         if previous:
             self.took_over = previous
             self.notify(f"mine: {self.store.uri}: taking over a stale lock of {describe(previous)}: "
                         "that process ended without releasing it (killed?); its work is resumed")
-        self._write(fd)
         return self
 
     def _write(self, fd: int) -> None:
         data = json.dumps(_holder()).encode()
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, data, 0)
-        os.fsync(fd)
+        try:
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, data, 0)
+            os.fsync(fd)
+        except OSError as e:  # a full disk: one line naming the lock file, not a traceback
+            raise write_error(e, self.path) from None
 
     def _refusal(self, holder: dict) -> LockedError:
         waited = f" after waiting {self.wait_s:g} s" if self.wait_s else ""
@@ -177,9 +222,11 @@ class OutputLock:
         path = self.path.with_name(self.path.name + ".excl")
         while True:
             try:
-                fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644)
+                fd = _open_lock(path, os.O_RDWR | os.O_CREAT | os.O_EXCL)
             except FileExistsError:
-                holder = read_holder(self.store) or _parse(path.read_bytes() if path.exists() else b"")
+                if path.is_symlink():  # O_EXCL never follows one; a planted link is no holder to wait for
+                    raise link_error(path) from None
+                holder = read_holder(self.store)
                 if holder.get("host") == socket.gethostname() and not _pid_alive(holder.get("pid")):
                     self.notify(f"mine: {self.store.uri}: taking over a stale lock of {describe(holder)}: "
                                 "that process is gone")
@@ -196,6 +243,9 @@ class OutputLock:
                 continue
             try:
                 self._write(fd)
+            except BaseException:
+                path.unlink(missing_ok=True)
+                raise
             finally:
                 os.close(fd)
             self.excl = path

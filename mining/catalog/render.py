@@ -22,6 +22,14 @@ MPEG-4 Part 2 (``mp4v``), which OpenCV, ffmpeg and VLC play but browsers do not,
 command says so. ``.webm`` is VP8 (OpenCV), which OpenCV and browsers (Chromium, Firefox)
 play. The written file is read back with ``cv2.VideoCapture`` (frame count and size)
 before the command reports success.
+
+DEST, as for ``mine export``: an existing DEST is replaced only with ``--overwrite``, and
+only when it is a plain file (a link or a folder there is refused, whatever the flag). The
+video is written in a private folder beside DEST (``.<DEST name>.partial-<random>``, made
+by ``mkdir`` under an unpredictable name, so no link can be planted where the encoder
+writes), read back, then moved onto DEST (``safe_files.publish_file``: without
+``--overwrite`` the name is claimed atomically, never replaced). A failed render leaves
+DEST as it was.
 """
 
 from __future__ import annotations
@@ -40,6 +48,7 @@ import duckdb
 import numpy as np
 from pycocotools import mask as mask_utils
 
+from mining.catalog import safe_files
 from mining.catalog.export import NothingMatched, category_label, job_source, read_job, selected_rows
 from mining.catalog.store import Store
 from mining.catalog.views import _sql_string, connect
@@ -337,14 +346,30 @@ class RenderResult:
     seconds: float
 
 
+def check_dest(dest: Path, overwrite: bool) -> None:
+    """Refuse a DEST this render may not write: a container other than ``CODECS``', an
+    existing entry without ``overwrite``, a link or a folder at DEST."""
+    if dest.suffix.lower() not in CODECS:
+        raise InputError(f"the video must end in {' or '.join(CODECS)} (MP4: H.264, with PyAV; WebM: VP8; "
+                         "both play in browsers)", dest)
+    if dest.is_symlink():
+        raise safe_files.link_error(dest)
+    if dest.exists() and not dest.is_file():
+        raise InputError("DEST exists and is not a file", dest)
+    if dest.exists() and not overwrite:
+        raise InputError("DEST exists; pass --overwrite to replace it, or choose another name", dest)
+
+
 def render(out: str | Path, sequence: str, dest: str | Path, where: str | None = None, depth: bool = False,
            fps: float | None = None, frames: tuple[int, int | None] | None = None,
-           progress: bool = True) -> RenderResult:
+           progress: bool = True, overwrite: bool = False) -> RenderResult:
     """Render ``sequence`` of catalogue ``out`` with its selected tubes (those matching
     ``where`` too, when given) to ``dest``; ``frames`` are plan positions [a, b) (default:
-    the positions the catalogue mined)."""
+    the positions the catalogue mined). An existing ``dest`` is replaced only with
+    ``overwrite`` (module docstring)."""
     t0 = time.perf_counter()
     dest = Path(dest)
+    check_dest(dest, overwrite)
     check_name(sequence, "sequence", "--sequence")
     store = Store(out)
     job = read_job(store)
@@ -410,9 +435,14 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
     # 4:2:0 video needs even sides: an odd one gets a black row / column (KITTI's 375 rows → 376).
     width = 2 * w if depth else w
     size = (width + width % 2, h + h % 2)
-    tmp = dest.with_name(f".{dest.stem}.partial{dest.suffix}")
     dest.parent.mkdir(parents=True, exist_ok=True)
-    writer = open_video(tmp, fps, size)
+    work = safe_files.private_dir(dest.parent, f".{dest.name}.partial-")
+    tmp = work / dest.name  # the encoders open files by path: inside a folder only this render writes
+    try:
+        writer = open_video(tmp, fps, size)
+    except BaseException:
+        safe_files.remove_tree(work)
+        raise
     bar = _Progress(stop - start, f"mine render {sequence}") if progress else None
     drawn: set[str] = set()  # the tubes present in the rendered frames
     try:
@@ -443,32 +473,33 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
     except BaseException:
         with contextlib.suppress(Exception):
             writer.close()
-        tmp.unlink(missing_ok=True)
+        safe_files.remove_tree(work)
         raise
     try:
-        writer.close()
-    except Exception as e:
-        tmp.unlink(missing_ok=True)
-        raise MiningError(f"the video for {dest} did not finish writing: {e}") from None
-    try:
+        try:
+            writer.close()
+        except Exception as e:
+            raise MiningError(f"the video for {dest} did not finish writing: {e}") from None
         check_video(tmp, stop - start, size)
-    except MiningError:
-        tmp.unlink(missing_ok=True)
-        raise
-    os.replace(tmp, dest)
+        safe_files.publish_file(tmp, dest, overwrite)
+    finally:
+        safe_files.remove_tree(work)
     return RenderResult(dest, stop - start, len(drawn), size[0], size[1], writer.codec, fps, time.perf_counter() - t0)
 
 
 def run_render(out: str | Path, sequence: str, dest: str | Path, where: str | None = None, depth: bool = False,
-               fps: float | None = None, frames: tuple[int, int | None] | None = None) -> int:
+               fps: float | None = None, frames: tuple[int, int | None] | None = None, overwrite: bool = False) -> int:
     """`mine render`: 0 on success; 1 when no tube matches; 2 with a message otherwise."""
     try:
-        r = render(out, sequence, dest, where, depth, fps, frames)
+        r = render(out, sequence, dest, where, depth, fps, frames, overwrite=overwrite)
     except NothingMatched as e:
         print(f"mine render: {e}; nothing written", file=sys.stderr)
         return 1
     except (MiningError, duckdb.Error) as e:
         print(f"mine render: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:  # the system's error from a writer (a full disk…): one line naming the file
+        print(f"mine render: {safe_files.write_error(e, e.filename or dest)}", file=sys.stderr)
         return 2
     note = "" if r.codec in BROWSER_CODECS else (" — MPEG-4 Part 2: OpenCV, ffmpeg and VLC play it, browsers do not; "
                                                   "for H.264 install PyAV (pip install 'tube-miner[video]'), or "

@@ -6,9 +6,13 @@ module, DuckDB's ``*.parquet`` globs, pyarrow datasets, which skip names startin
 ``.``) never see a half-written file; a crash leaves at most a stray temporary file,
 which every reader ignores and the next write of that name does not trip over.
 
-On a local filesystem the move is a rename (atomic on POSIX). Object stores (S3, GCS)
-have no rename, but a single object appears only once its upload completes, so the
-copy that ``move`` does there is just as invisible while in flight.
+On a local filesystem writes, moves and removals go through ``safe_files.py``: no link
+below ``--out`` is followed (a link folder is refused, naming it; a link at a file's name
+is replaced, not written through), the temporary file is created with ``O_EXCL``, and the
+move is a rename (atomic on POSIX). Object stores (S3, GCS) have no links and no rename,
+but a single object appears only once its upload completes, so the copy that ``move``
+does there is just as invisible while in flight. A write that fails (a full disk…) raises
+``safe_files.WriteError`` naming the file; the file it would have replaced is untouched.
 
 ``write_sequence`` compacts one table of one sequence into few large, sorted Parquet
 files under ``catalog/<table>/dataset=D/sequence=S/part-<k>.parquet``. Which path holds
@@ -26,11 +30,12 @@ import pyarrow.compute as pc
 import pyarrow.fs as pafs
 import pyarrow.parquet as pq
 
+from mining.catalog import safe_files
 from mining.catalog.layout import catalog_dir, catalog_file
+from mining.catalog.safe_files import TMP_MARK, write_error
 from mining.catalog.schema import PARTITION, file_schema
 from mining.errors import InputError
 
-TMP_MARK = ".tmp-"  # ours: part of every temporary name; readers skip such files
 COMPRESSION = "zstd"  # ours: smaller than snappy at similar decode speed in DuckDB
 ROWS_PER_FILE = 2_000_000  # ours: few large files per sequence (DESIGN "never by window")
 ROW_GROUP_ROWS = 122_880  # ours: DuckDB's own row group size, its unit of parallel scans
@@ -113,52 +118,90 @@ class Store:
 
     # -- writes --------------------------------------------------------------------
 
+    def _rel(self, full: str) -> str:
+        return posixpath.relpath(full, self.root)
+
     def _temporary(self, rel: str) -> str:
         folder, name = posixpath.split(self.full(rel))
         self.fs.create_dir(folder, recursive=True)
         return posixpath.join(folder, f".{name}{TMP_MARK}{uuid.uuid4().hex[:12]}")
 
     def _publish(self, tmp: str, rel: str) -> None:
+        if self.local:
+            try:
+                safe_files.publish(self.root, self._rel(tmp), rel)
+            except BaseException:
+                self._discard(tmp)
+                raise
+            return
         try:
             self.fs.move(tmp, self.full(rel))
         except Exception:
-            self.fs.delete_file(tmp)
+            self._discard(tmp)
             raise
+
+    def _stage(self, rel: str, fill) -> str:
+        """``fill`` (bytes, or a function writing a binary file) under a temporary name
+        beside ``rel``; the temporary file's full path."""
+        full = self.full(rel)  # refuses a path that could leave the catalogue
+        if self.local:
+            return self.full(safe_files.stage(self.root, rel, fill))
+        tmp = self._temporary(rel)
+        try:
+            with self.fs.open_output_stream(tmp, compression=None) as f:
+                if isinstance(fill, bytes):
+                    f.write(fill)
+                else:
+                    fill(f)
+        except BaseException as e:
+            self._discard(tmp)
+            if isinstance(e, OSError):
+                raise write_error(e, full) from None
+            raise
+        return tmp
 
     def write_bytes(self, rel: str, data: bytes) -> None:
         """Atomically create or replace ``rel`` with ``data``."""
-        tmp = self._temporary(rel)
-        try:
-            with self.fs.open_output_stream(tmp, compression=None) as f:
-                f.write(data)
-        except BaseException:
-            self._discard(tmp)
-            raise
-        self._publish(tmp, rel)
+        self._publish(self._stage(rel, bytes(data)), rel)
 
     def stage_table(self, rel: str, table: pa.Table, row_group_rows: int = ROW_GROUP_ROWS) -> str:
         """Write ``table`` under a temporary name beside ``rel``; ``publish`` it later."""
-        tmp = self._temporary(rel)
-        try:
-            with self.fs.open_output_stream(tmp, compression=None) as f:
-                pq.write_table(table, f, compression=COMPRESSION, row_group_size=row_group_rows)
-        except BaseException:
-            self._discard(tmp)
-            raise
-        return tmp
+        return self._stage(rel, lambda f: pq.write_table(table, f, compression=COMPRESSION,
+                                                         row_group_size=row_group_rows))
 
     def write_table(self, rel: str, table: pa.Table, row_group_rows: int = ROW_GROUP_ROWS) -> None:
         """Atomically create or replace the Parquet file ``rel``."""
         self._publish(self.stage_table(rel, table, row_group_rows), rel)
 
     def remove(self, rel: str) -> None:
-        """Delete a file; a missing file is fine (removal is idempotent)."""
+        """Delete a file; a missing file is fine (removal is idempotent). A link is removed,
+        never followed."""
+        if self.local:
+            safe_files.remove(self.root, self._rel(self.full(rel)))
+            return
         try:
             self.fs.delete_file(self.full(rel))
         except FileNotFoundError:
             pass
 
+    def make_dir(self, rel: str) -> None:
+        """``mkdir -p`` of ``rel`` (locally without following a link below the root)."""
+        if self.local:
+            safe_files.make_folder(self.root, self._rel(self.full(rel)))
+        else:
+            self.fs.create_dir(self.full(rel), recursive=True)
+
+    def move(self, src: str, dst: str) -> None:
+        """Move the file or folder ``src`` to ``dst`` (a rename locally: a link moves as a link)."""
+        if self.local:
+            safe_files.rename(self.root, self._rel(self.full(src)), self._rel(self.full(dst)))
+        else:
+            self.fs.move(self.full(src), self.full(dst))
+
     def _discard(self, tmp: str) -> None:
+        if self.local:
+            safe_files.discard(self.root, self._rel(tmp))
+            return
         try:
             self.fs.delete_file(tmp)
         except (FileNotFoundError, OSError):

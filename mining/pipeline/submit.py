@@ -40,8 +40,9 @@ import pyarrow.fs as pafs
 
 from mining.catalog.identity import check_resubmit, job_identity
 from mining.catalog.integrity import marker_damage, read_json, window_damage
-from mining.catalog.layout import (JOB_ENTRIES, LEGACY_CACHE_SUFFIX, PART_TABLES, REPLACED, JobRecord, cache_path,
-                                   done_path, files_path, manifest_path, part_path)
+from mining.catalog.layout import (FRESH_START, JOB, JOB_ENTRIES, LEGACY_CACHE_SUFFIX, PART_TABLES, REPLACED,
+                                   JobRecord, UnreadableRecord, cache_path, done_path, files_path, manifest_path,
+                                   part_path)
 from mining.catalog.lock import OutputLock
 from mining.catalog.store import Store
 from mining.config import JobConfig
@@ -129,20 +130,31 @@ def _retire(store: Store, prior: list[Window], windows: list[Window]) -> None:
             store.remove(rel)
 
 
-def _move_aside(store: Store, old: JobRecord) -> str:
+def _move_aside(store: Store, run_id: str | None) -> str:
     """``--new-run``: move the old catalogue's files into ``REPLACED/<run id>-<UTC time>/``
-    inside ``--out`` (a rename each; readers never look there). Only a local folder can:
+    inside ``--out`` (a rename each; readers never look there); ``unknown-run`` stands for
+    the run id of a catalogue whose job.json is lost or unreadable. Only a local folder can:
     object stores have no rename, so there the old catalogue must be removed by hand."""
     stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
-    dest = f"{REPLACED}/{old.run_id}-{stamp}"
+    name = f"{run_id or 'unknown-run'}-{stamp}"
     present = [e for e in JOB_ENTRIES if store.fs.get_file_info(store.full(e)).type != pafs.FileType.NotFound]
     if not store.local:
-        raise ConfigError(f"{store.uri}: --new-run cannot move the old catalogue (run {old.run_id}) aside on this "
-                          f"filesystem (no rename); delete {', '.join(present)} there, or use another --out")
-    store.fs.create_dir(store.full(dest), recursive=True)
+        raise ConfigError(f"{store.uri}: --new-run cannot move the old catalogue (run {run_id or 'unknown'}) aside on "
+                          f"this filesystem (no rename); delete {', '.join(present)} there, or use another --out")
+    taken = {info.base_name for info in store.fs.get_file_info(
+        pafs.FileSelector(store.full(REPLACED), allow_not_found=True))}
+    k = 1
+    while (dest := f"{REPLACED}/{name}" + (f"-{k}" if k > 1 else "")).rsplit("/", 1)[1] in taken:
+        k += 1  # two new runs in one second: never move into a folder that holds an older catalogue
+    store.make_dir(dest)  # never through a link planted at OUT/_replaced (safe_files)
     for e in present:
-        store.fs.move(store.full(e), store.full(f"{dest}/{e}"))
+        store.move(e, f"{dest}/{e}")
     return dest
+
+
+def catalogue_data(store: Store) -> list[str]:
+    """The entries of a job's catalogue (``JOB_ENTRIES`` but job.json) that hold files."""
+    return [f"{e}/" for e in JOB_ENTRIES if e != JOB and store.list(e, suffix="")]
 
 
 def record_job(store: Store, cfg: JobConfig, windows: list[Window], identity: dict, mode: str = "resume",
@@ -154,12 +166,27 @@ def record_job(store: Store, cfg: JobConfig, windows: list[Window], identity: di
     differing key; ``extend`` admits wider frame ranges and added sequences, and retires
     the old windows the new cut does not have; ``new`` moves an old catalogue aside and
     starts a new run. The run id is kept across resumes and extensions.
+
+    A folder with catalogue data but no job.json (lost, or moved away) or an unreadable one
+    is not an empty folder: mining into it would replace that catalogue, so it is refused
+    unless ``new``, which moves it aside like any other.
     """
-    old = JobRecord.load(store)
-    if old is not None and mode == "new":
-        dest = _move_aside(store, old)
-        print(f"mine: --new-run: the old catalogue (run {old.run_id}) is now {store.full(dest)}; "
-              "delete it when it is no longer needed", file=sys.stderr)
+    lost = ""  # why the catalogue in --out has no job record, when it has none but holds data
+    try:
+        old = JobRecord.load(store)
+    except UnreadableRecord:
+        if mode != "new":
+            raise
+        old, lost = None, "its job.json did not read as a job record"
+    if old is None and not lost and (data := catalogue_data(store)):
+        if mode != "new":
+            raise InputError(f"missing, but {store.uri} holds catalogue data ({', '.join(data)}), whose job is then "
+                             "unknown: it can be neither resumed nor extended, and mining there would replace it; "
+                             f"{FRESH_START}", store.full(JOB))
+        lost = "it had no job.json"
+    if mode == "new" and (old is not None or lost):
+        run_id = old.run_id if old is not None else None
+        _announce(store, run_id, _move_aside(store, run_id), lost)
         old = None
     if old is not None:
         check_resubmit(old.identity, identity, store.uri, mode)
@@ -171,6 +198,21 @@ def record_job(store: Store, cfg: JobConfig, windows: list[Window], identity: di
             or record.unplanned != old.unplanned):
         record.save(store)  # a resubmission of the same job changes nothing
     return record
+
+
+def _announce(store: Store, run_id: str | None, dest: str, why: str = "") -> None:
+    what = f"run {run_id}" if run_id else f"run unknown: {why}"
+    print(f"mine: --new-run: the old catalogue ({what}) is now {store.full(dest)}; "
+          "delete it when it is no longer needed", file=sys.stderr)
+
+
+def set_aside_unreadable(store: Store) -> None:
+    """``--new-run`` over an unreadable job.json, before the preflight that would refuse it:
+    the old catalogue goes to ``REPLACED`` as ``record_job`` would move it."""
+    try:
+        JobRecord.load(store)
+    except UnreadableRecord:
+        _announce(store, None, _move_aside(store, None), "its job.json did not read as a job record")
 
 
 def _row(store: Store, rel: str) -> dict | None:
@@ -387,8 +429,16 @@ def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frame
     checks every recorded checksum before resuming (``read_resume``).
     """
     t0 = time.perf_counter()
-    pf = preflight(cfg, out, sequences, frames)  # before the lock: a refused job leaves nothing behind
+    try:
+        pf = preflight(cfg, out, sequences, frames)  # before the lock: a refused job leaves nothing behind
+    except UnreadableRecord:
+        if mode != "new":
+            raise
+        pf = None  # --new-run over an unreadable job.json: set aside under the lock, then checked again
     with OutputLock(Store(out), lock_wait):
+        if pf is None:
+            set_aside_unreadable(Store(out))
+            pf = preflight(cfg, out, sequences, frames)
         job, schedule, unplanned = open_job(cfg, out, sequences, frames, mode, verify, pf)
         if schedule.nothing_to_do:
             summary = Summary(windows=len(schedule.windows), skipped=schedule.skipped)

@@ -1,0 +1,396 @@
+"""No write follows a link (issue 19, scope item 1): what the tool writes under ``--out``, an
+export's DEST or beside a rendered video stays there, whatever links are planted.
+
+The failures of the adversarial run, each a test here that failed on the old code:
+
+* ``OUT/.mine.lock`` a link to a file outside: ``mine submit`` "took over a stale lock of
+  pid None" and emptied the file. Now refused, naming the link; the file keeps its bytes.
+* ``mine export --overwrite`` with a planted ``index.json`` link overwrote the file outside;
+  a planted ``JPEGImages`` link put the JPEGs outside DEST; an unrecorded link among the
+  files was refused only after the previous export was deleted. Now any link in DEST is
+  refused before anything is removed or written, and the exporters write into a private
+  folder, so even a link planted while they run is never written through.
+* ``mine render`` wrote its temporary video at the fixed name ``.NAME.partial.mp4``: a link
+  planted there had a file outside overwritten with MP4 data. Now the video is written in a
+  private folder under an unpredictable name. And an existing DEST video is replaced only
+  with ``--overwrite``, as ``mine export`` does.
+
+Then one test per writer: every way the store writes (``job.json``, a Parquet part, a
+compacted sequence, a removal, ``--new-run``'s move), the lock's ``O_EXCL`` fallback, every
+export format and the export record, each against a link at its file or folder.
+Real commands (``mine export``, ``mine render``, ``mine submit``), real files.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pyarrow as pa
+import pytest
+
+from _catalog_data import SEQUENCE
+from mining.catalog import export as export_mod
+from mining.catalog import render as render_mod
+from mining.catalog import safe_files
+from mining.catalog.export import RECORD
+from mining.catalog.layout import part_path
+from mining.catalog.lock import OutputLock
+from mining.catalog.safe_files import LinkError
+from mining.catalog.schema import SCHEMAS
+from mining.catalog.store import Store, write_sequence
+from mining.cli import main
+
+REPO = Path(__file__).resolve().parents[1]
+SECRET = "line one\nline two\n"  # the outside file a planted link points at: it must keep these bytes
+
+
+def _outside(tmp_path: Path) -> Path:
+    """A file outside every folder the tool is pointed at (two lines, as in the adversarial run)."""
+    f = tmp_path / "elsewhere" / "precious.txt"
+    f.parent.mkdir(parents=True, exist_ok=True)
+    f.write_text(SECRET)
+    return f
+
+
+def _outside_dir(tmp_path: Path) -> Path:
+    d = tmp_path / "elsewhere-dir"
+    d.mkdir()
+    return d
+
+
+def _tree(folder: Path) -> dict[str, bytes | str]:
+    """Every entry under ``folder``: a file's bytes, a link's target (never followed)."""
+    out: dict[str, bytes | str] = {}
+    for p in sorted(folder.rglob("*")):
+        rel = str(p.relative_to(folder))
+        if p.is_symlink():
+            out[rel] = "-> " + os.readlink(p)
+        elif p.is_file():
+            out[rel] = p.read_bytes()
+    return out
+
+
+# -- the lock ---------------------------------------------------------------------------
+
+
+def test_a_lock_file_that_is_a_link_is_refused_and_what_it_points_to_is_kept(tmp_path, capsys):
+    out, secret = tmp_path / "out", _outside(tmp_path)
+    out.mkdir()
+    (out / ".mine.lock").symlink_to(secret)
+    with pytest.raises(LinkError, match=r"\.mine\.lock: is a link \(to .*precious\.txt\)"):
+        OutputLock(Store(out)).acquire()
+    assert secret.read_text() == SECRET
+    assert "taking over" not in capsys.readouterr().err
+
+
+def test_a_lock_file_of_junk_is_taken_over_saying_what_it_held_not_pid_none(tmp_path, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / ".mine.lock").write_text("line one\n")
+    lock = OutputLock(Store(out)).acquire()
+    lock.release()
+    err = capsys.readouterr().err
+    assert "taking over a stale lock of an unknown holder (the lock file held 'line one\\n')" in err, err
+    assert "pid None" not in err
+
+
+def test_a_lock_file_with_a_second_name_elsewhere_is_refused(tmp_path):
+    """A hard link makes the lock file another file too: writing the holder would change it."""
+    out, secret = tmp_path / "out", _outside(tmp_path)
+    out.mkdir()
+    os.link(secret, out / ".mine.lock")
+    with pytest.raises(Exception, match="2 names"):
+        OutputLock(Store(out)).acquire()
+    assert secret.read_text() == SECRET
+
+
+def test_the_exclusive_file_fallback_never_writes_through_a_link(tmp_path):
+    import time
+
+    out, secret = tmp_path / "out", _outside(tmp_path)
+    out.mkdir()
+    (out / ".mine.lock.excl").symlink_to(secret)
+    with pytest.raises(LinkError, match="excl: is a link"):
+        OutputLock(Store(out))._acquire_excl(time.monotonic())
+    assert secret.read_text() == SECRET
+
+
+@pytest.mark.slow  # a `mine submit` process (refused before Ray starts)
+def test_mine_submit_refuses_a_lock_link_and_keeps_its_target(tmp_path):
+    out, secret = tmp_path / "out", _outside(tmp_path)
+    out.mkdir()
+    (out / ".mine.lock").symlink_to(secret)
+    done = subprocess.run([sys.executable, "-m", "mining.cli", "submit", "--dataset", "synthetic",
+                           "--sequences", "0000", "--option", "n_frames=8", "--option", "width=621",
+                           "--option", "height=188", "--workers", "1", "--no-progress", "--out", str(out)],
+                          cwd=REPO, capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "PYTHONPATH": str(REPO), "RAY_USAGE_STATS_ENABLED": "0"})
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert "is a link" in done.stderr and "Traceback" not in done.stderr and "taking over" not in done.stderr
+    assert secret.read_text() == SECRET
+    assert not (out / "job.json").exists()
+
+
+# -- the store: one test per writer ------------------------------------------------------
+
+
+def _table() -> pa.Table:
+    return pa.table({"x": [1, 2, 3]})
+
+
+def test_store_writes_replace_a_link_at_the_file_name_never_its_target(tmp_path):
+    """job.json (write_bytes), a window's part (write_table): a link at the name is replaced
+    by the file; the file it pointed to keeps its bytes."""
+    out, secret = tmp_path / "out", _outside(tmp_path)
+    store = Store(out)
+    part = part_path("tubes", "synthetic", "0000", "0000-0000000-0000008")
+    for rel in ("job.json", part):
+        (out / rel).parent.mkdir(parents=True, exist_ok=True)
+        (out / rel).symlink_to(secret)
+    store.write_bytes("job.json", b'{"a": 1}')
+    store.write_table(part, _table())
+    assert secret.read_text() == SECRET
+    assert not (out / "job.json").is_symlink() and (out / "job.json").read_bytes() == b'{"a": 1}'
+    assert not (out / part).is_symlink() and store.read_table(part).equals(_table())
+
+
+@pytest.mark.parametrize("folder", ["catalog", "manifest", "_parts", "_cache", "_running", "catalog/tubes"])
+def test_store_refuses_to_write_through_a_folder_link(tmp_path, folder):
+    """A link in place of a folder under --out (planted, or an old habit of linking _cache
+    elsewhere) is refused, naming it; nothing lands where it points."""
+    out, elsewhere = tmp_path / "out", _outside_dir(tmp_path)
+    (out / folder).parent.mkdir(parents=True, exist_ok=True)
+    (out / folder).symlink_to(elsewhere, target_is_directory=True)
+    store = Store(out)
+    with pytest.raises(LinkError, match=f"{folder}: is a link"):
+        store.write_bytes(f"{folder}/dataset=d/x.json", b"{}")
+    with pytest.raises(LinkError, match=f"{folder}: is a link"):
+        store.write_table(f"{folder}/dataset=d/x.parquet", _table())
+    assert list(elsewhere.iterdir()) == []
+
+
+def test_compaction_and_removal_never_follow_a_link(tmp_path):
+    """write_sequence over a folder link is refused; remove() unlinks a link, not its target."""
+    out, secret, elsewhere = tmp_path / "out", _outside(tmp_path), _outside_dir(tmp_path)
+    store = Store(out)
+    folder = out / "catalog" / "frames" / "dataset=d" / "sequence=s"
+    folder.parent.mkdir(parents=True)
+    folder.symlink_to(elsewhere, target_is_directory=True)
+    with pytest.raises(LinkError, match="sequence=s: is a link"):
+        write_sequence(store, "frames", "d", "s", SCHEMAS["frames"].empty_table())
+    assert list(elsewhere.iterdir()) == []
+    (out / "job.json").symlink_to(secret)
+    store.remove("job.json")
+    assert not os.path.lexists(out / "job.json") and secret.read_text() == SECRET
+
+
+def test_a_temporary_name_taken_by_a_link_is_never_opened(tmp_path, monkeypatch):
+    """Temporary names are created with O_EXCL | O_NOFOLLOW: a link planted at the very name
+    drawn (here forced) is skipped for another name."""
+    out, secret = tmp_path / "out", _outside(tmp_path)
+    out.mkdir()
+    draws = iter(["aaaaaaaaaaaa", "bbbbbbbbbbbb"])
+    monkeypatch.setattr(safe_files.secrets, "token_hex", lambda n: next(draws))
+    (out / ".job.json.tmp-aaaaaaaaaaaa").symlink_to(secret)
+    Store(out).write_bytes("job.json", b"{}")
+    assert secret.read_text() == SECRET and (out / "job.json").read_bytes() == b"{}"
+
+
+def test_a_store_on_another_filesystem_still_writes_through_pyarrow(tmp_path):
+    """Object stores (``s3://``…) have no links and no rename: there the store keeps writing
+    through pyarrow. Simulated on a ``file://`` store marked non-local."""
+    store = Store(f"file://{tmp_path / 'out'}")
+    store.local = False
+    store.write_bytes("job.json", b"{}")
+    store.write_table("manifest/x.parquet", _table())
+    store.make_dir("_replaced/run")
+    store.move("manifest", "_replaced/run/manifest")
+    assert store.read_bytes("job.json") == b"{}" and store.read_table("_replaced/run/manifest/x.parquet").equals(_table())
+    store.remove("job.json")
+    assert not store.exists("job.json")
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["_replaced"], "no temporary file left"
+
+
+# -- mine export -------------------------------------------------------------------------
+
+
+def _export(out: Path, fmt: str, dest: Path, *extra: str) -> int:
+    return main(["export", "--out", str(out), "--format", fmt, *extra, str(dest)])
+
+
+def test_export_overwrite_refuses_a_planted_index_json_link_before_removing_anything(catalogue, tmp_path, capsys):
+    out, _ = catalogue
+    dest, secret = tmp_path / "dest", _outside(tmp_path)
+    assert _export(out, "kitti", dest) == 0
+    before = _tree(dest)
+    (dest / "index.json").symlink_to(secret)
+    assert _export(out, "crops", dest, "--overwrite") == 2
+    err = capsys.readouterr().err
+    assert "index.json → " in err and "link" in err and "nothing was removed" in err
+    assert secret.read_text() == SECRET
+    assert _tree(dest) == before | {"index.json": "-> " + str(secret)}, "the previous export is kept as it was"
+
+
+def test_export_images_never_follow_a_planted_jpegimages_link(catalogue, tmp_path, capsys):
+    out, _ = catalogue
+    dest, elsewhere = tmp_path / "dest", _outside_dir(tmp_path)
+    assert _export(out, "youtube-vis", dest) == 0
+    before = _tree(dest)
+    (dest / "JPEGImages").symlink_to(elsewhere, target_is_directory=True)
+    assert _export(out, "youtube-vis", dest, "--images", "--overwrite") == 2
+    assert "JPEGImages → " in capsys.readouterr().err
+    assert list(elsewhere.iterdir()) == [], "no JPEG outside DEST"
+    assert _tree(dest) == before | {"JPEGImages": "-> " + str(elsewhere)}
+
+
+@pytest.mark.parametrize("where", ["at a name the new export writes", "inside a recorded folder"])
+def test_an_unrecorded_link_among_the_files_is_refused_before_the_previous_export_is_removed(catalogue, tmp_path,
+                                                                                             capsys, where):
+    """The old code refused the first (the crop folder resolved outside DEST) only after it
+    had deleted the previous export; the second it did not notice."""
+    out, tables = catalogue
+    dest, elsewhere = tmp_path / "dest", _outside_dir(tmp_path)
+    first, second = [t["tube_id"] for t in tables["tubes"].to_pylist() if t["selected"]][:2]
+    assert _export(out, "crops", dest, "--where", f"tube_id = '{first}'") == 0
+    if where == "inside a recorded folder":
+        link = dest / export_mod.tube_folder(first) / "more"
+    else:
+        link = dest / export_mod.tube_folder(second)
+    link.symlink_to(elsewhere, target_is_directory=True)
+    before = _tree(dest)
+    assert _export(out, "crops", dest, "--overwrite") == 2
+    assert f"{link.relative_to(dest)} → " in capsys.readouterr().err
+    assert _tree(dest) == before and list(elsewhere.iterdir()) == []
+
+
+FORMATS = [("kitti", ()), ("kitti-mots", ()), ("crops", ()), ("youtube-vis", ("--images",)), ("tao", ("--images",))]
+
+
+@pytest.mark.parametrize("fmt,extra", FORMATS, ids=[f for f, _ in FORMATS])
+def test_every_export_writer_ignores_links_planted_while_it_runs(catalogue, tmp_path, monkeypatch, capsys, fmt, extra):
+    """Links planted in DEST at every name the exporter writes, after DEST was checked (a
+    race): the exporter wrote into its private folder, so nothing reaches the links'
+    targets; the new entries would land on names DEST holds unrecorded, so the export is
+    refused and the earlier export (KITTI txt, a different name) stays."""
+    out, _ = catalogue
+    dest, secret, elsewhere = tmp_path / "dest", _outside(tmp_path), _outside_dir(tmp_path)
+    earlier = "crops" if fmt in ("kitti", "kitti-mots") else "kitti"  # an earlier export of other names
+    assert _export(out, earlier, dest) == 0
+    before = _tree(dest)
+    real = export_mod.EXPORTERS[fmt]
+    planted: list[str] = []
+
+    def racing(tubes, frames, job, folder, **kw):
+        n = real(tubes, frames, job, folder, **kw)
+        for name in os.listdir(folder):
+            if not os.path.lexists(dest / name):
+                target = elsewhere if (folder / name).is_dir() else secret
+                (dest / name).symlink_to(target, target_is_directory=target.is_dir())
+                planted.append(name)
+        return n
+
+    monkeypatch.setitem(export_mod.EXPORTERS, fmt, racing)
+    assert _export(out, fmt, dest, "--overwrite", *extra) == 2
+    assert planted, "the exporter wrote nothing to plant links at"
+    assert "which DEST holds and no earlier export recorded" in capsys.readouterr().err
+    assert secret.read_text() == SECRET and list(elsewhere.iterdir()) == []
+    assert _tree(dest) == before | {n: "-> " + str(elsewhere if (dest / n).is_dir() else secret) for n in planted}
+    assert not [p for p in dest.iterdir() if p.name.startswith(export_mod.STAGING_PREFIX)], "no partial folder left"
+
+
+def test_the_export_record_replaces_a_link_planted_at_its_name(catalogue, tmp_path, monkeypatch):
+    out, _ = catalogue
+    dest, secret = tmp_path / "dest", _outside(tmp_path)
+    real = export_mod.EXPORTERS["kitti"]
+
+    def racing(tubes, frames, job, folder, **kw):
+        (dest / RECORD).symlink_to(secret)
+        return real(tubes, frames, job, folder, **kw)
+
+    monkeypatch.setitem(export_mod.EXPORTERS, "kitti", racing)
+    assert _export(out, "kitti", dest) == 0
+    assert secret.read_text() == SECRET
+    assert not (dest / RECORD).is_symlink()
+    assert json.loads((dest / RECORD).read_text())["written"] == [f"{SEQUENCE}.txt"]
+
+
+def test_a_failed_export_keeps_the_previous_one(catalogue, tmp_path, monkeypatch, capsys):
+    """The old export is removed only once the new one is complete: an exporter that fails
+    half-way (here: a full disk) leaves DEST as it was, and says why in one line."""
+    import errno
+
+    out, _ = catalogue
+    dest = tmp_path / "dest"
+    assert _export(out, "crops", dest) == 0
+    before = _tree(dest)
+
+    def full(tubes, frames, job, folder, **kw):
+        (folder / "index.json").write_text("half")
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(folder / "index.parquet"))
+
+    monkeypatch.setitem(export_mod.EXPORTERS, "crops", full)
+    assert _export(out, "crops", dest, "--overwrite") == 2
+    err = capsys.readouterr().err.strip()
+    assert "index.parquet: cannot be written: no space left on device" in err and len(err.splitlines()) == 1
+    assert _tree(dest) == before
+
+
+# -- mine render -------------------------------------------------------------------------
+
+
+def _render(out: Path, dest: Path, *extra: str) -> int:
+    return main(["render", "--out", str(out), "--sequence", SEQUENCE, "--frames", "0:2", *extra, str(dest)])
+
+
+def test_render_never_writes_through_a_link_at_the_old_temporary_name(catalogue, tmp_path):
+    out, _ = catalogue
+    dest, secret = tmp_path / "v.mp4", _outside(tmp_path)
+    (tmp_path / ".v.partial.mp4").symlink_to(secret)
+    assert _render(out, dest) == 0
+    assert secret.read_text() == SECRET
+    assert dest.stat().st_size > 0 and not dest.is_symlink()
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".v.partial.mp4", "elsewhere", "v.mp4"], "no partial left"
+
+
+def test_render_writes_its_video_only_in_a_private_folder(catalogue, tmp_path, monkeypatch):
+    """The encoder opens its file by path: that path is inside a folder made for this render
+    alone (mode 0700, an unpredictable name beside DEST), removed afterwards."""
+    out, _ = catalogue
+    dest = tmp_path / "v.webm"
+    seen = []
+    real = render_mod.open_video
+
+    def spy(path, fps, size):
+        seen.append((path, oct(path.parent.stat().st_mode & 0o777), sorted(os.listdir(path.parent))))
+        return real(path, fps, size)
+
+    monkeypatch.setattr(render_mod, "open_video", spy)
+    assert _render(out, dest) == 0
+    (path, mode, listing), = seen
+    assert path.name == "v.webm" and path.parent.parent == tmp_path and path.parent.name.startswith(".v.webm.partial-")
+    assert mode == "0o700" and listing == []
+    assert not path.parent.exists()
+
+
+def test_render_replaces_an_existing_video_only_with_overwrite(catalogue, tmp_path, capsys):
+    out, _ = catalogue
+    dest = tmp_path / "v.webm"
+    dest.write_bytes(b"an earlier video")
+    assert _render(out, dest) == 2
+    assert "--overwrite" in capsys.readouterr().err and dest.read_bytes() == b"an earlier video"
+    assert _render(out, dest, "--overwrite") == 0
+    assert dest.read_bytes()[:4] == b"\x1a\x45\xdf\xa3"  # a WebM (EBML) file now
+
+
+def test_render_refuses_a_link_at_dest_even_with_overwrite(catalogue, tmp_path, capsys):
+    out, _ = catalogue
+    dest, secret = tmp_path / "v.mp4", _outside(tmp_path)
+    dest.symlink_to(secret)
+    assert _render(out, dest, "--overwrite") == 2
+    assert "is a link" in capsys.readouterr().err
+    assert secret.read_text() == SECRET and dest.is_symlink()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["elsewhere", "v.mp4"]
