@@ -140,7 +140,9 @@ def stitch_sequence(windows: list[Window], tubes: pa.Table, tube_frames: pa.Tabl
     tubes, windows_of = [], []
     pos = poses.position
     for links in _chains(windows, piece_window, keys, cfg.window.stitch_min_shared, pos):
-        rows = [r for p, lo, hi in links for r in pieces[p] if lo <= pos[r["frame"]] <= hi]
+        # A frame without a position lies in no stitched window's core (a failed window's
+        # core, seen as a neighbour's context): no window owns it.
+        rows = [r for p, lo, hi in links for r in pieces[p] if r["frame"] in pos and lo <= pos[r["frame"]] <= hi]
         while rows and not rows[-1]["observed"]:
             rows.pop()
         while rows and not rows[0]["observed"]:
