@@ -458,8 +458,8 @@ def build_parser() -> argparse.ArgumentParser:
     viw.add_argument("--port", type=int, default=8765, help="port to listen on (default 8765; 0 picks a free one)")
     viw.add_argument("--host", default="127.0.0.1",
                      help="address to listen on (default 127.0.0.1: this machine only; there is no login)")
-    viw.add_argument("--cache", help="folder for rendered pictures (default: tube-miner-view-<uid> in the system "
-                                     "temporary folder; not inside the catalogue)")
+    viw.add_argument("--cache", help="folder for rendered pictures (default: tube-miner/view in $XDG_CACHE_HOME or "
+                                     "~/.cache, made 0700; refused when not yours alone; not inside the catalogue)")
     viw.add_argument("--log", action="store_true", help="log one line per request on standard error")
     viw.set_defaults(func=cmd_view)
 
