@@ -199,8 +199,13 @@ def test_corrupt_chunk_is_named_by_file_and_frame(kitti, tmp_path):
         src.read_frame(plan, 2)
     assert str(path) in str(err.value) and "corrupt" in str(err.value)
     assert np.array_equal(src.read_frame(plan, 3).left, left[3])  # other chunks are intact
-    with pytest.raises(InputError, match="corrupt"):
-        McapSource(path).plan("flip")
+    # Planned afresh, the file still plans (issue 19): the bad chunk's frame keeps its place
+    # and fails on read, naming the chunk (tests/test_reliability_e_mcap.py).
+    fresh = McapSource(path)
+    assert fresh.plan("flip").frames == plan.frames
+    assert [d["offset"] for d in fresh.damaged("flip")] == [chunk.chunk_start_offset]
+    with pytest.raises(InputError, match=f"byte offset {chunk.chunk_start_offset}"):
+        fresh.read_frame(plan, 2)
 
 
 def test_plan_survives_pickling(kitti, tmp_path):

@@ -24,13 +24,24 @@ records, no chunk at all (~40× faster). ``read_frame`` seeks to the chunks that
 two messages via the chunk index (log-time filter), not a rescan. Chunk CRCs are checked,
 so corrupt bytes are an InputError naming the file (and the frame), never a wrong image.
 A file without an intact footer/summary (a recording cut short) is refused at ``plan``.
+
+A corrupt chunk (bad CRC, undecompressable, unparsable) does not fail the recording:
+``plan`` reads the file chunk by chunk from the summary's chunk indexes, and a chunk that
+cannot be read is recorded (``damaged()``: its byte offset, log-time range and the frames in
+it). Its image messages are still known from the message index records written beside the
+chunk (log times only: their header stamps are estimated as log time − the topic's median
+recording delay), so its frames keep their place in ``plan.frames`` and ``read_frame`` of one
+of them raises an InputError naming the chunk's offset and time range: only the windows
+holding them fail, the readable frames are mined. They are not ``plan.problems``, which
+would refuse the whole ``--frames`` range at planning. A corrupt chunk whose message
+indexes are unreadable too leaves its frames unknown: they are a gap, named by ``damaged()``.
 """
 
 from __future__ import annotations
 
 import bisect
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -95,6 +106,26 @@ class _Index:
     info_topics: tuple[str, str]
     repeated_left: int = 0  # messages dropped because an earlier one has their stamp (duplicate_stamps="gap")
     repeated_right: int = 0
+    bad_chunks: list[BadChunk] = field(default_factory=list)
+    bad_left: dict[int, int] = field(default_factory=dict)  # left position → bad_chunks number
+    bad_right: dict[int, int] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class BadChunk:
+    """A chunk that cannot be read: where it is, which log times it holds, and why."""
+
+    offset: int  # byte offset of the chunk record in the file
+    start_ns: int  # log time of its first and last message
+    end_ns: int
+    reason: str
+    messages_known: bool = True  # False: its message indexes are unreadable too
+
+    def describe(self) -> str:
+        return (
+            f"corrupt MCAP chunk at byte offset {self.offset} (log times {self.start_ns}–{self.end_ns} ns) "
+            f"cannot be read: {self.reason}"
+        )
 
 
 def _open_error(path: Path, err: Exception) -> InputError:
@@ -200,32 +231,50 @@ class McapSource(Source):
     def _build_index(self, sequence: str) -> _Index:
         path = self._path(sequence)
         with open(path, "rb") as f:
-            reader, summary, factory = self._reader(f, path)
+            _, summary, factory = self._reader(f, path)
             (lt, rt), (lit, rit), kinds = self._choose(path, summary)
             try:
-                infos = _first_messages(reader, factory, [lit, rit])
                 stamps = _log_times_from_index(f, summary, [lt, rt]) if self.time_source == "log" else None
-                if stamps is None:
-                    stamps = {lt: [], rt: []}
-                    for _, channel, message in _iter(reader, [lt, rt]):
-                        stamp = message.log_time if self.time_source == "log" else header_stamp_ns(message.data)
-                        stamps[channel.topic].append((stamp, message.log_time))
+                scan = _scan(f, summary, [lt, rt, lit, rit] if stamps is None else [lit, rit], [lit, rit], factory)
             except InputError:
                 raise
             except Exception as err:
                 raise InputError(f"cannot read messages (corrupt chunk?): {type(err).__name__}: {err}", path) from None
+        infos = scan.infos
+        if stamps is None:
+            try:
+                stamps = {
+                    t: [(m.log_time if self.time_source == "log" else header_stamp_ns(m.data), m.log_time)
+                        for m in scan.messages.get(t, [])]
+                    for t in (lt, rt)
+                }
+            except ValueError as err:
+                raise InputError(f"cannot read an image message's header stamp: {err}", path) from None
         for topic in (lit, rit):
             if topic not in infos:
-                raise InputError(f"CameraInfo topic {topic} has no messages", path)
+                more = "".join(f"; {b.describe()}" for b in scan.bad)
+                raise InputError(f"CameraInfo topic {topic} has no readable messages{more}", path)
         for topic in (lt, rt):
-            if not stamps[topic]:
+            if not stamps[topic] and not scan.bad_logs.get(topic):
                 raise InputError(f"image topic {topic} has no messages", path)
-            if self.time_source == "header" and all(s == 0 for s, _ in stamps[topic]):
+            if self.time_source == "header" and stamps[topic] and all(s == 0 for s, _ in stamps[topic]):
                 raise InputError(f"image topic {topic} has zero header stamps; use time_source='log'", path)
         calib = _calib_from_infos(infos[lit], infos[rit], path, lit, rit)
-        left = sorted(stamps[lt])
-        right = sorted(stamps[rt])
-        repeats = {topic: _repeated(msgs) for topic, msgs in ((lt, left), (rt, right))}
+        # Messages of unreadable chunks: log times from their message indexes, stamps estimated.
+        delays = [lg - st for t in (lt, rt) for st, lg in stamps[t]]
+        sides = {}
+        for topic in (lt, rt):
+            own = [lg - st for st, lg in stamps[topic]]
+            delay = int(np.median(own if own else delays)) if (own or delays) else 0
+            entries = [(st, lg, -1) for st, lg in stamps[topic]]
+            entries += [(lg - delay, lg, k) for lg, k in scan.bad_logs.get(topic, [])]
+            entries.sort()
+            sides[topic] = ([(st, lg) for st, lg, _ in entries], {i: k for i, (_, _, k) in enumerate(entries) if k >= 0})
+        (left, bad_left), (right, bad_right) = sides[lt], sides[rt]
+        repeats = {
+            topic: [k for k in _repeated(msgs) if k not in bad and k - 1 not in bad]
+            for topic, msgs, bad in ((lt, left, bad_left), (rt, right, bad_right))
+        }
         for topic, msgs in ((lt, left), (rt, right)):
             if repeats[topic] and self.duplicate_stamps == "error":
                 k = repeats[topic][0]
@@ -238,10 +287,13 @@ class McapSource(Source):
                     path,
                 )
         partner = _pair(left, right, self.max_pair_dt_ns, set(repeats[lt]), set(repeats[rt]))
+        for i in bad_left:  # an unreadable left image is a frame that fails, never a silent drop
+            partner.setdefault(i, -1)
         return _Index(
             path, (lt, rt), kinds, left, right, partner, calib,
-            unpaired_left=len(left) - len(partner), unpaired_right=len(right) - len(partner),
+            unpaired_left=len(left) - len(partner), unpaired_right=len(right) - len(set(partner.values()) - {-1}),
             info_topics=(lit, rit), repeated_left=len(repeats[lt]), repeated_right=len(repeats[rt]),
+            bad_chunks=scan.bad, bad_left=bad_left, bad_right=bad_right,
         )  # fmt: skip
 
     def survey(self, sequence: str) -> SequencePlan:
@@ -260,6 +312,21 @@ class McapSource(Source):
         self._index[sequence] = idx
         return SequencePlan(self.dataset, sequence, idx.calib, frames, t_ns, gaps)
 
+    def damaged(self, sequence: str) -> list[dict[str, Any]]:
+        """The chunks ``plan`` found unreadable: byte offset, log-time range, reason, and the
+        frames (left positions) whose left or right image lies in each; [] for an intact file."""
+        if sequence not in self._index:
+            self.plan(sequence)
+        idx = self._index[sequence]
+        out = []
+        for k, b in enumerate(idx.bad_chunks):
+            frames = sorted(
+                i for i, j in idx.partner.items() if idx.bad_left.get(i) == k or idx.bad_right.get(j) == k
+            )
+            out.append({"offset": b.offset, "start_ns": b.start_ns, "end_ns": b.end_ns, "reason": b.reason,
+                        "messages_known": b.messages_known, "frames": frames, "message": b.describe()})
+        return out
+
     def pairing(self, sequence: str) -> dict[str, Any]:
         """Topics used and how many images found no partner."""
         if sequence not in self._index:
@@ -275,6 +342,7 @@ class McapSource(Source):
             "unpaired_right": idx.unpaired_right,
             "repeated_left": idx.repeated_left,
             "repeated_right": idx.repeated_right,
+            "corrupt_chunks": len(idx.bad_chunks),
         }
 
     # -- reading -------------------------------------------------------------------------
@@ -287,22 +355,38 @@ class McapSource(Source):
         frame = plan.frames[position]
         if frame not in idx.partner:
             raise InputError("frame is not a stereo pair in this file (plan from another file?)", idx.path, frame)
+        for pos, bad, side in ((frame, idx.bad_left, "left"), (idx.partner[frame], idx.bad_right, "right")):
+            if pos in bad:
+                raise InputError(f"{idx.bad_chunks[bad[pos]].describe()}; it holds this frame's {side} image",
+                                 idx.path, frame)
         wanted = {idx.topics[0]: idx.left[frame], idx.topics[1]: idx.right[idx.partner[frame]]}
-        logs = [lt for _, lt in wanted.values()]
         found: dict[str, np.ndarray] = {}
         try:
             with open(idx.path, "rb") as f:
-                reader, _, factory = self._reader(f, idx.path)
-                for schema, channel, message in _iter(reader, list(wanted), min(logs), max(logs) + 1):
-                    stamp_log = wanted.get(channel.topic)
-                    if stamp_log is None or channel.topic in found or message.log_time != stamp_log[1]:
-                        continue
-                    stamp = message.log_time if self.time_source == "log" else header_stamp_ns(message.data)
-                    if stamp != stamp_log[0]:
-                        continue
-                    msg = factory.decoder_for(channel.message_encoding, schema)(message.data)
-                    kind = idx.kinds[0 if channel.topic == idx.topics[0] else 1]
-                    found[channel.topic] = decode_image(msg, kind, idx.path, frame, channel.topic)
+                _, summary, factory = self._reader(f, idx.path)
+                ids = {ch.id: ch for ch in summary.channels.values() if ch.topic in wanted}
+                logs = {log for _, log in wanted.values()}
+                chunks = [c for c in summary.chunk_indexes
+                          if any(c.message_start_time <= t <= c.message_end_time for t in logs)
+                          and (not c.message_index_offsets or set(c.message_index_offsets) & set(ids))]
+                for chunk in sorted(chunks, key=lambda c: (c.message_start_time, c.chunk_start_offset)):
+                    try:
+                        messages = _chunk_messages(f, chunk, ids)
+                    except Exception as err:
+                        raise InputError(f"{_bad_chunk(chunk, err).describe()}; it holds this frame's images",
+                                         idx.path, frame) from None
+                    for message in messages:
+                        channel = ids[message.channel_id]
+                        stamp_log = wanted[channel.topic]
+                        if channel.topic in found or message.log_time != stamp_log[1]:
+                            continue
+                        stamp = message.log_time if self.time_source == "log" else header_stamp_ns(message.data)
+                        if stamp != stamp_log[0]:
+                            continue
+                        schema = summary.schemas.get(channel.schema_id)
+                        msg = factory.decoder_for(channel.message_encoding, schema)(message.data)
+                        kind = idx.kinds[0 if channel.topic == idx.topics[0] else 1]
+                        found[channel.topic] = decode_image(msg, kind, idx.path, frame, channel.topic)
         except InputError as err:
             if err.frame is None:
                 raise InputError(err.reason, err.path, frame) from None
@@ -324,18 +408,85 @@ class McapSource(Source):
         return StereoFrame(self.dataset, plan.sequence, frame, plan.t_ns[position], left, right, plan.calib)
 
 
-def _iter(reader: Any, topics: list[str], start: int | None = None, end: int | None = None):
-    return reader.iter_messages(topics=topics, starting_at=start, ending_before=end)
+@dataclass
+class _Scan:
+    infos: dict[str, Any]  # topic → first decoded message (CameraInfo)
+    messages: dict[str, list[Any]]  # topic → Message records of the readable chunks
+    bad: list[BadChunk]
+    bad_logs: dict[str, list[tuple[int, int]]]  # topic → (log time, bad chunk number) per unreadable message
 
 
-def _first_messages(reader: Any, factory: Any, topics: list[str]) -> dict[str, Any]:
-    """The first decoded message of each topic (CameraInfo), reading only the chunks needed."""
-    out: dict[str, Any] = {}
-    for schema, channel, message in _iter(reader, topics):
-        if channel.topic not in out:
-            out[channel.topic] = factory.decoder_for(channel.message_encoding, schema)(message.data)
-            if len(out) == len(topics):
-                break
+def _chunk_messages(f: Any, chunk: Any, ids: dict[int, Any]) -> list[Any]:
+    """The Message records of channels ``ids`` in one chunk, CRC checked; raises on bad bytes."""
+    from mcap.data_stream import ReadDataStream
+    from mcap.records import Chunk, Message
+    from mcap.stream_reader import breakup_chunk
+
+    f.seek(chunk.chunk_start_offset)
+    opcode = f.read(1)
+    if opcode != b"\x06":
+        raise ValueError(f"expected a chunk record, found opcode {opcode.hex() or 'EOF'}")
+    f.seek(8, 1)  # record length
+    record = Chunk.read(ReadDataStream(f))
+    return [r for r in breakup_chunk(record, validate_crc=True) if isinstance(r, Message) and r.channel_id in ids]
+
+
+def _bad_chunk(chunk: Any, err: Exception, messages_known: bool = True) -> BadChunk:
+    reason = f"{type(err).__name__}: {err}"
+    return BadChunk(chunk.chunk_start_offset, chunk.message_start_time, chunk.message_end_time, reason, messages_known)
+
+
+def _scan(f: Any, summary: Any, topics: list[str], info_topics: list[str], factory: Any) -> _Scan:
+    """Read the chunks holding ``topics`` one by one (all of them, or only until every info
+    topic has a message when ``topics`` are the info topics); a chunk that cannot be read is
+    recorded, with the log times of its messages from its message indexes where they can be read."""
+    ids = {ch.id: ch for ch in summary.channels.values() if ch.topic in topics}
+    infos_only = set(topics) <= set(info_topics)
+    out = _Scan({}, {t: [] for t in topics}, [], {t: [] for t in topics})
+    for chunk in sorted(summary.chunk_indexes, key=lambda c: (c.message_start_time, c.chunk_start_offset)):
+        if infos_only and len(out.infos) == len(info_topics):
+            break
+        if chunk.message_index_offsets and not set(chunk.message_index_offsets) & set(ids):
+            continue
+        try:
+            messages = _chunk_messages(f, chunk, ids)
+        except Exception as err:  # the mcap library, zstd and lz4 raise assorted types on bad bytes
+            try:
+                logs = _chunk_log_times(f, chunk, {i: ch.topic for i, ch in ids.items()})
+            except Exception:
+                logs = None
+            k = len(out.bad)
+            out.bad.append(_bad_chunk(chunk, err, logs is not None))
+            for topic, times in (logs or {}).items():
+                out.bad_logs[topic].extend((t, k) for t in times)
+            continue
+        for message in sorted(messages, key=lambda m: m.log_time):
+            channel = ids[message.channel_id]
+            if channel.topic in info_topics:
+                if channel.topic not in out.infos:
+                    schema = summary.schemas.get(channel.schema_id)
+                    out.infos[channel.topic] = factory.decoder_for(channel.message_encoding, schema)(message.data)
+            else:
+                out.messages[channel.topic].append(message)
+    return out
+
+
+def _chunk_log_times(f: Any, chunk: Any, ids: dict[int, str]) -> dict[str, list[int]] | None:
+    """Log times per topic of one chunk's messages from its message index records; None
+    when the chunk has none."""
+    from mcap.records import MessageIndex
+    from mcap.stream_reader import StreamReader
+
+    if not chunk.message_index_offsets:
+        return None
+    out: dict[str, list[int]] = {}
+    for channel_id, offset in chunk.message_index_offsets.items():
+        if channel_id in ids:
+            f.seek(offset)
+            record = next(StreamReader(f, skip_magic=True).records)
+            if not isinstance(record, MessageIndex):
+                raise ValueError(f"expected a message index at byte {offset}, found {type(record).__name__}")
+            out.setdefault(ids[channel_id], []).extend(t for t, _ in record.records)
     return out
 
 
