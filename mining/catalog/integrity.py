@@ -11,21 +11,26 @@ Checking costs a listing and a ``stat`` per file (sizes: a deleted or truncated 
 reads every byte with ``verify`` (checksums: a file damaged in place). Three callers:
 resume (``submit.read_resume``: a window with a damaged part runs again, a sequence with a
 damaged compacted file is stitched again from its parts), ``mine status`` (names every
-damaged file and what a resubmission recomputes) and the query views (``views.connect``:
-a table with a damaged file refuses queries, naming it; the other tables answer).
+damaged file and what a resubmission recomputes) and the query views (``views.connect``
+through ``vouched_files``: they read only the files the markers vouch for, each checked
+by size and sha256 once per process; a table with a damaged file refuses queries, naming
+it; the other tables answer).
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import threading
 from collections.abc import Iterable, Mapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import pyarrow.fs as pafs
 
-from mining.catalog.layout import CATALOG, PART_TABLES, catalog_dir, done_path, files_path, part_path
+from mining.catalog.layout import CATALOG, JOB, PART_TABLES, catalog_dir, done_path, files_path, part_path
 from mining.catalog.store import Store, is_temporary
+from mining.errors import InputError
 from mining.types import Window
 
 CHUNK = 1 << 20  # ours: bytes read per step while hashing
@@ -182,3 +187,126 @@ def unreadable_parquet(store: Store, rels: Iterable[str]) -> list[tuple[str, str
         except (pa.ArrowInvalid, OSError) as e:
             out.append((rel, str(e)))
     return out
+
+
+# -- the read path: what the query views may read ------------------------------------------
+
+_SHA_CACHE: dict[tuple[str, str, int, int | None], str] = {}  # (store root, rel, size, mtime_ns) → sha256
+_SHA_LOCK = threading.Lock()
+HASH_THREADS = 4  # ours: hashlib releases the GIL on large updates, so a few threads overlap reads and hashing
+
+
+def cached_sha256(store: Store, rel: str, size: int, mtime_ns: int | None) -> str:
+    """sha256 of one file, hashed once per process while its size and mtime stay the same."""
+    key = (store.root, rel, size, mtime_ns)
+    with _SHA_LOCK:
+        if key in _SHA_CACHE:
+            return _SHA_CACHE[key]
+    got = digest(store, rel)
+    if got["size"] != size:  # changed while it was read: not cached, checked again next time
+        return got["sha256"]
+    with _SHA_LOCK:
+        _SHA_CACHE[key] = got["sha256"]
+    return got["sha256"]
+
+
+@dataclass
+class Vouched:
+    """The compacted files the query views read, by table, and the damaged ones."""
+
+    files: dict[str, list[str]]  # table → files that check out (relative paths, sorted)
+    damage: dict[str, list[Damage]]  # table → files that do not
+    marked: bool  # False: a catalogue no mining job wrote (no marker, no planned window): served as listed, unchecked
+
+
+def _hive_file(rel: str) -> bool:
+    """``catalog/<table>/dataset=D/sequence=S/<file>``: where a table's files are (the old glob's depth)."""
+    p = rel.split("/")
+    return len(p) == 5 and p[2].startswith("dataset=") and p[3].startswith("sequence=")
+
+
+def mined(store: Store) -> bool:
+    """Whether a mining job writes this catalogue (so only what its markers vouch for is served):
+    it has a finished marker, or a job.json that plans windows (or does not read)."""
+    if store.list(MARKERS, ".json"):
+        return True
+    if not store.exists(JOB):
+        return False
+    job = read_json(store, JOB)
+    return job is None or not isinstance(job.get("windows"), list) or bool(job["windows"])
+
+
+def vouched_files(store: Store, verify: bool = True) -> Vouched:
+    """The compacted files of every finalized sequence, checked against its marker (size always,
+    sha256 with ``verify``, each file hashed once per process: ``cached_sha256``).
+
+    Only files a readable marker records under its own sequence's folders are served: a
+    sequence whose first stitch has not finished (no marker yet), a folder no marker records
+    or a file its marker does not list is not read. A marker from before integrity records
+    vouches for its folders' files as listed (nothing to check them against). A catalogue no
+    mining job wrote (``mined`` False: files written by ``store.write_sequence`` alone) is
+    served as listed, unchecked.
+    """
+    files: dict[str, set[str]] = {t: set() for t in TABLES}
+    damage: dict[str, dict[str, Damage]] = {}
+    if not mined(store):
+        for t in TABLES:
+            files[t] = {r for r in store.list(f"{CATALOG}/{t}") if _hive_file(r)}
+        return Vouched({t: sorted(v) for t, v in files.items()}, {}, False)
+    recorded: dict[str, tuple[Mapping, str]] = {}  # rel → (its record, owner)
+    for m in markers(store):
+        dataset, sequence = m.get("dataset"), m.get("sequence")
+        if not (isinstance(dataset, str) and isinstance(sequence, str)):
+            continue
+        try:
+            dirs = {t: catalog_dir(t, dataset, sequence) + "/" for t in TABLES}
+        except InputError:
+            continue  # a name that is not one: the marker vouches for nothing
+        owner, listed = f"sequence {sequence}", m.get("files")
+        for t in TABLES:
+            on_disk = {r for r in store.list(dirs[t].rstrip("/")) if not is_temporary(r)}
+            if not isinstance(listed, dict):  # before integrity records
+                files[t] |= on_disk
+                continue
+            for rel in on_disk - listed.keys():
+                damage.setdefault(t, {})[rel] = Damage(rel, "not recorded by the sequence's last finalize (left over)",
+                                                       owner)
+        if isinstance(listed, dict):
+            for rel, want in listed.items():
+                if isinstance(rel, str) and isinstance(want, Mapping) and any(
+                        rel.startswith(d) and "/" not in rel[len(d):] for d in dirs.values()):
+                    recorded.setdefault(rel, (want, owner))
+    rels = sorted(recorded)
+    infos = store.fs.get_file_info([store.full(r) for r in rels]) if rels else []
+    to_hash = []
+    for rel, info in zip(rels, infos):
+        want, owner = recorded[rel]
+        table = rel.split("/")[1]
+        if info.type != pafs.FileType.File:
+            damage.setdefault(table, {})[rel] = Damage(rel, "missing", owner)
+        elif info.size != want.get("size"):
+            damage.setdefault(table, {})[rel] = Damage(rel, f"{info.size} bytes, {want.get('size')} recorded", owner)
+        elif verify:
+            to_hash.append((rel, info))
+        else:
+            files[table].add(rel)
+
+    def check(item):
+        rel, info = item
+        try:
+            return rel, cached_sha256(store, rel, info.size, info.mtime_ns), None
+        except OSError as e:
+            return rel, None, f"unreadable: {e}"
+
+    with ThreadPoolExecutor(max_workers=max(1, min(HASH_THREADS, len(to_hash)))) as pool:
+        for rel, got, problem in pool.map(check, to_hash):
+            want, owner = recorded[rel]
+            table = rel.split("/")[1]
+            if problem is None and got != want.get("sha256"):
+                problem = f"sha256 {got[:12]}…, {str(want.get('sha256'))[:12]}… recorded"
+            if problem is None:
+                files[table].add(rel)
+            else:
+                damage.setdefault(table, {})[rel] = Damage(rel, problem, owner)
+    return Vouched({t: sorted(v) for t, v in files.items()},
+                   {t: [d[k] for k in sorted(d)] for t, d in damage.items()}, True)

@@ -6,11 +6,20 @@ read back from the hive folder names, as VARCHAR so "0005" stays "0005"):
 * ``tubes``, ``tube_frames``, ``frames`` — ``OUT/catalog/<table>/dataset=D/sequence=S/*.parquet``
 * ``windows`` — the manifest, ``OUT/manifest/dataset=D/sequence=S/*.parquet``
 
+The compacted tables read exactly the files the finished markers vouch for
+(``integrity.vouched_files``), never a glob: a sequence whose first stitch has not
+finished, a folder no marker records and a file its marker does not list are not served
+(the provisional views show an unstitched sequence's windows). Each vouched file's size
+and sha256 are checked against its marker once per process (cached by path, size and
+mtime), so a flipped bit is an error naming the file, never a value. A catalogue that no
+mining job wrote (no marker, a job.json planning no window: ``store.write_sequence``
+alone) is read as listed, unchecked.
+
 A table without files is an empty view with the right columns, so queries work on a
-fresh catalogue. A table with a damaged file (missing, truncated, of another size than
-its sequence's finished marker records, or whose Parquet footer does not read:
-``integrity.py``) is a view that fails every query that reads it, naming the file; the
-other tables answer as usual. A local catalogue is read by DuckDB's own Parquet reader (projection
+fresh catalogue. A table with a damaged file (missing, truncated, of another size or
+sha256 than its sequence's finished marker records, or whose Parquet footer does not
+read: ``integrity.py``) is a view that fails every query that reads it, naming the file;
+the other tables answer as usual. A local catalogue is read by DuckDB's own Parquet reader (projection
 and row-group pushdown); any other pyarrow filesystem through registered pyarrow datasets.
 
 Read-only, in two layers: the connection may touch no file outside the catalogue folder
@@ -36,7 +45,7 @@ import duckdb
 import pyarrow as pa
 import pyarrow.dataset as ds
 
-from mining.catalog.integrity import Damage, catalogue_damage, unreadable_parquet
+from mining.catalog.integrity import Damage, unreadable_parquet, vouched_files
 from mining.catalog.layout import PART_SUFFIX, PARTS, TABLE_DIRS
 from mining.catalog.schema import PARTITION, SCHEMAS, file_schema, part_schema
 from mining.catalog.store import Store
@@ -79,37 +88,40 @@ def _damaged_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, dama
 
 
 def _base_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, native: bool,
-               damage: list[Damage] | None = None) -> None:
+               damage: list[Damage] | None = None, files: list[str] | None = None) -> None:
     if damage:
         _damaged_view(con, store, table, damage)
         return
     try:
-        _files_view(con, store, table, native)
+        _files_view(con, store, table, native, files)
     except (duckdb.Error, pa.ArrowInvalid, OSError) as e:
-        # A file the markers do not vouch for (a manifest row, a sequence not finalized)
+        # A file no checksum vouches for (a manifest row, an unmarked catalogue's file)
         # broke the view: find which, and make this table fail alone.
-        bad = unreadable_parquet(store, store.list(TABLE_DIRS[table]))
+        bad = unreadable_parquet(store, store.list(TABLE_DIRS[table]) if files is None else files)
         damage = [Damage(rel, reason, "") for rel, reason in bad] or [Damage(TABLE_DIRS[table], str(e), "")]
         con.execute(f"DROP VIEW IF EXISTS {table}")
         _damaged_view(con, store, table, damage)
 
 
 def _folder_view(con: duckdb.DuckDBPyConnection, store: Store, name: str, folder: str, suffix: str,
-                 schema: pa.Schema, cols: str, native: bool) -> None:
-    """View ``name`` over the hive-partitioned files ``folder/*/*/*<suffix>`` of ``schema``
-    (partition columns included; empty when there are no files): DuckDB's own Parquet reader,
-    or a registered pyarrow dataset (``native`` False)."""
-    if not store.list(folder, suffix):
+                 schema: pa.Schema, cols: str, native: bool, files: list[str] | None = None) -> None:
+    """View ``name`` over the hive-partitioned files ``folder/*/*/*<suffix>`` of ``schema``, or
+    over exactly ``files`` (relative paths under ``folder``) when given (partition columns
+    included; empty when there are no files): DuckDB's own Parquet reader, or a registered
+    pyarrow dataset (``native`` False)."""
+    if not (store.list(folder, suffix) if files is None else files):
         con.register(f"_empty_{name}", _as_read(schema).empty_table())
         con.execute(f"CREATE VIEW {name} AS SELECT {cols} FROM _empty_{name}")
         return
+    hive = "hive_partitioning = true, hive_types = {'dataset': 'VARCHAR', 'sequence': 'VARCHAR'}"
     if native:
-        glob = _sql_string(f"{store.full(folder)}/*/*/*{suffix}")
-        con.execute(f"CREATE VIEW {name} AS SELECT {cols} FROM read_parquet({glob}, hive_partitioning = true, "
-                    "hive_types = {'dataset': 'VARCHAR', 'sequence': 'VARCHAR'})")
+        what = (_sql_string(f"{store.full(folder)}/*/*/*{suffix}") if files is None
+                else "[" + ", ".join(_sql_string(store.full(f)) for f in files) + "]")
+        con.execute(f"CREATE VIEW {name} AS SELECT {cols} FROM read_parquet({what}, {hive})")
         return
     part = pa.schema([pa.field(n, pa.string()) for n in PARTITION])
-    dset = ds.dataset(store.full(folder), filesystem=store.fs, format="parquet",
+    source = store.full(folder) if files is None else [store.full(f) for f in files]
+    dset = ds.dataset(source, filesystem=store.fs, format="parquet", partition_base_dir=store.full(folder),
                       partitioning=ds.partitioning(part, flavor="hive"), schema=_as_read(schema))
     con.register(f"_arrow_{name}", dset)
     con.execute(f"CREATE VIEW {name} AS SELECT {cols} FROM _arrow_{name}")
@@ -119,9 +131,11 @@ def _with_partition(schema: pa.Schema) -> pa.Schema:
     return pa.schema(list(schema) + [pa.field(n, pa.string()) for n in PARTITION])
 
 
-def _files_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, native: bool) -> None:
+def _files_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, native: bool,
+                files: list[str] | None = None) -> None:
     cols = ", ".join(f'"{n}"' for n in SCHEMAS[table].names)
-    _folder_view(con, store, table, TABLE_DIRS[table], ".parquet", _with_partition(file_schema(table)), cols, native)
+    _folder_view(con, store, table, TABLE_DIRS[table], ".parquet", _with_partition(file_schema(table)), cols, native,
+                 files)
 
 
 PROVISIONAL = ("tubes", "tube_frames")  # the part tables the provisional views read
@@ -136,13 +150,15 @@ def _part_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, native:
 
 
 def connect(out: str | Path, native: bool | None = None, memory_limit: str | None = None,
-            threads: int | None = None) -> duckdb.DuckDBPyConnection:
+            threads: int | None = None, verify: bool = True) -> duckdb.DuckDBPyConnection:
     """An in-memory DuckDB with the catalogue's tables and views (see module docstring).
 
     ``native`` chooses DuckDB's Parquet reader (default for a local catalogue) over
     pyarrow datasets (default for other filesystems). ``memory_limit`` (e.g. "2GB") and
-    ``threads`` limit queries (default: DuckDB's). Raises InputError when ``out`` is not
-    a catalogue folder, or for a limit DuckDB does not accept.
+    ``threads`` limit queries (default: DuckDB's). ``verify`` (default) checks the sha256 of
+    every compacted file against its marker, once per process per file (``integrity.
+    vouched_files``; False: sizes only, for measuring its cost). Raises InputError when
+    ``out`` is not a catalogue folder, or for a limit DuckDB does not accept.
     """
     store = Store(out)
     if not store.root_exists():
@@ -164,9 +180,10 @@ def connect(out: str | Path, native: bool | None = None, memory_limit: str | Non
     except duckdb.Error as e:
         con.close()
         raise InputError(f"DuckDB refuses the query limits (memory {memory_limit!r}, threads {threads!r}): {e}") from None
-    damage = catalogue_damage(store)
-    for table in SCHEMAS:
-        _base_view(con, store, table, native, damage.get(table))
+    vouched = vouched_files(store, verify=verify)
+    for table in SCHEMAS:  # windows: the manifest's rows (the live status), as listed
+        _base_view(con, store, table, native, vouched.damage.get(table),
+                   None if table == "windows" else vouched.files[table])
     for table in PROVISIONAL:
         _part_view(con, store, table, native)
     con.execute(VIEWS_SQL.read_text())
