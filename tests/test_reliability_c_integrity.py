@@ -95,7 +95,9 @@ def test_status_verify_finds_a_file_damaged_in_place(base_catalogue, tmp_path, c
     path.write_bytes(bytes(data))
 
     rc, text = _status(capsys, out)
-    assert rc == 0 and "integrity: 0 damaged" in text, text  # sizes alone cannot see it
+    # the catalogue's files (what queries read) are always checked by checksum (issue 19)
+    assert rc != 0 and f"damaged  {FRAMES}: sha256 " in text and "integrity: 1 damaged" in text, text
+    assert "(a resubmission with --verify stitches sequence" in text, text
     rc, text = _status(capsys, out, "--verify")
     assert rc != 0 and f"damaged  {FRAMES}: sha256 " in text and "integrity: 1 damaged" in text, text
 

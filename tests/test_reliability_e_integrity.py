@@ -78,6 +78,16 @@ def test_a_flipped_bit_is_an_error_naming_the_file_never_a_value(base_catalogue,
     assert not dest.exists() or not any(dest.iterdir())
 
 
+
+def test_plain_status_finds_a_flipped_bit_in_the_catalogues_files(base_catalogue, tmp_path, capsys):
+    """Plain ``mine status`` said "0 damaged" over a flipped bit that changed a query's values
+    (only --verify found it): the compacted files, what queries read, are checked by checksum."""
+    out = copy_of(base_catalogue, tmp_path / "out")
+    _flip_a_value(out / TUBES)
+    rc, o, e = _cli(capsys, "status", "--out", str(out))
+    assert rc == 1, o + e
+    assert f"damaged  {TUBES}: sha256" in o and "integrity: 1 damaged" in o, o
+
 def test_a_half_published_first_stitch_is_not_served(base_catalogue, tmp_path, capsys):
     """A crash during a sequence's first stitch: its tubes file published, the rest and its
     marker not. The final views show nothing of it (they showed its tubes without frames);

@@ -96,7 +96,9 @@ def job_damage(out: str, rows: list[WindowStatus], verify: bool = False) -> list
         elif r.status == "done":
             out_ += window_damage(store, w, verify)
     for d, seq in dict.fromkeys((w.dataset, w.sequence) for w in by_name.values()):
-        out_ += sequence_damage(store, d, seq, verify) or []
+        # The compacted files are what every query reads (and checks by checksum, views.py):
+        # their checksums always; the parts' only with --verify.
+        out_ += sequence_damage(store, d, seq, True) or []
     return out_
 
 
@@ -186,7 +188,10 @@ def print_status(out: str, verify: bool = False) -> int:
         print(f"being written now by {describe(writer)}: files of steps in flight may show as damaged below")
     damage = job_damage(out, rows, verify)
     for d in damage:
-        print(f"damaged  {d.path}: {d.reason} (a resubmission {_repair(d)})")
-    checked = "sizes and checksums" if verify else "sizes; --verify also checks checksums"
+        # A plain resubmission checks sizes only: damage of the same size needs --verify to be redone.
+        how = "a resubmission with --verify" if d.reason.startswith("sha256") else "a resubmission"
+        print(f"damaged  {d.path}: {d.reason} ({how} {_repair(d)})")
+    checked = ("sizes and checksums" if verify else
+               "sizes and checksums of the catalogue's files, sizes of the windows' parts; --verify also checks their checksums")
     print(f"integrity: {len(damage)} damaged or missing file(s) ({checked})")
     return 1 if counts["failed"] or stitched["failed"] or damage or unplanned else 0
