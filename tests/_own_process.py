@@ -4,7 +4,7 @@ Ray's core worker is made once per process: ``ray.init`` after ``ray.shutdown`` 
 process, or a shutdown while another thread still waits on Ray, leaves objects that point
 into freed core-worker state, and the process crashes later — often only at exit, after
 every test has passed (SIGSEGV in ``_raylet.so``). So the pytest process never starts Ray
-(``RayGuard`` fails a test that does), and each test that needs Ray in-process is handed
+(a guard in conftest fails a test that does: ``ray_was_started_here``), and each test that needs Ray in-process is handed
 to a child ``python -m pytest <nodeid>``. The child's exit status is part of the result:
 a child that ends in a signal fails the test even when the test itself passed, which is
 how a crash at exit shows up as a failure instead of passing unseen.
@@ -62,7 +62,8 @@ def _outcome(xml_path: Path) -> tuple[str, str]:
 
 
 def run_in_own_process(item: pytest.Item) -> list[TestReport]:
-    """Run ``item`` in a child pytest; its setup / call / teardown reports for this process."""
+    """Run ``item`` in a child pytest; its setup and call reports for this process (the
+    teardown is this process's own: see ``protocol``)."""
     base = item.config._tmp_path_factory.mktemp("own-process")  # noqa: SLF001 - the session's temp root
     xml = base / "report.xml"
     env = dict(os.environ, **{CHILD_ENV: "1"})
@@ -95,9 +96,9 @@ def run_in_own_process(item: pytest.Item) -> list[TestReport]:
 
     if outcome == "skipped":
         path, line, _ = item.location
-        return [report("setup", "skipped", (str(path), (line or 0) + 1, message)), report("teardown", "passed")]
+        return [report("setup", "skipped", (str(path), (line or 0) + 1, message))]
     longrepr = None if outcome == "passed" else f"[{exit_reason(rc) if rc is not None else 'timeout'}] {message.strip()}"
-    return [report("setup", "passed"), report("call", outcome, longrepr, t1 - t0), report("teardown", "passed")]
+    return [report("setup", "passed"), report("call", outcome, longrepr, t1 - t0)]
 
 
 def ray_was_started_here() -> bool:
@@ -115,3 +116,24 @@ def ray_was_started_here() -> bool:
 
 RAY_IN_PYTEST = ("this test started Ray in the pytest process: restarting Ray in one process crashes Ray's core "
                  f"at exit. Mark it @pytest.mark.{MARKER} (tests/_own_process.py), or run Ray in a subprocess")
+
+
+def protocol(item: pytest.Item, nextitem: pytest.Item | None) -> None:
+    """pytest's run-test protocol for an ``own_process`` item: the child's setup and call
+    reports, then this process's own teardown up to ``nextitem``, as pytest's protocol does:
+    module and session fixtures that earlier items set up here are torn down when the next
+    item no longer needs them (without it, the next module's setup fails with "previous item
+    was not torn down properly"). Only the setup stack is torn down: the item itself was
+    never set up here, so the teardown hooks (which expect what setup stashed) are not run."""
+    item.ihook.pytest_runtest_logstart(nodeid=item.nodeid, location=item.location)
+    reports = run_in_own_process(item)
+    for report in reports:
+        item.ihook.pytest_runtest_logreport(report=report)
+    try:
+        item.session._setupstate.teardown_exact(nextitem)  # noqa: SLF001 - what pytest_runtest_teardown does
+        outcome, longrepr = "passed", None
+    except Exception as e:  # noqa: BLE001 - a fixture's teardown failed: reported like pytest would
+        outcome, longrepr = "failed", f"teardown of fixtures before {nextitem.nodeid if nextitem else 'the end'}: {e!r}"
+    item.ihook.pytest_runtest_logreport(report=TestReport(
+        item.nodeid, item.location, {k: 1 for k in item.keywords}, outcome, longrepr, "teardown"))
+    item.ihook.pytest_runtest_logfinish(nodeid=item.nodeid, location=item.location)

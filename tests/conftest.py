@@ -77,7 +77,8 @@ def catalogue(tmp_path_factory, kitti_tracking_root):
 
 
 # ── Ray stays out of the pytest process (tests/_own_process.py, issue 17) ──────────────
-from _own_process import MARKER as _OWN_PROCESS, RAY_IN_PYTEST, in_child, ray_was_started_here, run_in_own_process  # noqa: E402
+from _own_process import MARKER as _OWN_PROCESS, RAY_IN_PYTEST, in_child, ray_was_started_here  # noqa: E402
+from _own_process import protocol as own_process_protocol  # noqa: E402
 
 
 def pytest_configure(config):
@@ -89,10 +90,7 @@ def pytest_configure(config):
 def pytest_runtest_protocol(item, nextitem):
     if item.get_closest_marker(_OWN_PROCESS) is None or in_child():
         return None
-    item.ihook.pytest_runtest_logstart(nodeid=item.nodeid, location=item.location)
-    for report in run_in_own_process(item):
-        item.ihook.pytest_runtest_logreport(report=report)
-    item.ihook.pytest_runtest_logfinish(nodeid=item.nodeid, location=item.location)
+    own_process_protocol(item, nextitem)
     return True
 
 

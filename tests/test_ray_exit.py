@@ -59,6 +59,33 @@ def test_plain():
 '''
 
 
+# A module whose own_process test follows a test that set up a module fixture here, then
+# another module: the fixture must be torn down before the next module starts, as pytest does.
+FIRST_MODULE = '''
+import os
+import pytest
+
+@pytest.fixture(scope="module")
+def resource():
+    os.environ["RESOURCE_OPEN"] = "1"
+    yield
+    del os.environ["RESOURCE_OPEN"]
+
+def test_uses_the_module_fixture(resource):
+    assert os.environ["RESOURCE_OPEN"] == "1"
+
+@pytest.mark.own_process
+def test_last_of_its_module_in_its_own_process():
+    assert True
+'''
+
+SECOND_MODULE = '''
+import os
+
+def test_the_previous_module_was_torn_down():
+    assert "RESOURCE_OPEN" not in os.environ
+'''
+
 def _env() -> dict[str, str]:
     env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0", PYTHONPATH=str(REPO))
     env.pop("RAY_ADDRESS", None)
@@ -113,3 +140,13 @@ def test_mine_submit_exits_0_run_after_run(tmp_path):
                             "--out", str(out)], cwd=REPO, env=_env(), capture_output=True, text=True, timeout=600)
         assert p.returncode == 0, (k, p.returncode, p.stdout[-2000:], p.stderr[-3000:])
         assert "windows: 2 ok, 0 failed" in p.stdout, p.stdout
+
+
+def test_an_own_process_test_at_a_modules_end_lets_its_fixtures_be_torn_down(suite):
+    (suite / "test_cases.py").unlink()
+    (suite / "test_m1.py").write_text(FIRST_MODULE)
+    (suite / "test_m2.py").write_text(SECOND_MODULE)
+    p = _run_suite(suite)
+    out = p.stdout + p.stderr
+    assert p.returncode == 0, out  # was: "previous item was not torn down properly" at the next module
+    assert "3 passed" in out and "error" not in out.lower(), out
