@@ -172,6 +172,13 @@ def test_bench_catalog_small(tmp_path, shared_data):
     n_selected = con.sql("SELECT count(*) FROM selected_tubes").fetchone()[0]
     assert r["query_rows"]["rerank"] == min(100, n_selected) > 0 and r["query_rows"]["one_tube_masks"] > 0
     assert r["query_rows"]["unknown_long_tubes"] == con.sql(r["queries"]["unknown_long_tubes"]).fetchall().__len__() > 0
+    # the bench catalogue is vouched for like a mined one: its readers check every file's checksum
+    from mining.catalog.integrity import mined, vouched_files
+    from mining.catalog.store import Store
+
+    store = Store(str(tmp_path / "bench_catalog"))
+    v = vouched_files(store)
+    assert mined(store) and v.marked and not v.damage and all(v.files[t] for t in ("tubes", "tube_frames", "frames"))
 
 
 def test_table_output_shows_at_most_limit_rows_with_the_total(catalogue, capsys):

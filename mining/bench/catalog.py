@@ -24,6 +24,8 @@ import numpy as np
 import pyarrow as pa
 from pycocotools import mask as mask_utils
 
+from mining.catalog.integrity import sequence_files
+from mining.catalog.layout import done_path
 from mining.catalog.schema import SCHEMA_VERSION, file_schema
 from mining.catalog.store import Store, write_sequence
 from mining.catalog.views import connect
@@ -166,9 +168,13 @@ def build_catalogue(out: str | Path, n_rows: int = 1_000_000, n_sequences: int =
     for i, seq in enumerate(sequences):
         rows = n_rows // n_sequences + (1 if i < n_rows % n_sequences else 0)
         tubes, tf, frames, k = _sequence_tables(rng, masks, "bench", seq, rows, k)
-        write_sequence(store, "tubes", "bench", seq, tubes)
-        write_sequence(store, "tube_frames", "bench", seq, tf)
-        write_sequence(store, "frames", "bench", seq, frames)
+        written = (write_sequence(store, "tubes", "bench", seq, tubes)
+                   + write_sequence(store, "tube_frames", "bench", seq, tf)
+                   + write_sequence(store, "frames", "bench", seq, frames))
+        # A finished marker with every file's size and sha256, as a mining job's stitch leaves
+        # it: readers then serve only these files and check their checksums (integrity on).
+        marker = {"dataset": "bench", "sequence": seq, "windows": [], "files": sequence_files(store, written)}
+        store.write_bytes(done_path("bench", seq), json.dumps(marker, indent=1).encode())
         n_tubes += tubes.num_rows
     return {"tube_frames": n_rows, "tubes": n_tubes, "sequences": sequences, "masks": len(masks)}
 
@@ -179,7 +185,8 @@ def _bytes(store: Store, prefix: str) -> int:
 
 def bench_catalog(tmpdir: str | Path, n_rows: int = 1_000_000, repeats: int = 3) -> dict:
     """Build the catalogue under ``tmpdir``, then measure storage and the example queries
-    (wall seconds, best of ``repeats``, result fetched)."""
+    (wall seconds, best of ``repeats``, result fetched). ``connect_s`` is the first connect
+    of the process: it checks every file's size and sha256 against its marker."""
     out = Path(tmpdir) / "bench_catalog"
     t0 = time.perf_counter()
     built = build_catalogue(out, n_rows)
