@@ -21,7 +21,8 @@ from mining.catalog.views import connect
 from mining.config import load_config
 from mining.pipeline.cache import decode_frames, encode_frames
 from mining.pipeline.executors import LocalExecutor, RayExecutor
-from mining.pipeline.submit import mine_job
+from mining.catalog.lock import OutputLock
+from mining.pipeline.submit import mine_job, open_job
 from mining.pipeline.window import observe_window
 from mining.sources.synthetic import SyntheticSource
 from mining.testing.sharding import AGREE_IOU, selected_tube_masks, tube_agreement
@@ -73,6 +74,10 @@ def test_100_frame_windows_give_the_tubes_of_one_500_frame_window(local_ray, tmp
     frames.sort(key=lambda f: f.position)
     assert [f.position for f in frames] == list(range(500))
     ref_cfg = load_config(REPO / "jobs" / "synthetic.toml", ["window.core=500"])
+    # The job is recorded first: a folder holding an observation cache but no job.json is
+    # refused (whose observations would they be?); a recorded job resumes from its cache.
+    with OutputLock(Store(whole)):
+        open_job(ref_cfg, whole, ["0000"], (0, 500))
     Store(whole).write_bytes(cache_path(Window("synthetic", "0000", (0, 500), (0, 500))), encode_frames(frames))
     assert mine_job(ref_cfg, whole, ["0000"], (0, 500), executor=LocalExecutor).ok == 1
 
