@@ -213,6 +213,17 @@ def test_a_failed_track_is_left_out_of_the_finalize():
     assert label(tasks[-1]) == ("finalize", "s") and tasks[-1].args[2] == sorted([A.name, C.name])
 
 
+
+def test_a_stitched_window_that_fails_when_run_again_keeps_the_catalogue():
+    # The catalogue holds A, B and C; B's parts were lost and its rerun fails (e.g. a full
+    # disk): stitching A and C alone would drop B's tubes, so the sequence is not finalized.
+    s = Schedule(WINDOWS, Resume({A.name: True, C.name: True}, {"s": ALL}))
+    order, _, _ = drive(s, failing(("track", B.name)))
+    assert ("track", B.name) in order and ("finalize", "s") not in order
+    # repaired: B runs and the sequence is stitched again with it
+    order, _, tasks = drive(Schedule(WINDOWS, Resume({A.name: True, C.name: True}, {"s": ALL})))
+    assert label(tasks[-1]) == ("finalize", "s") and tasks[-1].args[2] == sorted(ALL)
+
 def test_a_sequence_whose_windows_all_failed_is_still_finalized():
     _, _, tasks = drive(Schedule(WINDOWS), failing(*[("track", w.name) for w in WINDOWS]))
     assert label(tasks[-1]) == ("finalize", "s") and tasks[-1].args[2] == []

@@ -14,7 +14,9 @@ asks ``next_task()`` while a worker is free and hands each result to ``on_result
   tracked while a neighbour had failed (its context was incomplete) when that neighbour
   runs again: it is tracked again too (its observations are cached), so a repaired job
   ends as a clean run would. A sequence whose catalogue already holds exactly its done
-  windows is not finalized again.
+  windows is not finalized again, nor one whose catalogue holds a window that failed this
+  time (stitching without it would lose what was mined: the catalogue stays as it is, and
+  the window's failure is reported).
 * Caches: a window's observation cache serves its users and may be dropped once all of
   them are done (they never run again in this job).
 """
@@ -119,8 +121,14 @@ class Schedule:
         self._observed: dict[str, StepResult] = {}
         self.ok: dict[str, set[str]] = {s: {w.name for w in ws if w.name in done} for s, ws in self.by_seq.items()}
         self._left = {s: sum(1 for w in ws if w.name not in done) for s, ws in self.by_seq.items()}
-        self._finalize: deque[str] = deque(s for s in sorted(self.to_finalize) if self._left[s] == 0)
+        self._held = dict(resume.finalized)
+        self._finalize: deque[str] = deque(s for s in sorted(self.to_finalize) if self._left[s] == 0 and self._loses_nothing(s))
         self._dropped: set[str] = set()
+
+    def _loses_nothing(self, sequence: str) -> bool:
+        """Whether stitching the sequence's done windows keeps every window its catalogue holds."""
+        held = self._held.get(sequence)
+        return held is None or held <= self.ok[sequence]
 
     @property
     def nothing_to_do(self) -> bool:
@@ -169,7 +177,7 @@ class Schedule:
                           if n.name not in self._dropped and all(m.name in ok for m in self.users[n.name])]
                 self._dropped.update(n.name for n in served)
             self._left[w.sequence] -= 1
-            if self._left[w.sequence] == 0 and w.sequence in self.to_finalize:
+            if self._left[w.sequence] == 0 and w.sequence in self.to_finalize and self._loses_nothing(w.sequence):
                 self._finalize.append(w.sequence)
             return served
         return []
