@@ -278,6 +278,13 @@ def cmd_bench_classify(args: argparse.Namespace) -> int:
                               n_frames=args.frames, train_frames=args.train_frames, json_out=args.json)
 
 
+def cmd_bench_calibrate(args: argparse.Namespace) -> int:
+    from mining.bench.calibrate import run_calibrate_bench
+
+    return run_calibrate_bench(_job_config(args), args.seeds, args.frames, workers=args.workers, l2=args.l2,
+                               epsilon1=args.epsilon1, json_out=args.json)
+
+
 def cmd_bench_proposals(args: argparse.Namespace) -> int:
     from mining.bench.proposals import run_proposals_bench
 
@@ -545,6 +552,19 @@ def build_parser() -> argparse.ArgumentParser:
     bcls.add_argument("--frames", type=int, default=200, help="frames of the held-out seed")
     bcls.add_argument("--json", help="also write the results as JSON here")
     bcls.set_defaults(func=cmd_bench_classify)
+
+    bcal = bsub.add_parser("calibrate", help="fit the calibrated unary (score.model=calibrated) on synthetic "
+                                             "training seeds, leave-one-seed-out, for the job's proposer")
+    _add_job_options(bcal)
+    bcal.add_argument("--seeds", nargs="+", default=["0000", "0001", "0002", "0003", "0004", "0005", "0006"],
+                      help="synthetic training seeds, one fold each (default 0000–0006; 0007–0009 are held out)")
+    bcal.add_argument("--frames", type=int, default=100, help="frames per seed (default 100)")
+    bcal.add_argument("--workers", type=int, default=1, help="seeds mined in parallel processes (default 1)")
+    bcal.add_argument("--l2", type=float, default=1.0, help="L2 penalty on the standardised evidence (default 1)")
+    bcal.add_argument("--epsilon1", type=float, default=0.0,
+                      help="co-selection price for the calibrated unary in the folds (default 0: log-odds 0)")
+    bcal.add_argument("--json", help="also write the results as JSON here")
+    bcal.set_defaults(func=cmd_bench_calibrate)
 
     bprp = bsub.add_parser("proposals", help="frames/s of the configured proposer on KITTI 0005 (per frame; "
                                              "batched for torch)")

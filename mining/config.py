@@ -121,7 +121,7 @@ def section_from_dict(cls: type, data: dict[str, Any], where: str) -> Any:
 def validate(cfg: JobConfig, where: str = "config") -> None:
     """Check a config made or changed in code (``--option``, tests) as the loader checks a
     file: every field's type and rules, and the source options against the source."""
-    _build(JobConfig, cfg.to_dict(), where)
+    _check_job(_build(JobConfig, cfg.to_dict(), where), where)
     from mining.sources import check_options
 
     check_options(cfg.source.dataset, cfg.source.options)
@@ -165,4 +165,17 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
             raise ConfigError(f"file {p}: not valid TOML: {e}") from None
     for o in overrides or []:
         data = merge(data, parse_override(o))
-    return _build(JobConfig, data, str(path) if path else "config")
+    where = str(path) if path else "config"
+    return _check_job(_build(JobConfig, data, where), where)
+
+
+def _check_job(cfg: JobConfig, where: str) -> JobConfig:
+    """Rules across sections, checked before any work starts: the unary score's weights
+    must exist for the job's proposer (``score.model = "calibrated"``)."""
+    from mining.score.unary import unary_weights
+
+    try:
+        unary_weights(cfg.score, cfg.proposals.proposer)
+    except ConfigError as e:
+        raise ConfigError(f"{where}: {e}") from None
+    return cfg

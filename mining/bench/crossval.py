@@ -265,7 +265,7 @@ def score_grid(data: Path, config: str | Path | None, overrides: Sequence[str], 
                         gen.step(frame)
                     tubes_cache[gkey] = gen.finish()
                 out = Path(tmp) / str(i)
-                write_detection_tubes(root, seq, judge(tubes_cache[gkey], cfg.score, cfg.select), cfg, out / f"{seq}.txt")
+                write_detection_tubes(root, seq, judge(tubes_cache[gkey], cfg), cfg, out / f"{seq}.txt")
                 scores[setting][seq] = evaluate_kitti_mot(train / "label_02", out, [seq], CLASSES, seqmap).sums[seq]
             calib = source.calib(seq)
             dets = KittiDetections(train / "det_pointrcnn", seq, source.kitti_calib(seq), (calib.width, calib.height),

@@ -208,7 +208,7 @@ def run_scenario(name: str, cfg: JobConfig, n_frames: int | None = None, sequenc
         truths[frame.index] = gt_frame(frame.truth)
         rows += _target_frames(rec, roles, spec.band_m, cfg, min_visible_px)
         ego_failures += int(position > 0 and rec.egomotion_T is None)
-    mined = {m: judge(g.finish(), cfgs[m].score, cfgs[m].select) for m, g in gens.items()}
+    mined = {m: judge(g.finish(), cfgs[m]) for m, g in gens.items()}
     t1 = time.perf_counter()
     ids = {role: {t for t, r in roles.items() if r.role == role} for role in ROLES}
     role_truths = {role: _role_truths(truths, ids[role], spec.band_m) for role in ROLES}

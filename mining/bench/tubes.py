@@ -56,7 +56,7 @@ def bench_setting(geoms, proposals: JsonProposals, limit: int | None, cfg: JobCo
         t_tube += t2 - t1
     t0 = time.process_time()
     tubes = gen.finish()
-    mined = judge(tubes, cfg.score, cfg.select)
+    mined = judge(tubes, cfg)
     t1 = time.process_time()
     n = len(geoms)
     # judge = score (sums over inliers) + category + co-selection

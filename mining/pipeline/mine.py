@@ -6,31 +6,37 @@ window judges its own tubes and the stitcher judges a sequence's stitched tubes 
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 import numpy as np
 
 from mining.config import JobConfig
-from mining.score.config import ScoreConfig
-from mining.score.unary import score_tube
-from mining.select.config import SelectConfig
+from mining.score.unary import score_tube, unary_weights
 from mining.select.coselect import co_select
 from mining.tubes.category import tube_category
 from mining.tubes.generate import TubeGenerator
-from mining.types import MinedTube, TrackingFrame, Tube
+from mining.types import MinedTube, TrackingFrame, Tube, TubeScore
 
 
-def judge(tubes: list[Tube], score_cfg: ScoreConfig, select_cfg: SelectConfig) -> list[MinedTube]:
+def unary(cfg: JobConfig) -> Callable[[Tube], TubeScore]:
+    """The job's unary score: REFERENCE, or calibrated for its proposer (``score.model``)."""
+    weights = unary_weights(cfg.score, cfg.proposals.proposer)
+    return lambda tube: score_tube(tube, cfg.score, weights)
+
+
+def judge(tubes: list[Tube], cfg: JobConfig) -> list[MinedTube]:
     """Each tube's unary score and category, and the co-selection over all of them."""
-    scores = [score_tube(t, score_cfg) for t in tubes]
-    selected = co_select(tubes, np.array([s.total for s in scores]), select_cfg)
-    return [MinedTube(t, s, tube_category(t, score_cfg.known_log_margin, score_cfg.min_class_evidence), bool(m))
+    score = unary(cfg)
+    scores = [score(t) for t in tubes]
+    selected = co_select(tubes, np.array([s.total for s in scores]), cfg.select)
+    return [MinedTube(t, s, tube_category(t, cfg.score.known_log_margin, cfg.score.min_class_evidence), bool(m))
             for t, s, m in zip(tubes, scores, selected)]
 
 
 def tube_generator(cfg: JobConfig, first_id: int = 0) -> TubeGenerator:
     """The job's tube generator, ranking tubes for tube NMS by their unary score."""
-    return TubeGenerator(cfg.tubes, lambda tube: score_tube(tube, cfg.score).total, first_id=first_id)
+    score = unary(cfg)
+    return TubeGenerator(cfg.tubes, lambda tube: score(tube).total, first_id=first_id)
 
 
 def mine_tubes(frames: Iterable[TrackingFrame], cfg: JobConfig, first_id: int = 0) -> list[MinedTube]:
@@ -38,4 +44,4 @@ def mine_tubes(frames: Iterable[TrackingFrame], cfg: JobConfig, first_id: int = 
     gen = tube_generator(cfg, first_id)
     for frame in frames:
         gen.step(frame)
-    return judge(gen.finish(), cfg.score, cfg.select)
+    return judge(gen.finish(), cfg)

@@ -155,7 +155,7 @@ def stitch_sequence(windows: list[Window], tubes: pa.Table, tube_frames: pa.Tabl
     # Judged again (score, category, co-selection) over the whole sequence's stitched tubes:
     # a window chose among tubes cut at its context's ends, whose scores (sums over frames)
     # were cut with them.
-    stitched = list(zip(judge(tubes, cfg.score, cfg.select), windows_of))
+    stitched = list(zip(judge(tubes, cfg), windows_of))
     # Stable ids: the first inlier names the tube; ties (one observation can start several) by inliers.
     stitched.sort(key=lambda x: (x[0].tube.inlier_key(), -x[0].score.total))
     used: dict[str, int] = defaultdict(int)

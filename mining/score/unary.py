@@ -8,12 +8,20 @@ For each inlier after the first (REFERENCE.md "Scoring"; paper Eq. 2–8):
 
 score = β·(α·motion + (1−α)·mask) + (1−β)·objectness. The sums run over the whole tube,
 so longer tubes score higher.
+
+With ``score.model = "calibrated"`` the total is instead the tube's log-odds of being an
+object, with weights fit on synthetic truth for the job's proposer (``mining.score.calibrated``);
+the three terms above are still reported, for display and the recall funnel.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 
+from mining.errors import ConfigError
+from mining.score.calibrated import TERMS, calibrated_score
 from mining.score.config import ScoreConfig
 from mining.types import Tube, TubeScore
 
@@ -24,11 +32,36 @@ def llr(x: np.ndarray, k: float, floor: float) -> float:
     return float(np.sum(np.log(x) + np.log(k)))
 
 
-def score_tube(tube: Tube, cfg: ScoreConfig | None = None) -> TubeScore:
+def unary_weights(cfg: ScoreConfig, proposer: str) -> Mapping[str, float] | None:
+    """The calibrated weights for ``proposer``, or None for the REFERENCE score.
+
+    ConfigError when ``model = "calibrated"`` has no weights for the proposer (weights fit for
+    one proposer's evidence do not hold for another's: never substituted) or names a term
+    that does not exist.
+    """
+    if cfg.model == "reference":
+        return None
+    weights = cfg.calibrated.get(proposer)
+    if weights is None:
+        raise ConfigError(f"score.model = 'calibrated' has no weights for proposer {proposer!r} "
+                          f"(score.calibrated has {sorted(cfg.calibrated) or 'none'}): fit them with "
+                          f"`mine bench calibrate --set proposals.proposer='\"{proposer}\"'`, or set "
+                          f"score.model = \"reference\"")
+    unknown = sorted(set(weights) - set(TERMS))
+    if unknown:
+        raise ConfigError(f"score.calibrated.{proposer}: unknown term(s) {unknown}; known: {list(TERMS)}")
+    return weights
+
+
+def score_tube(tube: Tube, cfg: ScoreConfig | None = None, weights: Mapping[str, float] | None = None) -> TubeScore:
+    """The three REFERENCE terms and the total: theirs (``weights`` None) or the calibrated log-odds."""
     cfg = cfg or ScoreConfig()
     inl = [f for f in tube.frames if f.observed][1:]
     motion = llr([f.motion_density for f in inl], cfg.motion_k, cfg.floor)
     mask = llr([f.mask_iou for f in inl], cfg.mask_k, cfg.floor)
     obj = llr([f.objectness for f in inl], cfg.objectness_k, cfg.floor)
-    total = cfg.beta * (cfg.alpha * motion + (1 - cfg.alpha) * mask) + (1 - cfg.beta) * obj
+    if weights is None:
+        total = cfg.beta * (cfg.alpha * motion + (1 - cfg.alpha) * mask) + (1 - cfg.beta) * obj
+    else:
+        total = calibrated_score(tube, weights, cfg.floor)
     return TubeScore(motion, mask, obj, total)

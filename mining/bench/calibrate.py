@@ -1,0 +1,195 @@
+"""``mine bench calibrate``: fit the calibrated unary on synthetic truth, leave-one-seed-out.
+
+Issue 18 (scope 4): clutter is to be rejected on evidence, with the scoring calibrated as a
+likelihood ratio on synthetic truth and chosen by leave-seeds-out cross-validation.
+
+1. **Tubes.** Each training seed is mined with the job's config (its proposer, its tube
+   generation); every candidate tube is kept, with the frame truths.
+2. **Labels** (``mining.eval.tube_labels``): object (IoU ≥ 0.5 with an evaluated object in
+   most of its frames) against part or clutter; tubes on ignored objects (too small or too
+   far for the protocol) and outside the truth are left out of the fit.
+3. **Fit** (``fit_log_odds``): the calibrated unary θ = w₀ + Σ_t w·φ_t
+   (``mining.score.calibrated``) is linear in the tube's summed evidence, so a logistic
+   regression on (1, Σ_t φ_t) is its maximum-likelihood fit: θ is then the log-odds of
+   "object" among the candidates, a likelihood ratio times the candidates' prior odds. A
+   weak L2 penalty on the standardised evidence (not on w₀) keeps collinear terms (a
+   log-size and its square) finite.
+4. **Leave one seed out.** For each training seed, the weights are fit on the others and the
+   held-out seed's tubes are judged again (co-selection with ε1 = ``epsilon1``, 0 by default:
+   selected alone when more likely an object than not), then scored by the synthetic
+   protocol beside the job's own judgement of the same tubes: HOTA, frame recall (known /
+   unknown), clutter share of the selected tubes, and the ranking quality of the unary on
+   all candidates (ROC AUC of object vs the rest) for both.
+5. **Weights** fit on all training seeds, printed as the TOML table for
+   ``score.calibrated."<proposer>"``; the held-out seeds of ``mine eval synthetic`` are the test.
+
+The tubes come from the job's tube generation, whose tube NMS ranks by the job's unary;
+judging them again with the calibrated unary leaves tube NMS as it was (a ``mine eval
+synthetic`` run with the calibrated model ranks with it too).
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import time
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import minimize
+
+from mining.bench.synthetic import run_synthetic
+from mining.config import JobConfig, validate
+from mining.eval.synthetic import evaluate_synthetic
+from mining.eval.tube_labels import label_tubes
+from mining.pipeline.mine import judge, unary
+from mining.score.calibrated import TERMS, tube_evidence
+from mining.types import Tube
+
+L2 = 1.0  # ours: penalty on the standardised evidence (a prior of unit variance per standardised weight)
+EPSILON1 = 0.0  # ours: log-odds 0 — a tube alone is selected when it is more likely an object than not
+
+
+def fit_log_odds(x: np.ndarray, y: np.ndarray, l2: float = L2) -> np.ndarray:
+    """Weights w (in ``x``'s own units) of P(y=1) = σ(w·x), maximum a-posteriori.
+
+    ``x``'s first column is the constant 1 (w₀, not penalised); the other columns are
+    standardised for the fit and the weights mapped back, so the penalty does not depend on
+    the terms' units.
+    """
+    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+    mu, sd = x[:, 1:].mean(axis=0), x[:, 1:].std(axis=0)
+    sd = np.where(sd > 1e-12, sd, 1.0)
+    z = np.column_stack([np.ones(len(x)), (x[:, 1:] - mu) / sd])
+
+    def loss(w):
+        s = z @ w
+        nll = np.sum(np.logaddexp(0.0, s) - y * s)
+        grad = z.T @ (1.0 / (1.0 + np.exp(-s)) - y)
+        return nll + 0.5 * l2 * w[1:] @ w[1:], grad + l2 * np.concatenate([[0.0], w[1:]])
+
+    w = minimize(loss, np.zeros(z.shape[1]), jac=True, method="L-BFGS-B").x
+    out = np.concatenate([[w[0] - np.sum(w[1:] * mu / sd)], w[1:] / sd])
+    return out
+
+
+def roc_auc(score: np.ndarray, y: np.ndarray) -> float:
+    """P(score of a random positive > that of a random negative), ties half (Mann–Whitney)."""
+    score, y = np.asarray(score, np.float64), np.asarray(y, bool)
+    n1, n0 = int(y.sum()), int((~y).sum())
+    if not n1 or not n0:
+        return float("nan")
+    ranks = np.empty(len(score))
+    order = np.argsort(score, kind="mergesort")
+    srt = score[order]
+    # average ranks over ties
+    i = 0
+    while i < len(srt):
+        j = i
+        while j + 1 < len(srt) and srt[j + 1] == srt[i]:
+            j += 1
+        ranks[order[i:j + 1]] = (i + j) / 2.0 + 1.0
+        i = j + 1
+    return float((ranks[y].sum() - n1 * (n1 + 1) / 2.0) / (n1 * n0))
+
+
+def _mine_seed(args) -> tuple[str, list[Tube], dict, float]:
+    seed, n_frames, cfg = args
+    mined, results = run_synthetic(seed, n_frames, cfg)
+    return seed, [m.tube for m in mined], results["truths"], results["seconds"]["mine"]
+
+
+def _summary(res: dict) -> dict:
+    a, k, u, t = res["all"], res["known"], res["unknown"], res["tubes"]
+    return {"HOTA": a["HOTA"], "MOTA": a["MOTA"], "frame_recall": a["frame_recall"],
+            "known_frame_recall": k["frame_recall"], "unknown_frame_recall": u["frame_recall"],
+            "unknown_tube_recall": u["tube_recall"], "clutter_share": t["clutter_share"], "selected": t["evaluated"],
+            "known_called_known": t.get("known_called_known_share"),
+            "unknown_called_unknown": t.get("unknown_called_unknown_share")}
+
+
+def calibrated_config(cfg: JobConfig, weights: dict[str, float], epsilon1: float = EPSILON1) -> JobConfig:
+    """``cfg`` with the calibrated unary for its proposer and co-selection price ``epsilon1``."""
+    out = copy.deepcopy(cfg)
+    out.score.model = "calibrated"
+    out.score.calibrated = {**out.score.calibrated, cfg.proposals.proposer: weights}
+    out.select.epsilon1 = float(epsilon1)
+    validate(out, "calibrated config")
+    return out
+
+
+def run_calibrate_bench(cfg: JobConfig, seeds: Sequence[str], n_frames: int, workers: int = 1,
+                        l2: float = L2, epsilon1: float = EPSILON1, json_out: str | None = None) -> int:
+    t0 = time.perf_counter()
+    print(f"calibrate: mining {len(seeds)} seed(s) × {n_frames} frames, proposer {cfg.proposals.proposer}, "
+          f"{workers} worker(s)")
+    jobs = [(s, n_frames, cfg) for s in seeds]
+    if workers > 1:
+        with ProcessPoolExecutor(workers) as pool:
+            mined = list(pool.map(_mine_seed, jobs))
+    else:
+        mined = [_mine_seed(j) for j in jobs]
+    data = {}
+    for seed, tubes, truths, secs in mined:
+        labels = label_tubes(tubes, truths)
+        keep = [t for t in tubes if labels[t.tube_id].label in ("object", "part", "clutter")]
+        x = np.array([tube_evidence(t, cfg.score.floor) for t in keep]).reshape(-1, len(TERMS))
+        y = np.array([labels[t.tube_id].label == "object" for t in keep], bool)
+        data[seed] = {"tubes": tubes, "truths": truths, "keep": keep, "x": x, "y": y, "labels": labels}
+        counts = {k: sum(1 for v in labels.values() if v.label == k) for k in ("object", "part", "clutter", "ignored")}
+        print(f"  seed {seed}: {len(tubes)} candidate tubes ({counts}), mined in {secs:.0f} s")
+
+    own = unary(cfg)
+    rows = []
+    for held in seeds:
+        train = [s for s in seeds if s != held]
+        x = np.concatenate([data[s]["x"] for s in train])
+        y = np.concatenate([data[s]["y"] for s in train])
+        w = fit_log_odds(x, y, l2)
+        weights = dict(zip(TERMS, map(float, w)))
+        d = data[held]
+        auc_cal = roc_auc(d["x"] @ w, d["y"])
+        auc_own = roc_auc(np.array([own(t).total for t in d["keep"]]), d["y"])
+        res_own = evaluate_synthetic(judge(d["tubes"], cfg), d["truths"])
+        res_cal = evaluate_synthetic(judge(d["tubes"], calibrated_config(cfg, weights, epsilon1)), d["truths"])
+        rows.append({"held_out": held, "auc": {"job": auc_own, "calibrated": auc_cal},
+                     "job": _summary(res_own), "calibrated": _summary(res_cal), "weights": weights})
+
+    x = np.concatenate([data[s]["x"] for s in seeds])
+    y = np.concatenate([data[s]["y"] for s in seeds])
+    final = dict(zip(TERMS, map(float, fit_log_odds(x, y, l2))))
+    _print(rows, final, cfg, seeds, int(y.sum()), int((~y).sum()), epsilon1)
+    print(f"calibrate: {time.perf_counter() - t0:.0f} s")
+    if json_out:
+        doc = {"proposer": cfg.proposals.proposer, "seeds": list(seeds), "n_frames": n_frames, "l2": l2,
+               "epsilon1": epsilon1, "folds": rows, "weights": final,
+               "tubes": {"object": int(y.sum()), "part_or_clutter": int((~y).sum())}}
+        Path(json_out).write_text(json.dumps(doc, indent=1))
+    return 0
+
+
+def _print(rows: list[dict], final: dict, cfg: JobConfig, seeds: Sequence[str], n_pos: int, n_neg: int,
+           epsilon1: float) -> None:
+    keys = ("HOTA", "frame_recall", "known_frame_recall", "unknown_frame_recall", "clutter_share", "selected",
+            "known_called_known")
+    head = ("AUC",) + keys
+    print(f"\nLeave one seed out ({cfg.score.model} = the job's unary; calibrated with ε1 = {epsilon1:g}):")
+    print(f"  {'held out':8} {'unary':10} " + " ".join(f"{h[:12]:>12}" for h in head))
+
+    def fmt(v):
+        return f"{v:12.3f}" if isinstance(v, float) and np.isfinite(v) else f"{str(v):>12}"
+
+    for r in rows:
+        for which in ("job", "calibrated"):
+            vals = [r["auc"][which]] + [r[which][k] for k in keys]
+            print(f"  {r['held_out']:8} {which:10} " + " ".join(fmt(v) for v in vals))
+    for which in ("job", "calibrated"):
+        mean = [float(np.nanmean([r["auc"][which] for r in rows]))]
+        mean += [float(np.nanmean([np.nan if r[which][k] is None else r[which][k] for r in rows])) for k in keys]
+        print(f"  {'mean':8} {which:10} " + " ".join(fmt(v) for v in mean))
+    print(f"\nWeights fit on all {len(seeds)} seeds ({n_pos} object tubes, {n_neg} part or clutter):")
+    print(f'[score.calibrated."{cfg.proposals.proposer}"]  # mine bench calibrate --seeds {" ".join(seeds)}')
+    for k, v in final.items():
+        print(f"{k} = {v:.6g}")

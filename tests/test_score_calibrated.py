@@ -1,0 +1,155 @@
+"""The calibrated unary (issue 18, scope 4): its family, its fit, its labels and its config.
+
+Truth is independent of the code under test: the REFERENCE unary written out by hand, weights
+that generated the data, pairwise counts for the AUC, masks from the renderer's truth.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pycocotools import mask as mask_utils
+
+from mining.bench.calibrate import calibrated_config, fit_log_odds, roc_auc
+from mining.config import JobConfig, load_config
+from mining.errors import ConfigError
+from mining.eval.tube_labels import label_tubes
+from mining.masks import rle_box
+from mining.pipeline.mine import judge, unary
+from mining.score.calibrated import FEATURES, TERMS, calibrated_score, tube_evidence
+from mining.score.config import ScoreConfig
+from mining.score.unary import score_tube, unary_weights
+from mining.sources.synthetic import SyntheticSource
+from mining.types import UNKNOWN_CLASS, Tube, TubeFrame
+
+
+def _frame(k: int, mask: np.ndarray, iou: float, density: float, objectness: float, size=(1.8, 1.5, 4.0),
+           posterior: np.ndarray | None = None) -> TubeFrame:
+    rle = mask_utils.encode(np.asfortranarray(mask.astype(np.uint8)))
+    return TubeFrame(k, k * 100_000_000, True, 0, rle, rle_box(rle), np.zeros(3), np.zeros(3),
+                     np.asarray(size, float), np.zeros(3), objectness, np.nan if k == 0 else iou,
+                     np.nan if k == 0 else density, posterior)
+
+
+def _random_tube(rng: np.random.Generator, n: int) -> Tube:
+    mask = np.zeros((20, 30), bool)
+    mask[5:15, 5:20] = True
+    t = Tube(1, 0)
+    for k in range(n):
+        t.frames.append(_frame(k, mask, rng.uniform(0.05, 1), rng.uniform(1e-4, 2), rng.uniform(0.05, 1),
+                               rng.uniform(0.2, 6, 3)))
+    return t
+
+
+def test_the_calibrated_family_holds_the_reference_unary():
+    """With w = the REFERENCE's α, β and K written as per-frame weights, θ is the REFERENCE total."""
+    cfg = ScoreConfig()
+    a, b = cfg.alpha, cfg.beta
+    ref = {"ln_motion": b * a, "ln_mask_iou": b * (1 - a), "ln_objectness": 1 - b,
+           "frame": b * a * np.log(cfg.motion_k) + b * (1 - a) * np.log(cfg.mask_k) + (1 - b) * np.log(cfg.objectness_k)}
+    rng = np.random.default_rng(0)
+    for n in (2, 5, 17):
+        t = _random_tube(rng, n)
+        assert calibrated_score(t, ref, cfg.floor) == pytest.approx(score_tube(t, cfg).total, rel=1e-12)
+        assert score_tube(t, cfg, ref).total == pytest.approx(score_tube(t, cfg).total, rel=1e-12)
+
+
+def test_evidence_sums_frames_after_the_first_and_reads_size_and_class_mass():
+    rng = np.random.default_rng(1)
+    t = _random_tube(rng, 4)
+    post = np.zeros(81)
+    post[UNKNOWN_CLASS], post[2] = 0.25, 0.75
+    t.frames[2].posterior = post
+    ev = dict(zip(TERMS, tube_evidence(t, 1e-6)))
+    inl = t.frames[1:]
+    assert ev["bias"] == 1.0 and ev["frame"] == 3.0
+    assert ev["ln_mask_iou"] == pytest.approx(sum(np.log(f.mask_iou) for f in inl))
+    assert ev["ln_height"] == pytest.approx(sum(np.log(f.size[1]) for f in inl))
+    assert ev["ln_length_sq"] == pytest.approx(sum(np.log(f.size[2]) ** 2 for f in inl))
+    assert ev["known_mass"] == pytest.approx(0.75)
+    assert len(FEATURES) + 1 == len(TERMS)
+
+
+def test_fit_recovers_the_weights_that_made_the_labels():
+    """Labels drawn from σ(w·x) with known w: the fit finds w (weak penalty, many samples)."""
+    rng = np.random.default_rng(2)
+    n = 20000
+    x = np.column_stack([np.ones(n), rng.normal(3, 2, n), rng.normal(-1, 0.5, n)])
+    w = np.array([-1.0, 0.8, -2.0])
+    y = rng.random(n) < 1 / (1 + np.exp(-(x @ w)))
+    got = fit_log_odds(x, y, l2=1e-3)
+    assert got == pytest.approx(w, abs=0.1)
+
+
+def test_roc_auc_is_the_pairwise_share():
+    rng = np.random.default_rng(3)
+    s = np.round(rng.normal(size=60), 1)  # ties on purpose
+    y = rng.random(60) < 0.4
+    pos, neg = s[y], s[~y]
+    pairs = (pos[:, None] > neg[None, :]).sum() + 0.5 * (pos[:, None] == neg[None, :]).sum()
+    assert roc_auc(s, y) == pytest.approx(pairs / (len(pos) * len(neg)))
+
+
+def test_calibrated_model_needs_weights_for_the_jobs_proposer():
+    with pytest.raises(ConfigError, match="no weights for proposer 'stereo'"):
+        load_config(None, ['score.model="calibrated"'])
+    with pytest.raises(ConfigError, match="unknown term"):
+        load_config(None, ['score.model="calibrated"', 'score.calibrated.stereo.wheel=1.0'])
+    cfg = load_config(None, ['score.model="calibrated"', 'score.calibrated.stereo.frame=-1.5'])
+    assert unary_weights(cfg.score, "stereo") == {"frame": -1.5}
+    # the weights for one proposer are never used for another
+    with pytest.raises(ConfigError, match="'onnx\\+stereo'"):
+        load_config(None, ['score.model="calibrated"', 'score.calibrated.stereo.frame=-1.5',
+                           'proposals.proposer="onnx+stereo"'])
+
+
+def test_judge_selects_by_log_odds_with_the_calibrated_model():
+    """A tube whose log-odds is positive is selected at ε1 = 0; one whose is negative is not."""
+    rng = np.random.default_rng(4)
+    good, bad = _random_tube(rng, 6), _random_tube(rng, 6)
+    bad.tube_id = 2
+    for f in bad.frames:  # far apart: no overlap between the two
+        f.rle = mask_utils.encode(np.asfortranarray(np.pad(np.ones((3, 3), np.uint8), ((0, 17), (26, 1)))))
+        f.box = rle_box(f.rle)
+    for f in good.frames[1:]:
+        f.mask_iou = 0.9
+    for f in bad.frames[1:]:
+        f.mask_iou = 0.1
+    cfg = calibrated_config(JobConfig(), {"frame": 0.5, "ln_mask_iou": 2.0})
+    theta = unary(cfg)
+    assert theta(good).total > 0 > theta(bad).total
+    chosen = {m.tube.tube_id: m.selected for m in judge([good, bad], cfg)}
+    assert chosen == {1: True, 2: False}
+
+
+def test_labels_from_rendered_truth_object_part_clutter():
+    """Tubes cut from the renderer's truth masks: an object's whole mask, the lower quarter of
+    it (a part), and a patch of road far from every object (clutter)."""
+    src = SyntheticSource(n_frames=4, scenario="alongside", width=621, height=188, fx=360.77)
+    plan = src.plan("0000")
+    truths = {i: src.read_frame(plan, i).truth for i in range(4)}
+    objs = [{o.track_id: o for o in truths[i].objects} for i in range(4)]
+    tid = max(objs[0], key=lambda k: objs[0][k].mask.sum())
+    assert all(tid in o for o in objs)
+    whole, part, clutter = Tube(1, 0), Tube(2, 0), Tube(3, 0)
+    union = np.zeros_like(objs[0][tid].mask)
+    for i in range(4):
+        for o in objs[i].values():
+            union |= o.mask
+    for i in range(4):
+        m = objs[i][tid].mask
+        whole.frames.append(_frame(i, m, 0.9, 1.0, 0.9))
+        rows = np.flatnonzero(m.any(axis=1))
+        low = m.copy()
+        low[: rows[0] + 3 * (rows[-1] - rows[0]) // 4] = False
+        part.frames.append(_frame(i, low, 0.9, 1.0, 0.9))
+        ys, xs = np.nonzero(~union)
+        patch = np.zeros_like(m)
+        y0, x0 = ys[len(ys) // 2], xs[len(xs) // 2]
+        patch[max(y0 - 5, 0):y0 + 5, max(x0 - 5, 0):x0 + 5] = True
+        clutter.frames.append(_frame(i, patch & ~union, 0.9, 1.0, 0.9))
+    labels = label_tubes([whole, part, clutter], truths)
+    assert labels[1].label == "object" and labels[1].object_track == tid and labels[1].share == 1.0
+    assert labels[2].label == "part"
+    assert labels[3].label == "clutter"
+    assert label_tubes([whole], {99: truths[0]})[1].label == "outside"
