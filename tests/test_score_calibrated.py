@@ -153,3 +153,17 @@ def test_labels_from_rendered_truth_object_part_clutter():
     assert labels[2].label == "part"
     assert labels[3].label == "clutter"
     assert label_tubes([whole], {99: truths[0]})[1].label == "outside"
+
+
+def test_grouped_terms_add_up_to_the_log_odds():
+    """The funnel's "carried by" for the calibrated model: its groups split θ exactly."""
+    from mining.eval.funnel import carried_by
+    from mining.score.calibrated import GROUPS, grouped_terms
+
+    rng = np.random.default_rng(5)
+    t = _random_tube(rng, 7)
+    w = dict(zip(TERMS, rng.normal(size=len(TERMS))))
+    g = grouped_terms(t, w, 1e-6)
+    assert set(g) == set(GROUPS) and sorted(sum(GROUPS.values(), ())) == sorted(TERMS)
+    assert sum(g.values()) == pytest.approx(calibrated_score(t, w, 1e-6))
+    assert carried_by(g) == max(g, key=g.get) or max(g.values()) <= 0

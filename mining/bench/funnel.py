@@ -18,6 +18,7 @@ from mining.formats.kitti_tracking import KittiTrackingRows
 from mining.pipeline.frames import frame_records
 from mining.pipeline.mine import mine_tubes
 from mining.progress import Ticker
+from mining.score.unary import unary_weights
 from mining.sources.base import Source
 from mining.types import MinedTube, Proposals, SequencePlan, TrackingFrame
 
@@ -48,5 +49,6 @@ def run_kitti_funnel(source: Source, plan: SequencePlan, start: int, stop: int, 
     ticker.close()
     truths = kitti_truths(rows, frames, (plan.calib.height, plan.calib.width))
     funnel = evaluate_funnel(truths, mined, stages, alpha=cfg.score.alpha, beta=cfg.score.beta,
+                             weights=unary_weights(cfg.score, cfg.proposals.proposer), floor=cfg.score.floor,
                              **({"similarity": "box"} | protocol))
     return props, frames, mined, funnel

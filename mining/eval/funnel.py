@@ -57,6 +57,7 @@ from mining.boxes import box_ioa, box_iou
 from mining.errors import InputError
 from mining.eval.synthetic import GtFrame, SyntheticEvalProtocol
 from mining.masks import mask_ioa, mask_iou
+from mining.score.calibrated import GROUPS, grouped_terms
 from mining.types import MinedTube
 
 SPLITS = ("all", "known", "unknown")
@@ -127,20 +128,25 @@ def _rates(row: np.ndarray, stages: Sequence[str]) -> dict:
     return out
 
 
-def weighted_terms(m: MinedTube, alpha: float, beta: float) -> dict[str, float]:
-    """The score's terms as they enter the total (``mining/score/unary.py``)."""
+def weighted_terms(m: MinedTube, alpha: float, beta: float, weights: Mapping[str, float] | None = None,
+                   floor: float = 1e-6) -> dict[str, float]:
+    """The score's terms as they enter the total (``mining/score/unary.py``); with the calibrated
+    model's ``weights``, its groups of terms (``mining.score.calibrated.GROUPS``)."""
+    if weights is not None:
+        return grouped_terms(m.tube, weights, floor)
     return {"motion": float(beta * alpha * m.score.motion), "mask": float(beta * (1 - alpha) * m.score.mask),
             "objectness": float((1 - beta) * m.score.objectness)}
 
 
 def carried_by(terms: Mapping[str, float]) -> str:
     """The term that contributed most to the total; "none" when no term is positive."""
-    best = max(TERMS, key=lambda k: terms[k])
+    best = max(terms, key=lambda k: terms[k])
     return best if terms[best] > 0 else "none"
 
 
 def evaluate_funnel(truths: Mapping[int, GtFrame], mined: Sequence[MinedTube],
                     stages: Mapping[str, Mapping[int, StageFrame]] | None = None, *, alpha: float, beta: float,
+                    weights: Mapping[str, float] | None = None, floor: float = 1e-6,
                     iou_threshold: float = FunnelProtocol.iou_threshold,
                     similarity: str = FunnelProtocol.similarity,
                     min_visible_px: int = FunnelProtocol.min_visible_px,
@@ -151,7 +157,8 @@ def evaluate_funnel(truths: Mapping[int, GtFrame], mined: Sequence[MinedTube],
 
     ``stages`` maps a proposal stage's name to its masks per frame (a frame it lacks has no
     masks), in pipeline order; ``mined`` holds every candidate tube, ``selected`` set on the
-    chosen ones; ``alpha`` and ``beta`` are the run's score weights (ScoreConfig). Returns a
+    chosen ones; ``alpha`` and ``beta`` are the run's score weights (ScoreConfig), ``weights`` the
+    calibrated unary's when the run used it (``mining.score.unary.unary_weights``). Returns a
     plain-JSON dict: ``stages``, ``bins``, ``protocol``, ``frames`` (per split: ``total``,
     ``distance``, ``height`` and ``cells`` ``"<distance> | <height>"``, each ``{"gt": n,
     <stage>: covered, "recall": {<stage>: share}}``), ``tracks`` (per split, the same shape)
@@ -243,7 +250,7 @@ def evaluate_funnel(truths: Mapping[int, GtFrame], mined: Sequence[MinedTube],
                                  "height_edges_px": list(p.height_edges_px)},
         "frames": frames,
         "tracks": _tracks(p, names, stages, visible, track_known, stage_hits, tube_hits, mined),
-        "carried": _carried(mined, explain, covers_object, alpha, beta),
+        "carried": _carried(mined, explain, covers_object, alpha, beta, weights, floor),
     }
 
 
@@ -306,11 +313,11 @@ def _tracks(p: FunnelProtocol, names: list[str], stages: Mapping, visible: dict[
 
 
 def _carried(mined: Sequence[MinedTube], explain: dict[int, list], covers_object: set[int],
-             alpha: float, beta: float) -> dict:
+             alpha: float, beta: float, weights: Mapping[str, float] | None, floor: float) -> dict:
     """The part and clutter tubes among the selected ones, with the score term that carried each."""
     summary = {"selected": 0, "on objects": 0, "on ignored objects": 0, "part": 0, "clutter": 0,
                "outside the evaluated frames": 0}
-    by_term = {k: 0 for k in (*TERMS, "none")}
+    by_term = {k: 0 for k in (*(TERMS if weights is None else GROUPS), "none")}
     tubes = []
     for m in mined:
         if not m.selected:
@@ -331,7 +338,7 @@ def _carried(mined: Sequence[MinedTube], explain: dict[int, list], covers_object
             summary["on ignored objects"] += 1
             continue
         summary[kind] += 1
-        terms = weighted_terms(m, alpha, beta)
+        terms = weighted_terms(m, alpha, beta, weights, floor)
         by = carried_by(terms)
         by_term[by] += 1
         tubes.append({
@@ -400,7 +407,8 @@ def format_funnel(funnel: dict, max_tubes: int = 20) -> str:
                  f"the evaluated frames; parts and clutter carried by "
                  + ", ".join(f"{k} {v}" for k, v in c["carried_by"].items() if v))
     if c["tubes"]:
-        head = ["tube", "kind", "frames", "motion", "mask", "objectness", "total", "carried by", "call"]
+        names = list(c["tubes"][0]["terms"])  # the REFERENCE's three terms, or the calibrated model's groups
+        head = ["tube", "kind", "frames", *names, "total", "carried by", "call"]
         rows = []
         for x in c["tubes"][:max_tubes]:
             t = x["terms"]
@@ -408,7 +416,7 @@ def format_funnel(funnel: dict, max_tubes: int = 20) -> str:
             if x["category"] not in (None, "unknown"):
                 call += f" ({x['category']})"
             rows.append([str(x["tube_id"]), x["label"], str(x["frames"])] +
-                        [f"{t[k]:.1f}" for k in TERMS] + [f"{x['total']:.1f}", x["carried_by"], call])
+                        [f"{t[k]:.1f}" for k in names] + [f"{x['total']:.1f}", x["carried_by"], call])
         lines += ["  " + x for x in _table(head, rows)]
         rest = len(c["tubes"]) - max_tubes
         if rest > 0:

@@ -74,3 +74,20 @@ def weight_vector(weights: Mapping[str, float]) -> np.ndarray:
 def calibrated_score(tube: Tube, weights: Mapping[str, float], floor: float) -> float:
     """θ(T) = w₀ + Σ_t w · φ_t: the tube's log-odds of being an object."""
     return float(weight_vector(weights) @ tube_evidence(tube, floor))
+
+
+# The terms grouped as a reader asks "what carried this tube": each group's share of θ.
+GROUPS = {
+    "prior": ("bias", "frame"),
+    "motion": ("ln_motion",),
+    "mask": ("ln_mask_iou",),
+    "objectness": ("ln_objectness",),
+    "shape": ("ln_width", "ln_height", "ln_length", "ln_width_sq", "ln_height_sq", "ln_length_sq"),
+    "class": ("known_mass",),
+}
+
+
+def grouped_terms(tube: Tube, weights: Mapping[str, float], floor: float) -> dict[str, float]:
+    """θ split by GROUPS: each group's Σ w_k·(Σ_t φ_t)_k; the values add up to θ."""
+    contrib = dict(zip(TERMS, weight_vector(weights) * tube_evidence(tube, floor)))
+    return {g: float(sum(contrib[k] for k in keys)) for g, keys in GROUPS.items()}
