@@ -13,7 +13,6 @@ how a crash at exit shows up as a failure instead of passing unseen.
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -24,6 +23,8 @@ from typing import Any
 import pytest
 from _pytest.reports import TestReport
 
+from mining.pipeline.failures import exit_reason
+
 MARKER = "own_process"
 CHILD_ENV = "TUBE_MINER_OWN_PROCESS"  # set in the child: run the test here, do not hand it on
 CHILD_TIMEOUT_S = 1200  # one test; a hung child fails rather than hangs the suite
@@ -31,16 +32,6 @@ CHILD_TIMEOUT_S = 1200  # one test; a hung child fails rather than hangs the sui
 
 def in_child() -> bool:
     return os.environ.get(CHILD_ENV) == "1"
-
-
-def exit_reason(rc: int) -> str:
-    """'exit status N' or 'signal SIGSEGV' for a subprocess return code."""
-    if rc < 0:
-        try:
-            return f"signal {signal.Signals(-rc).name}"
-        except ValueError:
-            return f"signal {-rc}"
-    return f"exit status {rc}"
 
 
 def _outcome(xml_path: Path) -> tuple[str, str]:

@@ -27,7 +27,6 @@ from __future__ import annotations
 import copy
 import json
 import os
-import signal
 import subprocess
 import sys
 import tempfile
@@ -39,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from mining.config import JobConfig
+from mining.pipeline.failures import exit_reason
 
 WORKER_TITLE = "ray::Worker"  # process title of the pipeline's actors (mining.pipeline.executors.Worker)
 POLL_S = 0.2  # ours: RSS sampling period; VmHWM catches peaks between samples
@@ -185,17 +185,8 @@ def measure_run(cfg: JobConfig, out: str | Path, workers: int) -> dict[str, Any]
         p = subprocess.run(cmd, capture_output=True, text=True)
         if p.returncode != 0 or not result_json.exists():
             tail = "\n".join((p.stdout + p.stderr).splitlines()[-20:])
-            raise RuntimeError(f"bench run on {workers} worker(s) into {out} ended with {_exit_reason(p.returncode)}:\n{tail}")
+            raise RuntimeError(f"bench run on {workers} worker(s) into {out} ended with {exit_reason(p.returncode)}:\n{tail}")
         return json.loads(result_json.read_text())
-
-
-def _exit_reason(rc: int) -> str:
-    if rc < 0:
-        try:
-            return f"signal {signal.Signals(-rc).name}"
-        except ValueError:
-            return f"signal {-rc}"
-    return f"exit status {rc}"
 
 
 def measure_run_here(cfg: JobConfig, out: str | Path, workers: int) -> dict[str, Any]:

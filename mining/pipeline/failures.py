@@ -8,12 +8,13 @@ in terminal colours, or, when the worker process died and Ray's retries are spen
 ``<step> step raised <type>: <message>`` or ``system failure after <n> retries: <type>:
 <message>`` — followed by the end of the worker's traceback, all without colour codes.
 The run summary and ``mine status`` show the headline; the manifest's ``error`` column
-keeps both.
+keeps both. ``exit_reason`` says the same of a child process: how it ended.
 """
 
 from __future__ import annotations
 
 import re
+import signal
 import sys
 import traceback
 
@@ -37,6 +38,16 @@ def message(error: BaseException) -> str:
     """The first non-empty line of the exception's text, without colour codes."""
     lines = [ln.strip() for ln in plain(str(error)).splitlines() if ln.strip()]
     return lines[0] if lines else "(no message)"
+
+
+def exit_reason(rc: int) -> str:
+    """'exit status N' or 'signal SIGSEGV' for a subprocess return code."""
+    if rc < 0:
+        try:
+            return f"signal {signal.Signals(-rc).name}"
+        except ValueError:  # a signal number this platform has no name for
+            return f"signal {-rc}"
+    return f"exit status {rc}"
 
 
 def _tail(text: str) -> str:
