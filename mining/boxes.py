@@ -67,6 +67,26 @@ def size_similarity(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.nan_to_num(rw * rh)
 
 
+def _gate_terms(pred: np.ndarray, obs: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Widths and heights of ``pred`` and ``obs``, and their (T, N) intersection and union
+    areas: what both box gates compare (one copy, so the two gates cannot drift apart)."""
+    pw, ph = pred[:, 2] - pred[:, 0], pred[:, 3] - pred[:, 1]
+    ow, oh = obs[:, 2] - obs[:, 0], obs[:, 3] - obs[:, 1]
+    iw = np.minimum(pred[:, None, 2], obs[None, :, 2]) - np.maximum(pred[:, None, 0], obs[None, :, 0])
+    ih = np.minimum(pred[:, None, 3], obs[None, :, 3]) - np.maximum(pred[:, None, 1], obs[None, :, 1])
+    inter = np.maximum(iw, 0) * np.maximum(ih, 0)
+    union = (pw * ph)[:, None] + (ow * oh)[None, :] - inter
+    return pw, ph, ow, oh, inter, union
+
+
+def _size_ratios(pw: np.ndarray, ph: np.ndarray, ow: np.ndarray, oh: np.ndarray) -> np.ndarray:
+    """(T, N) width ratio × height ratio of the gates' size similarity (NaN for two empty
+    sizes, which no threshold passes)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return (np.minimum(pw[:, None], ow[None]) / np.maximum(pw[:, None], ow[None])
+                * np.minimum(ph[:, None], oh[None]) / np.maximum(ph[:, None], oh[None]))
+
+
 def box_gates(pred: np.ndarray, obs: np.ndarray, min_iou: float, min_similarity: float) -> np.ndarray:
     """(T, N) bool: box IoU > min_iou and 2D size similarity > min_similarity, in one pass.
 
@@ -75,17 +95,10 @@ def box_gates(pred: np.ndarray, obs: np.ndarray, min_iou: float, min_similarity:
     the division, and the ratios multiply in another order, so a pair within rounding of
     a threshold may fall on the other side.
     """
-    pw, ph = pred[:, 2] - pred[:, 0], pred[:, 3] - pred[:, 1]
-    ow, oh = obs[:, 2] - obs[:, 0], obs[:, 3] - obs[:, 1]
-    iw = np.minimum(pred[:, None, 2], obs[None, :, 2]) - np.maximum(pred[:, None, 0], obs[None, :, 0])
-    ih = np.minimum(pred[:, None, 3], obs[None, :, 3]) - np.maximum(pred[:, None, 1], obs[None, :, 1])
-    inter = np.maximum(iw, 0) * np.maximum(ih, 0)
-    union = (pw * ph)[:, None] + (ow * oh)[None, :] - inter
+    pw, ph, ow, oh, inter, union = _gate_terms(pred, obs)
     with np.errstate(divide="ignore", invalid="ignore"):
         ok = inter > min_iou * union
-        sim = (np.minimum(pw[:, None], ow[None]) / np.maximum(pw[:, None], ow[None])
-               * np.minimum(ph[:, None], oh[None]) / np.maximum(ph[:, None], oh[None]))
-    return ok & (sim > min_similarity)
+    return ok & (_size_ratios(pw, ph, ow, oh) > min_similarity)
 
 
 def shifted_iou(w: np.ndarray, h: np.ndarray, delta: float) -> np.ndarray:
@@ -116,17 +129,9 @@ def jittered_box_gates(pred: np.ndarray, obs: np.ndarray, min_iou: float, min_si
     """
     if jitter_px <= 0:
         return box_gates(pred, obs, min_iou, min_similarity)
-    pw, ph = pred[:, 2] - pred[:, 0], pred[:, 3] - pred[:, 1]
-    ow, oh = obs[:, 2] - obs[:, 0], obs[:, 3] - obs[:, 1]
-    iw = np.minimum(pred[:, None, 2], obs[None, :, 2]) - np.maximum(pred[:, None, 0], obs[None, :, 0])
-    ih = np.minimum(pred[:, None, 3], obs[None, :, 3]) - np.maximum(pred[:, None, 1], obs[None, :, 1])
-    inter = np.maximum(iw, 0) * np.maximum(ih, 0)
-    union = (pw * ph)[:, None] + (ow * oh)[None, :] - inter
+    pw, ph, ow, oh, inter, union = _gate_terms(pred, obs)
     gate = min_iou * shifted_iou(pw, ph, jitter_px)
     # A box of width or height ≤ 0 never gates, as in box_gates (the added jitter would make its size look fine).
     real = ((pw > 0) & (ph > 0))[:, None] & ((ow > 0) & (oh > 0))[None, :]
-    pw, ph, ow, oh = pw + jitter_px, ph + jitter_px, ow + jitter_px, oh + jitter_px
-    with np.errstate(divide="ignore", invalid="ignore"):
-        sim = (np.minimum(pw[:, None], ow[None]) / np.maximum(pw[:, None], ow[None])
-               * np.minimum(ph[:, None], oh[None]) / np.maximum(ph[:, None], oh[None]))
+    sim = _size_ratios(pw + jitter_px, ph + jitter_px, ow + jitter_px, oh + jitter_px)
     return real & (inter > gate[:, None] * union) & (sim > min_similarity)
