@@ -471,31 +471,33 @@ def _scan(f: Any, summary: Any, topics: list[str], info_topics: list[str], facto
     return out
 
 
-def _chunk_log_times(f: Any, chunk: Any, ids: dict[int, str]) -> dict[str, list[int]] | None:
-    """Log times per topic of one chunk's messages from its message index records; None
-    when the chunk has none."""
+def _message_index(f: Any, offset: int) -> Any:
+    """The message index record at byte ``offset`` of ``f`` (ValueError if another record is there)."""
     from mcap.records import MessageIndex
     from mcap.stream_reader import StreamReader
 
+    f.seek(offset)
+    record = next(StreamReader(f, skip_magic=True).records)
+    if not isinstance(record, MessageIndex):
+        raise ValueError(f"expected a message index at byte {offset}, found {type(record).__name__}")
+    return record
+
+
+def _chunk_log_times(f: Any, chunk: Any, ids: dict[int, str]) -> dict[str, list[int]] | None:
+    """Log times per topic of one chunk's messages from its message index records; None
+    when the chunk has none."""
     if not chunk.message_index_offsets:
         return None
     out: dict[str, list[int]] = {}
     for channel_id, offset in chunk.message_index_offsets.items():
         if channel_id in ids:
-            f.seek(offset)
-            record = next(StreamReader(f, skip_magic=True).records)
-            if not isinstance(record, MessageIndex):
-                raise ValueError(f"expected a message index at byte {offset}, found {type(record).__name__}")
-            out.setdefault(ids[channel_id], []).extend(t for t, _ in record.records)
+            out.setdefault(ids[channel_id], []).extend(t for t, _ in _message_index(f, offset).records)
     return out
 
 
 def _log_times_from_index(f: Any, summary: Any, topics: list[str]) -> dict[str, list[tuple[int, int]]] | None:
     """(log_time, log_time) per message of each topic from the message index records alone,
     without decompressing a chunk; None when the file has no message indexes."""
-    from mcap.records import MessageIndex
-    from mcap.stream_reader import StreamReader
-
     ids = {ch.id: ch.topic for ch in summary.channels.values() if ch.topic in topics}
     out: dict[str, list[tuple[int, int]]] = {t: [] for t in topics}
     for chunk in summary.chunk_indexes:
@@ -503,11 +505,7 @@ def _log_times_from_index(f: Any, summary: Any, topics: list[str]) -> dict[str, 
             return None
         for channel_id, offset in chunk.message_index_offsets.items():
             if channel_id in ids:
-                f.seek(offset)
-                record = next(StreamReader(f, skip_magic=True).records)
-                if not isinstance(record, MessageIndex):
-                    raise ValueError(f"expected a message index at byte {offset}, found {type(record).__name__}")
-                out[ids[channel_id]].extend((t, t) for t, _ in record.records)
+                out[ids[channel_id]].extend((t, t) for t, _ in _message_index(f, offset).records)
     return out
 
 
