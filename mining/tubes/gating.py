@@ -39,16 +39,6 @@ def _inv_quad_2x2(d: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return m2, det
 
 
-def gaussian_density(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    """N(x; mean, cov) on the ground plane, for (N, 3) points and (N, 3, 3) covariances.
-
-    The motion LLR's null hypothesis spreads clutter uniformly over the ground area
-    (paper: 1/A_GP with A_GP ≈ 80 m × 50 m), so the density is per square metre of ground.
-    """
-    m2, det = _inv_quad_2x2((x - mean)[:, GROUND], cov[:, GROUND][:, :, GROUND])
-    return np.exp(-0.5 * m2) / (2 * np.pi * np.sqrt(det))
-
-
 def mahalanobis2(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """Squared Mahalanobis distance on the ground plane."""
     return _inv_quad_2x2((x - mean)[:, GROUND], cov[:, GROUND][:, :, GROUND])[0]
@@ -64,7 +54,9 @@ def association_scores(iou: np.ndarray, foot: np.ndarray, mean: np.ndarray, cov:
     covariance; "innovation" takes m under the Kalman innovation covariance
     S = P_pred + R_obs + density_extra_var·I (``pos_cov`` is P_pred), the covariance the
     Mahalanobis gate uses, so a young tube's own uncertainty counts too. One closed-form
-    pass gives the density (the reference's arithmetic unchanged).
+    pass gives the density (the reference's arithmetic unchanged). It is per square metre
+    of ground: the motion LLR's null hypothesis spreads clutter uniformly over the ground
+    area (paper: 1/A_GP with A_GP ≈ 80 m × 50 m).
     """
     dcov = cov + cfg.density_extra_var * np.eye(3)
     m2, det = _inv_quad_2x2((foot - mean)[:, GROUND], dcov[:, GROUND][:, :, GROUND])
