@@ -13,6 +13,7 @@ of one chunk.
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -156,19 +157,33 @@ def test_a_corrupt_chunk_holding_the_first_camera_info_is_skipped(kitti, tmp_pat
         src.read_frame(plan, 0)
 
 
-@pytest.mark.slow  # a whole job, in this process (~12 s on two cores)
-def test_a_job_mines_the_good_windows_and_names_the_chunk_in_the_failed_one(kitti, tmp_path):
-    from mining.catalog.views import connect
-    from mining.config import load_config
-    from mining.pipeline.executors import LocalExecutor
-    from mining.pipeline.submit import mine_job
-
+def _recording_with_a_bad_chunk(kitti, tmp_path: Path):
+    """A source folder holding ``rec.mcap`` with frame 3's left chunk corrupted: (folder, that chunk)."""
     left, right, calib = kitti
     root = tmp_path / "mcap"
     root.mkdir()
     path = root / "rec.mcap"
     topics = write_stereo_mcap(path, left, right, calib, t0_ns=T0)
-    chunk = _corrupt_chunk_of(path, T0 + 3 * PERIOD + DELAY, _channel_id(path, topics["left"]))
+    return root, _corrupt_chunk_of(path, T0 + 3 * PERIOD + DELAY, _channel_id(path, topics["left"]))
+
+
+def _mined_frames(out: Path) -> list[int]:
+    from mining.catalog.views import connect
+
+    con = connect(str(out))
+    try:
+        return sorted(f for (f,) in con.sql("SELECT frame FROM frames WHERE sequence = 'rec'").fetchall())
+    finally:
+        con.close()
+
+
+@pytest.mark.slow  # a whole job, in this process (~12 s on two cores)
+def test_a_job_mines_the_good_windows_and_names_the_chunk_in_the_failed_one(kitti, tmp_path):
+    from mining.config import load_config
+    from mining.pipeline.executors import LocalExecutor
+    from mining.pipeline.submit import mine_job
+
+    root, chunk = _recording_with_a_bad_chunk(kitti, tmp_path)
     cfg = load_config(overrides=['source.dataset="mcap"', f'source.root="{root}"', "window.core=2",
                                  "window.context_before=0", "window.context_after=0"])
     out = tmp_path / "out"
@@ -176,26 +191,14 @@ def test_a_job_mines_the_good_windows_and_names_the_chunk_in_the_failed_one(kitt
     assert (summary.windows, summary.ok, summary.unplanned) == (3, 2, {}), summary.lines()
     [(window, error)] = summary.failed.items()
     assert window == "rec-0000002-0000004" and _named(chunk) in error and "frame 3" in error, error
-    con = connect(str(out))
-    try:
-        mined = sorted(f for (f,) in con.sql("SELECT frame FROM frames WHERE sequence = 'rec'").fetchall())
-    finally:
-        con.close()
-    assert mined == [0, 1, 4, 5]
+    assert _mined_frames(out) == [0, 1, 4, 5]
 
 
 @pytest.mark.slow  # `mine submit` on a local Ray
 def test_submit_exits_1_mines_the_good_windows_and_names_the_chunk(kitti, tmp_path):
     from _reliability_d import submit
 
-    from mining.catalog.views import connect
-
-    left, right, calib = kitti
-    root = tmp_path / "mcap"
-    root.mkdir()
-    path = root / "rec.mcap"
-    topics = write_stereo_mcap(path, left, right, calib, t0_ns=T0)
-    chunk = _corrupt_chunk_of(path, T0 + 3 * PERIOD + DELAY, _channel_id(path, topics["left"]))
+    root, chunk = _recording_with_a_bad_chunk(kitti, tmp_path)
     out = tmp_path / "out"
     rc, stdout, stderr = submit(out, "--dataset", "mcap", "--root", str(root), "--sequences", "rec", "--frames", "0:6",
                                 "--set", "window.core=2", "--set", "window.context_before=0",
@@ -204,9 +207,4 @@ def test_submit_exits_1_mines_the_good_windows_and_names_the_chunk(kitti, tmp_pa
     assert "Traceback" not in stderr
     assert "windows: 2 ok, 1 failed, 0 already done (of 3)" in stdout, stdout
     assert _named(chunk) in stdout and "rec-0000002-0000004" in stdout, stdout
-    con = connect(str(out))
-    try:
-        mined = sorted(f for (f,) in con.sql("SELECT frame FROM frames WHERE sequence = 'rec'").fetchall())
-    finally:
-        con.close()
-    assert mined == [0, 1, 4, 5]
+    assert _mined_frames(out) == [0, 1, 4, 5]
