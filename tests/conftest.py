@@ -1,9 +1,17 @@
-"""Shared fixtures. Real data lives in ../shared beside the checkout (present in CI)."""
+"""Shared fixtures and helpers. Real data lives in ../shared beside the checkout (present in CI)."""
 
 from __future__ import annotations
 
+import json
 import os
+import threading
+import urllib.error
+import urllib.request
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
+from urllib.parse import urlencode
 
 import pytest
 
@@ -74,6 +82,68 @@ def catalogue(tmp_path_factory, kitti_tracking_root):
 
     out = tmp_path_factory.mktemp("catalogue")
     return out, build_catalogue(out, kitti_tracking_root)
+
+
+# ── `mine view` (tests/test_view.py, test_view_browser.py, test_reliability_e_view.py) ──
+
+
+@pytest.fixture(scope="module")
+def chromium() -> str:
+    """The path of a headless Chromium for the browser tests (tests/_cdp.py)."""
+    from _cdp import find_chromium
+
+    path = find_chromium()
+    if path is None:
+        if os.environ.get("CI"):
+            pytest.fail("no chromium in CI: scripts/setup.sh test installs it (apt-get install chromium)")
+        pytest.skip("no chromium on PATH: `apt-get install chromium` (scripts/setup.sh test does it as root)")
+    return path
+
+
+@contextmanager
+def serving(out: Path, cache: Path, **kw: Any) -> Iterator[tuple[str, Any]]:
+    """(base URL, server) of `mine view`'s server on catalogue ``out``, serving in a thread
+    until the block ends; ``kw`` go to ``make_server``."""
+    from mining.view.server import make_server
+
+    server = make_server(out, "127.0.0.1", 0, cache, **kw)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield f"http://127.0.0.1:{server.server_address[1]}", server
+    finally:
+        server.shutdown()
+        server.server_close()
+        server.app.browser.close()
+        thread.join(5)
+
+
+def get(base: str, path: str, params: dict | list | None = None, timeout: float = 60) -> tuple[int, dict, bytes]:
+    """(status, headers, body) of GET ``base + path`` with ``params``; an error status is an answer too."""
+    url = f"{base}{path}" + (f"?{urlencode(params, doseq=True)}" if params else "")
+    try:
+        with urllib.request.urlopen(url, timeout=timeout) as r:
+            return r.status, dict(r.headers), r.read()
+    except urllib.error.HTTPError as e:
+        return e.code, dict(e.headers), e.read()
+
+
+def json_get(base: str, path: str, params: dict | list | None = None) -> tuple[int, dict]:
+    """(status, parsed body) of a GET whose answer must be JSON."""
+    status, headers, body = get(base, path, params)
+    assert headers["Content-Type"].startswith("application/json"), headers
+    return status, json.loads(body)
+
+
+def count_tubes(out: Path, where: str, values: list | None = None) -> int:
+    """How many tubes of catalogue ``out`` DuckDB finds ``WHERE where`` (``?`` bound to ``values``)."""
+    from mining.catalog.views import connect
+
+    con = connect(out)
+    try:
+        return con.execute(f"SELECT count(*) FROM tubes WHERE {where}", values or []).fetchone()[0]
+    finally:
+        con.close()
 
 
 # ── Ray stays out of the pytest process (tests/_own_process.py, issue 17) ──────────────

@@ -28,11 +28,8 @@ import subprocess
 import sys
 import threading
 import time
-import urllib.error
-import urllib.request
-from contextlib import contextmanager
+import urllib.parse
 from pathlib import Path
-from urllib.parse import urlencode
 
 import cv2
 import numpy as np
@@ -41,11 +38,11 @@ import pytest
 
 import _cdp
 from _catalog_data import DATASET, SEQUENCE
-from _cdp import Browser, find_chromium
+from _cdp import Browser
+from conftest import get, json_get, serving
 from mining.catalog.store import Store, write_sequence
 from mining.view import catalogue as view_catalogue
 from mining.view.images import THUMB_SIZE, best_frame, default_cache_dir
-from mining.view.server import make_server
 
 REPO = Path(__file__).resolve().parents[1]
 MAX_TUBE_FRAMES = getattr(view_catalogue, "MAX_TUBE_FRAMES", 10_000)  # so that the old code runs this file too
@@ -53,29 +50,6 @@ REBOUND = "rebound.example"  # a name the test's Chromium resolves to 127.0.0.1,
 
 
 # ------------------------------------------------------------------ helpers
-
-
-@contextmanager
-def serving(out: Path, cache: Path, **kw):
-    server = make_server(out, "127.0.0.1", 0, cache, **kw)
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
-    try:
-        yield f"http://127.0.0.1:{server.server_address[1]}", server
-    finally:
-        server.shutdown()
-        server.server_close()
-        server.app.browser.close()
-        thread.join(5)
-
-
-def get(base: str, path: str, params: dict | list | None = None, timeout: float = 60) -> tuple[int, dict, bytes]:
-    url = f"{base}{path}" + (f"?{urlencode(params, doseq=True)}" if params else "")
-    try:
-        with urllib.request.urlopen(url, timeout=timeout) as r:
-            return r.status, dict(r.headers), r.read()
-    except urllib.error.HTTPError as e:
-        return e.code, dict(e.headers), e.read()
 
 
 def raw(base: str, request: bytes, timeout: float = 30) -> tuple[int, list[tuple[str, str]], bytes, bytes]:
@@ -145,16 +119,6 @@ def tube_and_frames(tables: dict, k: int = 0) -> tuple[dict, list[dict]]:
 
 
 @pytest.fixture(scope="module")
-def chromium() -> str:
-    path = find_chromium()
-    if path is None:
-        if os.environ.get("CI"):
-            pytest.fail("no chromium in CI: scripts/setup.sh test installs it (apt-get install chromium)")
-        pytest.skip("no chromium on PATH: `apt-get install chromium` (scripts/setup.sh test does it as root)")
-    return path
-
-
-@pytest.fixture(scope="module")
 def browser(chromium):
     """One Chromium for the module, resolving REBOUND to 127.0.0.1 (what a rebinding attacker's DNS does)."""
     flags = _cdp.FLAGS
@@ -210,12 +174,6 @@ def test_a_crlf_in_the_source_root_stays_inside_its_header(injected):
     # The header still says why, and the tube page's banner (JSON) says it whole.
     status, d = json_get(base, "/api/tube", {"id": tid})
     assert status == 200 and "Set-Cookie: header_injected=1" in d["frames_unavailable"]
-
-
-def json_get(base: str, path: str, params=None) -> tuple[int, dict]:
-    status, headers, body = get(base, path, params)
-    assert headers["Content-Type"].startswith("application/json"), headers
-    return status, json.loads(body)
 
 
 @pytest.mark.slow  # Chromium: over ~2.5 s

@@ -5,13 +5,8 @@ from __future__ import annotations
 
 import json
 import shutil
-import threading
 import tomllib
-import urllib.error
-import urllib.request
-from contextlib import contextmanager
 from pathlib import Path
-from urllib.parse import urlencode
 
 import cv2
 import numpy as np
@@ -19,6 +14,7 @@ import pytest
 from pycocotools import mask as mask_utils
 
 from _catalog_data import DATASET, SEQUENCE
+from conftest import count_tubes, get, json_get, serving
 from mining.catalog.views import connect
 from mining.cli import main
 from mining.errors import InputError
@@ -26,43 +22,6 @@ from mining.view.images import JPEG_QUALITY, THUMB_SIZE
 from mining.view.server import make_server
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-@contextmanager
-def serving(out: Path, cache: Path):
-    server = make_server(out, "127.0.0.1", 0, cache)
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
-    try:
-        yield f"http://127.0.0.1:{server.server_address[1]}", server
-    finally:
-        server.shutdown()
-        server.server_close()
-        server.app.browser.close()
-        thread.join(5)
-
-
-def get(base: str, path: str, params: dict | list | None = None) -> tuple[int, dict, bytes]:
-    url = f"{base}{path}" + (f"?{urlencode(params, doseq=True)}" if params else "")
-    try:
-        with urllib.request.urlopen(url, timeout=60) as r:
-            return r.status, dict(r.headers), r.read()
-    except urllib.error.HTTPError as e:
-        return e.code, dict(e.headers), e.read()
-
-
-def api(base: str, path: str, params=None) -> tuple[int, dict]:
-    status, headers, body = get(base, path, params)
-    assert headers["Content-Type"].startswith("application/json")
-    return status, json.loads(body)
-
-
-def count(out: Path, where: str, values: list | None = None) -> int:
-    con = connect(out)
-    try:
-        return con.execute(f"SELECT count(*) FROM tubes WHERE {where}", values or []).fetchone()[0]
-    finally:
-        con.close()
 
 
 @pytest.fixture(scope="module")
@@ -74,26 +33,26 @@ def server(catalogue, tmp_path_factory):
 
 def test_gallery_pages_are_the_catalogues_tubes_in_score_order(server):
     base, _, out = server
-    status, page = api(base, "/api/tubes")
+    status, page = json_get(base, "/api/tubes")
     assert status == 200
-    assert page["total"] == count(out, "selected") == len(page["tubes"]) > 0
+    assert page["total"] == count_tubes(out, "selected") == len(page["tubes"]) > 0
     con = connect(out)
     ids = [r[0] for r in con.execute("SELECT tube_id FROM tubes ORDER BY score DESC, tube_id").fetchall()]
     con.close()
-    status, every = api(base, "/api/tubes", {"set": "all"})
+    status, every = json_get(base, "/api/tubes", {"set": "all"})
     assert every["total"] == len(ids) > page["total"], "the fixture has tubes co-selection left out"
     assert [t["tube_id"] for t in every["tubes"]] == ids
     # Pages of two tile the whole list, in order.
     paged = []
     for offset in range(0, len(ids), 2):
-        status, p = api(base, "/api/tubes", {"set": "all", "limit": 2, "offset": offset})
+        status, p = json_get(base, "/api/tubes", {"set": "all", "limit": 2, "offset": offset})
         assert status == 200 and p["total"] == len(ids) and len(p["tubes"]) <= 2
         paged += [t["tube_id"] for t in p["tubes"]]
     assert paged == ids
-    status, asc = api(base, "/api/tubes", {"set": "all", "order": "asc"})
+    status, asc = json_get(base, "/api/tubes", {"set": "all", "order": "asc"})
     scores = [t["score"] for t in asc["tubes"]]
     assert scores == sorted(scores) and {t["tube_id"] for t in asc["tubes"]} == set(ids)
-    status, by_length = api(base, "/api/tubes", {"set": "all", "sort": "n_frames"})
+    status, by_length = json_get(base, "/api/tubes", {"set": "all", "sort": "n_frames"})
     lengths = [t["n_frames"] for t in by_length["tubes"]]
     assert lengths == sorted(lengths, reverse=True)
 
@@ -111,18 +70,18 @@ def test_gallery_pages_are_the_catalogues_tubes_in_score_order(server):
 ])
 def test_filters_count_what_duckdb_counts(server, params, where, values):
     base, _, out = server
-    status, page = api(base, "/api/tubes", params)
+    status, page = json_get(base, "/api/tubes", params)
     assert status == 200, page
-    assert page["total"] == count(out, where, values) == len(page["tubes"])
+    assert page["total"] == count_tubes(out, where, values) == len(page["tubes"])
     # The shown --where expression selects exactly the same tubes.
-    assert count(out, page["where"]) == page["total"]
+    assert count_tubes(out, page["where"]) == page["total"]
     assert page["export_command"].startswith(f"mine export --out {out} --where ")
 
 
 def test_a_narrowing_filter_narrows(server):
     base, _, _ = server
-    _, everything = api(base, "/api/tubes")
-    _, narrowed = api(base, "/api/tubes", {"min_score": "50"})
+    _, everything = json_get(base, "/api/tubes")
+    _, narrowed = json_get(base, "/api/tubes", {"min_score": "50"})
     assert 0 < narrowed["total"] < everything["total"]
 
 
@@ -149,7 +108,7 @@ def test_a_narrowing_filter_narrows(server):
 ])
 def test_bad_parameters_are_400_with_the_reason(server, params, message):
     base, _, _ = server
-    status, body = api(base, "/api/tubes", params)
+    status, body = json_get(base, "/api/tubes", params)
     assert status == 400
     assert message in body["error"]
 
@@ -158,32 +117,32 @@ def test_unknown_tubes_and_frames_are_404_bad_ones_400(server):
     base, _, _ = server
     tid = f"{DATASET}/{SEQUENCE}/0000000.000"
     for path in ("/api/tube", "/img/thumb"):
-        status, body = api(base, path, {"id": "kitti/0005/9999999.999"})
+        status, body = json_get(base, path, {"id": "kitti/0005/9999999.999"})
         assert status == 404 and "no tube 'kitti/0005/9999999.999'" in body["error"]
-        status, body = api(base, path, {"id": "../../etc/passwd"})
+        status, body = json_get(base, path, {"id": "../../etc/passwd"})
         assert status == 404
-        status, body = api(base, path)
+        status, body = json_get(base, path)
         assert status == 400 and "give one tube id" in body["error"]
-    assert api(base, "/img/frame", {"id": tid, "frame": 99})[0] == 404
-    status, body = api(base, "/img/frame", {"id": tid, "frame": "x"})
+    assert json_get(base, "/img/frame", {"id": tid, "frame": 99})[0] == 404
+    status, body = json_get(base, "/img/frame", {"id": tid, "frame": "x"})
     assert status == 400 and "frame must be an integer" in body["error"]
-    status, body = api(base, "/img/frame", {"id": tid, "frame": 0, "size": "huge"})
+    status, body = json_get(base, "/img/frame", {"id": tid, "frame": 0, "size": "huge"})
     assert status == 400 and "size is one of" in body["error"]
-    assert api(base, "/api/facets", {"set": "none"})[0] == 400
-    assert api(base, "/no/such/page")[0] == 404
-    assert api(base, "/static/../server.py")[0] == 404
+    assert json_get(base, "/api/facets", {"set": "none"})[0] == 400
+    assert json_get(base, "/no/such/page")[0] == 404
+    assert json_get(base, "/static/../server.py")[0] == 404
 
 
 def test_facets_count_the_catalogue(server):
     base, _, out = server
-    status, f = api(base, "/api/facets")
+    status, f = json_get(base, "/api/facets")
     assert status == 200
-    assert f["tubes"] == count(out, "true") and f["selected"] == count(out, "selected")
+    assert f["tubes"] == count_tubes(out, "true") and f["selected"] == count_tubes(out, "selected")
     assert sum(f["known"].values()) == f["selected"]
     assert f["sequences"] == [{"dataset": DATASET, "sequence": SEQUENCE, "n": f["selected"]}]
-    assert {c["category"]: c["n"] for c in f["categories"]} == {"car": count(out, "selected AND category = 'car'")}
+    assert {c["category"]: c["n"] for c in f["categories"]} == {"car": count_tubes(out, "selected AND category = 'car'")}
     lo, hi = f["ranges"]["score"]
-    assert count(out, "selected AND score BETWEEN ? AND ?", [lo, hi]) == f["selected"]
+    assert count_tubes(out, "selected AND score BETWEEN ? AND ?", [lo, hi]) == f["selected"]
     assert f["frames_unavailable"] is None
 
 
@@ -191,7 +150,7 @@ def test_tube_page_data(server, catalogue):
     base, _, out = server
     _, tables = catalogue
     tube = max(tables["tubes"].to_pylist(), key=lambda t: t["score"])
-    status, d = api(base, "/api/tube", {"id": tube["tube_id"]})
+    status, d = json_get(base, "/api/tube", {"id": tube["tube_id"]})
     assert status == 200
     assert d["tube"]["tube_id"] == tube["tube_id"] and d["tube"]["score"] == pytest.approx(tube["score"])
     frames = sorted((f for f in tables["tube_frames"].to_pylist() if f["tube_id"] == tube["tube_id"]),
@@ -210,7 +169,7 @@ def test_tube_page_data(server, catalogue):
     post = np.asarray(tube["class_posterior"])
     assert d["top_classes"][0]["name"] == tube["category"]
     np.testing.assert_allclose([c["p"] for c in d["top_classes"]], np.sort(post)[::-1][:5], rtol=1e-6)
-    assert count(out, d["where"]) == 1
+    assert count_tubes(out, d["where"]) == 1
     assert d["export_command"] == (f"mine export --out {out} --where \"tube_id = '{tube['tube_id']}'\" "
                                    f"--format crops crops/{tube['tube_id'].replace('/', '_')}")
 
@@ -281,7 +240,7 @@ def test_frames_not_on_this_machine_give_placeholders_that_say_why(catalogue, tm
     (moved / "job.json").write_text(json.dumps(job))
     tid = tables["tubes"].column("tube_id")[0].as_py()
     with serving(moved, tmp_path / "cache") as (base, _):
-        _, f = api(base, "/api/facets")
+        _, f = json_get(base, "/api/facets")
         assert "not on this machine" in f["frames_unavailable"] and "elsewhere" in f["frames_unavailable"]
         status, headers, body = get(base, "/img/thumb", {"id": tid})
         assert status == 200 and "not on this machine" in headers["X-Placeholder"]
@@ -289,18 +248,18 @@ def test_frames_not_on_this_machine_give_placeholders_that_say_why(catalogue, tm
         status, headers, body = get(base, "/img/frame", {"id": tid, "frame": int(tables["tube_frames"]
                                                                                   .column("frame")[0].as_py())})
         assert status == 200 and "X-Placeholder" in headers and _decode(body).shape[:2] == (375, 1242)
-        _, d = api(base, "/api/tube", {"id": tid})
+        _, d = json_get(base, "/api/tube", {"id": tid})
         assert "not on this machine" in d["frames_unavailable"]
-        status, page = api(base, "/api/tubes")
+        status, page = json_get(base, "/api/tubes")
         assert status == 200 and page["total"] > 0, "the gallery still works"
 
 
 def test_an_empty_catalogue_browses(tmp_path):
     (tmp_path / "empty").mkdir()
     with serving(tmp_path / "empty", tmp_path / "cache") as (base, _):
-        _, f = api(base, "/api/facets")
+        _, f = json_get(base, "/api/facets")
         assert f["tubes"] == 0 and "job.json" in f["frames_unavailable"]
-        status, page = api(base, "/api/tubes")
+        status, page = json_get(base, "/api/tubes")
         assert status == 200 and page["total"] == 0 and page["tubes"] == []
         status, _, body = get(base, "/")
         assert status == 200 and b"gallery.js" in body
@@ -350,7 +309,7 @@ def test_a_damaged_table_is_503_naming_the_file(catalogue, tmp_path):
     part = next((copy / "catalog" / "tubes").rglob("*.parquet"))
     part.write_bytes(part.read_bytes()[:100])
     with serving(copy, tmp_path / "cache") as (base, _):
-        status, body = api(base, "/api/tubes")
+        status, body = json_get(base, "/api/tubes")
         assert status == 503 and part.name in body["error"]
         status, _, _ = get(base, "/")
         assert status == 200, "the pages load and say what is wrong"
@@ -372,9 +331,9 @@ def test_mine_view_serves_until_ctrl_c(catalogue, tmp_path):
         line = proc.stdout.readline()
         m = re.search(r"serving (http://127\.0\.0\.1:\d+)/", line)
         assert m, line + proc.stderr.read()
-        assert f"{count(out, 'selected')} selected of {count(out, 'true')} tubes" in line
-        status, page = api(m.group(1), "/api/tubes")
-        assert status == 200 and page["total"] == count(out, "selected")
+        assert f"{count_tubes(out, 'selected')} selected of {count_tubes(out, 'true')} tubes" in line
+        status, page = json_get(m.group(1), "/api/tubes")
+        assert status == 200 and page["total"] == count_tubes(out, "selected")
     finally:
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=20)

@@ -14,9 +14,8 @@ from pathlib import Path
 import cv2
 import pytest
 
-from _cdp import Browser, find_chromium
-from mining.catalog.views import connect
-from mining.view.server import make_server
+from _cdp import Browser
+from conftest import count_tubes, serving
 
 # The natural widths of the images in view (a lazy image out of view, e.g. far along the tube page's
 # strip, is not fetched), once each has loaded or failed.
@@ -30,24 +29,6 @@ ALL_IMAGES_LOADED = """(() => {
   return Promise.all(shown.map(i => i.complete ? 0 : new Promise(r => { i.onload = i.onerror = r; })))
     .then(() => shown.map(i => i.naturalWidth));
 })()"""
-
-
-@pytest.fixture(scope="module")
-def chromium() -> str:
-    path = find_chromium()
-    if path is None:
-        if os.environ.get("CI"):
-            pytest.fail("no chromium in CI: scripts/setup.sh test installs it (apt-get install chromium)")
-        pytest.skip("no chromium on PATH: `apt-get install chromium` (scripts/setup.sh test does it as root)")
-    return path
-
-
-def _count(out: Path, where: str) -> int:
-    con = connect(out)
-    try:
-        return con.execute(f"SELECT count(*) FROM tubes WHERE {where}").fetchone()[0]
-    finally:
-        con.close()
 
 
 def _shots(tmp_path: Path) -> Path:
@@ -65,15 +46,12 @@ def _looks_like_a_page(path: Path, width: int, height: int) -> None:
 @pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_gallery_filter_and_tube_page_in_chromium(catalogue, chromium, tmp_path):
     out, tables = catalogue
-    n_selected = _count(out, "selected")
-    n_narrowed = _count(out, "selected AND score >= 50")
-    n_all = _count(out, "true")
+    n_selected = count_tubes(out, "selected")
+    n_narrowed = count_tubes(out, "selected AND score >= 50")
+    n_all = count_tubes(out, "true")
     assert 0 < n_narrowed < n_selected < n_all
     shots = _shots(tmp_path)
-    server = make_server(out, "127.0.0.1", 0, tmp_path / "cache")
-    threading.Thread(target=server.serve_forever, daemon=True).start()
-    base = f"http://127.0.0.1:{server.server_address[1]}"
-    try:
+    with serving(out, tmp_path / "cache") as (base, _):
         with Browser(chromium, width=1400, height=900) as b:
             # The gallery: one card per selected tube, every thumbnail a real picture.
             b.goto(f"{base}/")
@@ -123,10 +101,6 @@ def test_gallery_filter_and_tube_page_in_chromium(catalogue, chromium, tmp_path)
             b.goto(f"{base}/tube?id=kitti/0005/nothing")
             b.wait_for("document.body.dataset.state === 'error'")
             assert "no tube" in b.evaluate("document.getElementById('banner').textContent")
-    finally:
-        server.shutdown()
-        server.server_close()
-        server.app.browser.close()
     _looks_like_a_page(shots / "gallery.png", 1400, 900)
     _looks_like_a_page(shots / "tube.png", 1400, 900)
 
