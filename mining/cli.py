@@ -11,6 +11,7 @@ from mining.config import JobConfig, load_config, parse_override, validate
 from mining.errors import ConfigError, MiningError
 from mining.names import check_name
 from mining.proposals.make import classifiers_line
+from mining.score.unary import unary_line
 
 
 INTERRUPTED = 130  # the shell's exit status for a process ended by SIGINT (128 + 2)
@@ -129,6 +130,7 @@ def cmd_track_images(args: argparse.Namespace) -> int:
     print(f"{args.sequence} frames {start}:{stop}: {len(mined)} tubes, {len(sel)} selected "
           f"({known} known, {unknown} unknown, {len(sel) - known - unknown} unclassified), {n} rows → {out}")
     print(classifiers_line(cfg.proposals.proposer))
+    print(unary_line(cfg.score, cfg.proposals.proposer))
     return 0
 
 

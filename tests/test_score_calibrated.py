@@ -167,3 +167,27 @@ def test_grouped_terms_add_up_to_the_log_odds():
     assert set(g) == set(GROUPS) and sorted(sum(GROUPS.values(), ())) == sorted(TERMS)
     assert sum(g.values()) == pytest.approx(calibrated_score(t, w, 1e-6))
     assert carried_by(g) == max(g, key=g.get) or max(g.values()) <= 0
+
+
+def test_auto_falls_back_to_the_reference_and_says_so():
+    from mining.score.unary import unary_line
+
+    cfg = load_config(None, ['score.model="auto"', 'score.calibrated.stereo.frame=-1.5'])
+    assert unary_weights(cfg.score, "stereo") == {"frame": -1.5}
+    assert unary_weights(cfg.score, "onnx") is None  # no weights for it: the REFERENCE, stated
+    assert "calibrated" in unary_line(cfg.score, "stereo")
+    assert "REFERENCE" in unary_line(cfg.score, "onnx") and "no calibrated weights for 'onnx'" in unary_line(cfg.score, "onnx")
+    assert "REFERENCE" in unary_line(JobConfig().score, "stereo")
+
+
+def test_the_calibrated_unary_is_priced_by_its_own_epsilon1():
+    """ε1 = 20 is the REFERENCE's price on its own scale; a log-odds is priced by epsilon1_calibrated."""
+    rng = np.random.default_rng(6)
+    t = _random_tube(rng, 6)
+    for f in t.frames[1:]:
+        f.mask_iou = 0.9
+    cfg = calibrated_config(JobConfig(), {"frame": 0.5, "ln_mask_iou": 2.0})  # θ ≈ 1.45
+    assert cfg.select.epsilon1 == 20.0 and cfg.select.epsilon1_calibrated == 0.0
+    assert judge([t], cfg)[0].selected
+    cfg.select.epsilon1_calibrated = 2.0
+    assert not judge([t], cfg)[0].selected

@@ -115,7 +115,7 @@ def calibrated_config(cfg: JobConfig, weights: dict[str, float], epsilon1: float
     out = copy.deepcopy(cfg)
     out.score.model = "calibrated"
     out.score.calibrated = {**out.score.calibrated, cfg.proposals.proposer: weights}
-    out.select.epsilon1 = float(epsilon1)
+    out.select.epsilon1_calibrated = float(epsilon1)
     validate(out, "calibrated config")
     return out
 

@@ -24,7 +24,7 @@ from mining.pipeline.frames import frame_records
 from mining.pipeline.mine import mine_tubes
 from mining.progress import Ticker
 from mining.proposals.make import classifiers_line
-from mining.score.unary import unary_weights
+from mining.score.unary import unary_line, unary_weights
 from mining.sources import open_source
 from mining.types import MinedTube, TrackingFrame
 
@@ -83,6 +83,7 @@ def run_synthetic_eval(sequence: str, n_frames: int, cfg: JobConfig, json_out: s
     print(format_synthetic(results))
     print(format_funnel(results["funnel"]))
     print(classifiers_line(cfg.proposals.proposer))
+    print(unary_line(cfg.score, cfg.proposals.proposer))
     if json_out:
         doc = {k: v for k, v in results.items() if k != "truths"}
         doc |= {"proposer": cfg.proposals.proposer, "n_frames": n_frames}

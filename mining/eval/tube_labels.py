@@ -41,6 +41,7 @@ class TubeLabel:
     frames: int  # observed frames compared with truth
     share: float  # share of those frames with the tube's label
     object_track: int | None  # the track it covers most often as an object
+    object_known: bool | None = None  # whether that track's category is one of the 80 COCO classes
 
 
 def label_tubes(tubes: Sequence[Tube], truths: Mapping[int, FrameTruth | GtFrame],
@@ -53,6 +54,7 @@ def label_tubes(tubes: Sequence[Tube], truths: Mapping[int, FrameTruth | GtFrame
                 by_frame.setdefault(f.frame, []).append((t.tube_id, f.rle))
     votes: dict[int, list[str]] = {t.tube_id: [] for t in tubes}
     tracks: dict[int, Counter] = {t.tube_id: Counter() for t in tubes}
+    known: dict[int, bool] = {}
     thr, part = p.iou_threshold - _EPS, p.part_ioa - _EPS
     for frame, dets in sorted(by_frame.items()):
         gt = gt_frame(truths[frame])
@@ -68,6 +70,7 @@ def label_tubes(tubes: Sequence[Tube], truths: Mapping[int, FrameTruth | GtFrame
                 g = int(np.argmax(np.where(evaluated, iou[:, j], -1.0)))
                 votes[tid].append("object")
                 tracks[tid][int(gt.track_ids[g])] += 1
+                known[int(gt.track_ids[g])] = bool(gt.known[g])
             elif on.any():
                 votes[tid].append("ignored")
             elif inside.shape[1] and inside[j].max() >= part:
@@ -82,5 +85,5 @@ def label_tubes(tubes: Sequence[Tube], truths: Mapping[int, FrameTruth | GtFrame
         count = Counter(v)
         label = max(LABELS, key=lambda k: (count[k], -LABELS.index(k)))
         track = tracks[tid].most_common(1)[0][0] if tracks[tid] else None
-        out[tid] = TubeLabel(label, len(v), count[label] / len(v), track)
+        out[tid] = TubeLabel(label, len(v), count[label] / len(v), track, None if track is None else known[track])
     return out

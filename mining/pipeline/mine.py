@@ -6,6 +6,7 @@ window judges its own tubes and the stitcher judges a sequence's stitched tubes 
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Iterable
 
 import numpy as np
@@ -25,10 +26,14 @@ def unary(cfg: JobConfig) -> Callable[[Tube], TubeScore]:
 
 
 def judge(tubes: list[Tube], cfg: JobConfig) -> list[MinedTube]:
-    """Each tube's unary score and category, and the co-selection over all of them."""
+    """Each tube's unary score and category, and the co-selection over all of them (with the
+    calibrated unary, at its own price ``select.epsilon1_calibrated``)."""
     score = unary(cfg)
     scores = [score(t) for t in tubes]
-    selected = co_select(tubes, np.array([s.total for s in scores]), cfg.select)
+    select = cfg.select
+    if unary_weights(cfg.score, cfg.proposals.proposer) is not None:
+        select = dataclasses.replace(select, epsilon1=select.epsilon1_calibrated)
+    selected = co_select(tubes, np.array([s.total for s in scores]), select)
     return [MinedTube(t, s, tube_category(t, cfg.score.known_log_margin, cfg.score.min_class_evidence), bool(m))
             for t, s, m in zip(tubes, scores, selected)]
 

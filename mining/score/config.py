@@ -17,8 +17,9 @@ class ScoreConfig:
     beta: Fraction = 0.5  # REFERENCE: as above
     floor: Positive = 1e-6  # ours: a term's x is clipped here so ln(0) cannot occur
     # "reference" = the weighted sum above (REFERENCE.md); "calibrated" = ours: a log-odds fit on
-    # synthetic truth per proposer (mining/score/calibrated.py; weights below, from `mine bench calibrate`)
-    model: Annotated[str, OneOf(("reference", "calibrated"))] = "reference"
+    # synthetic truth per proposer (mining/score/calibrated.py; weights below, from `mine bench calibrate`),
+    # refused for a proposer without weights; "auto" = calibrated where the proposer has weights, else reference
+    model: Annotated[str, OneOf(("reference", "calibrated", "auto"))] = "reference"
     # proposer → term → weight of θ = w₀ + Σ_t w·φ_t (mining.score.calibrated.TERMS)
     calibrated: dict[str, dict[str, Signed]] = field(default_factory=dict)
     # Known / unknown / unclassified (mining/tubes/category.py).

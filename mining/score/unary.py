@@ -33,7 +33,8 @@ def llr(x: np.ndarray, k: float, floor: float) -> float:
 
 
 def unary_weights(cfg: ScoreConfig, proposer: str) -> Mapping[str, float] | None:
-    """The calibrated weights for ``proposer``, or None for the REFERENCE score.
+    """The calibrated weights for ``proposer``, or None for the REFERENCE score (``model``
+    "reference", or "auto" for a proposer without weights).
 
     ConfigError when ``model = "calibrated"`` has no weights for the proposer (weights fit for
     one proposer's evidence do not hold for another's: never substituted) or names a term
@@ -42,6 +43,8 @@ def unary_weights(cfg: ScoreConfig, proposer: str) -> Mapping[str, float] | None
     if cfg.model == "reference":
         return None
     weights = cfg.calibrated.get(proposer)
+    if weights is None and cfg.model == "auto":
+        return None
     if weights is None:
         raise ConfigError(f"score.model = 'calibrated' has no weights for proposer {proposer!r} "
                           f"(score.calibrated has {sorted(cfg.calibrated) or 'none'}): fit them with "
@@ -65,3 +68,11 @@ def score_tube(tube: Tube, cfg: ScoreConfig | None = None, weights: Mapping[str,
     else:
         total = calibrated_score(tube, weights, cfg.floor)
     return TubeScore(motion, mask, obj, total)
+
+
+def unary_line(cfg: ScoreConfig, proposer: str) -> str:
+    """Which unary a run scores with, for its report (``auto`` is never silent)."""
+    if unary_weights(cfg, proposer) is None:
+        why = "" if cfg.model == "reference" else f" (score.model = {cfg.model!r}: no calibrated weights for {proposer!r})"
+        return f"unary: REFERENCE (β·(α·motion + (1−α)·mask) + (1−β)·objectness){why}"
+    return f"unary: calibrated log-odds for proposer {proposer!r} (score.calibrated; score.model = {cfg.model!r})"

@@ -15,6 +15,7 @@ from mining.checks import Count, Fraction, OneOf, Range, Signed
 class SelectConfig:
     # --- the energy: maximise mᵀQm, Q_ii = score_i − ε1, Q_ij = −½·ε2·Σ_t o_t(i, j), o per ``overlap``
     epsilon1: Signed = 20.0  # REFERENCE: ε1, price of selecting a tube (unary offset)
+    epsilon1_calibrated: Signed = 0.0  # ours: ε1 with the calibrated unary (score.model), a log-odds: 0 selects a tube alone when it is more likely an object than not
     # ε2 stays 30 for overlap="min" too. o_min ≥ IoU, but it grows only where one mask lies
     # (mostly) inside the other: a duplicate of equal size changes little (IoU 0.8 → o 0.89),
     # a part jumps from IoU ≈ its area share (~0.1) to ≈ 1, i.e. 30 a frame, far above any
