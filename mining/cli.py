@@ -284,7 +284,8 @@ def cmd_bench_calibrate(args: argparse.Namespace) -> int:
     from mining.bench.calibrate import run_calibrate_bench
 
     return run_calibrate_bench(_job_config(args), args.seeds, args.frames, workers=args.workers, l2=args.l2,
-                               epsilon1=args.epsilon1, json_out=args.json)
+                               epsilon1=args.epsilon1, epsilon2=args.epsilon2, balance=not args.no_balance,
+                               json_out=args.json)
 
 
 def cmd_bench_proposals(args: argparse.Namespace) -> int:
@@ -565,6 +566,10 @@ def build_parser() -> argparse.ArgumentParser:
     bcal.add_argument("--l2", type=float, default=1.0, help="L2 penalty on the standardised evidence (default 1)")
     bcal.add_argument("--epsilon1", type=float, default=0.0,
                       help="co-selection price for the calibrated unary in the folds (default 0: log-odds 0)")
+    bcal.add_argument("--epsilon2", type=float, default=3.0,
+                      help="overlap weight for the calibrated unary in the folds (default 3)")
+    bcal.add_argument("--no-balance", action="store_true",
+                      help="do not weigh unknown objects' tubes up to the known ones' total")
     bcal.add_argument("--json", help="also write the results as JSON here")
     bcal.set_defaults(func=cmd_bench_calibrate)
 

@@ -191,3 +191,14 @@ def test_the_calibrated_unary_is_priced_by_its_own_epsilon1():
     assert judge([t], cfg)[0].selected
     cfg.select.epsilon1_calibrated = 2.0
     assert not judge([t], cfg)[0].selected
+
+
+def test_balance_gives_unknown_objects_the_known_objects_weight():
+    from mining.bench.calibrate import balance_weights
+
+    y = np.array([1, 1, 1, 1, 1, 1, 0, 0], bool)
+    unknown = np.array([0, 0, 0, 0, 1, 1, 0, 1], bool)  # the last is not an object: it keeps weight 1
+    w = balance_weights(y, unknown)
+    assert w[y & unknown].sum() == pytest.approx(w[y & ~unknown].sum()) == 4.0
+    assert list(w[~y]) == [1.0, 1.0]
+    assert list(balance_weights(y, np.zeros(8, bool))) == [1.0] * 8
