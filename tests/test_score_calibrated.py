@@ -202,3 +202,13 @@ def test_balance_gives_unknown_objects_the_known_objects_weight():
     assert w[y & unknown].sum() == pytest.approx(w[y & ~unknown].sum()) == 4.0
     assert list(w[~y]) == [1.0, 1.0]
     assert list(balance_weights(y, np.zeros(8, bool))) == [1.0] * 8
+
+
+def test_detections_only_mode_is_never_scored_with_an_image_proposers_weights():
+    """3D detections are not the job's (default: stereo) proposer: "auto" scores them by the REFERENCE."""
+    from mining.pipeline.detections import DETECTIONS
+
+    cfg = load_config(None, ['score.model="auto"', 'score.calibrated.stereo.frame=-1.5'])
+    t = _random_tube(np.random.default_rng(7), 5)
+    assert unary(cfg, DETECTIONS)(t).total == score_tube(t, cfg.score).total
+    assert unary(cfg)(t).total == pytest.approx(-1.5 * 4)

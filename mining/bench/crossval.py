@@ -39,7 +39,7 @@ from mining.bench.iou_tracker import iou_track, write_iou_tracks
 from mining.config import JobConfig, load_config, parse_override
 from mining.eval.kitti_mot import combine_kitti_mot, evaluate_kitti_mot, read_seqmap
 from mining.formats.poses import read_poses
-from mining.pipeline.detections import FRAME_INTERVAL_NS, detection_frames, write_detection_tubes
+from mining.pipeline.detections import DETECTIONS, FRAME_INTERVAL_NS, detection_frames, write_detection_tubes
 from mining.pipeline.mine import judge, tube_generator
 from mining.proposals.precomputed import KittiDetections
 from mining.sources.kitti import KittiTrackingSource
@@ -260,12 +260,12 @@ def score_grid(data: Path, config: str | Path | None, overrides: Sequence[str], 
                     frames_cache[fkey] = list(detection_frames(root, seq, train / "det_pointrcnn", poses, cfg))
                 gkey = fkey + key(cfg, "tubes", "score")
                 if gkey not in tubes_cache:
-                    gen = tube_generator(cfg)
+                    gen = tube_generator(cfg, proposer=DETECTIONS)
                     for frame in frames_cache[fkey]:
                         gen.step(frame)
                     tubes_cache[gkey] = gen.finish()
                 out = Path(tmp) / str(i)
-                write_detection_tubes(root, seq, judge(tubes_cache[gkey], cfg), cfg, out / f"{seq}.txt")
+                write_detection_tubes(root, seq, judge(tubes_cache[gkey], cfg, DETECTIONS), cfg, out / f"{seq}.txt")
                 scores[setting][seq] = evaluate_kitti_mot(train / "label_02", out, [seq], CLASSES, seqmap).sums[seq]
             calib = source.calib(seq)
             dets = KittiDetections(train / "det_pointrcnn", seq, source.kitti_calib(seq), (calib.width, calib.height),

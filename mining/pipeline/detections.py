@@ -23,6 +23,9 @@ from mining.sources.kitti import KittiTrackingSource
 from mining.types import GroundPlane, MinedTube, TrackingFrame
 
 FRAME_INTERVAL_NS = 100_000_000  # KITTI tracking is recorded at 10 Hz
+# The evidence's name for the unary (mining.pipeline.mine.unary): 3D detections are not the job's image
+# proposer, and no calibrated weights exist for them, so score.model "auto" scores them by the REFERENCE.
+DETECTIONS = "detections"
 
 
 def detection_frames(kitti_root: str | Path, sequence: str, detections: str | Path, poses_path: str | Path,
@@ -46,7 +49,7 @@ def detection_frames(kitti_root: str | Path, sequence: str, detections: str | Pa
 
 def track_detections(kitti_root: str | Path, sequence: str, detections: str | Path, poses_path: str | Path,
                      cfg: JobConfig, out_txt: str | Path | None = None) -> list[MinedTube]:
-    mined = mine_tubes(detection_frames(kitti_root, sequence, detections, poses_path, cfg), cfg)
+    mined = mine_tubes(detection_frames(kitti_root, sequence, detections, poses_path, cfg), cfg, proposer=DETECTIONS)
     if out_txt is not None:
         write_detection_tubes(kitti_root, sequence, mined, cfg, out_txt)
     return mined

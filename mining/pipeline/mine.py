@@ -19,34 +19,39 @@ from mining.tubes.generate import TubeGenerator
 from mining.types import MinedTube, TrackingFrame, Tube, TubeScore
 
 
-def unary(cfg: JobConfig) -> Callable[[Tube], TubeScore]:
-    """The job's unary score: REFERENCE, or calibrated for its proposer (``score.model``)."""
-    weights = unary_weights(cfg.score, cfg.proposals.proposer)
+def unary(cfg: JobConfig, proposer: str | None = None) -> Callable[[Tube], TubeScore]:
+    """The job's unary score: REFERENCE, or calibrated for its proposer (``score.model``).
+
+    ``proposer`` names the evidence when it is not ``cfg.proposals.proposer``'s (detections-only
+    mode: ``mining.pipeline.detections.DETECTIONS``, which has no calibrated weights).
+    """
+    weights = unary_weights(cfg.score, proposer or cfg.proposals.proposer)
     return lambda tube: score_tube(tube, cfg.score, weights)
 
 
-def judge(tubes: list[Tube], cfg: JobConfig) -> list[MinedTube]:
+def judge(tubes: list[Tube], cfg: JobConfig, proposer: str | None = None) -> list[MinedTube]:
     """Each tube's unary score and category, and the co-selection over all of them (with the
     calibrated unary, at its own price and overlap weight ``select.epsilon1/2_calibrated``)."""
-    score = unary(cfg)
+    score = unary(cfg, proposer)
     scores = [score(t) for t in tubes]
     select = cfg.select
-    if unary_weights(cfg.score, cfg.proposals.proposer) is not None:
+    if unary_weights(cfg.score, proposer or cfg.proposals.proposer) is not None:
         select = dataclasses.replace(select, epsilon1=select.epsilon1_calibrated, epsilon2=select.epsilon2_calibrated)
     selected = co_select(tubes, np.array([s.total for s in scores]), select)
     return [MinedTube(t, s, tube_category(t, cfg.score.known_log_margin, cfg.score.min_class_evidence), bool(m))
             for t, s, m in zip(tubes, scores, selected)]
 
 
-def tube_generator(cfg: JobConfig, first_id: int = 0) -> TubeGenerator:
+def tube_generator(cfg: JobConfig, first_id: int = 0, proposer: str | None = None) -> TubeGenerator:
     """The job's tube generator, ranking tubes for tube NMS by their unary score."""
-    score = unary(cfg)
+    score = unary(cfg, proposer)
     return TubeGenerator(cfg.tubes, lambda tube: score(tube).total, first_id=first_id)
 
 
-def mine_tubes(frames: Iterable[TrackingFrame], cfg: JobConfig, first_id: int = 0) -> list[MinedTube]:
-    """Generate tubes over frames given in time order, then judge them."""
-    gen = tube_generator(cfg, first_id)
+def mine_tubes(frames: Iterable[TrackingFrame], cfg: JobConfig, first_id: int = 0,
+               proposer: str | None = None) -> list[MinedTube]:
+    """Generate tubes over frames given in time order, then judge them (``proposer``: see ``unary``)."""
+    gen = tube_generator(cfg, first_id, proposer)
     for frame in frames:
         gen.step(frame)
-    return judge(gen.finish(), cfg)
+    return judge(gen.finish(), cfg, proposer)
