@@ -90,17 +90,29 @@ def test_roc_auc_is_the_pairwise_share():
     assert roc_auc(s, y) == pytest.approx(pairs / (len(pos) * len(neg)))
 
 
+ONNX = 'proposals.proposer="onnx"'  # a proposer without default weights
+
+
 def test_calibrated_model_needs_weights_for_the_jobs_proposer():
-    with pytest.raises(ConfigError, match="no weights for proposer 'stereo'"):
-        load_config(None, ['score.model="calibrated"'])
+    with pytest.raises(ConfigError, match="no weights for proposer 'onnx'"):
+        load_config(None, ['score.model="calibrated"', ONNX])
     with pytest.raises(ConfigError, match="unknown term"):
         load_config(None, ['score.model="calibrated"', 'score.calibrated.stereo.wheel=1.0'])
-    cfg = load_config(None, ['score.model="calibrated"', 'score.calibrated.stereo.frame=-1.5'])
-    assert unary_weights(cfg.score, "stereo") == {"frame": -1.5}
+    cfg = load_config(None, ['score.model="calibrated"', 'score.calibrated.onnx.frame=-1.5', ONNX])
+    assert unary_weights(cfg.score, "onnx") == {"frame": -1.5}
     # the weights for one proposer are never used for another
-    with pytest.raises(ConfigError, match="'onnx\\+stereo'"):
-        load_config(None, ['score.model="calibrated"', 'score.calibrated.stereo.frame=-1.5',
-                           'proposals.proposer="onnx+stereo"'])
+    with pytest.raises(ConfigError, match="'torch'"):
+        load_config(None, ['score.model="calibrated"', 'score.calibrated.onnx.frame=-1.5',
+                           'proposals.proposer="torch"'])
+
+
+def test_a_weight_set_in_a_job_config_keeps_the_defaults_other_terms():
+    from mining.score.config import CALIBRATED
+
+    cfg = load_config(None, ['score.calibrated.stereo.frame=-1.5'])
+    assert cfg.score.calibrated["stereo"] == {**CALIBRATED["stereo"], "frame": -1.5}
+    assert cfg.score.calibrated["onnx+stereo"] == CALIBRATED["onnx+stereo"]
+    assert JobConfig().score.calibrated == CALIBRATED and JobConfig().score.model == "auto"
 
 
 def test_judge_selects_by_log_odds_with_the_calibrated_model():
@@ -172,12 +184,12 @@ def test_grouped_terms_add_up_to_the_log_odds():
 def test_auto_falls_back_to_the_reference_and_says_so():
     from mining.score.unary import unary_line
 
-    cfg = load_config(None, ['score.model="auto"', 'score.calibrated.stereo.frame=-1.5'])
-    assert unary_weights(cfg.score, "stereo") == {"frame": -1.5}
+    cfg = load_config(None, ['score.model="auto"'])
+    assert unary_weights(cfg.score, "stereo") == cfg.score.calibrated["stereo"]
     assert unary_weights(cfg.score, "onnx") is None  # no weights for it: the REFERENCE, stated
     assert "calibrated" in unary_line(cfg.score, "stereo")
     assert "REFERENCE" in unary_line(cfg.score, "onnx") and "no calibrated weights for 'onnx'" in unary_line(cfg.score, "onnx")
-    assert "REFERENCE" in unary_line(JobConfig().score, "stereo")
+    assert "REFERENCE" in unary_line(load_config(None, ['score.model="reference"']).score, "stereo")
 
 
 def test_the_calibrated_unary_is_priced_by_its_own_epsilon1():
@@ -208,7 +220,7 @@ def test_detections_only_mode_is_never_scored_with_an_image_proposers_weights():
     """3D detections are not the job's (default: stereo) proposer: "auto" scores them by the REFERENCE."""
     from mining.pipeline.detections import DETECTIONS
 
-    cfg = load_config(None, ['score.model="auto"', 'score.calibrated.stereo.frame=-1.5'])
+    cfg = load_config(None, ['score.model="auto"'])
     t = _random_tube(np.random.default_rng(7), 5)
     assert unary(cfg, DETECTIONS)(t).total == score_tube(t, cfg.score).total
-    assert unary(cfg)(t).total == pytest.approx(-1.5 * 4)
+    assert unary(cfg)(t).total == pytest.approx(calibrated_score(t, cfg.score.calibrated["stereo"], cfg.score.floor))
