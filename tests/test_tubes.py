@@ -292,16 +292,23 @@ def test_co_selection_group_by_group_equals_one_dense_qubo(kitti_tracking_root, 
 def test_a_fast_object_without_flow_starts_a_tube():
     """A car overtaking close by at 24 m/s (the ego drives 10 m/s): 1.4 m a frame relative to
     the camera, no scene flow. The prior cannot reach it; the displacement hypotheses do."""
-    def run(hypotheses: int):
-        gen = TubeGenerator(TubeConfig(start_hypotheses=hypotheses), lambda t: score_tube(t, ScoreConfig()).total)
+    def run(hypotheses: int, association: str = TubeConfig.association):
+        cfg = TubeConfig(start_hypotheses=hypotheses, association=association,
+                         gate_jitter_px=0.0 if association == "reference" else TubeConfig.gate_jitter_px)
+        gen = TubeGenerator(cfg, lambda t: score_tube(t, ScoreConfig()).total)
         for k in range(12):
             gen.step(_frame(k, 1.0 * k, [(3.0, 6.0 + 2.4 * k)]))
         return gen.finish()
 
-    assert not run(0), "without the hypotheses no tube starts (the failure this guards)"
+    # the failure this guards, under the REFERENCE association: without the hypotheses no tube starts
+    assert not run(0, "reference")
+    # the innovation association's gate (prediction + observation covariance) reaches it only late
+    late = run(0)
     tubes = run(3)
     assert len(tubes) == 1 and tubes[0].n_inliers >= 9
+    assert all(t.first_frame > tubes[0].first_frame and t.n_inliers < tubes[0].n_inliers for t in late)
     assert tubes[0].frames[-1].velocity_world[2] == pytest.approx(24.0, abs=1.0)
+    assert len(run(3, "reference")) == 1
 
 
 def test_displacement_hypotheses_respect_the_speed_bound_and_the_interval():
