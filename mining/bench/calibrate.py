@@ -28,9 +28,11 @@ likelihood ratio on synthetic truth and chosen by leave-seeds-out cross-validati
 5. **Weights** fit on all training seeds, printed as the TOML table for
    ``score.calibrated."<proposer>"``; the held-out seeds of ``mine eval synthetic`` are the test.
 
-The tubes come from the job's tube generation, whose tube NMS ranks by the job's unary;
-judging them again with the calibrated unary leaves tube NMS as it was (a ``mine eval
-synthetic`` run with the calibrated model ranks with it too).
+The tubes come from the job's tube generation with REFERENCE's unary ranking tube NMS
+(``score.model`` is set to "reference" for it, so a fit never depends on the weights it is to
+replace); judging them again with the calibrated unary leaves tube NMS as it was (a ``mine
+eval synthetic`` run with the calibrated model ranks with it too). "job" in the report is
+REFERENCE's judgement of the same tubes.
 """
 
 from __future__ import annotations
@@ -147,6 +149,9 @@ def run_calibrate_bench(cfg: JobConfig, seeds: Sequence[str], n_frames: int, wor
     t0 = time.perf_counter()
     print(f"calibrate: mining {len(seeds)} seed(s) × {n_frames} frames, proposer {cfg.proposals.proposer}, "
           f"{workers} worker(s)")
+    # the tubes come from REFERENCE's unary (it ranks tube NMS), so the fit never depends on the weights it replaces
+    cfg = copy.deepcopy(cfg)
+    cfg.score.model = "reference"
     jobs = [(s, n_frames, cfg) for s in seeds]
     if workers > 1:
         with ProcessPoolExecutor(workers) as pool:
@@ -201,7 +206,7 @@ def _print(rows: list[dict], final: dict, cfg: JobConfig, seeds: Sequence[str], 
     keys = ("HOTA", "frame_recall", "known_frame_recall", "unknown_frame_recall", "clutter_share", "selected",
             "known_called_known")
     head = ("AUC",) + keys
-    print(f"\nLeave one seed out (job = the job's own unary and co-selection; calibrated with ε1 = {epsilon1:g}, "
+    print(f"\nLeave one seed out (job = REFERENCE's unary and co-selection on the same tubes; calibrated with ε1 = {epsilon1:g}, "
           f"ε2 = {epsilon2:g}):")
     print(f"  {'held out':8} {'unary':10} " + " ".join(f"{h[:12]:>12}" for h in head))
 
