@@ -91,18 +91,53 @@ def test_neighbour_map_equals_the_definition():
 # -- order ---------------------------------------------------------------------------
 
 def test_a_track_starts_as_soon_as_its_neighbours_are_observed():
-    order, _, _ = drive(Schedule(WINDOWS))
+    order, _, _ = drive(Schedule(WINDOWS, observe_ahead=0))
     assert order == [("observe", A.name), ("observe", B.name), ("track", A.name), ("observe", C.name),
                      ("track", B.name), ("track", C.name), ("finalize", "s")]
 
 
-def test_a_ready_track_goes_before_a_queued_observe():
-    s = Schedule(WINDOWS)
+def test_a_ready_track_goes_before_a_queued_observe_beyond_the_look_ahead():
+    s = Schedule(WINDOWS, observe_ahead=0)
     for _ in range(2):  # A and B observed: A's neighbours are all in, C is still queued
         t = s.next_task()
         s.on_result(t, ok(t))
     assert label(s.next_task()) == ("track", A.name)
     assert label(s.next_task()) == ("observe", C.name)
+
+
+def test_within_the_look_ahead_a_queued_observe_goes_first():
+    s = Schedule(WINDOWS, observe_ahead=1)
+    for _ in range(2):
+        t = s.next_task()
+        s.on_result(t, ok(t))
+    assert label(s.next_task()) == ("observe", C.name)  # one track ready (A): within the look-ahead
+    assert label(s.next_task()) == ("track", A.name)  # nothing left to observe: the track
+
+
+def _makespan(schedule: Schedule, seconds: dict[str, float], workers: int) -> float:
+    """Event simulation: each step takes ``seconds[step]``; a free worker asks for the next task."""
+    t, busy = 0.0, []  # (finish time, task)
+    while schedule.outstanding or busy:
+        while len(busy) < workers and (task := schedule.next_task()) is not None:
+            busy.append((t + seconds[task.step], task))
+        busy.sort(key=lambda x: x[0])
+        t, task = busy.pop(0)
+        schedule.on_result(task, ok(task))
+    return t
+
+
+def test_the_look_ahead_keeps_two_workers_busy_at_the_tail():
+    """Two sequences of two 100-frame windows on two workers, the bench's job, with its step
+    times (observe 41 s, track 16 s a window): tracks-first idles a worker for ~30 s waiting for
+    the second sequence's last observe; with the look-ahead the makespan is the work over two."""
+    windows = [Window("synthetic", s, (a, a + 100), (max(a - 30, 0), min(a + 130, 200)))
+               for s in ("0000", "0001") for a in (0, 100)]
+    seconds = {"observe": 41.0, "track": 16.0, "finalize": 1.5}
+    work = 4 * (41.0 + 16.0) + 2 * 1.5
+    tracks_first = _makespan(Schedule(windows, observe_ahead=0), seconds, 2)
+    ahead = _makespan(Schedule(windows), seconds, 2)
+    assert ahead < tracks_first
+    assert ahead <= 1.05 * work / 2 < 0.95 * tracks_first
 
 
 def test_finalize_only_fills_a_worker_nothing_else_needs():

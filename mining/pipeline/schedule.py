@@ -7,9 +7,14 @@ asks ``next_task()`` while a worker is free and hands each result to ``on_result
   included); its *users* are the windows whose context holds its core. A window is
   tracked once the observe steps of all its neighbours have reported, so tracking
   starts while later windows are still being observed.
-* When a worker is free: tracks first (they write the parts), then observes (tracks
-  wait on them); a sequence's finalize has no dependents, so it fills otherwise idle
-  workers. A sequence is finalized once all its windows are settled.
+* When a worker is free: a ready track (it writes parts and frees caches), except while
+  no more than ``observe_ahead`` tracks are ready and an observe is queued: then the
+  observe, so the next tracks' inputs are under way. Tracks-first alone leaves workers idle
+  at a job's tail (two sequences of two windows on two workers: one worker tracks the first
+  sequence while the other waits for the second's last observe, ~20 % of the wall time;
+  ``mine bench pipeline``); the bound keeps the caches waiting for their tracks to a few
+  windows. A sequence's finalize has no dependents, so it fills otherwise idle workers. A
+  sequence is finalized once all its windows are settled.
 * Resume: windows an earlier run finished (``Resume.done``) are skipped, except a window
   tracked while a neighbour had failed (its context was incomplete) when that neighbour
   runs again: it is tracked again too (its observations are cached), so a repaired job
@@ -85,11 +90,15 @@ def user_map(windows: list[Window], nbrs: Mapping[str, list[Window]]) -> dict[st
     return users
 
 
+OBSERVE_AHEAD = 2  # ours: observes go before ready tracks while at most this many tracks are ready (caches of ~2 windows wait)
+
+
 class Schedule:
     """The windows of a job, what is left to run of them, and in which order."""
 
-    def __init__(self, windows: list[Window], resume: Resume | None = None):
+    def __init__(self, windows: list[Window], resume: Resume | None = None, observe_ahead: int = OBSERVE_AHEAD):
         resume = resume or Resume()
+        self.observe_ahead = observe_ahead
         self.windows = list(windows)
         self.by_seq: dict[str, list[Window]] = defaultdict(list)
         for w in self.windows:
@@ -142,7 +151,7 @@ class Schedule:
 
     def next_task(self) -> Task | None:
         """The task to run next, or None while nothing can start before a result comes."""
-        if self._ready:
+        if self._ready and (len(self._ready) > self.observe_ahead or not self._observe):
             w = self._ready.popleft()
             nb = self.nbrs[w.name]
             return Task("track", w, (w, nb, [self._observed[n.name] for n in nb]))
