@@ -48,17 +48,16 @@ MIN_SIZE_M = 0.05  # ours: extents below 5 cm are depth noise, not shape (log-si
 def frame_evidence(tube: Tube, floor: float) -> np.ndarray:
     """φ_t of each observed frame after the first, (n, len(FEATURES)); the inliers the REFERENCE sums over."""
     inl = [f for f in tube.frames if f.observed][1:]
-    out = np.zeros((len(inl), len(FEATURES)))
-    for r, f in enumerate(inl):
-        size = np.asarray(f.size, np.float64)
-        ln_size = np.log(np.clip(np.where(np.isfinite(size), size, MIN_SIZE_M), MIN_SIZE_M, None))
-        known = 0.0
-        if f.posterior is not None and f.class_weight > 0:
-            known = float(np.clip(1.0 - f.posterior[UNKNOWN_CLASS], 0.0, 1.0))
-        out[r] = (1.0, *np.log(np.clip(np.nan_to_num([f.mask_iou, f.motion_density, f.objectness], nan=floor),
-                                       floor, None)),
-                  *ln_size, *ln_size ** 2, known)
-    return out
+    n = len(inl)
+    if not n:
+        return np.zeros((0, len(FEATURES)))
+    terms = np.array([(f.mask_iou, f.motion_density, f.objectness) for f in inl], np.float64)
+    ln_terms = np.log(np.clip(np.nan_to_num(terms, nan=floor), floor, None))
+    size = np.array([f.size for f in inl], np.float64).reshape(n, 3)
+    ln_size = np.log(np.clip(np.where(np.isfinite(size), size, MIN_SIZE_M), MIN_SIZE_M, None))
+    known = np.array([float(np.clip(1.0 - f.posterior[UNKNOWN_CLASS], 0.0, 1.0))
+                      if f.posterior is not None and f.class_weight > 0 else 0.0 for f in inl])
+    return np.column_stack([np.ones(n), ln_terms, ln_size, ln_size ** 2, known])
 
 
 def tube_evidence(tube: Tube, floor: float) -> np.ndarray:
