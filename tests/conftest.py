@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import threading
 import urllib.error
 import urllib.request
@@ -25,6 +26,14 @@ os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
 # collection): every Ray a test starts in this process listens on loopback only, as
 # `mine submit` does (mining/pipeline/localray.py). Subprocesses of `mine` get it from there.
 os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
+
+# A suite started in the background by a non-interactive shell (`scripts/test.sh &`, nohup) starts
+# with SIGINT ignored, and every command a test starts would inherit that: the tests of Ctrl-C
+# (`mine submit`, `mine view`) then meet commands that cannot be interrupted (two full runs failed
+# so; a terminal's foreground run passed). The tests play a terminal's Ctrl-C, so SIGINT is restored
+# to Python's default here; children get the OS default after exec.
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def _require(path: Path) -> Path:
