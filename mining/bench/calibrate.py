@@ -46,6 +46,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy.optimize import minimize
+from scipy.stats import rankdata
 
 from mining.bench.synthetic import run_synthetic
 from mining.config import JobConfig, validate
@@ -102,17 +103,7 @@ def roc_auc(score: np.ndarray, y: np.ndarray) -> float:
     n1, n0 = int(y.sum()), int((~y).sum())
     if not n1 or not n0:
         return float("nan")
-    ranks = np.empty(len(score))
-    order = np.argsort(score, kind="mergesort")
-    srt = score[order]
-    # average ranks over ties
-    i = 0
-    while i < len(srt):
-        j = i
-        while j + 1 < len(srt) and srt[j + 1] == srt[i]:
-            j += 1
-        ranks[order[i:j + 1]] = (i + j) / 2.0 + 1.0
-        i = j + 1
+    ranks = rankdata(score)  # average ranks over ties
     return float((ranks[y].sum() - n1 * (n1 + 1) / 2.0) / (n1 * n0))
 
 

@@ -32,10 +32,10 @@ def unary(cfg: JobConfig, proposer: str | None = None) -> Callable[[Tube], TubeS
 def judge(tubes: list[Tube], cfg: JobConfig, proposer: str | None = None) -> list[MinedTube]:
     """Each tube's unary score and category, and the co-selection over all of them (with the
     calibrated unary, at its own price and overlap weight ``select.epsilon1/2_calibrated``)."""
-    score = unary(cfg, proposer)
-    scores = [score(t) for t in tubes]
+    weights = unary_weights(cfg.score, proposer or cfg.proposals.proposer)
+    scores = [score_tube(t, cfg.score, weights) for t in tubes]
     select = cfg.select
-    if unary_weights(cfg.score, proposer or cfg.proposals.proposer) is not None:
+    if weights is not None:
         select = dataclasses.replace(select, epsilon1=select.epsilon1_calibrated, epsilon2=select.epsilon2_calibrated)
     selected = co_select(tubes, np.array([s.total for s in scores]), select)
     return [MinedTube(t, s, tube_category(t, cfg.score.known_log_margin, cfg.score.min_class_evidence), bool(m))
