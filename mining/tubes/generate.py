@@ -80,6 +80,7 @@ class LiveTube:
     points: MaskPoints  # 3D points of the last observed mask (world), warped to predict the next
     last_observed_t_ns: int
     gap: int = 0  # frames since the last observation
+    start: tuple[int, int, bool] | None = None  # (frame, observation, True) it was replayed from with its own motion
 
 
 class TubeGenerator:
@@ -96,6 +97,7 @@ class TubeGenerator:
         self.ended: list[Tube] = []
         self.history: deque[WorldObservations] = deque(maxlen=cfg.backward_steps)
         self.next_id = first_id
+        self._nms_ious: dict[tuple[int, int], dict[int, float]] = {}  # tube NMS: (id, id) → frame → mask IoU
 
     # --- per frame -------------------------------------------------------------------
 
@@ -280,7 +282,7 @@ class TubeGenerator:
         found += self._start_from_displacements(world, everyone, cands[[s is not None for s in starts]], past, taken)
         new: list[LiveTube] = []
         # Candidates whose probes end at the same inlier replay to the same tube: replay once.
-        replayed: dict[tuple[int, int, bool], LiveTube | None] = {}
+        replayed = self._known_replays()
         for w0, j0, motion in found:
             key = (w0.frame.index, j0, motion is None)
             seen = key in replayed
@@ -290,10 +292,17 @@ class TubeGenerator:
             if tube is None or self._duplicate(tube.tube, [t.tube for t in self.live + new]):
                 continue
             tube = copy.deepcopy(tube) if seen else tube
+            tube.start = key if motion is None else None
             tube.tube.tube_id = self.next_id
             self.next_id += 1
             new.append(tube)
         self.live.extend(new)
+
+    def _known_replays(self) -> dict[tuple[int, int, bool], LiveTube | None]:
+        """Replays already made: a replay from an observation's own motion is deterministic,
+        so one from where a live tube started is that tube again, a duplicate (None: not
+        replayed at all; most starts under a permissive gate are such duplicates)."""
+        return {t.start: None for t in self.live if t.start is not None}
 
     def _probe_one(self, world: WorldObservations, j: int, past: list[WorldObservations],
                    box_only: bool) -> tuple[WorldObservations, int] | None:
@@ -438,6 +447,18 @@ class TubeGenerator:
 
     # --- end and NMS -----------------------------------------------------------------
 
+    def _pair_ious(self, a: Tube, b: Tube, ma: dict[int, TubeFrame], mb: dict[int, TubeFrame],
+                   common: list[int]) -> list[float]:
+        """Mask IoU of two live tubes in each common frame. A live tube's frames never change
+        once appended, so each frame's IoU is computed once (NMS runs every frame)."""
+        key = (min(a.tube_id, b.tube_id), max(a.tube_id, b.tube_id))
+        known = self._nms_ious.setdefault(key, {})
+        new = [f for f in common if f not in known]
+        if new:
+            ious = mask_iou([ma[f].rle for f in new], [mb[f].rle for f in new]).diagonal()
+            known.update(zip(new, ious.tolist()))
+        return [known[f] for f in common]
+
     def _end(self, live: LiveTube) -> None:
         """The tube ends at its last observation; its tracking state goes."""
         live.tube.trim()
@@ -469,16 +490,18 @@ class TubeGenerator:
                 if min(la, lb) / max(la, lb) < self.cfg.nms_length_ratio:
                     continue
                 common = sorted(set(maps[a.tube_id]) & set(maps[b.tube_id]))
-                if not common:
+                # IoU ≤ 1 a frame: too few common frames can never reach the overlap
+                if len(common) / max(la, lb) <= self.cfg.nms_overlap:
                     continue
                 ma, mb = maps[a.tube_id], maps[b.tube_id]
                 boxes_a = np.array([ma[f].box for f in common])
                 boxes_b = np.array([mb[f].box for f in common])
                 if not (paired_box_iou(boxes_a, boxes_b) > 0).any():
                     continue
-                ious = [mask_iou([ma[f].rle], [mb[f].rle])[0, 0] for f in common]
-                if sum(ious) / max(la, lb) > self.cfg.nms_overlap:
+                if sum(self._pair_ious(a, b, ma, mb, common)) / max(la, lb) > self.cfg.nms_overlap:
                     suppressed.add(b.tube_id)
+        live = {t.tube.tube_id for t in self.live} - suppressed
+        self._nms_ious = {k: v for k, v in self._nms_ious.items() if k[0] in live and k[1] in live}
         if suppressed:
             for t in self.live:
                 if t.tube.tube_id in suppressed:
