@@ -16,6 +16,7 @@ from mining.score.unary import score_tube, unary_weights
 from mining.select.coselect import co_select
 from mining.tubes.category import tube_category
 from mining.tubes.generate import TubeGenerator
+from mining.tubes.link import link_fragments
 from mining.types import MinedTube, TrackingFrame, Tube, TubeScore
 
 
@@ -49,9 +50,19 @@ def tube_generator(cfg: JobConfig, first_id: int = 0, proposer: str | None = Non
 
 
 def mine_tubes(frames: Iterable[TrackingFrame], cfg: JobConfig, first_id: int = 0,
-               proposer: str | None = None) -> list[MinedTube]:
-    """Generate tubes over frames given in time order, then judge them (``proposer``: see ``unary``)."""
+               proposer: str | None = None, link: bool = True) -> list[MinedTube]:
+    """Generate tubes over frames given in time order, link fragments (``link``: off for a
+    window, whose tubes the stitcher links), then judge them (``proposer``: see ``unary``)."""
     gen = tube_generator(cfg, first_id, proposer)
     for frame in frames:
         gen.step(frame)
-    return judge(gen.finish(), cfg, proposer)
+    tubes = gen.finish()
+    return judge(with_links(tubes, cfg) if link else tubes, cfg, proposer)
+
+
+def with_links(tubes: list[Tube], cfg: JobConfig) -> list[Tube]:
+    """The tubes and, after them, the joined tube of every chain of fragments of one object
+    (``mining.tubes.link``; none with ``tubes.link_fragments`` off). Ids continue after the
+    largest given; a sequence's whole set of tubes, never a window's."""
+    first_id = max((t.tube_id for t in tubes), default=-1) + 1
+    return tubes + [joined for joined, _ in link_fragments(tubes, cfg.tubes, first_id)]

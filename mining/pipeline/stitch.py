@@ -30,6 +30,7 @@ from mining.catalog.schema import file_schema
 from mining.config import JobConfig
 from mining.pipeline.frames import chain
 from mining.pipeline.mine import judge
+from mining.tubes.link import link_fragments
 from mining.types import Tube, Window
 
 
@@ -149,13 +150,18 @@ def stitch_sequence(windows: list[Window], tubes: pa.Table, tube_frames: pa.Tabl
             rows.pop(0)
         if not rows:
             continue  # owned by no window's core: a neighbour's tube seen from the context
-        windows_of.append(len({r["window"] for r in rows}))
+        windows_of.append({r["window"] for r in rows})
         tframes = [part_tube_frame(r, poses.pose[r["frame"]]) for r in rows]
         tubes.append(Tube(tube_id=0, segment=poses.segment[rows[0]["frame"]], frames=tframes))
     # Judged again (score, category, co-selection) over the whole sequence's stitched tubes:
     # a window chose among tubes cut at its context's ends, whose scores (sums over frames)
     # were cut with them.
-    stitched = list(zip(judge(tubes, cfg), windows_of))
+    # Fragments of one object are linked here, over the sequence (``mining.tubes.link``), so
+    # where window borders fell does not matter.
+    for joined, parts in link_fragments(tubes, cfg.tubes, first_id=1):
+        tubes.append(joined)
+        windows_of.append(set().union(*(windows_of[i] for i in parts)))
+    stitched = list(zip(judge(tubes, cfg), (len(w) for w in windows_of)))
     # Stable ids: the first inlier names the tube; ties (one observation can start several) by inliers.
     stitched.sort(key=lambda x: (x[0].tube.inlier_key(), -x[0].score.total))
     used: dict[str, int] = defaultdict(int)

@@ -98,8 +98,9 @@ def chain_poses(frames: list[ObservedFrame]) -> list[tuple[np.ndarray, int]]:
 
 
 def track_window(frames: list[ObservedFrame], cfg: JobConfig) -> list[MinedTube]:
-    """Tubes, scores and co-selection over a window's context frames (in plan order)."""
+    """Tubes, scores and co-selection over a window's context frames (in plan order); no
+    linking of fragments, which the stitcher does over the whole sequence."""
     poses = chain_poses(frames)
     tracking = (TrackingFrame(f.index, f.t_ns, f.calib, pose, segment, f.observations, None)
                 for f, (pose, segment) in zip(frames, poses))
-    return mine_tubes(tracking, cfg)
+    return mine_tubes(tracking, cfg, link=False)  # fragments are linked over the stitched sequence

@@ -48,6 +48,7 @@ either side of it.
 from __future__ import annotations
 
 import copy
+import dataclasses
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -57,8 +58,8 @@ import numpy as np
 from mining.boxes import box_ioa, jittered_box_gates, paired_box_iou
 from mining.masks import areas, mask_ioa, mask_iou
 from mining.tubes.config import TubeConfig
-from mining.tubes.gating import GROUND, best_pairs
-from mining.tubes.kalman import POS, SIZE, TubeFilter, prior_velocity_cov
+from mining.tubes.gating import GROUND, best_pairs, mahalanobis2
+from mining.tubes.kalman import POS, SIZE, TubeFilter, predict_states, prior_velocity_cov
 from mining.tubes.probe import displacement_hypotheses, probe_back
 from mining.tubes.warp import MaskPoints, predict_box, predict_mask
 from mining.tubes.world import WorldObservations
@@ -80,7 +81,22 @@ class LiveTube:
     points: MaskPoints  # 3D points of the last observed mask (world), warped to predict the next
     last_observed_t_ns: int
     gap: int = 0  # frames since the last observation
+    at_last_observation: tuple[np.ndarray, np.ndarray] | None = None  # the filter's (x, P) just after it
     start: tuple[int, int, bool] | None = None  # (frame, observation, True) it was replayed from with its own motion
+
+
+def _last_observed(tube: Tube) -> TubeFrame:
+    return next(f for f in reversed(tube.frames) if f.observed)
+
+
+def _predicted_frame(x: np.ndarray, frame: TrackingFrame, pred: Prediction) -> TubeFrame:
+    """A frame of a tube without an observation: the filter's state and the predicted mask."""
+    R, t = frame.pose[:3, :3], frame.pose[:3, 3]
+    return TubeFrame(
+        frame=frame.index, t_ns=frame.t_ns, observed=False, obs_index=-1, rle=pred.rle, box=pred.box,
+        footpoint_world=x[POS].copy(), velocity_world=np.array([x[3], 0.0, x[4]]), size=x[SIZE].copy(),
+        position_cam=(x[POS] - t) @ R, objectness=np.nan, mask_iou=np.nan, motion_density=np.nan,
+    )
 
 
 class TubeGenerator:
@@ -98,6 +114,8 @@ class TubeGenerator:
         self.history: deque[WorldObservations] = deque(maxlen=cfg.backward_steps)
         self.next_id = first_id
         self._nms_ious: dict[tuple[int, int], dict[int, float]] = {}  # tube NMS: (id, id) → frame → mask IoU
+        self.dormant: list[LiveTube] = []  # ended by a gap, waiting ``join_max_gap_s`` for a tube that continues them
+        self.recent: deque[TrackingFrame] = deque()  # the frames a join may fill a gap over
 
     # --- per frame -------------------------------------------------------------------
 
@@ -106,10 +124,12 @@ class TubeGenerator:
         if self.history and self.history[-1].frame.segment != frame.segment:
             self._end_all("segment")
             self.history.clear()
+            self.recent.clear()
         taken = self._extend(world) if self.history else set()
         self._start(world, taken)
         self._tube_nms()
         self.history.append(world)
+        self._forget(frame)
 
     def finish(self) -> list[Tube]:
         self._end_all("sequence end")
@@ -144,7 +164,10 @@ class TubeGenerator:
                 self._miss(tube, world, pred)
                 if tube.gap > self._gap_limit(tube):
                     tube.tube.end_reason = "gap"
-                    self._end(tube)
+                    if self.cfg.join_max_gap_s > 0:
+                        self.dormant.append(tube)
+                    else:
+                        self._end(tube)
                     continue
             keep.append(tube)
         self.live = keep
@@ -178,7 +201,17 @@ class TubeGenerator:
     def _gap_limit(self, tube: LiveTube) -> int:
         return min(self.cfg.max_gap_frames, max(1, round(self.cfg.gap_inlier_factor * tube.tube.n_inliers)))
 
-    def _associate(self, tubes: list[LiveTube], preds: list[Prediction], world: WorldObservations):
+    def _gap_jitter(self, tube: LiveTube, frame: TrackingFrame) -> float:
+        """Pixels of jitter a prediction over a gap tolerates: the gate's own plus the
+        predicted footpoint's lateral standard deviation seen in the image."""
+        R, t = frame.pose[:3, :3], frame.pose[:3, 3]
+        cam = (tube.kf.x[POS] - t) @ R
+        cov = R.T @ tube.kf.P[POS, POS] @ R
+        sigma_px = frame.calib.fx * np.sqrt(max(cov[0, 0], 0.0)) / max(cam[2], self.cfg.min_depth_m)
+        return self.cfg.gate_jitter_px + self.cfg.join_gate_sigmas * sigma_px
+
+    def _associate(self, tubes: list[LiveTube], preds: list[Prediction], world: WorldObservations,
+                   jitter_px: float | None = None):
         """Best gated observation per tube (−1: none) and its (mask IoU, density)."""
         T, N = len(tubes), len(world)
         choice = np.full(T, -1, np.int64)
@@ -187,8 +220,8 @@ class TubeGenerator:
             return choice, terms
         obs = world.frame.observations
         pboxes = np.array([p.box for p in preds], np.float64)
-        gate = jittered_box_gates(pboxes, world.boxes, self.cfg.gate_box_iou, self.cfg.gate_size_similarity,
-                                  self.cfg.gate_jitter_px)
+        cfg = self.cfg if jitter_px is None else dataclasses.replace(self.cfg, gate_jitter_px=jitter_px)
+        gate = jittered_box_gates(pboxes, world.boxes, cfg.gate_box_iou, cfg.gate_size_similarity, cfg.gate_jitter_px)
         gate &= world.usable[None, :]
         r, c = np.nonzero(gate)
         if r.size == 0:
@@ -202,7 +235,7 @@ class TubeGenerator:
         mean = np.array([t.kf.x[POS] for t in tubes])
         pos_cov = np.array([t.kf.P[POS, POS] for t in tubes])
         took, j, iou, dens = best_pairs(r, c, iou, mean[r], pos_cov[r], world.footpoint[c], world.covariance[c],
-                                        self.cfg, pred_box=pboxes[r])
+                                        cfg, pred_box=pboxes[r])
         choice[took] = j
         for i, a, d in zip(took, iou, dens):
             terms[i] = (float(a), float(d))
@@ -217,17 +250,11 @@ class TubeGenerator:
             tube.last_observed_t_ns = frame.t_ns
         tube.gap = 0
         tube.tube.frames.append(self._tube_frame(tube, frame, j, iou, dens))
+        tube.at_last_observation = (tube.kf.x.copy(), tube.kf.P.copy())
 
     def _miss(self, tube: LiveTube, world: WorldObservations, pred: Prediction) -> None:
-        frame = world.frame
-        R, t = frame.pose[:3, :3], frame.pose[:3, 3]
-        x = tube.kf.x
         tube.gap += 1
-        tube.tube.frames.append(TubeFrame(
-            frame=frame.index, t_ns=frame.t_ns, observed=False, obs_index=-1, rle=pred.rle, box=pred.box,
-            footpoint_world=x[POS].copy(), velocity_world=np.array([x[3], 0.0, x[4]]), size=x[SIZE].copy(),
-            position_cam=(x[POS] - t) @ R, objectness=np.nan, mask_iou=np.nan, motion_density=np.nan,
-        ))
+        tube.tube.frames.append(_predicted_frame(tube.kf.x, world.frame, pred))
 
     def _tube_frame(self, tube: LiveTube, frame: TrackingFrame, j: int, iou: float, dens: float) -> TubeFrame:
         obs = frame.observations
@@ -263,6 +290,7 @@ class TubeGenerator:
                         self.cfg.kalman, frame.pose[:3, :3])
         tube = LiveTube(Tube(tube_id=-1, segment=frame.segment), kf, pts, frame.t_ns)
         tube.tube.frames.append(self._tube_frame(tube, frame, j, np.nan, np.nan))
+        tube.at_last_observation = (kf.x.copy(), kf.P.copy())
         return tube
 
     def _start(self, world: WorldObservations, taken: set[int]) -> None:
@@ -293,8 +321,9 @@ class TubeGenerator:
                 continue
             tube = copy.deepcopy(tube) if seen else tube
             tube.start = key if motion is None else None
-            tube.tube.tube_id = self.next_id
-            self.next_id += 1
+            if not self._join(tube, w0):
+                tube.tube.tube_id = self.next_id
+                self.next_id += 1
             new.append(tube)
         self.live.extend(new)
 
@@ -445,6 +474,95 @@ class TubeGenerator:
                 return True
         return False
 
+    # --- joining fragments ----------------------------------------------------------
+
+    def _join(self, tube: LiveTube, w0: WorldObservations) -> bool:
+        """Continue a dormant tube (ended by a gap) with a new one, ``tube``, starting at
+        ``w0``: True if joined (``tube`` then carries the dormant tube's id and frames).
+
+        A fragment of a far or small object ends when its proposals drop out for a few
+        frames; a new tube starts once the object is proposed again. The dormant tube's
+        filter, rewound to its last observation, predicts across the gap (the predicted
+        frames fill it, as ``_miss`` would have) to ``w0``, and the extension's own gates
+        and association rule must pick the new tube's first observation as the dormant
+        tube's best one there: the same test as any frame's association, over a longer
+        prediction whose covariance has grown with it. The new tube was confirmed by its
+        own back-step inliers, so a join never rests on one observation. Of several
+        dormant tubes the one whose warped mask agrees best (mask IoU) wins.
+        """
+        first = tube.tube.frames[0]
+        best, best_iou = None, -np.inf
+        for k in self._may_join(tube.tube, w0):
+            dormant = self.dormant[k]
+            last = _last_observed(dormant.tube)
+            probe = LiveTube(dormant.tube, dormant.kf.copy(), dormant.points, dormant.last_observed_t_ns)
+            probe.kf.kf.x, probe.kf.kf.P = (a.copy() for a in dormant.at_last_observation)
+            states, t_prev = [], last.t_ns  # the gap's frames and filter means: masks only for the chosen join
+            for frame in (f for f in self.recent if last.frame < f.index < first.frame):
+                probe.kf.predict((frame.t_ns - t_prev) / 1e9)
+                t_prev = frame.t_ns
+                states.append((frame, probe.kf.x.copy()))
+            probe.kf.predict((first.t_ns - t_prev) / 1e9)
+            pred = self._predict(probe, w0.frame)
+            if pred is None:
+                continue
+            choice, terms = self._associate([probe], [pred], w0, self._gap_jitter(probe, w0.frame))
+            if choice[0] == first.obs_index and terms[0][0] > best_iou:
+                best, best_iou = (k, probe, states, terms[0]), terms[0][0]
+        if best is None:
+            return False
+        k, probe, states, (iou, dens) = best
+        gap = []
+        for frame, x in states:
+            probe.kf.kf.x = x
+            pred = self._predict(probe, frame)
+            if pred is None:
+                return False  # the prediction left the image during the gap: nothing to fill it with
+            gap.append(_predicted_frame(x, frame, pred))
+        dormant = self.dormant.pop(k)
+        frames = [f for f in dormant.tube.frames if f.frame <= _last_observed(dormant.tube).frame]
+        joined = dataclasses.replace(first, mask_iou=iou, motion_density=dens)  # scored as an association
+        tube.tube.frames = frames + gap + [joined] + tube.tube.frames[1:]
+        tube.tube.tube_id = dormant.tube.tube_id
+        return True
+
+    def _may_join(self, tube: Tube, w0: WorldObservations) -> list[int]:
+        """Dormant tubes ``tube`` may continue: in its segment, last observed before its
+        first frame and at most ``join_max_gap_s`` before, and its first footpoint within
+        twice the Mahalanobis gate of their filters predicted in one step (a cheap
+        pre-check on arrays: ``_join`` then predicts frame by frame and gates in full)."""
+        first = tube.frames[0]
+        idx, states = [], []
+        for k, dormant in enumerate(self.dormant):
+            last = _last_observed(dormant.tube)
+            if (dormant.tube.segment == tube.segment and last.frame < first.frame
+                    and (first.t_ns - last.t_ns) / 1e9 <= self.cfg.join_max_gap_s):
+                idx.append(k)
+                states.append((*dormant.at_last_observation, (first.t_ns - last.t_ns) / 1e9))
+        if not idx:
+            return []
+        predicted = [predict_states(s[0][None], s[1][None], s[2], self.cfg.kalman) for s in states]
+        x, P = np.concatenate([p[0] for p in predicted]), np.concatenate([p[1] for p in predicted])
+        j = first.obs_index
+        m2 = mahalanobis2(np.repeat(w0.footpoint[[j]], len(idx), axis=0), x[:, POS],
+                          P[:, POS][:, :, POS] + w0.covariance[j][None])
+        return [k for k, d2 in zip(idx, m2) if d2 < 4 * self.cfg.gate_mahalanobis**2]
+
+    def _forget(self, frame: TrackingFrame) -> None:
+        """End dormant tubes no longer joinable; keep the frames a join may still fill."""
+        horizon = frame.t_ns - self.cfg.join_max_gap_s * 1e9
+        keep = []
+        for dormant in self.dormant:
+            if _last_observed(dormant.tube).t_ns < horizon:
+                self._end(dormant)
+            else:
+                keep.append(dormant)
+        self.dormant = keep
+        if self.cfg.join_max_gap_s > 0:
+            self.recent.append(frame)
+        while self.recent and self.recent[0].t_ns < horizon:
+            self.recent.popleft()
+
     # --- end and NMS -----------------------------------------------------------------
 
     def _pair_ious(self, a: Tube, b: Tube, ma: dict[int, TubeFrame], mb: dict[int, TubeFrame],
@@ -466,10 +584,10 @@ class TubeGenerator:
             self.ended.append(live.tube)
 
     def _end_all(self, reason: str) -> None:
-        for live in self.live:
+        for live in self.dormant + self.live:
             live.tube.end_reason = live.tube.end_reason or reason
             self._end(live)
-        self.live = []
+        self.live, self.dormant = [], []
 
     def _tube_nms(self) -> None:
         """Suppress the weaker of two old tubes that cover the same masks (REFERENCE.md)."""
