@@ -52,22 +52,22 @@ def _toml(options: dict) -> str:
 TARGETS = [
     pytest.param("barriers", HALF, "unknown", [("tracks", ge, 4), ("tube_recall", ge, 0.5)],
                  id="barriers-mined-as-unknown-objects",
-                 marks=pytest.mark.xfail(strict=True, reason="issue 18: measured unknown tube recall 0.00 (0 of 7 "
-                                         "barriers; the stereo proposer proposes 19 % of barrier detections, none "
-                                         "beyond 20 m)")),
+                 marks=pytest.mark.xfail(strict=True, reason="issue 18: measured unknown tube recall 0.00, frame "
+                                         "recall 0.05 (0 of 7 barriers; the stereo proposer proposes 19 % of barrier "
+                                         "detections, none beyond 20 m; 2026-12-02)")),
     pytest.param("verge", HALF, "tubes", [("evaluated", gt, 0), ("clutter_share", le, 0.25)],
                  id="verge-hedge-fence-grass-not-selected",
-                 marks=pytest.mark.xfail(strict=True, reason="issue 18: measured clutter 74 % of the selected tubes "
-                                         "(14 of 19, hedge, fence and grass called unknown)")),
+                 marks=pytest.mark.xfail(strict=True, reason="issue 18: measured clutter 29 % of the selected tubes "
+                                         "(2 of 7; 74 % before the calibrated unary; 2026-12-02)")),
     pytest.param("parkedpair", HALF, "known", [("tracks", ge, 4), ("tube_recall", ge, 0.9)],
                  id="parkedpair-far-cars-each-one-tube",
                  marks=pytest.mark.xfail(strict=True, reason="issue 18: measured known tube recall 0.67 (4 of 6 "
-                                         "parked cars at 35–55 m)")),
+                                         "parked cars at 35–55 m; frame recall 0.69; 2026-12-02)")),
     # full size: at half size the pieces are under the 100-pixel evaluation floor
     pytest.param("debris", None, "unknown", [("tracks", ge, 2), ("tube_recall", ge, 0.5)],
                  id="debris-seen-for-a-few-frames-is-mined",
-                 marks=pytest.mark.xfail(strict=True, reason="issue 18: measured unknown tube recall 0.00 (debris in "
-                                         "view 5–8 frames is not mined)")),
+                 marks=pytest.mark.xfail(strict=True, reason="issue 18: measured unknown tube recall 0.00, frame "
+                                         "recall 0.00 (debris in view 5–8 frames is not mined; 2026-12-02)")),
 ]
 
 
