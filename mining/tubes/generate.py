@@ -594,30 +594,39 @@ class TubeGenerator:
         old = [t.tube for t in self.live if len(t.tube.frames) > self.cfg.nms_min_age]
         if len(old) < 2:
             return
-        scores = {t.tube_id: self.nms_score(t) for t in old}
-        old.sort(key=lambda t: -scores[t.tube_id])
+        # Pairs that could suppress, on arrays first: lengths in ratio, and enough frames in
+        # common (their spans' overlap bounds them) to reach the overlap with IoU ≤ 1 a frame.
+        first = np.array([t.first_frame for t in old])
+        last = np.array([t.last_frame for t in old])
+        inl = np.array([t.n_inliers for t in old], np.float64)
+        longer = np.maximum(inl[:, None], inl[None, :])
+        span = np.minimum(last[:, None], last[None, :]) - np.maximum(first[:, None], first[None, :]) + 1
+        may = ((np.minimum(inl[:, None], inl[None, :]) / longer >= self.cfg.nms_length_ratio)
+               & (np.clip(span, 0, None) / longer > self.cfg.nms_overlap))
+        np.fill_diagonal(may, False)
         suppressed: set[int] = set()
-        maps = {t.tube_id: t.frame_map() for t in old}
-        for a_i, a in enumerate(old):
-            if a.tube_id in suppressed:
-                continue
-            for b in old[a_i + 1:]:
-                if b.tube_id in suppressed:
+        if may.any():
+            index = {t.tube_id: k for k, t in enumerate(old)}
+            scores = {t.tube_id: self.nms_score(t) for t in old}
+            old.sort(key=lambda t: -scores[t.tube_id])
+            maps = {t.tube_id: t.frame_map() for t in old}
+            for a_i, a in enumerate(old):
+                if a.tube_id in suppressed or not may[index[a.tube_id]].any():
                     continue
-                la, lb = a.n_inliers, b.n_inliers
-                if min(la, lb) / max(la, lb) < self.cfg.nms_length_ratio:
-                    continue
-                common = sorted(set(maps[a.tube_id]) & set(maps[b.tube_id]))
-                # IoU ≤ 1 a frame: too few common frames can never reach the overlap
-                if len(common) / max(la, lb) <= self.cfg.nms_overlap:
-                    continue
-                ma, mb = maps[a.tube_id], maps[b.tube_id]
-                boxes_a = np.array([ma[f].box for f in common])
-                boxes_b = np.array([mb[f].box for f in common])
-                if not (paired_box_iou(boxes_a, boxes_b) > 0).any():
-                    continue
-                if sum(self._pair_ious(a, b, ma, mb, common)) / max(la, lb) > self.cfg.nms_overlap:
-                    suppressed.add(b.tube_id)
+                for b in old[a_i + 1:]:
+                    if b.tube_id in suppressed or not may[index[a.tube_id], index[b.tube_id]]:
+                        continue
+                    la, lb = a.n_inliers, b.n_inliers
+                    common = sorted(set(maps[a.tube_id]) & set(maps[b.tube_id]))
+                    if len(common) / max(la, lb) <= self.cfg.nms_overlap:
+                        continue
+                    ma, mb = maps[a.tube_id], maps[b.tube_id]
+                    boxes_a = np.array([ma[f].box for f in common])
+                    boxes_b = np.array([mb[f].box for f in common])
+                    if not (paired_box_iou(boxes_a, boxes_b) > 0).any():
+                        continue
+                    if sum(self._pair_ious(a, b, ma, mb, common)) / max(la, lb) > self.cfg.nms_overlap:
+                        suppressed.add(b.tube_id)
         live = {t.tube.tube_id for t in self.live} - suppressed
         self._nms_ious = {k: v for k, v in self._nms_ious.items() if k[0] in live and k[1] in live}
         if suppressed:
