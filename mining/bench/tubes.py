@@ -19,7 +19,7 @@ import numpy as np
 from mining.bench.geometry import pin_one_core
 from mining.config import JobConfig
 from mining.pipeline.frames import FrameLoop, plan_geometry
-from mining.pipeline.mine import judge, tube_generator
+from mining.pipeline.mine import judge, tube_generator, with_links
 from mining.proposals.precomputed import JsonProposals
 from mining.sources import open_source
 
@@ -55,11 +55,11 @@ def bench_setting(geoms, proposals: JsonProposals, limit: int | None, cfg: JobCo
         t_loc += t1 - t0
         t_tube += t2 - t1
     t0 = time.process_time()
-    tubes = gen.finish()
+    tubes = with_links(gen.finish(), cfg)
     mined = judge(tubes, cfg)
     t1 = time.process_time()
     n = len(geoms)
-    # judge = score (sums over inliers) + category + co-selection
+    # judge = link fragments + score (sums over inliers) + category + co-selection
     ms = {"localise": 1e3 * t_loc / n, "tubes": 1e3 * t_tube / n, "judge": 1e3 * (t1 - t0) / n}
     ms["total"] = sum(ms.values())
     ms["proposals_per_frame"] = float(np.mean(counts))
