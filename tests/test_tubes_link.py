@@ -137,6 +137,12 @@ def test_linked_fragments_agree_and_hand_over_once(parked_pair):
     for k in links:
         a, b = tubes[k.a], tubes[k.b]
         assert b.first_frame > a.first_frame and b.last_frame > a.last_frame
+        oa = {f.frame: f.rle for f in a.frames if f.observed}
+        ob = {f.frame: f.rle for f in b.frames if f.observed}
+        common = sorted(set(oa) & set(ob))
+        ious = mask_iou([oa[f] for f in common], [ob[f] for f in common]).diagonal()
+        assert len(common) == k.common and np.mean(ious > cfg.tubes.link_mask_iou) >= cfg.tubes.link_agree_share
+        assert k.handover == common[-1]
         joined = join_chain(tubes, [k])
         frames_of = [f.frame for f in joined.frames]
         assert frames_of == sorted(set(frames_of))  # each frame once, in order

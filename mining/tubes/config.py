@@ -57,11 +57,12 @@ class TubeConfig:
     max_gap_frames: int = 5  # REFERENCE: gap limit min(5, max(1, round(0.2 × inliers)))
     gap_inlier_factor: float = 0.2  # REFERENCE: gap limit min(5, max(1, round(0.2 × inliers)))
     # Joining fragments (issue 18): a tube ended by a gap waits this long for a new tube that continues it.
-    join_gate_sigmas: float = 1.0  # ours: over a gap the IoU gates tolerate gate_jitter_px + this many σ of the predicted footpoint's lateral position in pixels (a 3-frame-old prediction drifts tens of px at 40 m); training seeds 0004–0006: 0 / 1 / 2 σ HOTA 0.465,0.538,0.499 / 0.470,0.542,0.501 / 0.467,0.541,0.498
+    join_gate_sigmas: float = 1.0  # ours: over a gap the IoU gates tolerate gate_jitter_px + this many σ of the predicted footpoint's lateral position in pixels (a 3-frame-old prediction drifts tens of px at 40 m); training seeds 0004–0006 (joining only): 0 / 1 / 2 σ HOTA 0.465,0.538,0.499 / 0.470,0.542,0.501 / 0.467,0.541,0.498
     join_max_gap_s: float = 1.0  # ours: a confirmed new tube (3 back-step inliers) whose first observation is the ended tube's best gated one, predicted over ≤ 1 s (10 KITTI frames), continues it; 0 = REFERENCE (no joining)
     # Linking fragments of one object before selection (issue 18; mining/tubes/link.py).
     link_fragments: bool = True  # ours: add the joined tube of every chain of fragments as a candidate; False = REFERENCE (none)
     link_mask_iou: Fraction = 0.5  # REFERENCE's mask gate (> 0.5), applied to every frame two fragments both observed
+    link_agree_share: Fraction = 0.5  # ours: share of the frames both fragments observed whose masks agree; training seeds 0004–0006 HOTA with all (1.0) 0.476/0.550/0.509, with half 0.483/0.554/0.509
     link_min_common: Count = 1  # ours: frames both fragments observed (and agree in) before they are one object
     # Tube NMS.
     nms_min_age: int = 4  # REFERENCE: tube NMS on tubes older than 4 frames

@@ -9,13 +9,15 @@ the candidate tubes on one object one after another, about three in four overlap
 before in time; one in four starts after a gap).
 
 Two tubes are **fragments of one object** when one continues the other in time and, in
-every frame both observed, their masks agree: mask IoU ≥ ``link_mask_iou`` (REFERENCE's
-association gate: the same test a tube's own next mask must pass), in at least
-``link_min_common`` such frames. The earlier tube (A) hands over to the later (B) at the
+at least ``link_agree_share`` of the frames both observed (and at least ``link_min_common``
+of them), their masks agree: mask IoU > ``link_mask_iou`` (REFERENCE's association gate:
+the same test a tube's own next mask must pass). Not every common frame: two proposals of
+one object (a detector's mask and a stereo segment) disagree in a frame where one of them
+spills over or is cut. The earlier tube (A) hands over to the later (B) at the
 last frame both observed: the joined tube is A up to that frame and B after it, so every
 frame keeps the evidence one tube's own filter gave it. Links are one-to-one (each tube
-has at most one successor and one predecessor: the candidate with the most agreeing
-frames, then the higher mean IoU), and chains of links are joined into one tube.
+has at most one successor and one predecessor: the candidate with the most frames in
+common, then the higher mean IoU), and chains of links are joined into one tube.
 
 The joined tube is **added** as a candidate beside its fragments: co-selection's overlap
 term then keeps either the joined tube or fragments of it, by their scores, so a wrong
@@ -45,13 +47,13 @@ class Link:
     a: int
     b: int
     handover: int
-    agreeing: int  # frames both observed with masks agreeing
+    common: int  # frames both observed
     mean_iou: float
 
 
 def candidate_links(tubes: Sequence[Tube], cfg: TubeConfig) -> list[Link]:
-    """Every pair of tubes where the later continues the earlier and their common observed
-    frames all agree (see the module docstring)."""
+    """Every pair of tubes where the later continues the earlier and their masks agree in
+    enough of the frames both observed (see the module docstring)."""
     observed = [{f.frame: f for f in t.frames if f.observed} for t in tubes]
     spans = np.array([(t.first_frame, max(observed[i]) if observed[i] else t.first_frame)
                       for i, t in enumerate(tubes)], np.int64).reshape(-1, 2)
@@ -73,7 +75,7 @@ def candidate_links(tubes: Sequence[Tube], cfg: TubeConfig) -> list[Link]:
             if (np.minimum(boxes_a[:, 2:], boxes_b[:, 2:]) <= np.maximum(boxes_a[:, :2], boxes_b[:, :2])).any():
                 continue  # disjoint boxes in a common frame: masks cannot agree there
             ious = mask_iou([observed[a][f].rle for f in common], [observed[b][f].rle for f in common]).diagonal()
-            if (ious < cfg.link_mask_iou).any():
+            if np.mean(ious > cfg.link_mask_iou) < cfg.link_agree_share:
                 continue
             links.append(Link(int(a), int(b), common[-1], len(common), float(ious.mean())))
     return links
@@ -81,9 +83,9 @@ def candidate_links(tubes: Sequence[Tube], cfg: TubeConfig) -> list[Link]:
 
 def one_to_one(links: list[Link]) -> list[Link]:
     """Each tube keeps at most one successor and one predecessor: the links with the most
-    agreeing frames first (then the higher mean IoU, then the earlier pair)."""
+    frames in common first (then the higher mean IoU, then the earlier pair)."""
     chosen, has_next, has_prev = [], set(), set()
-    for link in sorted(links, key=lambda k: (-k.agreeing, -k.mean_iou, k.a, k.b)):
+    for link in sorted(links, key=lambda k: (-k.common, -k.mean_iou, k.a, k.b)):
         if link.a in has_next or link.b in has_prev:
             continue
         chosen.append(link)
