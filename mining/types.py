@@ -441,6 +441,11 @@ class Tube:
     def last_frame(self) -> int:
         return self.frames[-1].frame
 
+    @property
+    def last_inlier(self) -> TubeFrame:
+        """The last observed frame (every tube has one: a tube starts at an observation)."""
+        return next(f for f in reversed(self.frames) if f.observed)
+
     def frame_map(self) -> dict[int, TubeFrame]:
         return {f.frame: f for f in self.frames}
 

@@ -85,10 +85,6 @@ class LiveTube:
     start: tuple[int, int, bool] | None = None  # (frame, observation, True) it was replayed from with its own motion
 
 
-def _last_observed(tube: Tube) -> TubeFrame:
-    return next(f for f in reversed(tube.frames) if f.observed)
-
-
 def _predicted_frame(x: np.ndarray, frame: TrackingFrame, pred: Prediction) -> TubeFrame:
     """A frame of a tube without an observation: the filter's state and the predicted mask."""
     R, t = frame.pose[:3, :3], frame.pose[:3, 3]
@@ -494,7 +490,7 @@ class TubeGenerator:
         best, best_iou = None, -np.inf
         for k in self._may_join(tube.tube, w0):
             dormant = self.dormant[k]
-            last = _last_observed(dormant.tube)
+            last = dormant.tube.last_inlier
             probe = LiveTube(dormant.tube, dormant.kf.copy(), dormant.points, dormant.last_observed_t_ns)
             probe.kf.kf.x, probe.kf.kf.P = (a.copy() for a in dormant.at_last_observation)
             states, t_prev = [], last.t_ns  # the gap's frames and filter means: masks only for the chosen join
@@ -520,9 +516,9 @@ class TubeGenerator:
                 return False  # the prediction left the image during the gap: nothing to fill it with
             gap.append(_predicted_frame(x, frame, pred))
         dormant = self.dormant.pop(k)
-        frames = [f for f in dormant.tube.frames if f.frame <= _last_observed(dormant.tube).frame]
+        dormant.tube.trim()  # its predicted frames after the last observation: the gap replaces them
         joined = dataclasses.replace(first, mask_iou=iou, motion_density=dens)  # scored as an association
-        tube.tube.frames = frames + gap + [joined] + tube.tube.frames[1:]
+        tube.tube.frames = dormant.tube.frames + gap + [joined] + tube.tube.frames[1:]
         tube.tube.tube_id = dormant.tube.tube_id
         return True
 
@@ -532,17 +528,18 @@ class TubeGenerator:
         twice the Mahalanobis gate of their filters predicted in one step (a cheap
         pre-check on arrays: ``_join`` then predicts frame by frame and gates in full)."""
         first = tube.frames[0]
-        idx, states = [], []
+        idx, xs, Ps = [], [], []
         for k, dormant in enumerate(self.dormant):
-            last = _last_observed(dormant.tube)
-            if (dormant.tube.segment == tube.segment and last.frame < first.frame
-                    and (first.t_ns - last.t_ns) / 1e9 <= self.cfg.join_max_gap_s):
+            last = dormant.tube.last_inlier
+            dt = (first.t_ns - last.t_ns) / 1e9
+            if dormant.tube.segment == tube.segment and last.frame < first.frame and dt <= self.cfg.join_max_gap_s:
+                x, P = predict_states(*(a[None] for a in dormant.at_last_observation), dt, self.cfg.kalman)
                 idx.append(k)
-                states.append((*dormant.at_last_observation, (first.t_ns - last.t_ns) / 1e9))
+                xs.append(x[0])
+                Ps.append(P[0])
         if not idx:
             return []
-        predicted = [predict_states(s[0][None], s[1][None], s[2], self.cfg.kalman) for s in states]
-        x, P = np.concatenate([p[0] for p in predicted]), np.concatenate([p[1] for p in predicted])
+        x, P = np.array(xs), np.array(Ps)
         j = first.obs_index
         m2 = mahalanobis2(np.repeat(w0.footpoint[[j]], len(idx), axis=0), x[:, POS],
                           P[:, POS][:, :, POS] + w0.covariance[j][None])
@@ -553,7 +550,7 @@ class TubeGenerator:
         horizon = frame.t_ns - self.cfg.join_max_gap_s * 1e9
         keep = []
         for dormant in self.dormant:
-            if _last_observed(dormant.tube).t_ns < horizon:
+            if dormant.tube.last_inlier.t_ns < horizon:
                 self._end(dormant)
             else:
                 keep.append(dormant)

@@ -55,8 +55,7 @@ def candidate_links(tubes: Sequence[Tube], cfg: TubeConfig) -> list[Link]:
     """Every pair of tubes where the later continues the earlier and their masks agree in
     enough of the frames both observed (see the module docstring)."""
     observed = [{f.frame: f for f in t.frames if f.observed} for t in tubes]
-    spans = np.array([(t.first_frame, max(observed[i]) if observed[i] else t.first_frame)
-                      for i, t in enumerate(tubes)], np.int64).reshape(-1, 2)
+    spans = np.array([(t.first_frame, t.last_inlier.frame) for t in tubes], np.int64).reshape(-1, 2)
     links = []
     order = np.argsort(spans[:, 0], kind="stable")
     for ia, a in enumerate(order):
