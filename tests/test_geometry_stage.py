@@ -148,3 +148,28 @@ def test_stage_rejects_wrong_image_shape(tracking_run):
     stage = GeometryStage(f.calib)
     with pytest.raises(InputError):
         stage.run(StereoFrame(f.dataset, f.sequence, f.index, f.t_ns, f.left[:-1], f.right[:-1], f.calib))
+
+
+def test_exact_depth_is_the_synthetic_truth_and_refused_without_it(tracking_run):
+    """``geometry.stereo.exact_depth`` (an instrument for the recall funnel) takes the renderer's
+    depth instead of matching; a frame without it (every real source) is an error naming the frame."""
+    import dataclasses
+
+    from mining.sources import open_source
+
+    src = open_source("synthetic", None, n_frames=2)
+    frame = next(iter(src.read(src.plan("0000"), 0, 1)))
+    cfg = GeometryConfig()
+    cfg.stereo.exact_depth = True
+    g = GeometryStage(frame.calib, cfg).run(frame)
+    truth = frame.truth.depth
+    near = np.isfinite(truth) & (truth <= cfg.stereo.max_depth_m)
+    np.testing.assert_allclose(g.depth[near], truth[near], rtol=1e-5)
+    assert np.isnan(g.depth[~near]).all()
+    assert g.ground.ok  # the ground plane comes from the exact disparity too
+    real, _ = tracking_run
+    with pytest.raises(InputError, match=r"exact_depth.*synthetic only.*none") as err:
+        GeometryStage(real[0].calib, cfg).run(real[0])
+    assert err.value.frame == real[0].index
+    with pytest.raises(InputError, match="exact_depth"):
+        GeometryStage(frame.calib, cfg).run(dataclasses.replace(frame, truth=None, index=frame.index + 1))

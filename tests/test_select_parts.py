@@ -145,6 +145,35 @@ def test_min_gate_still_leaves_out_boxes_that_barely_meet():
     assert pairwise_overlap([a, b], 0.1, "min")[0, 1] == 0.0
 
 
+def test_overlap_floor_frees_neighbours_whose_masks_bleed_into_each_other():
+    """Two cars nose to tail at range, each mask fattened into the other (stereo edges): IoU
+    0.12 a frame. At the calibrated price (ε1 0, ε2 3) the weaker one's score over 10 frames
+    (3.0) is below the charge (3 × 1.23), so REFERENCE's Σ IoU drops it; with the floor
+    (0.15: what two distinct objects' masks share, ``select.overlap_floor``) both are kept,
+    and a duplicate (IoU ≈ 0.9 a frame) still loses."""
+    near = _tube(0, _moving(100, 110, 220, 190))
+    far = _tube(1, _moving(190, 100, 300, 175))  # 30 × 65 px in common: IoU 1950 / 15900
+    dup = _tube(2, _moving(102, 111, 222, 191))
+    scores = np.array([6.0, 3.0, 5.0])
+    ref = SelectConfig(epsilon1=0.0, epsilon2=3.0)
+    floored = SelectConfig(epsilon1=0.0, epsilon2=3.0, overlap_floor=0.15)
+    assert pairwise_overlap([near, far], 0.1)[0, 1] == pytest.approx(10 * 1950 / 15900)
+    assert pairwise_overlap([near, far], 0.1, floor=0.15)[0, 1] == 0.0
+    iou_dup = pairwise_overlap([near, dup], 0.1)[0, 1]
+    assert pairwise_overlap([near, dup], 0.1, floor=0.15)[0, 1] == pytest.approx((iou_dup - 1.5) / 0.85)
+    assert co_select([near, far], scores[:2], ref).tolist() == [True, False]
+    assert co_select([near, far], scores[:2], floored).tolist() == [True, True]
+    assert co_select([near, far, dup], scores, floored).tolist() == [True, True, False]
+
+
+def test_overlap_floor_of_one_is_refused():
+    from mining.config import load_config
+    from mining.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="overlap_floor"):
+        load_config(None, ["select.overlap_floor=1.0"])
+
+
 def test_unknown_overlap_is_refused():
     from mining.errors import ConfigError
 

@@ -26,6 +26,11 @@ class StereoConfig:
     downscale: Count = 2  # ours: 2 = match at half resolution (≈5× faster than full, abs-rel +0.003 on KITTI raw); 1 = full
     pad_left: bool = True  # ours: pad the left border so its first num_disparities columns get matched
     max_depth_m: Positive = 90.0  # REFERENCE: points beyond 90 m depth are ignored
+    # ours, an instrument, never a mining setting: take the synthetic source's exact depth instead of
+    # matching (`mine eval synthetic --set geometry.stereo.exact_depth=true`), so the recall funnel
+    # separates what stereo depth loses from what proposals, tubes and selection lose. A frame
+    # without exact depth (every real source) is an error, not a fallback to matching.
+    exact_depth: bool = False
 
 
 @dataclass

@@ -45,12 +45,28 @@ class GeometryStage:
         if self._prev_index is not None and frame.index <= self._prev_index:
             raise InputError(f"frames out of order: {frame.index} after {self._prev_index}", f"{frame.dataset}/{frame.sequence}", frame.index)
 
+    def _exact_disparity(self, frame: StereoFrame) -> np.ndarray:
+        """The disparity of the source's exact depth (``stereo.exact_depth``); NaN where nothing was hit."""
+        truth = frame.truth
+        if truth is None or truth.depth.shape != (self.calib.height, self.calib.width):
+            raise InputError("geometry.stereo.exact_depth needs the source's exact depth (synthetic only); this frame has "
+                             + ("none" if truth is None else f"a {truth.depth.shape} depth map"),
+                             f"{frame.dataset}/{frame.sequence}", frame.index)
+        z = truth.depth.astype(np.float32)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            d = np.float32(self.calib.bf) / z
+        d[~(z > 0)] = np.nan
+        return d
+
     def run(self, frame: StereoFrame) -> FrameGeometry:
         self._check(frame)
         cfg, calib, timings = self.cfg, self.calib, {}
 
         t0 = time.perf_counter()
-        disparity = self.matcher.compute(frame.left, frame.right)
+        if cfg.stereo.exact_depth:
+            disparity = self._exact_disparity(frame)
+        else:
+            disparity = self.matcher.compute(frame.left, frame.right)
         depth = calib.depth_from_disparity(disparity)
         depth[depth > cfg.stereo.max_depth_m] = np.nan  # REFERENCE: beyond 90 m is ignored
         t1 = time.perf_counter()

@@ -30,6 +30,7 @@ class SelectConfig:
     window_frames: Count = 100  # REFERENCE/paper: batches of 100 frames (original: ±50 frames around each frame)
     box_iou_gate: Fraction = 0.1  # REFERENCE: a frame's overlap counts only when the boxes' overlap (IoU; for "min": intersection over the smaller box) exceeds this
     overlap: Annotated[str, OneOf(("iou", "min"))] = "iou"  # "iou" = REFERENCE Σ_t mask IoU; "min" = ours: Σ_t |A∩B| / min(|A|, |B|) (intersection over the smaller mask, the overlap coefficient), so a part inside another tube costs as much as a duplicate
+    overlap_floor: Annotated[float, Range(0, 0.99)] = 0.0  # ours: a frame's overlap up to this costs nothing (what two distinct objects' masks share at occlusion boundaries), then rises linearly to 1 at full overlap; 0 = REFERENCE
 
     # --- the original's greedy multi-branch search (Schindler et al. ECCV 2006)
     # The first two branch widths narrow as the problem grows: problems with fewer than

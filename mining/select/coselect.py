@@ -35,7 +35,7 @@ OVERLAPS = ("iou", "min")  # the pairwise measures SelectConfig.overlap names (R
 
 
 def _frame_overlaps(
-    boxes: np.ndarray, rles: list[dict], gate_at: float, overlap: str
+    boxes: np.ndarray, rles: list[dict], gate_at: float, overlap: str, floor: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The gated pairs (a, b) of one frame's tube frames and their mask overlap, both orders.
 
@@ -55,13 +55,23 @@ def _frame_overlaps(
     here = [rles[r] for r in rows]
     values = mask_iou(here, here) if overlap == "iou" else mask_overlap_min(here, here)
     a, b = np.nonzero(gate[np.ix_(rows, rows)])
-    return rows[a], rows[b], values[a, b]
+    return rows[a], rows[b], above_floor(values[a, b], floor)
 
 
-def overlap_pairs(tubes: list[Tube], box_iou_gate: float, overlap: str = "iou") -> csr_matrix:
+def above_floor(values: np.ndarray, floor: float) -> np.ndarray:
+    """Per-frame overlaps with the share two distinct objects' masks have in common taken
+    off: 0 up to ``floor``, rising linearly to 1 at full overlap; ``floor`` 0 leaves them."""
+    if floor <= 0.0:
+        return values
+    if floor >= 1.0:
+        raise ConfigError(f"select.overlap_floor must be below 1, got {floor}")
+    return np.clip((values - floor) / (1.0 - floor), 0.0, None)
+
+
+def overlap_pairs(tubes: list[Tube], box_iou_gate: float, overlap: str = "iou", floor: float = 0.0) -> csr_matrix:
     """Sparse symmetric (N, N) Σ_t o_t over common frames, zero diagonal; o per ``overlap``
     ("iou": mask IoU gated by box IoU; "min": intersection over the smaller mask gated by
-    intersection over the smaller box; module docstring).
+    intersection over the smaller box; ``floor``: ``above_floor``; module docstring).
 
     Sparse because tubes overlap only near in time: a sequence of thousands of tubes has
     few overlapping pairs, and a dense N × N matrix would not fit.
@@ -79,7 +89,7 @@ def overlap_pairs(tubes: list[Tube], box_iou_gate: float, overlap: str = "iou") 
             continue
         idx = np.array([i for i, _ in entries])
         a, b, v = _frame_overlaps(np.array([f.box for _, f in entries]), [f.rle for _, f in entries],
-                                  box_iou_gate, overlap)
+                                  box_iou_gate, overlap, floor)
         rows_.append(idx[a])
         cols_.append(idx[b])
         vals_.append(v)
@@ -92,9 +102,9 @@ def overlap_pairs(tubes: list[Tube], box_iou_gate: float, overlap: str = "iou") 
     return m
 
 
-def pairwise_overlap(tubes: list[Tube], box_iou_gate: float, overlap: str = "iou") -> np.ndarray:
+def pairwise_overlap(tubes: list[Tube], box_iou_gate: float, overlap: str = "iou", floor: float = 0.0) -> np.ndarray:
     """(N, N) dense symmetric Σ_t o_t over common frames, zero diagonal (``overlap_pairs``)."""
-    return overlap_pairs(tubes, box_iou_gate, overlap).toarray()
+    return overlap_pairs(tubes, box_iou_gate, overlap, floor).toarray()
 
 
 def co_select(tubes: list[Tube], scores: np.ndarray, cfg: SelectConfig) -> np.ndarray:
@@ -107,7 +117,7 @@ def co_select(tubes: list[Tube], scores: np.ndarray, cfg: SelectConfig) -> np.nd
     if not n:
         return np.zeros(0, bool)
     scores = np.asarray(scores, np.float64)
-    overlap = overlap_pairs(tubes, cfg.box_iou_gate, cfg.overlap)
+    overlap = overlap_pairs(tubes, cfg.box_iou_gate, cfg.overlap, cfg.overlap_floor)
     if n <= DENSE_MAX:  # small: one dense QUBO (the solver splits it into groups itself)
         dense = overlap.toarray()
         return np.asarray(solve(build_qubo(scores, 0.5 * (dense + dense.T), cfg), cfg)[0], bool)
