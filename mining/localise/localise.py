@@ -119,6 +119,8 @@ def localise(
     pts32 = pts[keep].astype(np.float32)
     for i in masks:
         points[i] = pts32[kept[i]:kept[i + 1]]
+    if cfg.point_depth_outlier_units > 0:
+        points = [at_median_depth(p, calib, cfg) for p in points]
     obs = _observations(proposals, t_ns, position, size, velocity, n_points, calib, ground, cfg)
     obs.points, obs.grid = points, grid
     return obs
@@ -154,6 +156,32 @@ def _velocities(seg: np.ndarray, rows: np.ndarray, cols: np.ndarray, n: int, flo
         v = motion[np.lexsort((motion[:, c], owner)), c]
         velocity[enough, c] = (v[first + (m - 1) // 2] + v[first + m // 2]) / 2 / dt_s
     return velocity
+
+
+def at_median_depth(points: np.ndarray, calib: StereoCalib, cfg: LocaliseConfig) -> np.ndarray:
+    """A mask's warp points with each outlier moved along its viewing ray to the mask's median depth.
+
+    An outlier lies more than ``point_depth_outlier_units`` robust units from the points'
+    median: per axis, 1.4826 × the median absolute deviation, floored by the stereo noise
+    of a point at the median. Such a pixel belongs to the mask but its depth is not the
+    object's (an occluder in front of it, stereo bleeding across the object's border):
+    dropping it shrinks the predicted mask below the masks it is compared with, while
+    warping it at its own depth sends it tens of pixels away when the camera moves (a
+    person at 29 m with 5 % of its pixels at 8 m: a 16 px box predicted 45 px wide one
+    frame back). Keeping the pixel at the object's depth moves it with the object.
+    """
+    if len(points) < 4:
+        return points
+    p = points.astype(np.float64)
+    med = np.median(p, axis=0)
+    mad = 1.4826 * np.median(np.abs(p - med), axis=0)
+    noise = np.sqrt(np.diagonal(triangulation_covariance(med[None], calib, cfg)[0]))
+    d2 = np.square((p - med) / np.maximum(mad, noise)).sum(axis=1)
+    out = d2 > cfg.point_depth_outlier_units**2
+    if not out.any() or out.sum() > len(p) - 3:
+        return points
+    p[out] *= (med[2] / p[out, 2])[:, None]  # the same pixel (x/z, y/z kept), at the median depth
+    return p.astype(points.dtype)
 
 
 def _inliers(points: np.ndarray, median: np.ndarray, bounds: np.ndarray, masks: np.ndarray,
