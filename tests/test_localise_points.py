@@ -18,7 +18,7 @@ from mining.boxes import box_iou
 from mining.config import load_config
 from mining.eval.synthetic import gt_frame
 from mining.localise.config import LocaliseConfig
-from mining.localise.localise import at_median_depth
+from mining.localise.localise import at_median_depth, triangulation_covariance
 from mining.masks import mask_iou
 from mining.pipeline.frames import FrameLoop
 from mining.sources import open_source
@@ -79,7 +79,8 @@ def test_a_moved_point_keeps_its_pixel():
     z = np.r_[rng.normal(30.0, 0.3, 200), [8.0, 8.2]]
     u, v = rng.uniform(300, 330, z.size), rng.uniform(150, 200, z.size)
     pts = calib.backproject(u, v, z).astype(np.float32)
-    out = at_median_depth(pts, calib, LocaliseConfig())
+    noise_z = float(np.sqrt(triangulation_covariance(np.median(pts, axis=0)[None], calib, LocaliseConfig())[0, 2, 2]))
+    out = at_median_depth(pts, noise_z, LocaliseConfig().point_depth_outlier_units)
     np.testing.assert_allclose(out[:200], pts[:200])  # inliers untouched
     assert np.all(np.abs(out[200:, 2] - np.median(pts[:, 2])) < 1e-3)
     np.testing.assert_allclose(calib.project(out[200:].astype(np.float64)), np.c_[u, v][200:], atol=1e-3)

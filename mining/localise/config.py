@@ -24,9 +24,9 @@ class LocaliseConfig:
     max_size_m: Positive = 4.0  # REFERENCE: sizes ≤ 4 m
     max_points: Count = 1000  # ours: mask pixels sampled per proposal on a regular grid (median and warping need no more)
     point_outlier_mahalanobis: float = 10.0  # REFERENCE: mask points beyond 10 Mahalanobis units from the median are dropped before warping
-    # ours: of the points left, one this many robust units (1.4826 MAD per axis, floored by the stereo noise) from
-    # the mask's median takes the median depth on its own pixel (``at_median_depth``); 0 = REFERENCE (warped at its
-    # own depth). Training seeds 0004–0006, onnx+stereo, HOTA 0.483/0.554/0.509 → 3: 0.487/0.557/0.509,
-    # 5: 0.491/0.554/0.514, 8: 0.490/0.553/0.509
+    # ours: of the points left, one whose depth lies this many robust units (1.4826 MAD, floored by the stereo depth
+    # noise) from the mask's median depth takes the median depth on its own pixel (``at_median_depth``); 0 = REFERENCE
+    # (warped at its own depth). Training seeds 0004–0006, onnx+stereo, HOTA 0.483/0.554/0.509 → 3: 0.487/0.554/0.512,
+    # 5: 0.490/0.554/0.512 (all three axes instead of depth alone, 5: 0.491/0.554/0.514, 2× the time)
     point_depth_outlier_units: float = 5.0
     size_percentiles: Annotated[tuple[float, float], Range(0, 100)] = (5.0, 95.0)  # ours: robust extent of the mask's points

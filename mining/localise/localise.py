@@ -11,6 +11,8 @@ the footpoint is the box's bottom centre; the covariance follows the same stereo
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from mining.localise.config import LocaliseConfig
@@ -119,8 +121,10 @@ def localise(
     pts32 = pts[keep].astype(np.float32)
     for i in masks:
         points[i] = pts32[kept[i]:kept[i + 1]]
-    if cfg.point_depth_outlier_units > 0:
-        points = [at_median_depth(p, calib, cfg) for p in points]
+    if cfg.point_depth_outlier_units > 0 and masks.size:
+        noise_z = np.sqrt(triangulation_covariance(position[masks], calib, cfg)[:, 2, 2])
+        for i, sd in zip(masks, noise_z):
+            points[i] = at_median_depth(points[i], float(sd), cfg.point_depth_outlier_units)
     obs = _observations(proposals, t_ns, position, size, velocity, n_points, calib, ground, cfg)
     obs.points, obs.grid = points, grid
     return obs
@@ -158,12 +162,12 @@ def _velocities(seg: np.ndarray, rows: np.ndarray, cols: np.ndarray, n: int, flo
     return velocity
 
 
-def at_median_depth(points: np.ndarray, calib: StereoCalib, cfg: LocaliseConfig) -> np.ndarray:
-    """A mask's warp points with each outlier moved along its viewing ray to the mask's median depth.
+def at_median_depth(points: np.ndarray, noise_z: float, units: float) -> np.ndarray:
+    """A mask's warp points with each depth outlier moved along its viewing ray to the mask's median depth.
 
-    An outlier lies more than ``point_depth_outlier_units`` robust units from the points'
-    median: per axis, 1.4826 × the median absolute deviation, floored by the stereo noise
-    of a point at the median. Such a pixel belongs to the mask but its depth is not the
+    A depth outlier lies more than ``units`` robust units from the points' median depth:
+    1.4826 × the median absolute deviation, floored by ``noise_z`` (the stereo depth noise
+    std at the mask's position). Such a pixel belongs to the mask but its depth is not the
     object's (an occluder in front of it, stereo bleeding across the object's border):
     dropping it shrinks the predicted mask below the masks it is compared with, while
     warping it at its own depth sends it tens of pixels away when the camera moves (a
@@ -172,16 +176,17 @@ def at_median_depth(points: np.ndarray, calib: StereoCalib, cfg: LocaliseConfig)
     """
     if len(points) < 4:
         return points
-    p = points.astype(np.float64)
-    med = np.median(p, axis=0)
-    mad = 1.4826 * np.median(np.abs(p - med), axis=0)
-    noise = np.sqrt(np.diagonal(triangulation_covariance(med[None], calib, cfg)[0]))
-    d2 = np.square((p - med) / np.maximum(mad, noise)).sum(axis=1)
-    out = d2 > cfg.point_depth_outlier_units**2
-    if not out.any() or out.sum() > len(p) - 3:
+    z = points[:, 2]
+    med = float(np.median(z))
+    dev = np.abs(z - med)
+    if dev.max() <= units * noise_z:
+        return points  # within the noise floor: no point can be an outlier
+    out = dev > units * max(1.4826 * float(np.median(dev)), noise_z)
+    if not out.any() or out.sum() > len(points) - 3:
         return points
-    p[out] *= (med[2] / p[out, 2])[:, None]  # the same pixel (x/z, y/z kept), at the median depth
-    return p.astype(points.dtype)
+    moved = points.copy()
+    moved[out] *= (med / z[out])[:, None]  # the same pixel (x/z, y/z kept), at the median depth
+    return moved
 
 
 def _inliers(points: np.ndarray, median: np.ndarray, bounds: np.ndarray, masks: np.ndarray,
