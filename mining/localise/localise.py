@@ -121,11 +121,10 @@ def localise(
     pts32 = pts[keep].astype(np.float32)
     for i in masks:
         points[i] = pts32[kept[i]:kept[i + 1]]
-    if cfg.point_depth_outlier_units > 0 and masks.size:
-        noise_z = np.sqrt(triangulation_covariance(position[masks], calib, cfg)[:, 2, 2])
-        for i, sd in zip(masks, noise_z):
-            points[i] = at_median_depth(points[i], float(sd), cfg.point_depth_outlier_units)
     obs = _observations(proposals, t_ns, position, size, velocity, n_points, calib, ground, cfg)
+    if cfg.point_depth_outlier_units > 0:  # the depth noise floor: the triangulation covariance just computed
+        for i in masks:
+            points[i] = at_median_depth(points[i], math.sqrt(obs.covariance[i, 2, 2]), cfg.point_depth_outlier_units)
     obs.points, obs.grid = points, grid
     return obs
 

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mining.boxes import paired_box_iou
 from mining.masks import mask_iou
 from mining.tubes.config import TubeConfig
 from mining.types import Tube
@@ -71,7 +72,7 @@ def candidate_links(tubes: Sequence[Tube], cfg: TubeConfig) -> list[Link]:
                 continue
             boxes_a = np.array([observed[a][f].box for f in common])
             boxes_b = np.array([observed[b][f].box for f in common])
-            if (np.minimum(boxes_a[:, 2:], boxes_b[:, 2:]) <= np.maximum(boxes_a[:, :2], boxes_b[:, :2])).any():
+            if (paired_box_iou(boxes_a, boxes_b) <= 0).any():
                 continue  # disjoint boxes in a common frame: masks cannot agree there
             ious = mask_iou([observed[a][f].rle for f in common], [observed[b][f].rle for f in common]).diagonal()
             if np.mean(ious > cfg.link_mask_iou) < cfg.link_agree_share:
