@@ -101,6 +101,17 @@ def box_gates(pred: np.ndarray, obs: np.ndarray, min_iou: float, min_similarity:
     return ok & (_size_ratios(pw, ph, ow, oh) > min_similarity)
 
 
+def cut_at_sides(obs: np.ndarray, pred: np.ndarray, sides: np.ndarray) -> np.ndarray:
+    """Boxes ``obs`` (N, 4) cut at the sides of one box ``pred`` (4,) marked in ``sides``
+    (4,) bool, x1, y1, x2, y2: the part of each that lies on ``pred``'s side of them. A
+    box that lies beyond such a side becomes empty (x2 ≤ x1 or y2 ≤ y1)."""
+    out = np.array(obs, np.float64).reshape(-1, 4)
+    lo, hi = sides[:2], sides[2:]
+    out[:, :2][:, lo] = np.maximum(out[:, :2][:, lo], pred[:2][lo])
+    out[:, 2:][:, hi] = np.minimum(out[:, 2:][:, hi], pred[2:][hi])
+    return out
+
+
 def shifted_iou(w: np.ndarray, h: np.ndarray, delta: float) -> np.ndarray:
     """IoU of a ``w`` × ``h`` box with itself shifted by ``delta`` pixels in x and in y:
     (w−δ)(h−δ) / (2wh − (w−δ)(h−δ)), in [0, 1].

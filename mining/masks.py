@@ -143,6 +143,12 @@ def box_rle(box: np.ndarray, height: int, width: int) -> dict:
     return crop_rle(np.ones((y2 - y1, x2 - x1), bool), x1, y1, height, width)
 
 
+def clip_rle(rle: dict, box: np.ndarray) -> dict:
+    """The part of mask ``rle`` inside ``box`` (x1, y1, x2, y2; clipped to the frame)."""
+    h, w = (int(x) for x in rle["size"])
+    return mask_utils.merge([rle, box_rle(box, h, w)], intersect=True)
+
+
 def areas(rles: list[dict]) -> np.ndarray:
     """Mask areas; chunked because pycocotools 2.0.11 overflows on more than 255 RLEs."""
     out = np.zeros(len(rles), np.int64)

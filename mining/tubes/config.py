@@ -48,6 +48,8 @@ class TubeConfig:
     start_hypotheses: int = 3  # ours: velocity hypotheses (displacements to the frame before) per observation the own-motion start missed; 0 = none
     start_part_ioa: Fraction = 0.5  # ours: a mask at least half inside one a tube took is part of a tracked object: no displacement hypotheses
     start_max_speed_mps: Positive = 40.0  # ours: fastest object a displacement hypothesis may start (144 km/h on a motorway)
+    view_edges: bool = True  # ours: an observed box side at the image border is where the view ends, not the object's edge: predictions from its mask's points compare later observations only up to that side (an object entering or leaving the view); False = REFERENCE (whole masks compared)
+    view_edge_px: float = 2.0  # ours: a box side within this many px of the image border is a view edge (±1 px of mask-boundary quantisation, as gate_jitter_px)
     probe_with_boxes: bool = True  # ours: the backward probe gates on warped boxes (box IoU for mask IoU); the forward replay uses masks
     duplicate_box_iou: Fraction = 0.9  # REFERENCE: new tubes with the same inliers and box IoU ≥ 0.9 throughout are dropped
     # End.

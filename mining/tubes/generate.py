@@ -55,8 +55,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mining.boxes import box_ioa, jittered_box_gates, paired_box_iou
-from mining.masks import areas, mask_ioa, mask_iou
+from mining.boxes import box_ioa, cut_at_sides, jittered_box_gates, paired_box_iou
+from mining.masks import areas, clip_rle, mask_ioa, mask_iou
 from mining.tubes.config import TubeConfig
 from mining.tubes.gating import GROUND, best_pairs, mahalanobis2
 from mining.tubes.kalman import POS, SIZE, TubeFilter, predict_states, prior_velocity_cov
@@ -70,6 +70,7 @@ from mining.types import TrackingFrame, Tube, TubeFrame
 class Prediction:
     rle: dict | None  # None: a box-only prediction
     box: np.ndarray
+    open_sides: np.ndarray | None = None  # sides where the view ended the points (MaskPoints.open_sides)
 
 
 @dataclass
@@ -116,7 +117,7 @@ class TubeGenerator:
     # --- per frame -------------------------------------------------------------------
 
     def step(self, frame: TrackingFrame) -> None:
-        world = WorldObservations.of(frame)
+        world = WorldObservations.of(frame, self.cfg.view_edge_px if self.cfg.view_edges else -1.0)
         if self.history and self.history[-1].frame.segment != frame.segment:
             self._end_all("segment")
             self.history.clear()
@@ -171,11 +172,12 @@ class TubeGenerator:
 
     def _predict(self, tube: LiveTube, frame: TrackingFrame, box_only: bool = False) -> Prediction | None:
         shift = np.array([tube.kf.x[3], 0.0, tube.kf.x[4]]) * (frame.t_ns - tube.last_observed_t_ns) / 1e9
+        sides = tube.points.open_sides
         if box_only:
             box = predict_box(tube.points, shift, frame.pose, frame.calib)
-            return None if box is None else Prediction(None, box)
+            return None if box is None else Prediction(None, box, sides)
         out = predict_mask(tube.points, shift, frame.pose, frame.calib, self.cfg.warp_close_px)
-        return None if out is None else Prediction(*out)
+        return None if out is None else Prediction(*out, sides)
 
     def _left_view(self, tube: LiveTube, pred: Prediction | None, frame: TrackingFrame) -> str:
         if pred is None:
@@ -218,16 +220,31 @@ class TubeGenerator:
         pboxes = np.array([p.box for p in preds], np.float64)
         cfg = self.cfg if jitter_px is None else dataclasses.replace(self.cfg, gate_jitter_px=jitter_px)
         gate = jittered_box_gates(pboxes, world.boxes, cfg.gate_box_iou, cfg.gate_size_similarity, cfg.gate_jitter_px)
+        # A prediction from points the image border cut sees observations only up to that side.
+        cut = {i: cut_at_sides(world.boxes, pboxes[i], p.open_sides) for i, p in enumerate(preds)
+               if p.open_sides is not None and p.open_sides.any()}
+        for i, boxes in cut.items():
+            gate[i] = jittered_box_gates(pboxes[i:i + 1], boxes, cfg.gate_box_iou, cfg.gate_size_similarity,
+                                         cfg.gate_jitter_px)[0]
         gate &= world.usable[None, :]
         r, c = np.nonzero(gate)
         if r.size == 0:
             return choice, terms
         rows, cols = np.unique(r), np.unique(c)
         if all(preds[i].rle is not None for i in rows):
-            ious = mask_iou([preds[i].rle for i in rows], [obs.proposals.rles[j] for j in cols])
+            rles = [obs.proposals.rles[j] for j in cols]
+            ious = mask_iou([preds[i].rle for i in rows], rles)
+            for k, i in enumerate(rows):
+                if i in cut:
+                    view = cut_at_sides(np.array([0.0, 0.0, world.frame.calib.width, world.frame.calib.height]),
+                                        pboxes[i], preds[i].open_sides)[0]
+                    ious[k] = mask_iou([preds[i].rle], [clip_rle(m, view) for m in rles])[0]
             iou = ious[np.searchsorted(rows, r), np.searchsorted(cols, c)]
         else:  # a box-only prediction (the backward probe) is compared by box IoU
-            iou = paired_box_iou(pboxes[r], world.boxes[c])
+            oboxes = world.boxes[c].copy()
+            for i, boxes in cut.items():
+                oboxes[r == i] = boxes[c[r == i]]
+            iou = paired_box_iou(pboxes[r], oboxes)
         mean = np.array([t.kf.x[POS] for t in tubes])
         pos_cov = np.array([t.kf.P[POS, POS] for t in tubes])
         took, j, iou, dens = best_pairs(r, c, iou, mean[r], pos_cov[r], world.footpoint[c], world.covariance[c],

@@ -10,7 +10,7 @@ and the prediction is the box around their projections.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -26,16 +26,30 @@ class MaskPoints:
     points: np.ndarray  # (N, 3) world
     grid: int  # pixel spacing of the sample grid: each point stands for grid × grid pixels
     boxlike: bool  # True: corners of a box (no depth), predict a box
+    # Sides (x1, y1, x2, y2) of the observed box that the image border cut: there the
+    # points end because the view did, not the object (``view_sides``).
+    open_sides: np.ndarray = field(default_factory=lambda: np.zeros(4, bool))
+
+
+def view_sides(box: np.ndarray, calib: StereoCalib, edge_px: float) -> np.ndarray:
+    """(4,) bool: which sides (x1, y1, x2, y2) of ``box`` lie within ``edge_px`` of the
+    image border (none when ``edge_px`` < 0)."""
+    if edge_px < 0:
+        return np.zeros(4, bool)
+    return np.array([box[0] <= edge_px, box[1] <= edge_px,
+                     box[2] >= calib.width - edge_px, box[3] >= calib.height - edge_px])
 
 
 def mask_points(points_cam: np.ndarray | None, grid: int, box: np.ndarray, position_cam: np.ndarray,
-                calib: StereoCalib, pose: np.ndarray) -> MaskPoints | None:
+                calib: StereoCalib, pose: np.ndarray, view_edge_px: float = -1.0) -> MaskPoints | None:
     """World points of an observed mask from its localised 3D points (``points_cam``).
 
     Without points (no depth: detections-only mode) the box's corners at the object's
-    depth stand for the mask.
+    depth stand for the mask. ``view_edge_px`` marks the box's sides at the image border
+    (``view_sides``; < 0: none).
     """
     R, t = pose[:3, :3], pose[:3, 3]
+    sides = view_sides(box, calib, view_edge_px)
     if points_cam is None:
         z = float(position_cam[2])
         if not np.isfinite(z) or z <= 0:
@@ -43,10 +57,10 @@ def mask_points(points_cam: np.ndarray | None, grid: int, box: np.ndarray, posit
         u = np.array([box[0], box[2], box[2], box[0]])
         v = np.array([box[1], box[1], box[3], box[3]])
         cam = calib.backproject(u, v, np.full(4, z))
-        return MaskPoints(cam @ R.T + t, 1, True)
+        return MaskPoints(cam @ R.T + t, 1, True, sides)
     if len(points_cam) < 3:
         return None
-    return MaskPoints(points_cam.astype(np.float64) @ R.T + t, int(grid), False)
+    return MaskPoints(points_cam.astype(np.float64) @ R.T + t, int(grid), False, sides)
 
 
 def predict_box(mp: MaskPoints, shift_world: np.ndarray, pose: np.ndarray, calib: StereoCalib,

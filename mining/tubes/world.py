@@ -19,12 +19,13 @@ class WorldObservations:
     velocity_covariance: np.ndarray  # (N, 3, 3)
     usable: np.ndarray  # (N,) bool: has a footpoint
     boxes: np.ndarray  # (N, 4) float64
+    view_edge_px: float = -1.0  # TubeConfig.view_edge_px: the masks' sides the image border cut (< 0: none)
     # World points of observation j's mask, made on first use: every tube and start
     # candidate that takes j shares them.
     _points: dict[int, MaskPoints | None] = field(default_factory=dict)
 
     @staticmethod
-    def of(frame: TrackingFrame) -> WorldObservations:
+    def of(frame: TrackingFrame, view_edge_px: float = -1.0) -> WorldObservations:
         o = frame.observations
         R, t = frame.pose[:3, :3], frame.pose[:3, 3]
         foot = o.footpoint @ R.T + t
@@ -32,7 +33,7 @@ class WorldObservations:
         vel = o.velocity @ R.T
         vcov = R @ o.velocity_covariance @ R.T
         return WorldObservations(frame, foot, cov, vel, vcov, np.isfinite(foot).all(axis=1),
-                                 np.asarray(o.proposals.boxes, np.float64).reshape(-1, 4))
+                                 np.asarray(o.proposals.boxes, np.float64).reshape(-1, 4), view_edge_px)
 
     def __len__(self) -> int:
         return len(self.footpoint)
@@ -43,7 +44,8 @@ class WorldObservations:
             obs, frame = self.frame.observations, self.frame
             pts = None if obs.points is None else obs.points[j]
             grid = 1 if obs.grid is None else obs.grid[j]
-            self._points[j] = mask_points(pts, grid, obs.proposals.boxes[j], obs.position[j], frame.calib, frame.pose)
+            self._points[j] = mask_points(pts, grid, obs.proposals.boxes[j], obs.position[j], frame.calib, frame.pose,
+                                          self.view_edge_px)
         return self._points[j]
 
     def velocity_or_none(self, j: int) -> tuple[np.ndarray | None, np.ndarray | None]:
