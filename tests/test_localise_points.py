@@ -84,3 +84,13 @@ def test_a_moved_point_keeps_its_pixel():
     np.testing.assert_allclose(out[:200], pts[:200])  # inliers untouched
     assert np.all(np.abs(out[200:, 2] - np.median(pts[:, 2])) < 1e-3)
     np.testing.assert_allclose(calib.project(out[200:].astype(np.float64)), np.c_[u, v][200:], atol=1e-3)
+
+
+def test_velocity_noise_is_the_configured_multiple_of_the_position_covariance(frames):
+    """``localise.velocity_noise_factor`` (REFERENCE: 2) sets the velocity measurement noise."""
+    f17 = frames[1]
+    for factor in (2.0, 7.0):
+        cfg = load_config(None, [f"localise.velocity_noise_factor={factor}"])
+        o = FrameLoop(cfg).step(f17).localised
+        assert len(o.covariance) > 0
+        np.testing.assert_allclose(o.velocity_covariance, factor * o.covariance)

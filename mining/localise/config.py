@@ -21,6 +21,7 @@ class LocaliseConfig:
     prior_var_z: float = 0.18  # REFERENCE: covariance prior, +0.18 on z (m²)
     min_points: Count = 10  # REFERENCE: at least 10 points for a 3D box
     min_flow_samples: Count = 4  # REFERENCE: fewer than 4 flow samples → no velocity measurement
+    velocity_noise_factor: Positive = 2.0  # REFERENCE: velocity measurement noise = 2 × the position covariance
     max_size_m: Positive = 4.0  # REFERENCE: sizes ≤ 4 m
     max_points: Count = 1000  # ours: mask pixels sampled per proposal on a regular grid (median and warping need no more)
     point_outlier_mahalanobis: float = 10.0  # REFERENCE: mask points beyond 10 Mahalanobis units from the median are dropped before warping

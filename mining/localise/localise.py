@@ -213,8 +213,7 @@ def _observations(proposals, t_ns, position, size, velocity, n_points, calib, gr
         foot = project_to_ground(position, ground)
     else:
         foot = np.full_like(position, np.nan)
-    # REFERENCE: velocity measurement noise is 2 × the ground-projected position covariance.
-    vel_cov = 2.0 * cov
+    vel_cov = cfg.velocity_noise_factor * cov
     return Observations(proposals, t_ns, position, cov, foot, velocity, vel_cov, size, n_points)
 
 
@@ -229,7 +228,7 @@ def localise_detections(proposals: Proposals, calib: StereoCalib, t_ns: int, cfg
     foot = position.copy()
     foot[:, 1] += size[:, 1] / 2.0  # y points down: the bottom centre lies half a height below
     velocity = np.full((n, 3), np.nan)
-    return Observations(proposals, t_ns, position, cov, foot, velocity, 2.0 * cov, size,
+    return Observations(proposals, t_ns, position, cov, foot, velocity, cfg.velocity_noise_factor * cov, size,
                         np.where(np.isfinite(position).all(axis=1), cfg.min_points, 0))
 
 

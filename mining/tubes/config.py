@@ -17,7 +17,6 @@ class KalmanConfig:
     process_std_size: float = 0.05  # REFERENCE: process noise std, size (m)
     process_dt_s: Positive = 0.1  # REFERENCE: the original's fixed frame interval; noise above is per this interval
     measurement_std_size: tuple[float, float, float] = (0.2, 0.2, 0.5)  # REFERENCE: size measurement std (m)
-    velocity_noise_factor: float = 2.0  # REFERENCE: velocity noise = 2 × ground-projected position covariance
     initial_var_velocity: tuple[float, float] = (1.0, 45.0)  # REFERENCE: initial vx, vz variance without flow
     max_size_m: Positive = 4.0  # REFERENCE: sizes ≤ 4 m
 
