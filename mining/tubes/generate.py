@@ -324,11 +324,16 @@ class TubeGenerator:
         new: list[LiveTube] = []
         # Candidates whose probes end at the same inlier replay to the same tube: replay once.
         replayed = self._known_replays()
+        todo: dict[tuple[int, int, bool], tuple[WorldObservations, int, tuple | None]] = {}
+        for w0, j0, motion in found:
+            todo.setdefault((w0.frame.index, j0, motion is None), (w0, j0, motion))
+        todo = {k: v for k, v in todo.items() if k not in replayed}
+        replayed.update(zip(todo, self._replay(world, list(todo.values()))))
+        done: set[tuple[int, int, bool]] = set()
         for w0, j0, motion in found:
             key = (w0.frame.index, j0, motion is None)
-            seen = key in replayed
-            if not seen:
-                replayed[key] = self._replay(world, w0, j0, motion)
+            seen = key in done or key not in todo
+            done.add(key)
             tube = replayed[key]
             if tube is None or self._duplicate(tube.tube, [t.tube for t in self.live + new]):
                 continue
@@ -411,28 +416,38 @@ class TubeGenerator:
             out[rows] = ((ioa >= self.cfg.start_part_ioa) & near[rows]).any(axis=1)
         return out
 
-    def _replay(self, world: WorldObservations, w0: WorldObservations, j0: int,
-                motion: tuple[np.ndarray, np.ndarray] | None = None) -> LiveTube | None:
-        """Re-initialise at the earliest inlier (w0, j0) and replay forwards up to now."""
-        tube = self._new_tube(w0, j0, motion)
-        if tube is None:
-            return None
-        replay = [w for w in self.history if w.frame.index > w0.frame.index] + [world]
-        t_prev = w0.frame.t_ns
-        for w in replay:
-            tube.kf.predict((w.frame.t_ns - t_prev) / 1e9)
-            t_prev = w.frame.t_ns
-            pred = self._predict(tube, w.frame)
-            if pred is None:
-                return None
-            choice, terms = self._associate([tube], [pred], w)
-            if choice[0] >= 0:
-                self._observe(tube, w, int(choice[0]), *terms[0])
-            else:
-                self._miss(tube, w, pred)
-        if not tube.tube.frames[-1].observed:
-            return None
-        return tube
+    def _replay(self, world: WorldObservations,
+                starts: list[tuple[WorldObservations, int, tuple[np.ndarray, np.ndarray] | None]]) -> list[LiveTube | None]:
+        """Re-initialise a tube at each earliest inlier (w0, j0[, motion]) and replay it
+        forwards up to now; None where its mask left the image or it ends unobserved.
+
+        The replays are independent (each tube takes its own best gated observation), so
+        they step through the frames together: one association pass per frame for all
+        the tubes replaying through it, the same result as one replay at a time.
+        """
+        tubes = [self._new_tube(w0, j0, motion) for w0, j0, motion in starts]
+        t_prev = [w0.frame.t_ns for w0, _, _ in starts]
+        for w in [*self.history, world]:
+            active = [i for i, (w0, _, _) in enumerate(starts)
+                      if tubes[i] is not None and w.frame.index > w0.frame.index]
+            preds = []
+            for i in list(active):
+                tube = tubes[i]
+                tube.kf.predict((w.frame.t_ns - t_prev[i]) / 1e9)
+                t_prev[i] = w.frame.t_ns
+                pred = self._predict(tube, w.frame)
+                if pred is None:
+                    tubes[i] = None
+                    active.remove(i)
+                else:
+                    preds.append(pred)
+            choice, terms = self._associate([tubes[i] for i in active], preds, w)
+            for i, pred, j, term in zip(active, preds, choice, terms):
+                if j >= 0:
+                    self._observe(tubes[i], w, int(j), *term)
+                else:
+                    self._miss(tubes[i], w, pred)
+        return [t if t is not None and t.tube.frames[-1].observed else None for t in tubes]
 
     def _may_step_back(self, world: WorldObservations, cands: np.ndarray, prev: WorldObservations) -> np.ndarray:
         """Cheap pre-check for many starts at once: which observations ``cands`` have
