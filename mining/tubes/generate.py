@@ -232,14 +232,14 @@ class TubeGenerator:
             return choice, terms
         rows, cols = np.unique(r), np.unique(c)
         if all(preds[i].rle is not None for i in rows):
-            rles = [obs.proposals.rles[j] for j in cols]
-            ious = mask_iou([preds[i].rle for i in rows], rles)
-            for k, i in enumerate(rows):
-                if i in cut:
-                    view = cut_at_sides(np.array([0.0, 0.0, world.frame.calib.width, world.frame.calib.height]),
-                                        pboxes[i], preds[i].open_sides)[0]
-                    ious[k] = mask_iou([preds[i].rle], [clip_rle(m, view) for m in rles])[0]
+            ious = mask_iou([preds[i].rle for i in rows], [obs.proposals.rles[j] for j in cols])
             iou = ious[np.searchsorted(rows, r), np.searchsorted(cols, c)]
+            frame_box = np.array([0.0, 0.0, world.frame.calib.width, world.frame.calib.height])
+            for i in cut:  # the observations' masks up to the view edge, for the pairs gated with row i
+                pairs = np.flatnonzero(r == i)
+                if pairs.size:
+                    view = cut_at_sides(frame_box, pboxes[i], preds[i].open_sides)[0]
+                    iou[pairs] = mask_iou([preds[i].rle], [clip_rle(obs.proposals.rles[j], view) for j in c[pairs]])[0]
         else:  # a box-only prediction (the backward probe) is compared by box IoU
             oboxes = world.boxes[c].copy()
             for i, boxes in cut.items():
