@@ -22,6 +22,8 @@ from mining.masks import areas, box_rle, clip_rle, mask_iou
 from mining.pipeline.frames import FrameLoop
 from mining.pipeline.mine import mine_tubes
 from mining.sources import open_source
+from mining.tubes.config import TubeConfig
+from mining.tubes.gating import paired_obs_boxes, view_edge_gates
 from mining.tubes.warp import view_sides
 from mining.types import StereoCalib
 
@@ -90,3 +92,16 @@ def test_observations_are_cut_at_the_predictions_open_sides():
     assert cut[1].tolist() == obs[1].tolist()  # a box on the predicted side is untouched
     rle = box_rle(obs[0], CALIB.height, CALIB.width)
     assert areas([clip_rle(rle, np.r_[pred[0], 0, CALIB.width, CALIB.height])])[0] == 15 * 40
+
+
+def test_gates_at_a_view_edge_accept_the_border_case_and_nothing_else_changes():
+    cfg = TubeConfig()
+    pred = np.array([[17.0, 177, 33, 217], [400, 100, 440, 200]])  # seed 0004's car one frame back; another prediction
+    obs = np.array([[7.0, 177, 36, 215], [402, 101, 441, 199], [60, 170, 90, 215]])
+    plain, _ = view_edge_gates(pred, obs, [None, None], cfg)
+    edge, cut = view_edge_gates(pred, obs, [np.array([True, False, False, False]), None], cfg)
+    assert not plain[0, 0] and edge[0, 0]  # the size gate failed on the part beyond the view edge
+    assert not edge[0, 2]  # an observation beyond the predicted box still does not gate
+    assert (edge[1] == plain[1]).all() and list(cut) == [0]
+    pairs = paired_obs_boxes(obs, np.array([0, 1]), np.array([0, 1]), cut)
+    assert pairs.tolist() == [[17, 177, 36, 215], obs[1].tolist()]  # cut on its left side only

@@ -16,6 +16,10 @@ With ``gate_jitter_px`` = δ > 0 the IoU gates are relaxed to gate × the IoU a 
 match of the predicted box keeps when shifted δ px in x and y (``mining.boxes.shifted_iou``):
 a few pixels of jitter are a third of a 20 px object's IoU and nothing of a 200 px one's.
 
+A prediction from a mask the image border cut (``MaskPoints.open_sides``) sees observations
+only up to the predicted box's sides there (``view_edge_gates``): beyond them the object may
+go on where the earlier view could not see it.
+
 The density itself (the motion term of the tube's score) is the same in both modes.
 Everything works on arrays of (prediction, observation) pairs, so many tubes are gated in
 one pass; the forward association and the backward probe share ``best_pairs``.
@@ -25,7 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mining.boxes import shifted_iou
+from mining.boxes import cut_at_sides, jittered_box_gates, shifted_iou
 from mining.tubes.config import TubeConfig
 
 GROUND = [0, 2]  # x and z: the footpoint's coordinates on the ground plane (y is the plane's height)
@@ -109,3 +113,24 @@ def best_pairs(rows: np.ndarray, cols: np.ndarray, iou: np.ndarray, mean: np.nda
     if nan.any():  # np.argmax would pick a NaN score, which then fails the threshold: such rows take nothing
         first = first[~np.isin(rows[first], rows[nan])]
     return rows[first], cols[first], iou[first], dens[first]
+
+
+def view_edge_gates(pred_box: np.ndarray, obs_box: np.ndarray, open_sides: list[np.ndarray | None],
+                    cfg: TubeConfig) -> tuple[np.ndarray, dict[int, np.ndarray]]:
+    """The (T, N) box gates (``jittered_box_gates``) of predicted boxes (T, 4) against observed
+    boxes (N, 4), where prediction i with ``open_sides[i]`` (4,) bool set compares the
+    observations cut at those sides of its box. Also returns those rows' cut boxes, row → (N, 4)."""
+    gate = jittered_box_gates(pred_box, obs_box, cfg.gate_box_iou, cfg.gate_size_similarity, cfg.gate_jitter_px)
+    cut = {i: cut_at_sides(obs_box, pred_box[i], s) for i, s in enumerate(open_sides) if s is not None and s.any()}
+    for i, boxes in cut.items():
+        gate[i] = jittered_box_gates(pred_box[i:i + 1], boxes, cfg.gate_box_iou, cfg.gate_size_similarity,
+                                     cfg.gate_jitter_px)[0]
+    return gate, cut
+
+
+def paired_obs_boxes(obs_box: np.ndarray, rows: np.ndarray, cols: np.ndarray, cut: dict[int, np.ndarray]) -> np.ndarray:
+    """The observed box of each (row, col) pair (K, 4), cut where ``view_edge_gates`` cut row's."""
+    out = obs_box[cols].copy()
+    for i, boxes in cut.items():
+        out[rows == i] = boxes[cols[rows == i]]
+    return out

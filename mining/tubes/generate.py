@@ -55,10 +55,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mining.boxes import box_ioa, cut_at_sides, jittered_box_gates, paired_box_iou
+from mining.boxes import box_ioa, cut_at_sides, paired_box_iou
 from mining.masks import areas, clip_rle, mask_ioa, mask_iou
 from mining.tubes.config import TubeConfig
-from mining.tubes.gating import GROUND, best_pairs, mahalanobis2
+from mining.tubes.gating import GROUND, best_pairs, mahalanobis2, paired_obs_boxes, view_edge_gates
 from mining.tubes.kalman import POS, SIZE, TubeFilter, predict_states, prior_velocity_cov
 from mining.tubes.probe import displacement_hypotheses, probe_back
 from mining.tubes.warp import MaskPoints, predict_box, predict_mask
@@ -219,13 +219,7 @@ class TubeGenerator:
         obs = world.frame.observations
         pboxes = np.array([p.box for p in preds], np.float64)
         cfg = self.cfg if jitter_px is None else dataclasses.replace(self.cfg, gate_jitter_px=jitter_px)
-        gate = jittered_box_gates(pboxes, world.boxes, cfg.gate_box_iou, cfg.gate_size_similarity, cfg.gate_jitter_px)
-        # A prediction from points the image border cut sees observations only up to that side.
-        cut = {i: cut_at_sides(world.boxes, pboxes[i], p.open_sides) for i, p in enumerate(preds)
-               if p.open_sides is not None and p.open_sides.any()}
-        for i, boxes in cut.items():
-            gate[i] = jittered_box_gates(pboxes[i:i + 1], boxes, cfg.gate_box_iou, cfg.gate_size_similarity,
-                                         cfg.gate_jitter_px)[0]
+        gate, cut = view_edge_gates(pboxes, world.boxes, [p.open_sides for p in preds], cfg)
         gate &= world.usable[None, :]
         r, c = np.nonzero(gate)
         if r.size == 0:
@@ -241,10 +235,7 @@ class TubeGenerator:
                     view = cut_at_sides(frame_box, pboxes[i], preds[i].open_sides)[0]
                     iou[pairs] = mask_iou([preds[i].rle], [clip_rle(obs.proposals.rles[j], view) for j in c[pairs]])[0]
         else:  # a box-only prediction (the backward probe) is compared by box IoU
-            oboxes = world.boxes[c].copy()
-            for i, boxes in cut.items():
-                oboxes[r == i] = boxes[c[r == i]]
-            iou = paired_box_iou(pboxes[r], oboxes)
+            iou = paired_box_iou(pboxes[r], paired_obs_boxes(world.boxes, r, c, cut))
         mean = np.array([t.kf.x[POS] for t in tubes])
         pos_cov = np.array([t.kf.P[POS, POS] for t in tubes])
         took, j, iou, dens = best_pairs(r, c, iou, mean[r], pos_cov[r], world.footpoint[c], world.covariance[c],

@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from mining.boxes import cut_at_sides, jittered_box_gates, paired_box_iou, size_similarity
+from mining.boxes import paired_box_iou, size_similarity
 from mining.tubes.config import TubeConfig
-from mining.tubes.gating import GROUND, best_pairs
+from mining.tubes.gating import GROUND, best_pairs, paired_obs_boxes, view_edge_gates
 from mining.tubes.kalman import POS, VEL, initial_states, predict_states, update_states
 from mining.tubes.warp import predict_boxes
 from mining.tubes.world import WorldObservations
@@ -58,19 +58,11 @@ def probe_back(world: WorldObservations, cands: np.ndarray, past: list[WorldObse
         boxes = predict_boxes([pts[c] for c in idx], shifts, w.frame.pose, w.frame.calib)
         has_box = np.isfinite(boxes[:, 0])
         idx, boxes = idx[has_box], boxes[has_box]
-        gate = jittered_box_gates(boxes, w.boxes, cfg.gate_box_iou, cfg.gate_size_similarity, cfg.gate_jitter_px)
-        # Points the image border cut see observations only up to that side (as the forward association).
-        cut = {i: cut_at_sides(w.boxes, boxes[i], pts[c].open_sides) for i, c in enumerate(idx) if pts[c].open_sides.any()}
-        for i, cut_boxes in cut.items():
-            gate[i] = jittered_box_gates(boxes[i:i + 1], cut_boxes, cfg.gate_box_iou, cfg.gate_size_similarity,
-                                         cfg.gate_jitter_px)[0]
+        gate, cut = view_edge_gates(boxes, w.boxes, [pts[c].open_sides for c in idx], cfg)
         gate &= w.usable[None, :]
         r, c = np.nonzero(gate)
         cr = idx[r]
-        oboxes = w.boxes[c].copy()
-        for i, cut_boxes in cut.items():
-            oboxes[r == i] = cut_boxes[c[r == i]]
-        rows, obs, _, _ = best_pairs(r, c, paired_box_iou(boxes[r], oboxes), x[cr][:, POS],
+        rows, obs, _, _ = best_pairs(r, c, paired_box_iou(boxes[r], paired_obs_boxes(w.boxes, r, c, cut)), x[cr][:, POS],
                                      P[cr][:, POS, POS], w.footpoint[c], w.covariance[c], cfg, pred_box=boxes[r])
         m = idx[rows]
         if k < cfg.backward_required:
