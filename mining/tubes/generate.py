@@ -228,7 +228,7 @@ class TubeGenerator:
         if all(preds[i].rle is not None for i in rows):
             ious = mask_iou([preds[i].rle for i in rows], [obs.proposals.rles[j] for j in cols])
             iou = ious[np.searchsorted(rows, r), np.searchsorted(cols, c)]
-            frame_box = np.array([0.0, 0.0, world.frame.calib.width, world.frame.calib.height])
+            frame_box = np.array([0.0, 0.0, world.frame.calib.width, world.frame.calib.height]) if cut else None
             for i in cut:  # the observations' masks up to the view edge, for the pairs gated with row i
                 pairs = np.flatnonzero(r == i)
                 if pairs.size:
