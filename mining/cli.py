@@ -63,17 +63,11 @@ def _job_config(args: argparse.Namespace) -> JobConfig:
     return cfg
 
 
-def _open(cfg: JobConfig):
-    from mining.sources import open_source
-
-    return open_source(cfg.source.dataset, cfg.source.root or None, **cfg.source.options)
-
-
 def cmd_inspect_geometry(args: argparse.Namespace) -> int:
     from mining.pipeline.inspect_geometry import inspect_geometry
 
     cfg = _job_config(args)
-    source = _open(cfg)
+    source = cfg.source.open()
     start, stop = args.frames
     summary = inspect_geometry(source, args.sequence, start, stop, cfg.geometry, args.out)
     n = len(summary["frames"])
@@ -114,7 +108,7 @@ def cmd_track_images(args: argparse.Namespace) -> int:
     from mining.pipeline.preflight import checked_plan
 
     cfg = _job_config(args)
-    source = _open(cfg)
+    source = cfg.source.open()
     plan = checked_plan(source, cfg, args.sequence, args.frames)
     start, stop = args.frames
     stop = len(plan) if stop is None else min(stop, len(plan))
@@ -188,7 +182,7 @@ def cmd_eval_recall(args: argparse.Namespace) -> int:
     from mining.pipeline.preflight import checked_plan
 
     cfg = _job_config(args)
-    source = _open(cfg)
+    source = cfg.source.open()
     plan = checked_plan(source, cfg, args.sequence, args.frames)
     start, stop = args.frames
     stop = len(plan) if stop is None else min(stop, len(plan))

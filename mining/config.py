@@ -34,6 +34,13 @@ class SourceConfig:
     sequences: list[str] = field(default_factory=list)  # empty: every sequence the source finds
     options: dict[str, Any] = field(default_factory=dict)  # source-specific keyword arguments
 
+    def open(self):
+        """The source adapter this section names (``mining.sources.open_source``): the one opener
+        for the CLI, the pipeline's steps, exports, render and the viewer."""
+        from mining.sources import open_source
+
+        return open_source(self.dataset, self.root or None, **self.options)
+
 
 @dataclass
 class ExportConfig:
@@ -116,6 +123,39 @@ def section_from_dict(cls: type, data: dict[str, Any], where: str) -> Any:
     (``job.json``'s ``config``); ConfigError naming ``where`` for unknown keys or values
     that break a field's type or rules."""
     return _build(cls, data, where)
+
+
+# Keys a recorded job (``job.json``'s ``config``) may hold from an older version of the code:
+# old dotted key → its new dotted key, or None where the setting is gone (it changed nothing).
+RENAMED_KEYS: dict[str, str | None] = {
+    "tubes.kalman.velocity_noise_factor": "localise.velocity_noise_factor",  # moved at da118f8
+}
+
+
+def _renamed(data: dict[str, Any]) -> dict[str, Any]:
+    out = json.loads(json.dumps(data, default=str))
+    for old, new in RENAMED_KEYS.items():
+        *path, leaf = old.split(".")
+        node = out
+        for p in path:
+            node = node.get(p) if isinstance(node, dict) else None
+        if not isinstance(node, dict) or leaf not in node:
+            continue
+        value = node.pop(leaf)
+        if new is not None:
+            *npath, nleaf = new.split(".")
+            dst = out
+            for p in npath:
+                dst = dst.setdefault(p, {})
+            dst.setdefault(nleaf, value)
+    return out
+
+
+def job_config_from_record(data: dict[str, Any], where: str) -> JobConfig:
+    """The typed JobConfig of a recorded job (``job.json``'s ``config``, as ``to_dict`` wrote it),
+    with keys of older code versions moved to their new names (``RENAMED_KEYS``); ConfigError
+    naming ``where`` and the key for anything else that does not fit today's config."""
+    return _build(JobConfig, _renamed(data), where)
 
 
 def validate(cfg: JobConfig, where: str = "config") -> None:

@@ -71,3 +71,40 @@ def test_plan_windows_cover_sequence_once():
 def test_input_error_names_file_and_frame():
     e = InputError("truncated PNG", "/x/000003.png", frame=3)
     assert "/x/000003.png" in str(e) and "frame 3" in str(e) and "truncated" in str(e)
+
+
+def test_a_recorded_job_reads_back_as_the_typed_config_it_was_made_from():
+    from mining.catalog.layout import JobRecord
+    from mining.config import JobConfig
+
+    cfg = JobConfig()
+    cfg.select.epsilon1 = 7.5
+    record = JobRecord("r", cfg.params_hash, cfg.to_dict(), [])
+    assert record.job_config() == cfg
+
+
+def test_a_recorded_job_of_older_code_has_its_moved_keys_renamed():
+    from mining.catalog.layout import JobRecord
+    from mining.config import JobConfig
+
+    old = JobConfig().to_dict()
+    del old["localise"]["velocity_noise_factor"]
+    old["tubes"]["kalman"]["velocity_noise_factor"] = 3.0  # where it was before da118f8
+    assert JobRecord("r", "h", old, []).job_config().localise.velocity_noise_factor == 3.0
+
+
+def test_a_recorded_job_with_a_key_no_version_had_is_refused_naming_the_key():
+    from mining.catalog.layout import JobRecord, UnreadableRecord
+    from mining.config import JobConfig
+
+    d = JobConfig().to_dict()
+    d["select"]["no_such_key"] = 1
+    with pytest.raises(UnreadableRecord, match="no_such_key"):
+        JobRecord("r", "h", d, []).job_config("/x/job.json")
+
+
+def test_the_source_section_opens_its_source():
+    from mining.config import SourceConfig
+
+    source = SourceConfig(dataset="synthetic").open()
+    assert source.sequences()[:1]

@@ -201,6 +201,16 @@ class JobRecord:
             raise UnreadableRecord(f"{e.reason}; {FRESH_START}", store.full(JOB)) from None
         return cls(d["run_id"], d["params_hash"], d["config"], windows, identity, d.get("unplanned") or {})
 
+    def job_config(self, where: str = JOB):
+        """The recorded config as a typed ``JobConfig`` (``config.job_config_from_record``: keys of
+        older versions renamed); ``UnreadableRecord`` naming the key when it does not fit."""
+        from mining.config import job_config_from_record
+
+        try:
+            return job_config_from_record(self.config, where)
+        except ConfigError as e:
+            raise UnreadableRecord(f"job.json's config does not read as a job config: {e}", where) from None
+
     def check(self, params_hash: str, out: str) -> None:
         """Refuse a job of other params than the catalogue at ``out`` was made with (the
         identity names the keys: ``identity.check_resubmit``; this is the last guard)."""

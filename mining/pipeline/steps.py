@@ -33,7 +33,6 @@ from mining.errors import InputError, MiningError
 from mining.pipeline.cache import decode_frames, encode_frames
 from mining.pipeline.stitch import stitch_sequence
 from mining.pipeline.window import ObservedFrame, chain_poses, observe_window, track_window
-from mining.sources import open_source
 from mining.sources.base import Source
 from mining.types import SequencePlan, Window
 
@@ -76,7 +75,7 @@ def job_source(job: Job) -> Source:
     s = job.cfg.source
     key = json.dumps([s.dataset, s.root, s.options], sort_keys=True, default=str)
     if key not in _SOURCES:
-        _SOURCES[key] = open_source(s.dataset, s.root or None, **s.options)
+        _SOURCES[key] = s.open()
     return _SOURCES[key]
 
 
