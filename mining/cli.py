@@ -346,13 +346,13 @@ def cmd_query(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from mining.catalog.export import run_export
+    from mining.export.run import run_export
 
     return run_export(args.out, args.where, args.format, args.dest, args.margin, args.images, args.overwrite)
 
 
 def cmd_render(args: argparse.Namespace) -> int:
-    from mining.catalog.render import run_render
+    from mining.export.render import run_render
 
     return run_render(args.out, args.sequence, args.dest, args.where, args.depth, args.fps, args.frames,
                       overwrite=args.overwrite)

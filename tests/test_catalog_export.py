@@ -11,7 +11,7 @@ import pyarrow.parquet as pq
 from pycocotools import mask as mask_utils
 
 from _catalog_data import DATASET, SEQUENCE
-from mining.catalog.export import crop_box, disjoint_masks, run_export, tube_folder
+from mining.export.run import crop_box, disjoint_masks, run_export, tube_folder
 from mining.catalog.schema import SCHEMAS
 from mining.catalog.store import Store, write_sequence
 from mining.formats.kitti_tracking import read_kitti_tracking

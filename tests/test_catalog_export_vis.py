@@ -14,8 +14,8 @@ import pytest
 from pycocotools import mask as mask_utils
 
 from _catalog_data import DATASET, N_FRAMES, SEQUENCE
-from mining.catalog.export import RECORD, crop_box, frame_digits, run_export, tube_folder
-from mining.catalog.export_vis import UNCLASSIFIED_ID, UNKNOWN_ID
+from mining.export.run import RECORD, crop_box, frame_digits, run_export, tube_folder
+from mining.export.video_json import UNCLASSIFIED_ID, UNKNOWN_ID
 from mining.catalog.schema import SCHEMAS
 from mining.catalog.store import Store, write_sequence
 from mining.cli import main

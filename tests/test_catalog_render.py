@@ -13,7 +13,7 @@ import pytest
 from pycocotools import mask as mask_utils
 
 from _catalog_data import N_FRAMES, SEQUENCE
-from mining.catalog.render import run_render
+from mining.export.render import run_render
 
 W, H = 1242, 375
 VIDEO_H = H + 1  # 4:2:0 video needs even sides: one black row below KITTI's 375
@@ -173,7 +173,7 @@ def test_cli_render(catalogue, tmp_path):
 
 def test_labels_of_neighbouring_tubes_do_not_cover_each_other():
     """Two tubes with the same box get their labels one above the other, both inside the image."""
-    from mining.catalog.render import Drawn, _label, _overlaps, draw_tubes
+    from mining.export.render import Drawn, _label, _overlaps, draw_tubes
 
     img = np.zeros((200, 300, 3), np.uint8)
     placed: list = []

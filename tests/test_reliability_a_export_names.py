@@ -14,7 +14,7 @@ import pyarrow as pa
 import pytest
 
 from _catalog_data import DATASET, SEQUENCE
-from mining.catalog.export import RECORD, run_export
+from mining.export.run import RECORD, run_export
 from mining.catalog.schema import SCHEMAS
 from mining.catalog.store import Store, write_sequence
 

@@ -33,10 +33,10 @@ import pyarrow as pa
 import pytest
 
 from _catalog_data import SEQUENCE
-from mining.catalog import export as export_mod
-from mining.catalog import render as render_mod
+from mining.export import run as export_mod
+from mining.export import render as render_mod
 from mining.catalog import safe_files
-from mining.catalog.export import RECORD
+from mining.export.run import RECORD
 from mining.catalog.layout import part_path
 from mining.catalog.lock import OutputLock
 from mining.catalog.safe_files import LinkError

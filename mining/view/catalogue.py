@@ -20,7 +20,7 @@ from pathlib import Path
 
 import duckdb
 
-from mining.catalog.export import read_job
+from mining.export.run import read_job
 from mining.catalog.store import Store
 from mining.catalog.views import connect
 from mining.errors import InputError

@@ -49,7 +49,7 @@ import numpy as np
 from pycocotools import mask as mask_utils
 
 from mining.catalog import safe_files
-from mining.catalog.export import NothingMatched, category_label, job_source, read_job, selected_rows
+from mining.export.run import NothingMatched, category_label, job_source, read_job, selected_rows
 from mining.catalog.store import Store
 from mining.catalog.views import _sql_string, connect
 from mining.errors import InputError, MiningError

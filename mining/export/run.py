@@ -15,7 +15,7 @@
   the camera and the world, the crop and mask file names and the crop's rectangle in the
   frame. Images are re-read through the source named in ``OUT/job.json``, each frame once.
 * ``youtube-vis`` and ``tao`` — video instance segmentation / open-world tracking JSON
-  (``export_vis.py``).
+  (``video_json.py``).
 
 Boxes: the catalogue keeps x1, y1, x2, y2; COCO-style formats (YouTube-VIS, TAO, the
 crops index's ``bbox_xywh``) get x, y, width, height.
@@ -378,13 +378,13 @@ def write_index(tubes: pa.Table, per_tube: dict[str, list[dict]], dest: Path,
 
 
 def _export_youtube_vis(*args, **kwargs) -> int:
-    from mining.catalog.export_vis import export_youtube_vis
+    from mining.export.video_json import export_youtube_vis
 
     return export_youtube_vis(*args, **kwargs)
 
 
 def _export_tao(*args, **kwargs) -> int:
-    from mining.catalog.export_vis import export_tao
+    from mining.export.video_json import export_tao
 
     return export_tao(*args, **kwargs)
 

@@ -39,7 +39,7 @@ import cv2
 import pyarrow as pa
 from pycocotools import mask as mask_utils
 
-from mining.catalog.export import _by_sequence, _export_settings, _frames_by_tube, category_label, frame_digits, job_source
+from mining.export.run import _by_sequence, _export_settings, _frames_by_tube, category_label, frame_digits, job_source
 from mining.errors import InputError
 from mining.names import inside
 from mining.progress import Ticker

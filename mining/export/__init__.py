@@ -1,0 +1,1 @@
+"""Products out of the catalogue: `mine export` and `mine render`."""
