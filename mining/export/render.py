@@ -2,7 +2,7 @@
 
 Each frame is re-read through the source named in ``OUT/job.json`` (as the crops export
 does) and every selected tube present in it is drawn: its mask filled semi-transparently
-in its own colour (``tube_colours``: hues spread over the rendered tubes, fixed for a
+in its own colour (``draw.tube_colours``: hues spread over the rendered tubes, fixed for a
 tube through the video), the mask's outline, and a label with the short id and the category by the rule of
 the ``known`` flag (a known tube's COCO class, ``unknown``, ``unclassified``). Frames where
 the tube is only predicted (a gap between observations) get the outline and label without
