@@ -9,6 +9,7 @@ from pathlib import Path
 
 from mining.config import JobConfig, load_config, parse_override, validate
 from mining.errors import ConfigError, MiningError
+from mining.export.registry import FORMATS as EXPORT_FORMATS
 from mining.names import check_name
 from mining.proposals.make import classifiers_line
 from mining.score.unary import unary_line
@@ -346,13 +347,13 @@ def cmd_query(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from mining.catalog.export import run_export
+    from mining.export.run import run_export
 
     return run_export(args.out, args.where, args.format, args.dest, args.margin, args.images, args.overwrite)
 
 
 def cmd_render(args: argparse.Namespace) -> int:
-    from mining.catalog.render import run_render
+    from mining.export.render import run_render
 
     return run_render(args.out, args.sequence, args.dest, args.where, args.depth, args.fps, args.frames,
                       overwrite=args.overwrite)
@@ -432,7 +433,7 @@ def build_parser() -> argparse.ArgumentParser:
     exp = sub.add_parser("export", help="tubes matching a SQL predicate, for other tools")
     exp.add_argument("dest", help="output folder")
     exp.add_argument("--where", default="selected", help="SQL predicate over the tubes table (default: selected)")
-    exp.add_argument("--format", choices=["kitti", "kitti-mots", "crops", "youtube-vis", "tao"], required=True)
+    exp.add_argument("--format", choices=list(EXPORT_FORMATS), required=True)
     exp.add_argument("--out", default="out/catalog", help="catalogue folder or URI")
     exp.add_argument("--overwrite", action="store_true",
                      help="DEST holds an earlier export: remove what that export recorded (DEST/.mine-export.json) "

@@ -8,13 +8,17 @@ import cv2
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
+import pytest
 from pycocotools import mask as mask_utils
 
 from _catalog_data import DATASET, SEQUENCE
-from mining.catalog.export import crop_box, disjoint_masks, run_export, tube_folder
 from mining.catalog.schema import SCHEMAS
 from mining.catalog.store import Store, write_sequence
+from mining.export.crops import crop_box
+from mining.export.kitti import disjoint_masks
+from mining.export.run import run_export
 from mining.formats.kitti_tracking import read_kitti_tracking
+from mining.names import tube_folder
 from mining.pipeline.kitti_export import write_tubes_kitti
 
 
@@ -144,6 +148,41 @@ def test_crops_of_frames_the_source_lacks_fail_clearly(catalogue, tmp_path):
     write_sequence(store, "tube_frames", DATASET, SEQUENCE, late)
     store.write_bytes("job.json", Store(out).read_bytes("job.json"))
     assert run_export(str(cat), "selected", "crops", str(tmp_path / "c")) == 2
+
+
+def _with_a_malformed_mask(catalogue, cat):
+    """A copy of the catalogue at ``cat`` where one observed frame of a selected tube has RLE
+    counts whose runs do not cover the mask; that tube's id."""
+    out, tables = catalogue
+    selected = sorted(t["tube_id"] for t in tables["tubes"].to_pylist() if t["selected"])
+    rows = tables["tube_frames"].to_pylist()
+    bad = next(r for r in rows if r["tube_id"] == selected[0] and r["observed"])
+    bad["rle_counts"] = "0" + bad["rle_counts"]  # one more run: the runs no longer add up to H × W
+    store = Store(cat)
+    write_sequence(store, "tubes", DATASET, SEQUENCE, tables["tubes"])
+    write_sequence(store, "tube_frames", DATASET, SEQUENCE, pa.Table.from_pylist(rows, schema=SCHEMAS["tube_frames"]))
+    store.write_bytes("job.json", Store(out).read_bytes("job.json"))
+    return selected[0]
+
+
+@pytest.mark.parametrize("fmt", ["crops", "kitti-mots", "youtube-vis", "tao", "render"])
+def test_a_malformed_mask_stops_export_and_render_in_one_line(catalogue, tmp_path, capsys, fmt):
+    """The catalogue's masks are checked as the viewer checks them before anything decodes them
+    (pycocotools trusts the runs): one line naming the tube and the table, exit 2, nothing written."""
+    from mining.export.render import run_render
+
+    tube = _with_a_malformed_mask(catalogue, tmp_path / "cat")
+    dest = tmp_path / ("v.webm" if fmt == "render" else "dest")
+    if fmt == "render":
+        code = run_render(str(tmp_path / "cat"), SEQUENCE, str(dest))
+    else:
+        code = run_export(str(tmp_path / "cat"), "selected", fmt, str(dest))
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert len(err) == 1 and tube in err[0] and "tube_frames" in err[0] and "malformed" in err[0], err
+    assert "Traceback" not in err[0]
+    assert not dest.exists() or not list(dest.iterdir()), "nothing written"
+    assert sorted(p.name for p in tmp_path.iterdir()) == (["cat"] if fmt == "render" else ["cat", "dest"])
 
 
 def test_bad_predicates(catalogue, tmp_path, capsys):

@@ -14,11 +14,15 @@ import pytest
 from pycocotools import mask as mask_utils
 
 from _catalog_data import DATASET, N_FRAMES, SEQUENCE
-from mining.catalog.export import RECORD, crop_box, frame_digits, run_export, tube_folder
-from mining.catalog.export_vis import UNCLASSIFIED_ID, UNKNOWN_ID
 from mining.catalog.schema import SCHEMAS
 from mining.catalog.store import Store, write_sequence
 from mining.cli import main
+from mining.export.crops import crop_box
+from mining.export.dest import RECORD
+from mining.export.run import run_export
+from mining.export.selection import frame_digits
+from mining.export.video_json import UNCLASSIFIED_ID, UNKNOWN_ID
+from mining.names import tube_folder
 
 H, W = 375, 1242
 CAR = 3  # COCO's annotation id of "car"

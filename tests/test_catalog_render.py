@@ -13,7 +13,7 @@ import pytest
 from pycocotools import mask as mask_utils
 
 from _catalog_data import N_FRAMES, SEQUENCE
-from mining.catalog.render import run_render
+from mining.export.render import run_render
 
 W, H = 1242, 375
 VIDEO_H = H + 1  # 4:2:0 video needs even sides: one black row below KITTI's 375
@@ -173,13 +173,13 @@ def test_cli_render(catalogue, tmp_path):
 
 def test_labels_of_neighbouring_tubes_do_not_cover_each_other():
     """Two tubes with the same box get their labels one above the other, both inside the image."""
-    from mining.catalog.render import Drawn, _label, _overlaps, draw_tubes
+    from mining.draw import Drawn, draw_tubes, label, overlaps
 
     img = np.zeros((200, 300, 3), np.uint8)
     placed: list = []
     for _ in range(3):
-        _label(img, "12.3 unclassified", (40, 100, 120, 160), (0, 200, 0), placed)
-    assert len(placed) == 3 and not any(_overlaps(a, b) for i, a in enumerate(placed) for b in placed[i + 1:])
+        label(img, "12.3 unclassified", (40, 100, 120, 160), (0, 200, 0), placed)
+    assert len(placed) == 3 and not any(overlaps(a, b) for i, a in enumerate(placed) for b in placed[i + 1:])
     assert all(0 <= y1 and y2 < 200 for _, y1, _, y2 in placed)
     mask = np.zeros((200, 300), np.uint8)
     mask[100:160, 40:120] = 1

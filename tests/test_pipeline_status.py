@@ -149,9 +149,9 @@ def test_progress_bar_shows_phases_eta_and_the_summarys_frames_per_second(tmp_pa
 def test_the_eta_counts_the_work_inside_windows():
     """Before any step has finished, the frames the observe steps report give an estimate (≈);
     then each step's measured seconds per frame weigh the frames observed and tracked."""
-    from mining.pipeline.submit import Progress
+    from mining.progress import StepBar
 
-    bar = Progress(4, False, total_frames=400)
+    bar = StepBar(4, False, total_frames=400)
     bar.t0 -= 10.0  # ten seconds into the job
     assert bar.eta() == "ETA —"
     bar.observing = 50  # 50 of 400 frames observed in 10 s: 70 s left

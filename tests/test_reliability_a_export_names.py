@@ -14,9 +14,10 @@ import pyarrow as pa
 import pytest
 
 from _catalog_data import DATASET, SEQUENCE
-from mining.catalog.export import RECORD, run_export
 from mining.catalog.schema import SCHEMAS
 from mining.catalog.store import Store, write_sequence
+from mining.export.dest import RECORD
+from mining.export.run import run_export
 
 
 def _with_tube_id(catalogue, tmp_path: Path, tube_id: str) -> Path:

@@ -23,6 +23,7 @@ Real commands (``mine export``, ``mine render``, ``mine submit``), real files.
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import subprocess
@@ -33,16 +34,17 @@ import pyarrow as pa
 import pytest
 
 from _catalog_data import SEQUENCE
-from mining.catalog import export as export_mod
-from mining.catalog import render as render_mod
 from mining.catalog import safe_files
-from mining.catalog.export import RECORD
 from mining.catalog.layout import part_path
 from mining.catalog.lock import OutputLock
 from mining.catalog.safe_files import LinkError
 from mining.catalog.schema import SCHEMAS
 from mining.catalog.store import Store, write_sequence
 from mining.cli import main
+from mining.export import render as render_mod
+from mining.export.dest import RECORD, STAGING_PREFIX
+from mining.export import registry
+from mining.names import tube_folder
 
 REPO = Path(__file__).resolve().parents[1]
 SECRET = "line one\nline two\n"  # the outside file a planted link points at: it must keep these bytes
@@ -222,6 +224,12 @@ def _export(out: Path, fmt: str, dest: Path, *extra: str) -> int:
     return main(["export", "--out", str(out), "--format", fmt, *extra, str(dest)])
 
 
+def _replace_writer(monkeypatch, fmt: str, writer) -> None:
+    """Make ``writer`` the function the registry loads for ``fmt`` (for this test only)."""
+    f = registry.FORMATS[fmt]
+    monkeypatch.setattr(importlib.import_module(f"mining.export.{f.module}"), f.writer, writer)
+
+
 def test_export_overwrite_refuses_a_planted_index_json_link_before_removing_anything(catalogue, tmp_path, capsys):
     out, _ = catalogue
     dest, secret = tmp_path / "dest", _outside(tmp_path)
@@ -257,9 +265,9 @@ def test_an_unrecorded_link_among_the_files_is_refused_before_the_previous_expor
     first, second = [t["tube_id"] for t in tables["tubes"].to_pylist() if t["selected"]][:2]
     assert _export(out, "crops", dest, "--where", f"tube_id = '{first}'") == 0
     if where == "inside a recorded folder":
-        link = dest / export_mod.tube_folder(first) / "more"
+        link = dest / tube_folder(first) / "more"
     else:
-        link = dest / export_mod.tube_folder(second)
+        link = dest / tube_folder(second)
     link.symlink_to(elsewhere, target_is_directory=True)
     before = _tree(dest)
     assert _export(out, "crops", dest, "--overwrite") == 2
@@ -281,7 +289,7 @@ def test_every_export_writer_ignores_links_planted_while_it_runs(catalogue, tmp_
     earlier = "crops" if fmt in ("kitti", "kitti-mots") else "kitti"  # an earlier export of other names
     assert _export(out, earlier, dest) == 0
     before = _tree(dest)
-    real = export_mod.EXPORTERS[fmt]
+    real = registry.FORMATS[fmt].load()
     planted: list[str] = []
 
     def racing(tubes, frames, job, folder, **kw):
@@ -293,25 +301,25 @@ def test_every_export_writer_ignores_links_planted_while_it_runs(catalogue, tmp_
                 planted.append(name)
         return n
 
-    monkeypatch.setitem(export_mod.EXPORTERS, fmt, racing)
+    _replace_writer(monkeypatch, fmt, racing)
     assert _export(out, fmt, dest, "--overwrite", *extra) == 2
     assert planted, "the exporter wrote nothing to plant links at"
     assert "which DEST holds and no earlier export recorded" in capsys.readouterr().err
     assert secret.read_text() == SECRET and list(elsewhere.iterdir()) == []
     assert _tree(dest) == before | {n: "-> " + str(elsewhere if (dest / n).is_dir() else secret) for n in planted}
-    assert not [p for p in dest.iterdir() if p.name.startswith(export_mod.STAGING_PREFIX)], "no partial folder left"
+    assert not [p for p in dest.iterdir() if p.name.startswith(STAGING_PREFIX)], "no partial folder left"
 
 
 def test_the_export_record_replaces_a_link_planted_at_its_name(catalogue, tmp_path, monkeypatch):
     out, _ = catalogue
     dest, secret = tmp_path / "dest", _outside(tmp_path)
-    real = export_mod.EXPORTERS["kitti"]
+    real = registry.FORMATS["kitti"].load()
 
     def racing(tubes, frames, job, folder, **kw):
         (dest / RECORD).symlink_to(secret)
         return real(tubes, frames, job, folder, **kw)
 
-    monkeypatch.setitem(export_mod.EXPORTERS, "kitti", racing)
+    _replace_writer(monkeypatch, "kitti", racing)
     assert _export(out, "kitti", dest) == 0
     assert secret.read_text() == SECRET
     assert not (dest / RECORD).is_symlink()
@@ -332,7 +340,7 @@ def test_a_failed_export_keeps_the_previous_one(catalogue, tmp_path, monkeypatch
         (folder / "index.json").write_text("half")
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(folder / "index.parquet"))
 
-    monkeypatch.setitem(export_mod.EXPORTERS, "crops", full)
+    _replace_writer(monkeypatch, "crops", full)
     assert _export(out, "crops", dest, "--overwrite") == 2
     err = capsys.readouterr().err.strip()
     assert "index.parquet: cannot be written: no space left on device" in err and len(err.splitlines()) == 1

@@ -404,6 +404,32 @@ def test_a_tube_with_too_many_frames_is_refused(oversized):
     assert get(base, "/img/frame", {"id": tid, "frame": frame})[0] == 200, "one frame of it still shows"
 
 
+def test_a_malformed_or_mis_sized_mask_is_a_placeholder_that_says_why(catalogue, tmp_path):
+    """The catalogue's mask is checked before it is decoded (``catalog/rows.mask_rle``, the
+    decoder export and render use too): runs that do not cover the mask, or a mask of another
+    size than the source's frame, give a placeholder naming the frame and the reason."""
+    out, tables = catalogue
+    (bad, bad_frames), (other, other_frames) = tube_and_frames(tables, 0), tube_and_frames(tables, 1)
+    broken, resized = bad_frames[0]["frame"], other_frames[0]["frame"]
+    rows = []
+    for f in tables["tube_frames"].to_pylist():
+        if f["tube_id"] == bad["tube_id"] and f["frame"] == broken:
+            f = dict(f, rle_counts="0" + f["rle_counts"])  # one run too many
+        elif f["tube_id"] == other["tube_id"] and f["frame"] == resized:
+            f = dict(f, rle_h=376, rle_counts=empty_rle(376 * f["rle_w"]))  # a well-formed mask, one row taller
+        rows.append(f)
+    copy = copy_catalogue(out, tmp_path / "cat", tube_frames=pa.Table.from_pylist(rows, schema=tables["tube_frames"].schema))
+    with serving(copy, tmp_path / "cache") as (base, _srv):
+        status, headers, _ = get(base, "/img/frame", {"id": bad["tube_id"], "frame": broken})
+        assert status == 200
+        assert headers["X-Placeholder"] == (f"the catalogue's mask of frame {broken} is malformed (its runs do not "
+                                            f"cover exactly {bad_frames[0]['rle_w']}x{bad_frames[0]['rle_h']} pixels)")
+        status, headers, _ = get(base, "/img/frame", {"id": other["tube_id"], "frame": resized})
+        assert status == 200 and headers["X-Placeholder"].startswith(
+            f"the mask is {other_frames[0]['rle_w']}x376 but frame {resized} of the source is "
+            f"{other_frames[0]['rle_w']}x375: the job's source is not the one")
+
+
 # ------------------------------------------------------------------ parameters
 
 

@@ -139,7 +139,7 @@ def test_rendered_mp4_plays_in_chromium(catalogue, chromium, tmp_path):
     import numpy as np
 
     from _catalog_data import SEQUENCE
-    from mining.catalog.render import run_render
+    from mining.export.render import run_render
 
     out, _ = catalogue
     assert run_render(str(out), SEQUENCE, str(tmp_path / "h264.mp4"), frames=(0, 6), fps=10) == 0

@@ -4,6 +4,12 @@ Encoders: ``tube_row`` and ``frame_rows`` fill a window's parts (window-local wo
 with the part-only columns) and the stitched catalogue (one world per pose segment of
 the sequence); ``frames_row`` is a frame's row of a window's ``frames`` part. Decoder:
 ``part_tube_frame`` reads a part's tube-frame row back (the stitcher's input).
+
+Masks: ``mask_rle`` and ``decode_mask`` are the one reader of a ``tube_frames`` row's mask
+for export, render and the viewer. pycocotools trusts an RLE's runs, so they are checked
+first (non-negative, covering exactly H × W pixels) and, given the frame the mask is drawn
+on, its size against the frame's: a bad row is a ``BadMask`` naming the tube, the frame and
+the table, never a crash inside the decoder or a mask of garbage.
 """
 
 from __future__ import annotations
@@ -17,7 +23,11 @@ import pyarrow as pa
 from pycocotools import mask as mask_utils
 
 from mining.catalog.schema import SCHEMA_VERSION, file_schema, part_schema
+from mining.errors import InputError
+from mining.masks import rle_counts
 from mining.types import MinedTube, TubeFrame
+
+MASK_TABLE = "tube_frames"  # the table whose rows carry the masks
 
 
 @dataclass(frozen=True)
@@ -131,6 +141,54 @@ def part_tube_frame(r: dict, pose: np.ndarray) -> TubeFrame:
         posterior=None if r["posterior"] is None else np.asarray(r["posterior"], np.float64),
         class_weight=float(r["class_weight"]),
     )
+
+
+class BadMask(InputError):
+    """A ``tube_frames`` row whose mask cannot be drawn: malformed (``problem`` says how) or,
+    with ``mismatch``, of another size than the frame it belongs to."""
+
+    def __init__(self, reason: str, row: dict, problem: str, mismatch: bool = False, path: str | None = None):
+        self.problem, self.mismatch = problem, mismatch
+        super().__init__(reason, path, row.get("frame"))
+
+
+def mask_problem(row: dict) -> str | None:
+    """Why a ``tube_frames`` row's RLE (``rle_h``, ``rle_w``, ``rle_counts``) is malformed, or
+    None: its size must be positive and its runs non-negative, covering exactly H × W pixels."""
+    h, w, counts = row["rle_h"], row["rle_w"], row["rle_counts"]
+    if not (isinstance(h, int) and isinstance(w, int) and h > 0 and w > 0):
+        return f"its size {w}x{h} is not positive"
+    if not isinstance(counts, str) or not counts.isascii():
+        return "its counts are not an RLE string"
+    try:
+        runs = rle_counts({"size": [h, w], "counts": counts})
+    except (ValueError, IndexError):  # a number cut off at the end of the string
+        runs = np.array([-1])
+    # Each run within 0..H·W first, so that their sum cannot wrap around.
+    if runs.size == 0 or runs.min() < 0 or runs.max() > h * w or int(runs.sum()) != h * w:
+        return f"its runs do not cover exactly {w}x{h} pixels"
+    return None
+
+
+def mask_rle(row: dict, shape: tuple[int, int] | None = None, path: str | None = None) -> dict:
+    """The checked COCO RLE (``size`` [h, w], ``counts`` bytes) of a ``tube_frames`` row;
+    BadMask (naming ``path`` and the row's frame) when it is malformed or, given the
+    ``shape`` (height, width) of the frame it belongs to, of another size."""
+    tube = row.get("tube_id")
+    if shape is not None and (row["rle_h"], row["rle_w"]) != tuple(shape):
+        size = f"{row['rle_h']}×{row['rle_w']}"
+        raise BadMask(f"mask size {size} of tube {tube} differs from the image's {shape[0]}×{shape[1]}", row,
+                      f"{size} is not {shape[0]}×{shape[1]}", mismatch=True, path=path)
+    problem = mask_problem(row)
+    if problem is not None:
+        raise BadMask(f"the {MASK_TABLE} row of tube {tube!r} has a malformed mask ({problem})", row, problem,
+                      path=path)
+    return {"size": [row["rle_h"], row["rle_w"]], "counts": row["rle_counts"].encode()}
+
+
+def decode_mask(row: dict, shape: tuple[int, int] | None = None, path: str | None = None) -> np.ndarray:
+    """The (H, W) uint8 0/1 mask of a ``tube_frames`` row, checked as ``mask_rle`` checks it."""
+    return mask_utils.decode(mask_rle(row, shape, path))
 
 
 class ObservedFrameLike(Protocol):

@@ -54,6 +54,7 @@ from mining.pipeline.preflight import Preflight, preflight
 from mining.pipeline.running import RunningMarkers
 from mining.pipeline.schedule import Resume, Schedule, Task
 from mining.pipeline.steps import Job, StepResult, observed_so_far, write_manifest, write_stitch_failure
+from mining.progress import StepBar
 from mining.proposals.make import classifiers_line
 from mining.types import Window
 
@@ -268,87 +269,7 @@ def open_job(cfg: JobConfig, out: str, sequences: list[str] | None = None,
             pf.failed)
 
 
-PHASES = (("observe", "observe"), ("track", "track"), ("finalize", "stitch"))  # step → what the bar calls it
 REFRESH_S = 1.0  # ours: the bar redraws at least this often while steps run
-
-
-class Progress:
-    """The bar of ``mine submit``: windows done, the phase of every step in flight, frames/s
-    and an ETA. Frames/s is the one definition the summary uses too: core frames of the
-    windows tracked this run over the mining time (``run_job``'s, from its first step).
-
-    The ETA counts the work inside windows too, since a window's observation (most of its
-    cost) runs well ahead of its track: each step's seconds per core frame, measured on the
-    steps finished so far, weigh the frames observed (finished observe steps and what running
-    ones report) and tracked; the elapsed time over the work done so far gives the time
-    left. Until a track step has finished its cost is unknown and the estimate counts
-    observation alone (``ETA ≈``)."""
-
-    def __init__(self, total: int, enabled: bool, total_frames: int = 0):
-        self.total, self.enabled, self.t0 = total, enabled, time.perf_counter()
-        self.total_frames = total_frames
-        self.done = self.failed = self.frames = 0
-        self.phases: dict[str, int] = {}
-        self.observing = 0  # core frames the observe steps in flight have reported (steps.observed_so_far)
-        self.step_frames = {"observe": 0, "track": 0}  # core frames and seconds of the windows' finished steps
-        self.step_seconds = {"observe": 0.0, "track": 0.0}
-
-    def rate(self) -> float:
-        return self.frames / max(time.perf_counter() - self.t0, 1e-9)
-
-    def update(self, ok: bool, frames: int) -> None:
-        self.done += 1
-        self.failed += not ok
-        self.frames += frames
-        self.draw()
-
-    def step_finished(self, step: str, core_frames: int, seconds: float) -> None:
-        """A window's observe or track step ended after ``seconds`` (ok or not)."""
-        self.step_frames[step] += core_frames
-        self.step_seconds[step] += seconds
-
-    def running(self, steps: list[str]) -> None:
-        """The steps in flight now (their names), for the phase display."""
-        self.phases = {label: steps.count(step) for step, label in PHASES}
-        self.draw()
-
-    def _cost(self, step: str) -> float | None:
-        n = self.step_frames[step]
-        return self.step_seconds[step] / n if n else None
-
-    def eta(self) -> str:
-        tracked = self.step_frames["track"]
-        if tracked >= self.total_frames:
-            return "stitching" if self.phases.get("stitch") else ""
-        seen = min(self.step_frames["observe"] + self.observing, self.total_frames)
-        c_obs, c_trk = self._cost("observe"), self._cost("track")
-        if c_obs is None and seen:  # the first observe steps still running: their reports alone
-            c_obs = 1.0
-        if c_obs is None:
-            return "ETA —"
-        approx = c_trk is None
-        c_trk = c_trk or 0.0
-        done = seen * c_obs + tracked * c_trk
-        if done <= 0:
-            return "ETA —"
-        left = (self.total_frames - seen) * c_obs + (self.total_frames - tracked) * c_trk
-        dt = max(time.perf_counter() - self.t0, 1e-9)
-        return f"ETA {'≈ ' if approx else ''}{dt * left / done:.0f} s"
-
-    def draw(self) -> None:
-        if not self.enabled:
-            return
-        dt = time.perf_counter() - self.t0
-        n = 30 * self.done // max(self.total, 1)
-        phase = " · ".join(f"{label} {k}" + (f" ({self.observing} frames in)" if label == "observe" and self.observing
-                                               else "") for label, k in self.phases.items() if k) or "waiting"
-        sys.stderr.write(f"\r[{'#' * n}{'.' * (30 - n)}] windows {self.done}/{self.total} ({self.failed} failed)  "
-                         f"{phase}  {self.rate():.2f} frames/s  {dt:.0f} s  {self.eta()}   ")
-        sys.stderr.flush()
-
-    def close(self) -> None:
-        if self.enabled:
-            sys.stderr.write("\n")
 
 
 def system_failure(task: Task, error: BaseException, max_retries: int) -> StepResult:
@@ -368,7 +289,7 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
     t0 = time.perf_counter()
     store, dataset = job.store(), job.cfg.source.dataset
     summary = Summary(windows=len(schedule.windows), skipped=schedule.skipped)
-    bar = Progress(len(schedule.todo), progress, sum(w.core[1] - w.core[0] for w in schedule.todo))
+    bar = StepBar(len(schedule.todo), progress, sum(w.core[1] - w.core[0] for w in schedule.todo))
     running: dict[Any, Task] = {}
     started: dict[Any, float] = {}  # when each step in flight was submitted (its time, for the ETA)
     markers = RunningMarkers(store, job.run_id, job.params_hash)

@@ -20,9 +20,10 @@ from pathlib import Path
 
 import duckdb
 
-from mining.catalog.export import read_job
+from mining.catalog.layout import JOB, JobRecord
 from mining.catalog.store import Store
 from mining.catalog.views import connect
+from mining.config import JobConfig
 from mining.errors import InputError
 from mining.proposals.coco import COCO_CLASSES
 from mining.types import UNKNOWN_CLASS
@@ -72,11 +73,14 @@ class CatalogueBrowser:
         self.out = str(out)
         self.con = connect(out)  # InputError when ``out`` is not a catalogue folder
         self._lock = threading.Lock()
+        self.job: JobConfig | None = None  # the typed config of OUT/job.json (None: the catalogue has none)
+        self.job_error: str | None = None
         try:
-            self.job = read_job(Store(out))
-            self.job_error = None
+            store = Store(out)
+            record = JobRecord.load(store)
+            self.job = None if record is None else record.job_config(store.full(JOB))
         except InputError as e:  # a damaged job.json: browse the tables, say why there are no frames
-            self.job, self.job_error = {}, str(e)
+            self.job_error = str(e)
 
     def close(self) -> None:
         self.con.close()

@@ -7,8 +7,8 @@ placeholder that says why (``FrameSource.reason``).
 
 Two pictures: a gallery *thumbnail* (the tube's best view — its largest observed box not
 cut by the image border — cropped with context around the box) and a *frame* (the full
-frame, or a strip-sized copy, with the mask filled lightly and outlined). Outlines are
-``cv2.findContours`` of the mask drawn after resizing, so they stay two pixels wide.
+frame, or a strip-sized copy, with the mask filled and outlined). They are drawn by
+``mining/draw.py`` (as `mine render` draws), after resizing, so outlines stay two pixels wide.
 
 Encoded JPEGs are cached twice: an LRU in memory, and files in a folder (``--cache``; by
 default ``tube-miner/view`` in the user's own cache folder, never inside the catalogue). The
@@ -24,7 +24,7 @@ drawn again and replaced). Files are 0600, subfolders 0700.
 
 One picture costs at most ``MAX_PICTURE_PIXELS``: a catalogue row whose mask is larger is
 refused (``TooLarge``, answered 413) before any pixel is read or allocated, and a mask whose
-runs do not add up to its size is a placeholder, never decoded.
+runs do not add up to its size is a placeholder, never decoded (``catalog/rows.mask_rle``).
 """
 
 from __future__ import annotations
@@ -42,13 +42,14 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from pycocotools import mask as mask_utils
 
+from mining.catalog.rows import BadMask, decode_mask, mask_rle
+from mining.config import JobConfig
+from mining.draw import CLASS_COLOURS, PREDICTED_COLOUR, draw_mask
 from mining.errors import ConfigError, MiningError
-from mining.masks import rle_counts
 from mining.view.filters import TooLarge
 
-RENDER_VERSION = 1  # bump when drawing changes: every cached file name changes with it
+RENDER_VERSION = 2  # bump when drawing changes: every cached file name changes with it (2: draw.FILL_ALPHA)
 THUMB_SIZE = (240, 180)  # ours: gallery thumbnail width × height (4:3)
 THUMB_CONTEXT = 0.75  # ours: context on each side of the box, as a fraction of the box's larger side
 THUMB_MIN_CONTEXT = 0.1  # ours: where the image is too small for that, at least this much beside the box
@@ -56,8 +57,6 @@ THUMB_MIN_CROP_PX = 96  # ours: the crop is at least this tall, so a 30 px box s
 STRIP_WIDTH = 200  # ours: width of a frame in the tube page's strip
 BORDER_PX = 2  # ours: a box this close to the image edge counts as cut by it
 JPEG_QUALITY = 85  # ours
-FILL_ALPHA = 0.35  # ours: opacity of the mask's fill on a frame
-OUTLINE_PX = 2  # ours
 MEMORY_CACHE_BYTES = 64 << 20  # ours: encoded pictures kept in memory
 FRAME_CACHE = 24  # ours: decoded source frames kept in memory (neighbouring tubes share frames)
 SIZES = ("full", "strip")
@@ -68,9 +67,6 @@ KEY_FILE = "key"
 KEY_BYTES = 32
 TAG_MARK = b"tube-miner-view\0"  # starts the JPEG comment that carries a cache file's HMAC
 COM = b"\xff\xfe"  # JPEG comment marker
-# Outline colours (RGB) by the tube's class: known, unknown, unclassified; a predicted frame is white.
-COLOURS = {True: (70, 220, 90), False: (255, 150, 20), None: (40, 190, 255)}
-PREDICTED = (255, 255, 255)
 JPEG_MAGIC = b"\xff\xd8\xff"
 
 
@@ -95,13 +91,15 @@ class Unavailable(Exception):
 class FrameSource:
     """Left images of the catalogue's source, opened lazily; remembers why it cannot open."""
 
-    def __init__(self, job: dict | None, unavailable: str | None = None):
-        self.spec = (job or {}).get("source") or {}
-        self.identity = json.dumps({k: self.spec.get(k) for k in ("dataset", "root", "options")}, sort_keys=True,
+    def __init__(self, job: JobConfig | None, unavailable: str | None = None):
+        self.config = None if job is None else job.source
+        spec = {} if self.config is None else {"dataset": self.config.dataset, "root": self.config.root,
+                                               "options": self.config.options}
+        self.identity = json.dumps({k: spec.get(k) for k in ("dataset", "root", "options")}, sort_keys=True,
                                    default=str)
         self._source = None
         self._reason: str | None = unavailable
-        if self._reason is None and not self.spec.get("dataset"):
+        if self._reason is None and self.config is None:
             self._reason = "the catalogue has no job.json naming its source, so its frames cannot be found"
         self._plans: dict[str, object] = {}
         self._plan_errors: dict[str, str] = {}
@@ -110,11 +108,8 @@ class FrameSource:
 
     def _open(self):
         if self._source is None and self._reason is None:
-            from mining.sources import open_source
-
             try:
-                self._source = open_source(self.spec["dataset"], self.spec.get("root") or None,
-                                           **self.spec.get("options", {}))
+                self._source = self.config.open()
             except (MiningError, ConfigError, OSError) as e:
                 self._reason = f"the frames are not on this machine ({e})"
         if self._source is None:
@@ -139,8 +134,8 @@ class FrameSource:
                 self._frames.move_to_end(key)
                 return self._frames[key]
             source = self._open()
-            if dataset != self.spec.get("dataset"):
-                raise Unavailable(f"the job's source is {self.spec.get('dataset')!r}, not {dataset!r}")
+            if dataset != self.config.dataset:
+                raise Unavailable(f"the job's source is {self.config.dataset!r}, not {dataset!r}")
             if sequence in self._plan_errors:
                 raise Unavailable(self._plan_errors[sequence])
             if sequence not in self._plans:
@@ -321,28 +316,6 @@ def check_size(tube: dict, frame: dict) -> None:
                        f"({h * w / 1e6:.0f} MP); a picture may have at most {MAX_PICTURE_PIXELS / 1e6:.1f} MP")
 
 
-def decode_mask(frame: dict) -> np.ndarray:
-    """The (H, W) uint8 mask of a tube_frames row; Unavailable when its RLE is malformed (its runs
-    must be non-negative and cover exactly H × W pixels: pycocotools trusts them)."""
-    h, w, counts = frame["rle_h"], frame["rle_w"], frame["rle_counts"]
-    problem = None
-    if not (isinstance(h, int) and isinstance(w, int) and h > 0 and w > 0):
-        problem = f"its size {w}x{h} is not positive"
-    elif not isinstance(counts, str) or not counts.isascii():
-        problem = "its counts are not an RLE string"
-    else:
-        try:
-            runs = rle_counts({"size": [h, w], "counts": counts})
-        except (ValueError, IndexError):  # a number cut off at the end of the string
-            runs = np.array([-1])
-        # Each run within 0..H·W first, so that their sum cannot wrap around.
-        if runs.size == 0 or runs.min() < 0 or runs.max() > h * w or int(runs.sum()) != h * w:
-            problem = f"its runs do not cover exactly {w}x{h} pixels"
-    if problem:
-        raise Unavailable(f"the catalogue's mask of frame {frame['frame']} is malformed ({problem})")
-    return mask_utils.decode({"size": [h, w], "counts": counts.encode()})
-
-
 def best_frame(frames: list[dict], width: int | None = None, height: int | None = None) -> dict:
     """The tube frame a thumbnail shows: the largest observed box not cut by the image border,
     else the largest observed box, else the middle frame."""
@@ -377,17 +350,6 @@ def thumb_crop(bbox, width: int, height: int) -> tuple[int, int, int, int]:
     x0 = round(min(max(cx - cw / 2, 0.0), width - cw))
     y0 = round(min(max(cy - ch / 2, 0.0), height - ch))
     return x0, min(width, x0 + round(cw)), y0, min(height, y0 + round(ch))
-
-
-def _outline(image: np.ndarray, mask: np.ndarray, colour, fill: bool) -> np.ndarray:
-    """``image`` (RGB, modified copy) with ``mask`` outlined (and lightly filled)."""
-    out = image.copy()
-    if fill and mask.any():
-        sel = mask.astype(bool)
-        out[sel] = (out[sel] * (1 - FILL_ALPHA) + np.asarray(colour, np.float32) * FILL_ALPHA).astype(np.uint8)
-    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-    cv2.drawContours(out, contours, -1, colour, OUTLINE_PX, lineType=cv2.LINE_AA)
-    return out
 
 
 def _jpeg(rgb: np.ndarray) -> bytes:
@@ -432,13 +394,17 @@ class TubeImages:
         return self.cache.name(material.encode())
 
     def _image_and_mask(self, tube: dict, frame: dict) -> tuple[np.ndarray, np.ndarray]:
-        mask = decode_mask(frame)  # first: a malformed row costs no image read
-        image = self.source.left(tube["dataset"], tube["sequence"], frame["frame"])
-        h, w = image.shape[:2]
-        if mask.shape != (h, w):
-            raise Unavailable(f"the mask is {frame['rle_w']}x{frame['rle_h']} but frame {frame['frame']} of the "
-                              f"source is {w}x{h}: the job's source is not the one this catalogue was mined from")
-        return image, mask
+        try:
+            mask_rle(frame)  # first: a malformed row costs no image read
+            image = self.source.left(tube["dataset"], tube["sequence"], frame["frame"])
+            h, w = image.shape[:2]
+            return image, decode_mask(frame, (h, w))
+        except BadMask as e:
+            if e.mismatch:
+                raise Unavailable(f"the mask is {frame['rle_w']}x{frame['rle_h']} but frame {frame['frame']} of the "
+                                  f"source is {w}x{h}: the job's source is not the one this catalogue was mined "
+                                  "from") from None
+            raise Unavailable(f"the catalogue's mask of frame {frame['frame']} is malformed ({e.problem})") from None
 
     def _cached(self, kind: str, size: str, tube: dict, frame: dict, draw) -> tuple[bytes, str | None]:
         check_size(tube, frame)  # before the cache, the image and any allocation
@@ -454,7 +420,7 @@ class TubeImages:
 
     def thumbnail(self, tube: dict, frame: dict) -> tuple[bytes, str | None]:
         """The gallery picture of ``tube`` on ``frame`` (best_frame's choice); TooLarge over the limit."""
-        colour = COLOURS[tube["known"]]
+        colour = CLASS_COLOURS[tube["known"]]
 
         def draw(image, mask):
             h, w = image.shape[:2]
@@ -466,7 +432,7 @@ class TubeImages:
             m = cv2.resize(m, (cw, chh), interpolation=cv2.INTER_NEAREST)
             canvas = np.full((THUMB_SIZE[1], THUMB_SIZE[0], 3), 30, np.uint8)
             ox, oy = (THUMB_SIZE[0] - cw) // 2, (THUMB_SIZE[1] - chh) // 2
-            canvas[oy:oy + chh, ox:ox + cw] = _outline(crop, m, colour, fill=False)
+            canvas[oy:oy + chh, ox:ox + cw] = draw_mask(crop, m, colour, fill=False)
             return canvas
 
         data, reason = self._cached("thumb", "thumb", tube, frame, draw)
@@ -476,7 +442,7 @@ class TubeImages:
         """Frame ``frame`` of ``tube`` with its mask, at ``size`` (one of SIZES); TooLarge over the limit."""
         if size not in SIZES:
             raise ValueError(f"size is one of {SIZES}, got {size!r}")
-        colour = COLOURS[tube["known"]] if frame["observed"] else PREDICTED
+        colour = CLASS_COLOURS[tube["known"]] if frame["observed"] else PREDICTED_COLOUR
 
         def draw(image, mask):
             if size == "strip":
@@ -484,7 +450,7 @@ class TubeImages:
                 new = (STRIP_WIDTH, max(1, round(h * STRIP_WIDTH / w)))
                 image = cv2.resize(image, new, interpolation=cv2.INTER_AREA)
                 mask = cv2.resize(mask, new, interpolation=cv2.INTER_NEAREST)
-            return _outline(image, mask, colour, fill=True)
+            return draw_mask(image, mask, colour, fill=True)
 
         data, reason = self._cached("frame", size, tube, frame, draw)
         if reason is None:

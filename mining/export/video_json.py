@@ -39,8 +39,10 @@ import cv2
 import pyarrow as pa
 from pycocotools import mask as mask_utils
 
-from mining.catalog.export import _by_sequence, _export_settings, _frames_by_tube, category_label, frame_digits, job_source
+from mining.catalog.rows import mask_rle
+from mining.config import JobConfig
 from mining.errors import InputError
+from mining.export.selection import by_sequence, category_label, export_settings, frame_digits, frames_by_tube, job_source
 from mining.names import inside
 from mining.progress import Ticker
 from mining.proposals.coco import CLASS_INDEX, COCO_CATEGORY_IDS
@@ -54,7 +56,7 @@ TAO_JSON, TAO_IMAGES = "tao.json", "frames"
 
 
 def video_name(dataset: str, sequence: str) -> str:
-    """``<dataset>_<sequence>``: both are checked names (``export._by_sequence``), so this is one."""
+    """``<dataset>_<sequence>``: both are checked names (``selection.by_sequence``), so this is one."""
     return f"{dataset}_{sequence}"
 
 
@@ -110,9 +112,9 @@ class Video:
 def videos(tubes: pa.Table, frames: pa.Table, video_frames: dict[tuple[str, str], list[int]]) -> list[Video]:
     """One Video per sequence of ``tubes``, numbered from 1; a sequence the ``frames`` table
     lacks spans its tubes' frames."""
-    per_tube = _frames_by_tube(frames)
+    per_tube = frames_by_tube(frames)
     out = []
-    for vid, ((dataset, sequence), seq_tubes) in enumerate(_by_sequence(tubes).items(), start=1):
+    for vid, ((dataset, sequence), seq_tubes) in enumerate(by_sequence(tubes).items(), start=1):
         out.append(Video(vid, dataset, sequence, video_frames.get((dataset, sequence), []), seq_tubes, per_tube))
     return out
 
@@ -122,11 +124,13 @@ def _annotated(frames: list[dict], observed_only: bool) -> dict[int, dict]:
 
 
 def _rle(f: dict) -> dict:
+    """The row's RLE as the JSON carries it (counts a string); ``_area`` has checked it."""
     return {"size": [f["rle_h"], f["rle_w"]], "counts": f["rle_counts"]}
 
 
 def _area(f: dict) -> float:
-    return float(mask_utils.area({"size": [f["rle_h"], f["rle_w"]], "counts": f["rle_counts"].encode()}))
+    """The pixel count of the row's mask, checked (``rows.mask_rle``): a malformed one stops the export."""
+    return float(mask_utils.area(mask_rle(f)))
 
 
 def _ticking(label: str) -> Callable[[int, int], None]:
@@ -141,9 +145,11 @@ def _ticking(label: str) -> Callable[[int, int], None]:
     return hook
 
 
-def write_images(job: dict, vids: list[Video], folder: Path, progress: Callable[[int, int], None] | None = None) -> int:
+def write_images(job: JobConfig | None, vids: list[Video], folder: Path,
+                 progress: Callable[[int, int], None] | None = None) -> int:
     """The rectified left frame of every video frame as ``folder/<file_name>``; the count."""
-    source, src = job_source(job, "--images")
+    source = job_source(job, "--images")
+    root = job.source.root
     total, done = sum(len(v.frames) for v in vids), 0
     for v in vids:
         survey = source.survey(v.sequence)
@@ -151,7 +157,7 @@ def write_images(job: dict, vids: list[Video], folder: Path, progress: Callable[
         missing = [f for f in v.frames if f not in position]
         if missing:
             raise InputError(f"frame {missing[0]} of the catalogue is not in the source's sequence {v.sequence!r}",
-                             src.get("root"), missing[0])
+                             root, missing[0])
         # only the video's frames need to read (problems elsewhere in the sequence do not matter)
         plan = source.plan(v.sequence, min(position[f] for f in v.frames), max(position[f] for f in v.frames) + 1)
         inside(folder, v.name).mkdir(parents=True, exist_ok=True)
@@ -159,7 +165,7 @@ def write_images(job: dict, vids: list[Video], folder: Path, progress: Callable[
             image = source.read_frame(plan, position[frame]).left
             if image.shape[:2] != (v.height, v.width):
                 raise InputError(f"image of {image.shape[1]}×{image.shape[0]}, masks of {v.width}×{v.height}",
-                                 src.get("root"), frame)
+                                 root, frame)
             path = inside(folder, v.file_name(frame))
             if not cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY]):
                 raise InputError("cannot write JPEG", path)
@@ -169,17 +175,19 @@ def write_images(job: dict, vids: list[Video], folder: Path, progress: Callable[
     return done
 
 
-def _info(job: dict, fmt: str) -> dict:
-    return {"description": f"Tube Miner tubes ({fmt} export)", "run_id": job.get("run_id"),
-            "source": (job.get("source") or {}).get("dataset")}
+def _info(job: JobConfig | None, fmt: str) -> dict:
+    # "run_id" has always been null: it was read from job.json's config, which does not hold it
+    # (the record does, beside the config); kept so that exports stay as they were.
+    return {"description": f"Tube Miner tubes ({fmt} export)", "run_id": None,
+            "source": None if job is None else job.source.dataset}
 
 
-def export_youtube_vis(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path,
+def export_youtube_vis(tubes: pa.Table, frames: pa.Table, job: JobConfig | None, dest: Path,
                        video_frames: dict[tuple[str, str], list[int]] | None = None, images: bool = False) -> int:
     """``DEST/instances.json`` (and ``DEST/JPEGImages/`` with ``images``); returns the
     annotations (tubes) written."""
-    observed_only, _ = _export_settings(job)
-    per_tube = _frames_by_tube(frames)
+    observed_only = export_settings(job).observed_only
+    per_tube = frames_by_tube(frames)
     vids = videos(tubes, frames, video_frames or {})
     out_videos, anns, used = [], [], set()
     for v in vids:
@@ -203,12 +211,12 @@ def export_youtube_vis(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path,
     return len(anns)
 
 
-def export_tao(tubes: pa.Table, frames: pa.Table, job: dict, dest: Path,
+def export_tao(tubes: pa.Table, frames: pa.Table, job: JobConfig | None, dest: Path,
                video_frames: dict[tuple[str, str], list[int]] | None = None, images: bool = False) -> int:
     """``DEST/tao.json`` (and ``DEST/frames/`` with ``images``); returns the annotations
     (tube frames) written."""
-    observed_only, _ = _export_settings(job)
-    per_tube = _frames_by_tube(frames)
+    observed_only = export_settings(job).observed_only
+    per_tube = frames_by_tube(frames)
     vids = videos(tubes, frames, video_frames or {})
     out_videos, out_images, tracks, anns, used = [], [], [], [], set()
     for v in vids:

@@ -1,0 +1,258 @@
+"""`mine render`: one sequence's source frames with its selected tubes drawn, as a video.
+
+Each frame is re-read through the source named in ``OUT/job.json`` (as the crops export
+does) and every selected tube present in it is drawn: its mask filled semi-transparently
+in its own colour (``draw.tube_colours``: hues spread over the rendered tubes, fixed for a
+tube through the video), the mask's outline, and a label with the short id and the category by the rule of
+the ``known`` flag (a known tube's COCO class, ``unknown``, ``unclassified``). Frames where
+the tube is only predicted (a gap between observations) get the outline and label without
+the fill.
+
+``--depth`` puts a depth panel beside each frame: the stereo depth of the job's own
+geometry stage (its disparity step with the job's ``[geometry]``: ``stereo_depth``), colour-mapped with
+OpenCV's turbo map on a fixed logarithmic range (near red, far blue; no depth black) with
+its legend, and the tubes' outlines. The video is then twice as wide.
+
+The painter is ``mining/draw.py`` (the viewer's too); the container and codec are
+``video.py``'s (``.mp4``: H.264 with PyAV, ``.webm``: VP8), and the written file is read back
+before the command reports success. DEST follows ``dest.py``'s rules for a file: replaced
+only with ``--overwrite`` and only when it is a plain file; written in a private folder beside
+it and moved on; a failed render leaves DEST as it was. A mask that is malformed or of
+another size than its frame stops the render naming the tube.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import duckdb
+import numpy as np
+
+from mining.catalog import safe_files
+from mining.catalog.rows import decode_mask
+from mining.catalog.views import _sql_string, connect
+from mining.draw import FONT, Drawn, caption, draw_tubes, tube_colours
+from mining.errors import InputError, MiningError
+from mining.export.dest import check_file, publish_file
+from mining.export.run import NothingMatched
+from mining.export.selection import category_label, job_source, read_job, selected_rows
+from mining.export.video import check_container, check_video, codec_note, open_video
+from mining.names import check_name
+from mining.progress import Ticker
+
+DEFAULT_FPS = 10.0  # ours: frame rate when the plan's timestamps give none (KITTI records at 10 Hz)
+DEPTH_NEAR_M = 2.0  # ours: the depth colour map's near end (red); KITTI's 128 px search reaches ≈ 3 m
+DEPTH_TICKS_M = (2, 5, 10, 20, 50, 90)  # ours: legend ticks (the far end is the job's geometry.stereo.max_depth_m)
+
+
+def short_id(tube_id: str) -> str:
+    """``kitti/0005/0000012.003`` → ``12.3``: the first frame and observation, without the
+    sequence (a render shows one sequence) or leading zeros."""
+    last = tube_id.rsplit("/", 1)[-1]
+    frame, _, obs = last.partition(".")
+    try:
+        return f"{int(frame)}.{int(obs)}"
+    except ValueError:
+        return last
+
+
+def depth_colours(depth_m: np.ndarray, far_m: float) -> np.ndarray:
+    """(H, W, 3) BGR turbo colours of depth on the fixed log range [DEPTH_NEAR_M, far_m]:
+    near red, far blue, no depth (NaN) black."""
+    valid = np.isfinite(depth_m)
+    z = np.clip(np.where(valid, depth_m, far_m), DEPTH_NEAR_M, far_m)
+    t = (np.log(z) - np.log(DEPTH_NEAR_M)) / (np.log(far_m) - np.log(DEPTH_NEAR_M))
+    out = cv2.applyColorMap(np.round((1.0 - t) * 255).astype(np.uint8), cv2.COLORMAP_TURBO)
+    out[~valid] = 0
+    return out
+
+
+def stereo_depth(matcher, frame, far_m: float) -> np.ndarray:
+    """The geometry stage's depth of ``frame`` (``GeometryStage.run``'s disparity step: SGBM
+    with the job's settings, NaN where invalid or beyond ``far_m``), without its flow,
+    egomotion and ground steps, which the panel does not show (they would double its cost)."""
+    depth = frame.calib.depth_from_disparity(matcher.compute(frame.left, frame.right))
+    depth[depth > far_m] = np.nan
+    return depth
+
+
+def _depth_legend(img: np.ndarray, far_m: float) -> None:
+    """The colour bar of ``depth_colours`` with its ticks, in the panel's bottom-left corner."""
+    h, w = img.shape[:2]
+    bar_w, bar_h, pad = min(300, w - 40), 12, 6
+    x0, y0 = 10, h - bar_h - 34
+    cv2.rectangle(img, (x0 - pad, y0 - 22), (x0 + bar_w + pad + 24, h - 4), (0, 0, 0), cv2.FILLED)
+    z = np.exp(np.linspace(np.log(DEPTH_NEAR_M), np.log(far_m), bar_w, dtype=np.float32))
+    img[y0:y0 + bar_h, x0:x0 + bar_w] = depth_colours(np.tile(z, (bar_h, 1)), far_m)
+    cv2.putText(img, "depth (m), stereo", (x0, y0 - 7), FONT, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
+    span = np.log(far_m) - np.log(DEPTH_NEAR_M)
+    for tick in (t for t in DEPTH_TICKS_M if DEPTH_NEAR_M <= t <= far_m):
+        x = x0 + int(round((np.log(tick) - np.log(DEPTH_NEAR_M)) / span * (bar_w - 1)))
+        cv2.line(img, (x, y0 + bar_h), (x, y0 + bar_h + 3), (255, 255, 255), 1)
+        (tw, _), _ = cv2.getTextSize(str(tick), FONT, 0.4, 1)
+        cv2.putText(img, str(tick), (x - tw // 2, y0 + bar_h + 15), FONT, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
+
+
+def _fps(t_ns: tuple[int, ...]) -> float:
+    dt = np.diff(np.asarray(t_ns, np.int64))
+    dt = dt[dt > 0]
+    return float(1e9 / np.median(dt)) if dt.size else DEFAULT_FPS
+
+
+@dataclass
+class RenderResult:
+    dest: Path
+    frames: int
+    tubes: int  # tubes drawn in at least one rendered frame
+    width: int
+    height: int
+    codec: str  # h264, avc1, mp4v or VP80
+    fps: float
+    seconds: float
+
+
+def check_dest(dest: Path, overwrite: bool) -> None:
+    """Refuse a DEST this render may not write: a container other than ``video.CODECS``', an
+    existing entry without ``overwrite``, a link or a folder at DEST (``dest.check_file``)."""
+    check_container(dest)
+    check_file(dest, overwrite)
+
+
+def render(out: str | Path, sequence: str, dest: str | Path, where: str | None = None, depth: bool = False,
+           fps: float | None = None, frames: tuple[int, int | None] | None = None,
+           progress: bool = True, overwrite: bool = False) -> RenderResult:
+    """Render ``sequence`` of catalogue ``out`` with its selected tubes (those matching
+    ``where`` too, when given) to ``dest``; ``frames`` are plan positions [a, b) (default:
+    the positions the catalogue mined). An existing ``dest`` is replaced only with
+    ``overwrite`` (module docstring)."""
+    t0 = time.perf_counter()
+    dest = Path(dest)
+    check_dest(dest, overwrite)
+    check_name(sequence, "sequence", "--sequence")
+    job = read_job(out)
+    source = job_source(job, "render")
+    dataset, root = job.source.dataset, job.source.root
+    con = connect(out)
+    try:
+        # The selection goes through the export's predicate helper; sequence and selection
+        # are checked again below whatever the predicate did.
+        pred = f"selected AND dataset = {_sql_string(dataset)} AND sequence = {_sql_string(sequence)}"
+        tubes, tube_frames = selected_rows(con, pred if where is None else f"{pred} AND ({where})")
+        mined = con.execute("SELECT min(position), max(position), count(*) FROM frames "
+                            "WHERE dataset = ? AND sequence = ?", [dataset, sequence]).fetchone()
+        n_tubes = con.execute("SELECT count(*) FROM tubes WHERE dataset = ? AND sequence = ?",
+                              [dataset, sequence]).fetchone()[0]
+        if not mined[2] and not n_tubes:
+            known = [r[0] for r in con.execute("SELECT DISTINCT sequence FROM tubes UNION "
+                                               "SELECT DISTINCT sequence FROM frames ORDER BY 1").fetchall()]
+            raise InputError(f"sequence {sequence!r} of {dataset} is not in the catalogue (sequences: "
+                             f"{', '.join(known) or 'none'})", out)
+    except duckdb.Error as e:
+        raise InputError(f"cannot read the catalogue: {e}", out) from None
+    finally:
+        con.close()
+    tube_rows = [t for t in tubes.to_pylist() if t["selected"] and t["sequence"] == sequence and t["dataset"] == dataset]
+    keep = {t["tube_id"] for t in tube_rows}
+    if not tube_rows:
+        raise NothingMatched(f"no selected tube of sequence {sequence!r} matches"
+                              + ("" if where is None else f" --where {where!r}"))
+    plan = source.survey(sequence)
+    if frames is not None:
+        start, stop = frames
+        stop = len(plan) if stop is None else min(stop, len(plan))
+    elif mined[2]:
+        start, stop = int(mined[0]), min(int(mined[1]) + 1, len(plan))
+    else:
+        position = {f: p for p, f in enumerate(plan.frames)}
+        spans = [position.get(f) for f in tube_frames.column("frame").to_pylist()]
+        start, stop = min(p for p in spans if p is not None), max(p for p in spans if p is not None) + 1
+    start = max(0, start)
+    if stop <= start:
+        raise InputError(f"--frames {start}:{stop} holds no frame of {sequence!r} (the plan has {len(plan)})")
+    plan = source.plan(sequence, start, stop)  # refuses a frame in the range the source cannot read
+    fps = fps or _fps(plan.t_ns[start:stop])
+
+    colours = tube_colours(list(keep))
+    info = {t["tube_id"]: (f"{short_id(t['tube_id'])} {category_label(t)}", colours[t["tube_id"]]) for t in tube_rows}
+    by_frame: dict[int, list[dict]] = {}
+    for f in tube_frames.to_pylist():
+        if f["tube_id"] in keep:
+            by_frame.setdefault(f["frame"], []).append(f)
+
+    matcher = far = None
+    if depth:
+        from mining.geometry.disparity import StereoMatcher
+
+        matcher, far = StereoMatcher(job.geometry.stereo), job.geometry.stereo.max_depth_m
+
+    h, w = plan.calib.height, plan.calib.width
+    # 4:2:0 video needs even sides: an odd one gets a black row / column (KITTI's 375 rows → 376).
+    width = 2 * w if depth else w
+    size = (width + width % 2, h + h % 2)
+    drawn: set[str] = set()  # the tubes present in the rendered frames
+
+    def write(tmp: Path) -> str:
+        """The video into ``tmp``, read back; its codec."""
+        writer = open_video(tmp, fps, size)
+        bar = Ticker(f"mine render {sequence}", stop - start) if progress else None
+        try:
+            for k, pos in enumerate(range(start, stop)):
+                frame = source.read_frame(plan, pos)
+                if frame.left.shape[:2] != (h, w):
+                    raise InputError(f"image of {frame.left.shape[1]}×{frame.left.shape[0]} where the calibration "
+                                     f"says {w}×{h}", root, frame.index)
+                items = []
+                for f in by_frame.get(frame.index, []):
+                    label, colour = info[f["tube_id"]]
+                    mask = decode_mask(f, (h, w), root)
+                    items.append(Drawn(f["tube_id"], label, colour, mask, tuple(f["bbox"]), f["observed"]))
+                    drawn.add(f["tube_id"])
+                left = draw_tubes(cv2.cvtColor(frame.left, cv2.COLOR_RGB2BGR), items)
+                caption(left, f"{dataset}/{sequence} frame {frame.index}  {len(items)} tubes")
+                if matcher is not None:
+                    panel = draw_tubes(depth_colours(stereo_depth(matcher, frame, far), far), items, fill=False)
+                    _depth_legend(panel, far)
+                    left = np.hstack([left, panel])
+                writer.write(cv2.copyMakeBorder(left, 0, size[1] - left.shape[0], 0, size[0] - left.shape[1],
+                                                cv2.BORDER_CONSTANT, value=(0, 0, 0)))
+                if bar is not None:
+                    bar.tick(k + 1)
+        except BaseException:
+            with contextlib.suppress(Exception):
+                writer.close()
+            raise
+        if bar is not None:
+            bar.close()
+        try:
+            writer.close()
+        except Exception as e:
+            raise MiningError(f"the video for {dest} did not finish writing: {e}") from None
+        check_video(tmp, stop - start, size)
+        return writer.codec
+
+    codec = publish_file(dest, overwrite, write)
+    return RenderResult(dest, stop - start, len(drawn), size[0], size[1], codec, fps, time.perf_counter() - t0)
+
+
+def run_render(out: str | Path, sequence: str, dest: str | Path, where: str | None = None, depth: bool = False,
+               fps: float | None = None, frames: tuple[int, int | None] | None = None, overwrite: bool = False) -> int:
+    """`mine render`: 0 on success; 1 when no tube matches; 2 with a message otherwise."""
+    try:
+        r = render(out, sequence, dest, where, depth, fps, frames, overwrite=overwrite)
+    except NothingMatched as e:
+        print(f"mine render: {e}; nothing written", file=sys.stderr)
+        return 1
+    except (MiningError, duckdb.Error) as e:
+        print(f"mine render: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:  # the system's error from a writer (a full disk…): one line naming the file
+        print(f"mine render: {safe_files.write_error(e, e.filename or dest)}", file=sys.stderr)
+        return 2
+    print(f"mine render: {r.frames} frames, {r.tubes} tubes, {r.width}×{r.height} {r.codec} at {r.fps:g} fps → "
+          f"{r.dest} ({r.seconds:.1f} s){codec_note(r.codec)}")
+    return 0

@@ -1,0 +1,94 @@
+"""`mine export`: the tubes matching a SQL predicate, in formats other tools read.
+
+The formats (``registry.FORMATS``, one module each): ``kitti`` and ``kitti-mots``
+(``kitti.py``), ``crops`` (``crops.py``), ``youtube-vis`` and ``tao`` (``video_json.py``).
+Boxes: the catalogue keeps x1, y1, x2, y2; COCO-style formats (YouTube-VIS, TAO, the crops
+index's ``bbox_xywh``) get x, y, width, height.
+
+DEST follows ``dest.py``'s rules for a folder: empty, or with ``--overwrite`` an earlier
+export's (its record names what is replaced); the writer fills a private folder that is
+moved in only when it has finished. A predicate that matches no tube writes and removes
+nothing and exits 1.
+
+Names read from the catalogue are data: the dataset and sequence names and the tube ids
+must pass ``mining/names.py`` before a file name is made from them, two tubes may not
+share a folder, and every file written must resolve inside DEST.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import duckdb
+
+from mining.catalog import safe_files
+from mining.catalog.views import connect
+from mining.errors import InputError, MiningError
+from mining.export.dest import check_folder, publish_folder
+from mining.export.registry import FORMATS, VIDEO_FORMATS
+from mining.export.selection import mined_frames, read_job, selected_rows
+
+
+class NothingMatched(InputError):
+    """The predicate matches no tube: nothing is written."""
+
+
+def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: float | None = None,
+           images: bool = False, overwrite: bool = False) -> tuple[int, int]:
+    """Export the tubes of catalogue ``out`` matching ``where``; (tubes, items written).
+
+    DEST must be empty (or absent); with ``overwrite`` the entries an earlier export
+    recorded in DEST's record are replaced (nothing else in DEST, nothing outside it), once
+    the new export is complete in a private folder (``dest.py``). NothingMatched,
+    before anything is written or removed, when no tube matches."""
+    if fmt not in FORMATS:
+        raise InputError(f"unknown export format {fmt!r}; one of {', '.join(FORMATS)}")
+    form = FORMATS[fmt]
+    options: dict = {}
+    if margin is not None:
+        if "margin" not in form.options:
+            raise InputError("--margin applies to --format crops only")
+        options["margin"] = margin
+    if images:
+        if not form.video:
+            raise InputError(f"--images applies to --format {' and '.join(VIDEO_FORMATS)} only")
+        options["images"] = True
+    dest = Path(dest)
+    replaced = check_folder(dest, overwrite)
+    job = read_job(out)
+    con = connect(out)
+    try:
+        tubes, frames = selected_rows(con, where)
+        if form.video:
+            options["video_frames"] = mined_frames(con, tubes)
+    finally:
+        con.close()
+    if not tubes.num_rows:
+        raise NothingMatched(f"no tube matches --where {where!r}; nothing written")
+    write = form.load()
+
+    def record(n: int) -> dict:
+        return {"format": fmt, "catalogue": str(out), "where": where, "tubes": tubes.num_rows, "items": n,
+                "options": {k: v for k, v in options.items() if k != "video_frames"}}
+
+    n = publish_folder(dest, replaced, lambda staging: write(tubes, frames, job, staging, **options), record)
+    return tubes.num_rows, n
+
+
+def run_export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: float | None = None,
+               images: bool = False, overwrite: bool = False) -> int:
+    """`mine export`: 0 on success; 1 when no tube matches; 2 with a message on standard error otherwise."""
+    try:
+        n_tubes, n_items = export(out, where, fmt, dest, margin, images, overwrite)
+    except NothingMatched as e:
+        print(f"mine export: {e}", file=sys.stderr)
+        return 1
+    except (MiningError, duckdb.Error) as e:
+        print(f"mine export: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:  # a writer that raised the system's error (a full disk…): one line naming the file
+        print(f"mine export: {safe_files.write_error(e, e.filename or dest)}", file=sys.stderr)
+        return 2
+    print(f"mine export: {n_tubes} tubes, {n_items} {FORMATS[fmt].items} → {dest}")
+    return 0
