@@ -1,7 +1,7 @@
 """The command-line words the ``mine`` commands share: the job options (``--config``, ``--set``,
 ``--dataset``, ``--root``, ``--option``) and the job config they make, the ``A:B`` frame range,
-and the shared data folder. Here, below bench and the CLI, so that every command module
-(pipeline/, bench/, eval/) adds its own options without importing the CLI."""
+and the shared data folder. Here, below bench and the CLI, so that the command modules of
+pipeline/ and bench/ add their own options without importing the CLI."""
 
 from __future__ import annotations
 
