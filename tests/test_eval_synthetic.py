@@ -237,11 +237,12 @@ def test_real_pipeline_on_a_short_synthetic_sequence():
 
 
 def test_cli_parses_the_synthetic_options():
-    from mining.cli import build_parser, cmd_eval_synthetic
+    from mining.bench import synthetic
+    from mining.cli import build_parser
 
     a = build_parser().parse_args(["eval", "synthetic", "--sequence", "0001", "--n-frames", "30", "--set", "x.y=1",
                                    "--set", "x.z=2", "--min-visible-px", "50", "--max-depth-m", "40", "--json", "r.json"])
-    assert a.func is cmd_eval_synthetic
+    assert a.func is synthetic.run
     assert (a.sequence, a.n_frames, a.set, a.min_visible_px, a.max_depth_m, a.json, a.config) == \
         ("0001", 30, ["x.y=1", "x.z=2"], 50, 40.0, "r.json", None)
     d = build_parser().parse_args(["eval", "synthetic"])

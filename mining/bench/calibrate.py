@@ -37,6 +37,7 @@ REFERENCE's judgement of the same tubes.
 
 from __future__ import annotations
 
+import argparse
 import copy
 import json
 import time
@@ -52,6 +53,7 @@ from mining.bench.synthetic import run_synthetic
 from mining.config import JobConfig, validate
 from mining.eval.synthetic import evaluate_synthetic
 from mining.eval.tube_labels import label_tubes
+from mining.pipeline.arguments import add_job_options, job_config
 from mining.pipeline.mine import judge, unary
 from mining.score.calibrated import TERMS, tube_evidence
 from mining.types import Tube
@@ -216,3 +218,27 @@ def _print(rows: list[dict], final: dict, cfg: JobConfig, seeds: Sequence[str], 
     print(f'[score.calibrated."{cfg.proposals.proposer}"]  # mine bench calibrate --seeds {" ".join(seeds)}')
     for k, v in final.items():
         print(f"{k} = {v:.6g}")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``mine bench calibrate``'s options."""
+    add_job_options(p)
+    p.add_argument("--seeds", nargs="+", default=["0000", "0001", "0002", "0003", "0004", "0005", "0006"],
+                   help="synthetic training seeds, one fold each (default 0000–0006; 0007–0009 are held out)")
+    p.add_argument("--frames", type=int, default=100, help="frames per seed (default 100)")
+    p.add_argument("--workers", type=int, default=1, help="seeds mined in parallel processes (default 1)")
+    p.add_argument("--l2", type=float, default=1.0, help="L2 penalty on the standardised evidence (default 1)")
+    p.add_argument("--epsilon1", type=float, default=0.0,
+                   help="co-selection price for the calibrated unary in the folds (default 0: log-odds 0)")
+    p.add_argument("--epsilon2", type=float, default=3.0,
+                   help="overlap weight for the calibrated unary in the folds (default 3)")
+    p.add_argument("--no-balance", action="store_true",
+                   help="do not weigh unknown objects' tubes up to the known ones' total")
+    p.add_argument("--json", help="also write the results as JSON here")
+
+
+def run(args: argparse.Namespace) -> int:
+    """``mine bench calibrate``."""
+    return run_calibrate_bench(job_config(args), args.seeds, args.frames, workers=args.workers, l2=args.l2,
+                               epsilon1=args.epsilon1, epsilon2=args.epsilon2, balance=not args.no_balance,
+                               json_out=args.json)

@@ -22,6 +22,7 @@ Three steps, each on data named for it, so nothing is tuned on what it is scored
 
 from __future__ import annotations
 
+import argparse
 import json
 import time
 from collections.abc import Sequence
@@ -35,6 +36,7 @@ from mining.boxes import box_iou
 from mining.config import JobConfig
 from mining.eval.synthetic import SyntheticEvalProtocol, gt_frame
 from mining.formats.kitti_tracking import read_kitti_tracking
+from mining.pipeline.arguments import add_data_option, add_job_options, job_config
 from mining.pipeline.frames import frame_records
 from mining.pipeline.mine import mine_tubes
 from mining.proposals.onnx_yolo import OnnxProposer
@@ -276,3 +278,21 @@ def run_classify_bench(data: Path, cfg: JobConfig, train_seeds: Sequence[str] = 
     if json_out:
         Path(json_out).write_text(json.dumps(doc, indent=1, default=lambda x: x.item() if isinstance(x, np.generic) else str(x)))
     return 0
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``mine bench classify``'s options."""
+    add_job_options(p)
+    add_data_option(p)
+    p.add_argument("--train-seeds", nargs="+", default=["0000", "0001", "0002"], help="synthetic training seeds")
+    p.add_argument("--train-frames", type=int, default=100, help="frames per training seed")
+    p.add_argument("--test-seed", default="0007", help="the held-out synthetic seed")
+    p.add_argument("--frames", type=int, default=200, help="frames of the held-out seed")
+    p.add_argument("--json", help="also write the results as JSON here")
+
+
+def run(args: argparse.Namespace) -> int:
+    """``mine bench classify``."""
+    return run_classify_bench(Path(args.data), job_config(args), train_seeds=args.train_seeds,
+                              test_seed=args.test_seed, n_frames=args.frames, train_frames=args.train_frames,
+                              json_out=args.json)

@@ -25,6 +25,7 @@ on sequences it never saw.
 
 from __future__ import annotations
 
+import argparse
 import itertools
 import json
 import tempfile
@@ -39,6 +40,7 @@ from mining.bench.iou_tracker import iou_track, write_iou_tracks
 from mining.config import JobConfig, load_config, parse_override
 from mining.eval.kitti_mot import combine_kitti_mot, evaluate_kitti_mot, read_seqmap
 from mining.formats.poses import read_poses
+from mining.pipeline.arguments import add_data_option
 from mining.pipeline.detections import DETECTIONS, FRAME_INTERVAL_NS, detection_frames, write_detection_tubes
 from mining.pipeline.mine import judge, tube_generator
 from mining.proposals.precomputed import KittiDetections
@@ -355,3 +357,23 @@ def run_crossval_bench(data: Path, config: str | Path | None, overrides: Sequenc
         }
         Path(json_out).write_text(json.dumps(doc, indent=1))
     return 0 if not misses else 1
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``mine bench crossval``'s options (a config and overrides of its own: the grid overrides them)."""
+    p.add_argument("--config", default="jobs/kitti-detections.toml", help="job config TOML the grid overrides")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config value")
+    add_data_option(p)
+    p.add_argument("--folds", type=int, default=4, help="number of folds (default 4)")
+    p.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2,...",
+                   help="a grid axis, REFERENCE value first; repeat for more (default: mining/bench/crossval.py "
+                        "DEFAULT_GRID)")
+    p.add_argument("--sequences", nargs="+", default=None, help="default: the twelve training sequences")
+    p.add_argument("--json", help="also write the results as JSON here")
+
+
+def run(args: argparse.Namespace) -> int:
+    """``mine bench crossval``."""
+    return run_crossval_bench(Path(args.data), args.config, args.set, k=args.folds,
+                              grid=parse_grid(args.grid) if args.grid else None, sequences=args.sequences,
+                              json_out=args.json)

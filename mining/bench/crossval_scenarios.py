@@ -20,6 +20,7 @@ is one fold.
 
 from __future__ import annotations
 
+import argparse
 import json
 import time
 from collections import Counter
@@ -28,9 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
-from mining.bench.crossval import Setting, grid_settings
+from mining.bench.crossval import Setting, grid_settings, parse_grid
 from mining.bench.scenarios import MODES, run_scenario
 from mining.config import load_config
+from mining.pipeline.arguments import SYNTHETIC_JOB
 from mining.sources.synthetic.scenarios import SCENARIOS
 
 DEFAULT_GRID = {
@@ -122,3 +124,25 @@ def run_crossval_scenarios(config: str | Path | None, overrides: Sequence[str] =
                "cv": {" ".join(st.overrides): v for st, v in res["cv"].items()}}
         Path(json_out).write_text(json.dumps(doc, indent=1))
     return 0
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``mine bench crossval-scenarios``'s options (a config and overrides of its own: the grid overrides them)."""
+    p.add_argument("--config", default=None, help="job config TOML the grid overrides (default: jobs/synthetic.toml)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config value")
+    p.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2,...",
+                   help="a grid axis, REFERENCE value first (default: mining/bench/crossval_scenarios.py DEFAULT_GRID)")
+    p.add_argument("--seeds", nargs="+", default=["0000", "0001", "0002", "0003"], help="synthetic seeds, one fold each")
+    p.add_argument("--scenarios", nargs="+", default=None, help="default: all")
+    p.add_argument("--frames", type=int, default=60, help="frames per scenario (default 60)")
+    p.add_argument("--full", action="store_true", help="render at 1242x375 instead of half size")
+    p.add_argument("--json", help="also write the results as JSON here")
+    if SYNTHETIC_JOB.is_file():
+        p.set_defaults(config=str(SYNTHETIC_JOB))
+
+
+def run(args: argparse.Namespace) -> int:
+    """``mine bench crossval-scenarios``."""
+    return run_crossval_scenarios(args.config, args.set, grid=parse_grid(args.grid) if args.grid else None,
+                                  seeds=args.seeds, names=args.scenarios, n_frames=args.frames, half=not args.full,
+                                  json_out=args.json)

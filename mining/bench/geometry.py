@@ -13,6 +13,7 @@ The rows and their targets are those of the foundation issue:
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import time
@@ -32,6 +33,7 @@ from mining.geometry.config import GeometryConfig
 from mining.geometry.disparity import compute_disparity
 from mining.geometry.egomotion import chain_egomotion
 from mining.geometry.stage import GeometryStage
+from mining.pipeline.arguments import add_data_option, add_job_options, job_config
 from mining.sources import open_source
 
 RAW_DRIVE = "2011_09_26_drive_0001_sync"
@@ -197,3 +199,18 @@ def run_geometry_bench(data: Path, cfg: GeometryConfig, synthetic_frames: int = 
     if json_out:
         Path(json_out).write_text(json.dumps(results, indent=1, default=float))
     return 0 if all(ok for _, ok in checks) else 1
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``mine bench geometry``'s options."""
+    add_job_options(p)
+    add_data_option(p)
+    p.add_argument("--synthetic-frames", type=int, default=200, help="length of the synthetic egomotion runs")
+    p.add_argument("--json", help="also write the results as JSON here")
+
+
+def run(args: argparse.Namespace) -> int:
+    """``mine bench geometry``: 0 when every check passes."""
+    cfg = job_config(args)
+    return run_geometry_bench(Path(args.data), cfg.geometry, synthetic_frames=args.synthetic_frames,
+                              json_out=args.json)

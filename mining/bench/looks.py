@@ -24,6 +24,7 @@ bus → ``bus``.
 
 from __future__ import annotations
 
+import argparse
 import json
 import statistics
 import time
@@ -37,6 +38,7 @@ import numpy as np
 from mining.boxes import box_iou
 from mining.config import JobConfig
 from mining.formats.kitti_tracking import read_kitti_tracking
+from mining.pipeline.arguments import add_data_option, add_job_options, default_data, job_config
 from mining.proposals.coco import COCO_CLASSES
 from mining.proposals.onnx_yolo import N_COCO, OnnxProposer
 from mining.sources import open_source
@@ -224,3 +226,25 @@ def run_looks_bench(data: Path, cfg: JobConfig, model: str | None, seeds: list[s
     if json_out:
         Path(json_out).write_text(json.dumps(results, indent=2, default=float))
     return 0
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``mine bench looks``'s options."""
+    add_job_options(p)
+    add_data_option(p)
+    p.add_argument("--model", default=str(Path(default_data()).parent / "models" / "yolov8n-seg_int8.onnx"),
+                   help="YOLO-seg ONNX model (default: ../shared/models/yolov8n-seg_int8.onnx)")
+    p.add_argument("--seeds", nargs="+", default=["0000", "0001", "0002"], help="synthetic sequences")
+    p.add_argument("--frames", type=int, default=34, help="frames per seed")
+    p.add_argument("--step", type=int, default=5, help="plan positions between frames (the first is STEP)")
+    p.add_argument("--n-frames", type=int, default=200, help="length of the synthetic world")
+    p.add_argument("--png", help="write a few frames with the detections drawn to this folder")
+    p.add_argument("--no-kitti", action="store_true", help="skip the KITTI reference")
+    p.add_argument("--json", help="also write the results as JSON here")
+
+
+def run(args: argparse.Namespace) -> int:
+    """``mine bench looks``."""
+    return run_looks_bench(Path(args.data), job_config(args), args.model, args.seeds, frames=args.frames,
+                           step=args.step, n_frames=args.n_frames, png_dir=args.png, json_out=args.json,
+                           kitti=not args.no_kitti)

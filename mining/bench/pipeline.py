@@ -24,6 +24,7 @@ one core and the scaling figure compares like with like.
 
 from __future__ import annotations
 
+import argparse
 import copy
 import json
 import os
@@ -38,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from mining.config import JobConfig
+from mining.pipeline.arguments import add_job_options, job_config
 from mining.pipeline.failures import exit_reason
 
 WORKER_TITLE = "ray::Worker"  # process title of the pipeline's actors (mining.pipeline.executors.Worker)
@@ -341,6 +343,25 @@ def _main(argv: list[str]) -> int:
     result = measure_run_here(cfg, out, int(workers))
     Path(result_json).write_text(json.dumps(result, default=float))
     return 0
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``mine bench pipeline``'s options."""
+    add_job_options(p)
+    p.add_argument("--frames", type=int, default=200, help="frames per sequence of the scaling job")
+    p.add_argument("--sequences", nargs="+", default=["0000", "0001"], help="synthetic sequences of the scaling job")
+    p.add_argument("--long", action="store_true", help="also a long run (memory vs sequence length; ~10 min on 2 cores)")
+    p.add_argument("--long-frames", type=int, default=2000, help="frames of the long run")
+    p.add_argument("--catalog-rows", type=int, default=1_000_000, help="tube-frame rows of the catalogue bench")
+    p.add_argument("--dir", help="where the bench catalogues go (default: the system temporary folder)")
+    p.add_argument("--json", help="also write the results as JSON here")
+
+
+def run(args: argparse.Namespace) -> int:
+    """``mine bench pipeline``."""
+    return run_pipeline_bench(job_config(args), frames=args.frames, sequences=args.sequences, long=args.long,
+                              long_frames=args.long_frames, catalog_rows=args.catalog_rows, workdir=args.dir,
+                              json_out=args.json)
 
 
 if __name__ == "__main__":

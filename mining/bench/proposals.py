@@ -15,6 +15,7 @@ the mask head runs for ``max_proposals`` rows (the worst case).
 
 from __future__ import annotations
 
+import argparse
 import copy
 import json
 import tempfile
@@ -24,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from mining.config import JobConfig
+from mining.pipeline.arguments import add_data_option, add_job_options, frame_range, job_config
 from mining.pipeline.frames import plan_frames, plan_geometry
 from mining.proposals.make import make_proposer
 from mining.sources import open_source
@@ -126,3 +128,20 @@ def run_proposals_bench(data: Path, cfg: JobConfig, frames: tuple[int, int | Non
         Path(json_path).write_text(json.dumps({"proposer": cfg.proposals.proposer, "frames": [a, b],
                                                "random_weights": random_weights, "rows": rows}, indent=2))
     return 0
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``mine bench proposals``'s options."""
+    add_job_options(p)
+    add_data_option(p)
+    p.add_argument("--frames", type=frame_range, default=(0, 9), metavar="A:B",
+                   help="KITTI 0005 frames [A, B), the first warms up")
+    p.add_argument("--random-weights", action="store_true",
+                   help="torch without proposals.torch.model_path: random initial weights (speed only)")
+    p.add_argument("--json", help="also write the results as JSON here")
+
+
+def run(args: argparse.Namespace) -> int:
+    """``mine bench proposals``."""
+    return run_proposals_bench(Path(args.data), job_config(args), frames=args.frames,
+                               random_weights=args.random_weights, json_path=args.json)

@@ -33,6 +33,7 @@ above it, moved to the left colour camera with the calibration (``rect0_to_cam2`
 
 from __future__ import annotations
 
+import argparse
 import copy
 import time
 from collections.abc import Iterator
@@ -51,6 +52,7 @@ from mining.localise.localise import (
     localise,
     triangulation_covariance,
 )
+from mining.pipeline.arguments import add_data_option, add_job_options, frame_range, job_config
 from mining.pipeline.frames import FrameRecord, frame_records
 from mining.sources import open_source
 
@@ -387,3 +389,24 @@ def run_range_bench(data: Path, cfg: JobConfig, sources: list[str], kitti_frames
             print(drop_list(rows))
         print()
     return 0
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``mine bench range``'s options."""
+    add_job_options(p)
+    add_data_option(p)
+    p.add_argument("--sources", nargs="+", choices=["kitti", "synthetic", "kitti-raw"],
+                   default=["kitti", "synthetic", "kitti-raw"])
+    p.add_argument("--kitti-frames", type=frame_range, default=(0, 16), metavar="A:B", help="KITTI 0005 frames [A, B)")
+    p.add_argument("--synthetic-sequence", default="0000")
+    p.add_argument("--synthetic-n-frames", type=int, default=200, help="length of the synthetic world")
+    p.add_argument("--synthetic-frames", type=frame_range, default=(0, 100), metavar="A:B",
+                   help="synthetic frames [A, B)")
+    p.add_argument("--verbose", action="store_true", help="also list every dropped object")
+
+
+def run(args: argparse.Namespace) -> int:
+    """``mine bench range``."""
+    return run_range_bench(Path(args.data), job_config(args), args.sources, kitti_frames=args.kitti_frames,
+                           synthetic_sequence=args.synthetic_sequence, synthetic_n_frames=args.synthetic_n_frames,
+                           synthetic_frames=args.synthetic_frames, verbose=args.verbose)

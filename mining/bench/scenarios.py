@@ -29,6 +29,7 @@ source's 1242×375, or with ``half`` 621×188 (fx 360.77: the KITTI camera at ha
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import time
@@ -45,6 +46,7 @@ from mining.eval.synthetic import (
 )
 from mining.localise.localise import geometric_filter
 from mining.masks import mask_iou, mask_pixels
+from mining.pipeline.arguments import SYNTHETIC_JOB, add_job_options, job_config
 from mining.pipeline.frames import FrameLoop, FrameRecord, plan_frames
 from mining.pipeline.mine import judge, tube_generator
 from mining.sources import open_source
@@ -332,3 +334,20 @@ def _json_default(x):
     if isinstance(x, np.generic):
         return x.item()
     raise TypeError(type(x).__name__)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``mine bench scenarios``'s options."""
+    add_job_options(p)
+    if SYNTHETIC_JOB.is_file():
+        p.set_defaults(config=str(SYNTHETIC_JOB))
+    p.add_argument("--scenarios", nargs="+", default=None, help="default: all (mining/sources/synthetic/scenarios.py)")
+    p.add_argument("--frames", type=int, default=None, help="frames per scenario (default: the scenario's, 80)")
+    p.add_argument("--sequence", default="0000", help="seeds the world around the staged objects")
+    p.add_argument("--half", action="store_true", help="render at 621x188 (fx 360.77) instead of 1242x375")
+    p.add_argument("--json", help="also write the results as JSON here")
+
+
+def run(args: argparse.Namespace) -> int:
+    """``mine bench scenarios``."""
+    return run_scenarios_bench(job_config(args), args.scenarios, args.frames, args.sequence, args.half, args.json)

@@ -9,6 +9,7 @@ each frame's proposal masks, before and after the geometric filter, for the reca
 
 from __future__ import annotations
 
+import argparse
 import json
 import time
 from collections.abc import Iterator
@@ -16,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mining.config import JobConfig
+from mining.config import JobConfig, load_config
 from mining.errors import InputError
 from mining.eval.funnel import StageFrame, evaluate_funnel, format_funnel, stage_frame
 from mining.eval.synthetic import GtFrame, evaluate_synthetic, format_synthetic, gt_frame
@@ -97,3 +98,25 @@ def _plain(x):
     if isinstance(x, np.ndarray):
         return x.tolist()
     raise TypeError(type(x).__name__)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``mine eval synthetic``'s options (a config and overrides, no source: the sequence is synthetic)."""
+    p.add_argument("--sequence", default="0000")
+    p.add_argument("--n-frames", type=int, default=100)
+    p.add_argument("--config", default=None, help="job TOML (default: built-in defaults)")
+    p.add_argument("--set", action="append", default=[], help="config override KEY=VALUE")
+    p.add_argument("--min-visible-px", type=int, default=None,
+                   help="ignore objects with fewer visible pixels (default: the protocol's)")
+    p.add_argument("--max-depth-m", type=float, default=None)
+    p.add_argument("--json", default=None, metavar="PATH", help="also write the results (metrics, tube counts, "
+                                                                "known/unknown calls) as JSON here")
+
+
+def run(args: argparse.Namespace) -> int:
+    """``mine eval synthetic``."""
+    protocol = {"max_depth_m": args.max_depth_m}
+    if args.min_visible_px is not None:
+        protocol["min_visible_px"] = args.min_visible_px
+    return run_synthetic_eval(args.sequence, args.n_frames, load_config(args.config, args.set), json_out=args.json,
+                              **protocol)

@@ -8,6 +8,7 @@ gives (TrackEval's KITTI 2D-box evaluation of AB3DMOT on these detections and po
 
 from __future__ import annotations
 
+import argparse
 import tempfile
 import time
 from pathlib import Path
@@ -16,6 +17,7 @@ from mining.bench.iou_tracker import iou_track, write_iou_tracks
 from mining.config import JobConfig
 from mining.eval.kitti_mot import evaluate_kitti_mot, read_seqmap
 from mining.formats.poses import read_poses
+from mining.pipeline.arguments import add_data_option, add_job_options, job_config
 from mining.pipeline.detections import track_detections
 from mining.proposals.precomputed import KittiDetections
 from mining.sources.kitti import KittiTrackingSource
@@ -57,3 +59,15 @@ def run_tracking_bench(data: Path, cfg: JobConfig, sequences: list[str] | None =
     print(f"  (ours: {t_ours:.0f} s for {len(sequences)} sequences)")
     ok = all(rows["tubes (ours)"][c]["HOTA"] > rows["2D-IoU Hungarian"][c]["HOTA"] for c in ("Car", "Pedestrian"))
     return 0 if ok else 1
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``mine bench tracking``'s options."""
+    add_job_options(p)
+    add_data_option(p)
+    p.add_argument("--sequences", nargs="+", default=None, help="default: the twelve training sequences")
+
+
+def run(args: argparse.Namespace) -> int:
+    """``mine bench tracking``: 0 when the tubes beat the baseline's HOTA for cars and pedestrians."""
+    return run_tracking_bench(Path(args.data), job_config(args), args.sequences)

@@ -11,6 +11,7 @@ machine inflates them less than wall-clock time would.
 
 from __future__ import annotations
 
+import argparse
 import time
 from pathlib import Path
 
@@ -18,6 +19,7 @@ import numpy as np
 
 from mining.bench.geometry import pin_one_core
 from mining.config import JobConfig
+from mining.pipeline.arguments import add_data_option, add_job_options, job_config
 from mining.pipeline.frames import FrameLoop, plan_geometry
 from mining.pipeline.mine import judge, tube_generator, with_links
 from mining.proposals.precomputed import JsonProposals
@@ -88,3 +90,15 @@ def run_tubes_bench(data: Path, cfg: JobConfig, n_frames: int = 16, repeats: int
         if target is not None and best["total"] > target:
             ok = False
     return 0 if ok else 1
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``mine bench tubes``'s options."""
+    add_job_options(p)
+    add_data_option(p)
+    p.add_argument("--repeats", type=int, default=3)
+
+
+def run(args: argparse.Namespace) -> int:
+    """``mine bench tubes``."""
+    return run_tubes_bench(Path(args.data), job_config(args), repeats=args.repeats)

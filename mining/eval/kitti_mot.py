@@ -31,6 +31,8 @@ frames) or else from the largest frame index seen in the gt or the results.
 
 from __future__ import annotations
 
+import argparse
+import tempfile
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -291,3 +293,42 @@ def format_table(results: KittiMotResults | Mapping[str, Mapping[str, float]], p
         cells = [f"{m[c]:7d}" if isinstance(m[c], (int, np.integer)) else f"{m[c]:7.4f}" for c in TABLE_COLUMNS]
         lines.append(f"{seq:>5} {cls:<10} " + " ".join(cells))
     return "\n".join(lines)
+
+
+def evaluate_first_frames(gt_dir: str | Path, result_dir: str | Path, sequences: Sequence[str],
+                          classes: Sequence[str], n_frames: int) -> KittiMotResults:
+    """``evaluate_kitti_mot`` over the first ``n_frames`` frames of each sequence: ground-truth
+    rows from frame ``n_frames`` on are dropped, and a seqmap gives every sequence ``n_frames``
+    frames (the truncated label files and the seqmap live in a temporary folder)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        gt_files, lines = {}, []
+        for seq in sequences:
+            rows = [ln for ln in (Path(gt_dir) / f"{seq}.txt").read_text().splitlines()
+                    if ln.strip() and int(ln.split()[0]) < n_frames]
+            gt_files[seq] = Path(tmp) / f"{seq}.txt"
+            gt_files[seq].write_text("\n".join(rows) + "\n")
+            lines.append(f"{seq} empty 000000 {n_frames:06d}")
+        seqmap = Path(tmp) / "seqmap"
+        seqmap.write_text("\n".join(lines) + "\n")
+        return evaluate_kitti_mot(gt_files, result_dir, sequences, classes, seqmap)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``mine eval kitti-mot``'s options."""
+    p.add_argument("--gt", required=True, help="label_02 folder")
+    p.add_argument("--results", required=True, help="folder of <seq>.txt results")
+    p.add_argument("--sequences", nargs="+", required=True)
+    p.add_argument("--seqmap", help="seqmap with frame counts (else the largest frame seen)")
+    p.add_argument("--classes", nargs="+", default=["Car", "Pedestrian"])
+    p.add_argument("--frames", type=int, help="evaluate only the first N frames of each sequence")
+    p.add_argument("--per-sequence", action="store_true")
+
+
+def run(args: argparse.Namespace) -> int:
+    """``mine eval kitti-mot``: the metrics table on standard output."""
+    if args.frames is not None:  # the first N frames only; --seqmap is not read
+        results = evaluate_first_frames(Path(args.gt), args.results, args.sequences, tuple(args.classes), args.frames)
+    else:
+        results = evaluate_kitti_mot(Path(args.gt), args.results, args.sequences, tuple(args.classes), args.seqmap)
+    print(format_table(results, per_sequence=args.per_sequence))
+    return 0

@@ -81,6 +81,15 @@ def recall_at_n(proposals_per_frame: Sequence[Proposals | np.ndarray], gt_boxes_
     return out
 
 
+def format_recall(r: dict) -> str:
+    """``recall_at_n``'s result as a table: a row each for known, unknown and all objects, a column per N."""
+    ns = sorted(r["all"])
+    lines = [f"  {'objects':<8} {'count':>6} " + " ".join(f"{'@' + str(n):>6}" for n in ns)]
+    for name in ("known", "unknown", "all"):
+        lines.append(f"  {name:<8} {r['n_' + name]:>6} " + " ".join(f"{r[name][n]:6.3f}" for n in ns))
+    return "\n".join(lines)
+
+
 def kitti_ground_truth(rows: KittiTrackingRows, frames: Sequence[int],
                        types: set[str] | frozenset[str] | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Per-frame ground-truth boxes and known flags from KITTI tracking labels.

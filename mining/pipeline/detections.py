@@ -7,6 +7,7 @@ box at the object's depth. Writes KITTI tracking txt.
 
 from __future__ import annotations
 
+import argparse
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -16,6 +17,7 @@ from mining.config import JobConfig
 from mining.errors import InputError
 from mining.formats.poses import read_poses
 from mining.localise.localise import geometric_filter, localise_detections
+from mining.pipeline.arguments import add_job_options, job_config
 from mining.pipeline.kitti_export import write_tubes_kitti
 from mining.pipeline.mine import mine_tubes
 from mining.proposals.precomputed import KittiDetections
@@ -60,3 +62,28 @@ def write_detection_tubes(kitti_root: str | Path, sequence: str, mined: list[Min
     """A sequence's mined tubes as KITTI tracking txt (3D fields in rectified camera 0)."""
     kcalib = KittiTrackingSource(str(kitti_root)).kitti_calib(sequence)
     write_tubes_kitti(out_txt, mined, rect0_from_cam2=kcalib.cam2_to_rect0, observed_only=cfg.export.observed_only)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``mine track detections``' options."""
+    add_job_options(p)
+    p.add_argument("--sequences", nargs="+", required=True)
+    p.add_argument("--detections", help="PointRCNN folder (<Class>/<seq>.txt) or result-format folder; "
+                                        "default <root>/training/det_pointrcnn")
+    p.add_argument("--poses", help="folder of <seq>.txt camera-to-world poses; default <root>/training/egoposes_orbslam3")
+    p.add_argument("--out", required=True)
+
+
+def run(args: argparse.Namespace) -> int:
+    """``mine track detections``: writes OUT/<sequence>.txt per sequence, a line each."""
+    cfg = job_config(args)
+    root = Path(args.root or cfg.source.root)
+    split = root / "training" if (root / "training").is_dir() else root
+    detections = Path(args.detections) if args.detections else split / "det_pointrcnn"
+    poses = Path(args.poses) if args.poses else split / "egoposes_orbslam3"
+    out = Path(args.out)
+    for seq in args.sequences:
+        mined = track_detections(root, seq, detections, poses / f"{seq}.txt", cfg, out / f"{seq}.txt")
+        sel = [m for m in mined if m.selected]
+        print(f"{seq}: {len(mined)} tubes, {len(sel)} selected → {out / f'{seq}.txt'}")
+    return 0

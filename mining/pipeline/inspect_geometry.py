@@ -16,6 +16,7 @@ frames before it stay written and ``quality.json`` records the error.
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 from pathlib import Path
@@ -28,6 +29,7 @@ from mining.formats.disparity import write_disparity_png
 from mining.formats.poses import write_poses
 from mining.geometry.config import GeometryConfig
 from mining.geometry.egomotion import chain_egomotion
+from mining.pipeline.arguments import add_job_options, frame_range, job_config
 from mining.pipeline.frames import plan_geometry
 from mining.sources.base import Source
 from mining.types import FrameGeometry
@@ -101,3 +103,23 @@ def inspect_geometry(
         _atomic(out / "quality.json", lambda p: p.write_text(json.dumps(summary, indent=1)))
     return summary
 
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``mine inspect geometry``'s options."""
+    add_job_options(p)
+    p.add_argument("--sequence", required=True)
+    p.add_argument("--frames", type=frame_range, default=(0, None), metavar="A:B", help="plan positions [A, B)")
+    p.add_argument("--out", required=True, help="output folder")
+
+
+def run(args: argparse.Namespace) -> int:
+    """``mine inspect geometry``: writes the outputs and prints one line about them."""
+    cfg = job_config(args)
+    source = cfg.source.open()
+    start, stop = args.frames
+    summary = inspect_geometry(source, args.sequence, start, stop, cfg.geometry, args.out)
+    n = len(summary["frames"])
+    fails = summary["egomotion_failures"]
+    print(f"{n} frames of {summary['dataset']}/{summary['sequence']} → {args.out}: "
+          f"disparity/*.png, poses.txt, quality.json; egomotion failures: {fails}")
+    return 0
