@@ -111,9 +111,9 @@ def _is_str(v: object) -> bool:
     return isinstance(v, str)
 
 
-def _object(d: object, what: str) -> dict:
+def _object(d: object) -> dict:
     if not isinstance(d, dict):
-        raise _Shape(f"expected {what}, a JSON object; got {_kind(d)}")
+        raise _Shape(f"expected a JSON object, got {_kind(d)}")
     return d
 
 
@@ -138,7 +138,7 @@ class WindowFiles:
         if d is None or isinstance(d, Unreadable):
             return d
         try:
-            d = _object(d, "a window's files record")
+            d = _object(d)
             name = _key(d, "window", _is_str, "a window name")
             if name is not None and name != window.name:
                 raise _Shape(f"it records window {name!r}, not {window.name!r}")
@@ -217,7 +217,7 @@ class SequenceMarker:
         if d is None or isinstance(d, Unreadable):
             return d
         try:
-            d = _object(d, "a sequence marker")
+            d = _object(d)
             for key, own in (("dataset", dataset), ("sequence", sequence)):
                 got = _key(d, key, _is_str, f"a {key} name")
                 if got is not None and got != own:
