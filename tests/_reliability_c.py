@@ -13,7 +13,8 @@ from pathlib import Path
 from mining.catalog.views import connect
 from mining.config import JobConfig, load_config
 from mining.pipeline.executors import LocalExecutor
-from mining.pipeline.submit import Summary, mine_job
+from mining.pipeline.submit import mine_job
+from mining.pipeline.summary import Summary
 
 REPO = Path(__file__).resolve().parents[1]
 SEQ = "0000"

@@ -12,7 +12,8 @@ import sys
 from collections import deque
 
 from conftest import REPO
-from mining.pipeline.schedule import Resume, Schedule, Task, neighbour_map, neighbours, user_map
+from mining.pipeline.resume import Resume
+from mining.pipeline.schedule import Schedule, Task, neighbour_map, neighbours, user_map
 from mining.pipeline.steps import StepResult
 from mining.types import SequencePlan, StereoCalib, Window, plan_windows
 

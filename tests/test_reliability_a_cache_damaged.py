@@ -72,7 +72,7 @@ def test_a_track_that_meets_a_damaged_cache_fails_its_window_with_the_reason(tmp
     data = bytearray(path.read_bytes())
     data[len(data) // 2] ^= 0xFF
     path.write_bytes(bytes(data))
-    observed = [StepResult(w.name, True, extra={"cached": True}) for w in (first, second)]
+    observed = [StepResult(w.name, True, cached=True) for w in (first, second)]
     result = Track(job).run(first, [first, second], observed)
     assert not result.ok
     assert str(path) in result.error and "damaged observation cache" in result.error

@@ -25,7 +25,7 @@ import pyarrow as pa
 from pycocotools import mask as mask_utils
 
 from mining.catalog.integrity import sequence_files
-from mining.catalog.layout import done_path
+from mining.catalog.records import SequenceMarker
 from mining.catalog.schema import SCHEMA_VERSION, file_schema
 from mining.catalog.store import Store, write_sequence
 from mining.catalog.views import connect
@@ -173,8 +173,7 @@ def build_catalogue(out: str | Path, n_rows: int = 1_000_000, n_sequences: int =
                    + write_sequence(store, "frames", "bench", seq, frames))
         # A finished marker with every file's size and sha256, as a mining job's stitch leaves
         # it: readers then serve only these files and check their checksums (integrity on).
-        marker = {"dataset": "bench", "sequence": seq, "windows": [], "files": sequence_files(store, written)}
-        store.write_bytes(done_path("bench", seq), json.dumps(marker, indent=1).encode())
+        SequenceMarker("bench", seq, (), files=sequence_files(store, written)).save(store)
         n_tubes += tubes.num_rows
     return {"tube_frames": n_rows, "tubes": n_tubes, "sequences": sequences, "masks": len(masks)}
 

@@ -1,15 +1,19 @@
 """Integrity of a catalogue: the size and sha256 of every file as written, against what is there.
 
-Each output a later step or a reader trusts is recorded when it is written:
+Each output a later step or a reader trusts is recorded when it is written (the records are
+``records.py``'s types):
 
-* a window's parts (``_parts/<table>/…/<window>.part``) in ``manifest/…/<window>.files.json``,
-  written after the parts and before the window's manifest row says done;
+* a window's parts (``_parts/<table>/…/<window>.part``) in ``manifest/…/<window>.files.json``
+  (``WindowFiles``), written after the parts and before the window's manifest row says done;
 * a sequence's compacted files (``catalog/<table>/…/part-<k>.parquet``, all four tables) in
-  its finished marker ``catalog/_sequences/…``, written after them.
+  its finished marker ``catalog/_sequences/…`` (``SequenceMarker``), written after them.
+
+A record that does not read vouches for nothing: its window runs again, its sequence is
+stitched again, and ``mine status`` names it with the reason.
 
 Checking costs a listing and a ``stat`` per file (sizes: a deleted or truncated file), or
 reads every byte with ``verify`` (checksums: a file damaged in place). Three callers:
-resume (``submit.read_resume``: a window with a damaged part runs again, a sequence with a
+resume (``pipeline/resume.read_resume``: a window with a damaged part runs again, a sequence with a
 damaged compacted file is stitched again from its parts), ``mine status`` (names every
 damaged file and what a resubmission recomputes) and the query views (``views.connect``
 through ``vouched_files``: they read only the files the markers vouch for, each checked
@@ -28,14 +32,13 @@ from dataclasses import dataclass
 
 import pyarrow.fs as pafs
 
-from mining.catalog.layout import CATALOG, JOB, PART_TABLES, catalog_dir, done_path, files_path, part_path
+from mining.catalog.layout import CATALOG, JOB, MARKERS, PART_TABLES, catalog_dir, files_path, part_path
+from mining.catalog.records import SequenceMarker, Unreadable, WindowFiles
 from mining.catalog.store import Store, is_temporary
-from mining.errors import InputError
 from mining.types import Window
 
 CHUNK = 1 << 20  # ours: bytes read per step while hashing
 TABLES = ("tubes", "tube_frames", "frames", "windows")  # the compacted tables a finalize writes
-MARKERS = f"{CATALOG}/_sequences"
 
 
 @dataclass(frozen=True)
@@ -69,7 +72,7 @@ def record_files(store: Store, rels: Iterable[str]) -> dict[str, dict]:
 
 
 def read_json(store: Store, rel: str) -> dict | None:
-    """A JSON record, or None when it is missing or unreadable (a damaged record proves nothing)."""
+    """A JSON object (``job.json`` for ``mined``), or None when it is missing or unreadable."""
     try:
         with store.fs.open_input_stream(store.full(rel)) as f:
             d = json.loads(f.read())
@@ -104,22 +107,20 @@ def check_files(store: Store, recorded: Mapping[str, Mapping], owner: str, verif
     return out
 
 
-def window_files(store: Store, window: Window) -> dict[str, dict]:
-    """The parts a window's tracking wrote, with their digests (for ``files_path``)."""
-    return record_files(store, [part_path(t, window.dataset, window.sequence, window.name) for t in PART_TABLES])
+def window_files(store: Store, window: Window) -> WindowFiles:
+    """The record of the parts a window's tracking wrote, with their digests (``WindowFiles.save`` it)."""
+    return WindowFiles(window, record_files(
+        store, [part_path(t, window.dataset, window.sequence, window.name) for t in PART_TABLES]))
 
 
 def window_damage(store: Store, window: Window, verify: bool = False) -> list[Damage]:
     """The damaged or missing parts of a window its manifest row says is done."""
     owner = f"window {window.name}"
-    rel = files_path(window.dataset, window.sequence, window.name)
-    record = read_json(store, rel)
-    files = record.get("files") if record else None
-    if not isinstance(files, dict):
-        return [Damage(rel, "missing or unreadable: the window's parts cannot be checked", owner)]
-    want = {part_path(t, window.dataset, window.sequence, window.name) for t in PART_TABLES}
-    out = [Damage(r, "missing", owner) for r in sorted(want - files.keys())]
-    return out + check_files(store, files, owner, verify)
+    record = WindowFiles.load(store, window)
+    if not isinstance(record, WindowFiles):
+        return [Damage(files_path(window.dataset, window.sequence, window.name),
+                       "missing or unreadable: the window's parts cannot be checked", owner)]
+    return [Damage(r, "missing", owner) for r in record.missing()] + check_files(store, record.files, owner, verify)
 
 
 def sequence_files(store: Store, written: Iterable[str]) -> dict[str, dict]:
@@ -127,46 +128,39 @@ def sequence_files(store: Store, written: Iterable[str]) -> dict[str, dict]:
     return record_files(store, written)
 
 
-def marker_damage(store: Store, marker: Mapping, verify: bool = False, dataset: str | None = None,
-                  sequence: str | None = None) -> list[Damage]:
-    """The damaged, missing or unexpected compacted files of a finalized sequence (its
-    ``dataset`` and ``sequence`` as the marker records them, unless given)."""
-    dataset, sequence = dataset or marker.get("dataset"), sequence or marker.get("sequence")
-    owner = f"sequence {sequence}"
-    files = marker.get("files")
-    if not isinstance(files, dict) or not isinstance(dataset, str) or not isinstance(sequence, str):
-        where = done_path(dataset, sequence) if isinstance(dataset, str) and isinstance(sequence, str) else MARKERS
-        return [Damage(where, "records no file sizes (written before integrity records)", owner)]
-    out = check_files(store, files, owner, verify)
+def marker_damage(store: Store, marker: SequenceMarker, verify: bool = False) -> list[Damage]:
+    """The damaged, missing or unexpected compacted files of a finalized sequence: what keeps
+    its marker from vouching for its catalogue (resume stitches it again; status names them)."""
+    owner = f"sequence {marker.sequence}"
+    if marker.files is None:
+        return [Damage(marker.path, "records no file sizes (written before integrity records)", owner)]
+    out = check_files(store, marker.files, owner, verify)
     for table in TABLES:  # a file no finalize recorded is read by every query: a left-over
-        for rel in store.list(catalog_dir(table, dataset, sequence)):
-            if rel not in files:
+        for rel in store.list(catalog_dir(table, marker.dataset, marker.sequence)):
+            if rel not in marker.files:
                 out.append(Damage(rel, "not recorded by the sequence's last finalize (left over)", owner))
     return out
 
 
+def unreadable_damage(record: Unreadable, owner: str) -> Damage:
+    """A record that does not read: what it vouched for cannot be checked, and ``owner`` recomputes it."""
+    return Damage(record.path, f"unreadable: {record.reason}", owner)
+
+
 def sequence_damage(store: Store, dataset: str, sequence: str, verify: bool = False) -> list[Damage] | None:
-    """``marker_damage`` of one sequence; None when it has no (readable) finished marker."""
-    marker = read_json(store, done_path(dataset, sequence))
-    return None if marker is None else marker_damage(store, marker, verify, dataset, sequence)
-
-
-def markers(store: Store) -> list[dict]:
-    """Every readable finished marker of the catalogue."""
-    out = []
-    for rel in store.list(MARKERS, ".json"):
-        m = read_json(store, rel)
-        if m is not None:
-            out.append(m)
-    return out
+    """``marker_damage`` of one sequence, or its marker when it does not read; None when it has none."""
+    marker = SequenceMarker.load(store, dataset, sequence)
+    if isinstance(marker, Unreadable):
+        return [unreadable_damage(marker, f"sequence {sequence}")]
+    return None if marker is None else marker_damage(store, marker, verify)
 
 
 def catalogue_damage(store: Store, verify: bool = False) -> dict[str, list[Damage]]:
     """Damaged compacted files by table, over every finalized sequence (what queries read)."""
     out: dict[str, list[Damage]] = {}
-    for m in markers(store):
-        if not isinstance(m.get("files"), dict):
-            continue  # a marker from before integrity records: nothing to check against
+    for m in SequenceMarker.load_all(store):
+        if not isinstance(m, SequenceMarker) or m.files is None:
+            continue  # unreadable, or from before integrity records: nothing to check against
         for d in marker_damage(store, m, verify):
             out.setdefault(d.table, []).append(d)
     return out
@@ -242,8 +236,9 @@ def vouched_files(store: Store, verify: bool = True) -> Vouched:
 
     Only files a readable marker records under its own sequence's folders are served: a
     sequence whose first stitch has not finished (no marker yet), a folder no marker records
-    or a file its marker does not list is not read. A marker from before integrity records
-    vouches for its folders' files as listed (nothing to check them against). A catalogue no
+    or a file its marker does not list is not read. A marker that does not read, or one from
+    before integrity records (no files to check against), vouches for nothing: ``mine status``
+    names it, and a resubmission stitches its sequence again. A catalogue no
     mining job wrote (``mined`` False: files written by ``store.write_sequence`` alone) is
     served as listed, unchecked.
     """
@@ -254,28 +249,19 @@ def vouched_files(store: Store, verify: bool = True) -> Vouched:
             files[t] = {r for r in store.list(f"{CATALOG}/{t}") if _hive_file(r)}
         return Vouched({t: sorted(v) for t, v in files.items()}, {}, False)
     recorded: dict[str, tuple[Mapping, str]] = {}  # rel → (its record, owner)
-    for m in markers(store):
-        dataset, sequence = m.get("dataset"), m.get("sequence")
-        if not (isinstance(dataset, str) and isinstance(sequence, str)):
-            continue
-        try:
-            dirs = {t: catalog_dir(t, dataset, sequence) + "/" for t in TABLES}
-        except InputError:
-            continue  # a name that is not one: the marker vouches for nothing
-        owner, listed = f"sequence {sequence}", m.get("files")
+    for m in SequenceMarker.load_all(store):
+        if not isinstance(m, SequenceMarker) or m.files is None:
+            continue  # unreadable, or from before integrity records: vouches for nothing
+        dirs = {t: catalog_dir(t, m.dataset, m.sequence) + "/" for t in TABLES}
+        owner = f"sequence {m.sequence}"
         for t in TABLES:
             on_disk = {r for r in store.list(dirs[t].rstrip("/")) if not is_temporary(r)}
-            if not isinstance(listed, dict):  # before integrity records
-                files[t] |= on_disk
-                continue
-            for rel in on_disk - listed.keys():
+            for rel in on_disk - m.files.keys():
                 damage.setdefault(t, {})[rel] = Damage(rel, "not recorded by the sequence's last finalize (left over)",
                                                        owner)
-        if isinstance(listed, dict):
-            for rel, want in listed.items():
-                if isinstance(rel, str) and isinstance(want, Mapping) and any(
-                        rel.startswith(d) and "/" not in rel[len(d):] for d in dirs.values()):
-                    recorded.setdefault(rel, (want, owner))
+        for rel, want in m.files.items():
+            if any(rel.startswith(d) and "/" not in rel[len(d):] for d in dirs.values()):
+                recorded.setdefault(rel, (want, owner))
     rels = sorted(recorded)
     infos = store.fs.get_file_info([store.full(r) for r in rels]) if rels else []
     to_hash = []

@@ -8,13 +8,15 @@ draws the same tree); ``store.py`` does the I/O on them::
     catalog/<table>/dataset=D/sequence=S/part-<k>.parquet     compacted tables (tubes, tube_frames, frames, windows)
     catalog/_sequences/dataset=D/sequence=S.json              a finalized sequence: which windows its catalogue holds,
                                                               and the size and sha256 of each of its compacted files
-    manifest/dataset=D/sequence=S/<window>.parquet            the windows table, one row per window
-    manifest/dataset=D/sequence=S/<window>.files.json         size and sha256 of the window's parts (integrity.py)
+                                                              (SequenceMarker)
+    manifest/dataset=D/sequence=S/<window>.parquet            the windows table, one row per window (ManifestRow)
+    manifest/dataset=D/sequence=S/<window>.files.json         size and sha256 of the window's parts (WindowFiles)
     manifest/dataset=D/sequence=S/stitch.parquet              a sequence whose stitch failed (its row, until one succeeds)
     _running/dataset=D/sequence=S/<window>.json               a window a driver has started and not finished
     _parts/<table>/dataset=D/sequence=S/<window>.part         a window's parts before stitching (Parquet)
     _cache/obs/dataset=D/sequence=S/<window>.npz.zst          a window's observations, until no track needs them
 
+The records among them are types: ``JobRecord`` here, the others in ``records.py``.
 Every path is built from names checked by ``mining/names.py`` (dataset, sequence, window),
 so no name can leave ``--out`` or make two tables share a file; ``job.json``'s names are
 checked when it is read.
@@ -44,6 +46,7 @@ if TYPE_CHECKING:
 JOB = "job.json"
 CATALOG = "catalog"
 MANIFEST = "manifest"
+MARKERS = f"{CATALOG}/_sequences"  # one finished marker per finalized sequence (records.SequenceMarker)
 # Working files (per-window parts, caches, running markers) sit under "_"-prefixed folders,
 # which Hive-style readers (DuckDB, Spark, pyarrow datasets) skip: a glob over the output
 # folder finds the catalogue and the manifest, never a half-stitched piece.
@@ -96,6 +99,8 @@ def manifest_path(dataset: str, sequence: str, window: str) -> str:
 def files_path(dataset: str, sequence: str, window: str) -> str:
     """Size and sha256 of a window's parts, written before its manifest row says done."""
     return f"{MANIFEST}/dataset={dataset}/sequence={sequence}/{window}.files.json"
+
+
 def stitch_path(dataset: str, sequence: str) -> str:
     """The manifest row of a sequence whose stitch (finalize) failed; removed when one succeeds."""
     return f"{MANIFEST}/dataset={dataset}/sequence={sequence}/{STITCH_ROW}.parquet"
@@ -126,7 +131,7 @@ def catalog_file(table: str, dataset: str, sequence: str, k: int) -> str:
 
 def done_path(dataset: str, sequence: str) -> str:
     """The marker a finalized sequence leaves: which windows its catalogue holds."""
-    return f"{CATALOG}/_sequences/{_where(dataset, sequence)}.json"
+    return f"{MARKERS}/{_where(dataset, sequence)}.json"
 
 
 def cache_path(w: Window, suffix: str = CACHE_SUFFIX) -> str:

@@ -15,6 +15,7 @@ import os
 from collections import deque
 from typing import Any, Protocol
 
+from mining.pipeline.schedule import Step
 from mining.pipeline.steps import Finalize, Job, Observe, StepResult, Track
 
 
@@ -40,7 +41,7 @@ class Worker:
     """The steps of one job, held by one process."""
 
     def __init__(self, job: Job):
-        self.steps = {"observe": Observe(job), "track": Track(job), "finalize": Finalize(job)}
+        self.steps = {Step.OBSERVE: Observe(job), Step.TRACK: Track(job), Step.FINALIZE: Finalize(job)}
 
     def run(self, step: str, *args: Any) -> StepResult:
         return self.steps[step].run(*args)

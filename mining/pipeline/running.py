@@ -58,12 +58,9 @@ class RunningMarkers:
         """Remove markers an earlier driver left (killed before it could) for windows that
         are not to run now, or whose driver is gone: one listing of the folder."""
         for rel in self.store.list(RUNNING, suffix=".json"):
-            try:
-                marker = json.loads(self.store.read_bytes(rel))
-            except (ValueError, MiningError):
-                marker = {}
+            marker = _load(self.store, rel)
             window = posixpath.basename(rel)[: -len(".json")]
-            if window not in todo or not isinstance(marker, dict) or not driver_alive(marker):
+            if window not in todo or marker is None or not driver_alive(marker):
                 self.store.remove(rel)
 
     def clear_all(self) -> None:
@@ -72,16 +69,19 @@ class RunningMarkers:
             self.clear(w)
 
 
+def _load(store: Store, rel: str) -> dict | None:
+    """A marker, or None when it is gone or does not read as one (it then says nothing)."""
+    try:
+        marker = json.loads(store.read_bytes(rel))
+    except (ValueError, MiningError):  # not JSON; removed since it was listed
+        return None
+    return marker if isinstance(marker, dict) else None
+
+
 def read_marker(store: Store, window: Window) -> dict | None:
     """The window's marker, or None (also for an unreadable one: a crash mid-write leaves none)."""
     rel = running_path(window.dataset, window.sequence, window.name)
-    if not store.exists(rel):
-        return None
-    try:
-        marker = json.loads(store.read_bytes(rel))
-    except ValueError:
-        return None
-    return marker if isinstance(marker, dict) else None
+    return _load(store, rel) if store.exists(rel) else None
 
 
 def driver_alive(marker: dict) -> bool:

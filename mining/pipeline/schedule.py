@@ -31,30 +31,47 @@ from __future__ import annotations
 import bisect
 from collections import defaultdict, deque
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from enum import StrEnum
 from typing import TYPE_CHECKING
 
+from mining.pipeline.resume import Resume
 from mining.types import Window
 
 if TYPE_CHECKING:
     from mining.pipeline.steps import StepResult
 
 
-@dataclass(frozen=True)
-class Resume:
-    """What earlier runs of the job left in its catalogue."""
+class Step(StrEnum):
+    """The three steps (``steps.py``), by the name the executors' workers know them by."""
 
-    done: Mapping[str, bool] = field(default_factory=dict)  # window done → was its context complete then
-    finalized: Mapping[str, frozenset[str]] = field(default_factory=dict)  # sequence → windows its catalogue holds
+    OBSERVE = "observe"  # a window's core frames → its observation cache
+    TRACK = "track"  # a window's context → its tube pieces and manifest row
+    FINALIZE = "finalize"  # a sequence's windows → its catalogue
 
 
 @dataclass(frozen=True)
 class Task:
     """One step to run: ``executor.submit(task.step, *task.args)``."""
 
-    step: str  # observe | track | finalize
+    step: Step
     target: Window | str  # the window observed or tracked, or the sequence finalized
     args: tuple
+
+    @property
+    def window(self) -> Window | None:
+        """The window observed or tracked (None for a finalize)."""
+        return self.target if isinstance(self.target, Window) else None
+
+    @property
+    def sequence(self) -> str:
+        """The sequence the task works on."""
+        return self.target.sequence if isinstance(self.target, Window) else self.target
+
+    @property
+    def name(self) -> str:
+        """The window's name, or the sequence finalized: what its ``StepResult.window`` says."""
+        return self.target.name if isinstance(self.target, Window) else self.target
 
 
 def neighbours(window: Window, windows: list[Window]) -> list[Window]:
@@ -154,19 +171,19 @@ class Schedule:
         if self._ready and (len(self._ready) > self.observe_ahead or not self._observe):
             w = self._ready.popleft()
             nb = self.nbrs[w.name]
-            return Task("track", w, (w, nb, [self._observed[n.name] for n in nb]))
+            return Task(Step.TRACK, w, (w, nb, [self._observed[n.name] for n in nb]))
         if self._observe:
             w = self._observe.popleft()
-            return Task("observe", w, (w,))
+            return Task(Step.OBSERVE, w, (w,))
         if self._finalize:
             seq = self._finalize.popleft()
-            return Task("finalize", seq, (seq, self.by_seq[seq], sorted(self.ok[seq])))
+            return Task(Step.FINALIZE, seq, (seq, self.by_seq[seq], sorted(self.ok[seq])))
         return None
 
     def on_result(self, task: Task, result: StepResult) -> list[Window]:
         """Take the result of ``task`` (a failed one when the step could not run);
         returns the windows whose observation caches no track needs any more."""
-        if task.step == "observe":
+        if task.step == Step.OBSERVE:
             w = task.target
             self._observed[w.name] = result
             for u in self.users[w.name]:
@@ -176,7 +193,7 @@ class Schedule:
                         self._blocked -= 1
                         self._ready.append(u)
             return []
-        if task.step == "track":
+        if task.step == Step.TRACK:
             w = task.target
             served: list[Window] = []
             if result.ok:

@@ -11,22 +11,28 @@ A window is
 A sequence is ``stitched`` (its catalogue holds exactly its done windows), ``failed``
 (its stitch failed: the manifest's ``stitch`` row, with the error) or ``pending``.
 Every output file that is not as the manifest recorded it (``integrity.py``: sizes, and
-checksums with ``--verify``) is named, with what a resubmission recomputes.
+checksums with ``--verify``) is named, with what a resubmission recomputes; so is every
+record that does not read (``catalog/records.py``: a truncated or foreign marker, an
+unreadable manifest row), with why. The records are read with the same predicates resume
+uses (``resume.py``).
 Exits 1 when any window or stitch failed, a sequence could not be planned, or any file is damaged.
 """
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 
-from mining.catalog.integrity import Damage, sequence_damage, window_damage
-from mining.catalog.layout import JOB, JobRecord, done_path, manifest_path, stitch_path
+from mining.catalog.integrity import Damage, sequence_damage, unreadable_damage, window_damage
+from mining.catalog.layout import JOB, STITCH_ROW, JobRecord, UnreadableRecord, manifest_path
+from mining.catalog.records import ManifestRow, SequenceMarker, Unreadable
 from mining.catalog.lock import current_writer, describe
 from mining.catalog.store import Store
 from mining.errors import InputError
 from mining.pipeline.running import driver_alive, read_marker
 from mining.proposals.make import classifiers_line
+
+
+UNREADABLE_ROW = "manifest row unreadable"  # the error of a window whose row does not read
 
 
 @dataclass
@@ -61,17 +67,15 @@ def job_status(out: str) -> list[WindowStatus]:
         raise InputError("no mining job here (job.json missing): run `mine submit --out` first", store.full(JOB))
     rows = []
     for w in job.windows:
-        m = manifest_path(w.dataset, w.sequence, w.name)
         status, attempts, error = "pending", 0, ""
-        if store.exists(m):
-            try:
-                r = store.read_table(m).to_pylist()[0]
-            except (InputError, IndexError):  # named under integrity; a resubmission runs the window again
-                rows.append(WindowStatus(w.dataset, w.sequence, w.name, "pending", 0, "manifest row unreadable"))
-                continue
-            if r["params_hash"] == job.params_hash:
-                status, error = r["status"], r["error"] or ""
-            attempts = r["attempts"]
+        r = ManifestRow.load(store, w.dataset, w.sequence, w.name)
+        if isinstance(r, Unreadable):  # named under integrity; a resubmission runs the window again
+            rows.append(WindowStatus(w.dataset, w.sequence, w.name, "pending", 0, UNREADABLE_ROW))
+            continue
+        if r is not None:
+            if r.params_hash == job.params_hash:
+                status, error = r.status, r.error
+            attempts = r.attempts
         marker = read_marker(store, w)
         if marker is not None and marker.get("params_hash") == job.params_hash and driver_alive(marker):
             rows.append(WindowStatus(w.dataset, w.sequence, w.name, "running", attempts, error, _running(marker)))
@@ -91,7 +95,7 @@ def job_damage(out: str, rows: list[WindowStatus], verify: bool = False) -> list
         w = by_name.get(r.window)
         if w is None:
             continue
-        if r.error == "manifest row unreadable":
+        if r.error == UNREADABLE_ROW:
             out_.append(Damage(manifest_path(w.dataset, w.sequence, w.name), "unreadable", f"window {w.name}"))
         elif r.status == "done":
             out_ += window_damage(store, w, verify)
@@ -99,6 +103,8 @@ def job_damage(out: str, rows: list[WindowStatus], verify: bool = False) -> list
         # The compacted files are what every query reads (and checks by checksum, views.py):
         # their checksums always; the parts' only with --verify.
         out_ += sequence_damage(store, d, seq, True) or []
+        if isinstance(row := ManifestRow.load(store, d, seq, STITCH_ROW), Unreadable):  # resume stitches it again
+            out_.append(unreadable_damage(row, f"sequence {seq}"))
     return out_
 
 
@@ -121,16 +127,15 @@ def sequence_status(out: str, windows: list[WindowStatus] | None = None) -> list
             seqs[(w.dataset, w.sequence)].add(w.window)
     out_rows = []
     for (d, s), done in seqs.items():
-        row = store.read_table(stitch_path(d, s)).to_pylist()[0] if store.exists(stitch_path(d, s)) else None
-        if row is not None and row["params_hash"] == job.params_hash:
-            out_rows.append(SequenceStatus(d, s, "failed", row["attempts"], row["error"] or ""))
+        row = ManifestRow.load(store, d, s, STITCH_ROW)
+        row = row if isinstance(row, ManifestRow) else None  # an unreadable one is named under integrity
+        if row is not None and row.params_hash == job.params_hash:
+            out_rows.append(SequenceStatus(d, s, "failed", row.attempts, row.error))
             continue
-        status = "pending"
-        if store.exists(done_path(d, s)):
-            marker = json.loads(store.read_bytes(done_path(d, s)))
-            if marker.get("params_hash") == job.params_hash and set(marker.get("windows", ())) == done:
-                status = "stitched"
-        out_rows.append(SequenceStatus(d, s, status, 0 if row is None else row["attempts"], ""))
+        marker = SequenceMarker.load(store, d, s)  # an unreadable one is named under integrity
+        stitched = isinstance(marker, SequenceMarker) and marker.of_job(job.params_hash) and set(marker.windows) == done
+        out_rows.append(SequenceStatus(d, s, "stitched" if stitched else "pending", 0 if row is None else row.attempts,
+                                       ""))
     return out_rows
 
 
@@ -158,6 +163,11 @@ def print_status(out: str, verify: bool = False) -> int:
           f"{stitched['pending']} not stitched yet (of {len(seqs)})")
     job = JobRecord.load(Store(out))
     unplanned = job.unplanned if job else {}
+    cfg = None
+    try:
+        cfg = job.job_config(Store(out).full(JOB)) if job else None
+    except UnreadableRecord as e:  # the windows and files are still reported; the config's lines are not
+        print(f"config unreadable: {e} (its proposer and dataset are not shown)")
     if unplanned:
         print(f"sequences not planned: {len(unplanned)} (the last submit left them out; fix them and submit again)")
     for q in seqs:  # per sequence: how far its windows are
@@ -165,9 +175,8 @@ def print_status(out: str, verify: bool = False) -> int:
         n = {s: sum(r.status == s for r in own) for s in ("done", "running", "failed")}
         extra = "".join(f", {n[s]} {s}" for s in ("running", "failed") if n[s])
         print(f"  {q.dataset}/{q.sequence}: {n['done']}/{len(own)} windows done{extra}; {q.status}")
-    proposer = (job.config.get("proposals") or {}).get("proposer") if job else None
-    if proposer:
-        print(classifiers_line(str(proposer)))
+    if cfg is not None and cfg.proposals.proposer:
+        print(classifiers_line(cfg.proposals.proposer))
     for r in rows:
         if r.status == "done":
             continue
@@ -180,7 +189,7 @@ def print_status(out: str, verify: bool = False) -> int:
     for q in seqs:
         if q.status == "failed":
             print(f"{'failed':8s} {q.dataset}/{q.sequence} stitching  attempts {q.attempts}  {_first_line(q.error)}")
-    dataset = (job.config.get("source") or {}).get("dataset", "?") if job else "?"
+    dataset = cfg.source.dataset if cfg is not None else "?"
     for seq, why in sorted(unplanned.items()):
         print(f"{'failed':8s} {dataset}/{_printable(seq)} planning  {_first_line(why)}")
     writer = current_writer(Store(out))

@@ -17,15 +17,15 @@ from __future__ import annotations
 import json
 import time
 import traceback
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from datetime import datetime, timezone
 
 import numpy as np
 import pyarrow as pa
 
 from mining.catalog.integrity import sequence_files, window_files
-from mining.catalog.layout import (PART_TABLES, STITCH_ROW, cache_path, done_path, files_path, manifest_path,
-                                   observed_path, part_path, stitch_path)
+from mining.catalog.layout import PART_TABLES, STITCH_ROW, cache_path, observed_path, part_path, stitch_path
+from mining.catalog.records import ManifestRow, SequenceMarker, Unreadable
 from mining.catalog.rows import RunInfo, frame_rows, frames_row, to_table, tube_row
 from mining.catalog.store import Store, write_sequence
 from mining.config import JobConfig
@@ -37,14 +37,29 @@ from mining.sources.base import Source
 from mining.types import SequencePlan, Window
 
 
+@dataclass(frozen=True)
+class TubeCounts:
+    """The tubes a sequence's stitch wrote: the selected ones by class, of all candidates."""
+
+    selected: int = 0
+    candidates: int = 0
+    known: int = 0
+    unknown: int = 0
+    unclassified: int = 0
+
+
 @dataclass
 class StepResult:
-    window: str
+    """What a step hands back to the loop (``submit.run_job``) and the schedule."""
+
+    window: str  # the window observed or tracked, or the sequence finalized
     ok: bool
     error: str = ""
     seconds: float = 0.0
-    frames: int = 0
-    extra: dict = field(default_factory=dict)
+    frames: int = 0  # observe: frames observed; track: the window's core frames
+    cached: bool = False  # observe: the window's observation cache read back (nothing observed)
+    recomputed: str = ""  # observe: why its cache did not read back (it was observed again)
+    tubes: TubeCounts | None = None  # finalize: what the stitch wrote
 
 
 @dataclass
@@ -99,7 +114,7 @@ class Observe:
         if store.exists(path):
             try:
                 read_cache(store, window)
-                return StepResult(window.name, True, extra={"cached": True})
+                return StepResult(window.name, True, cached=True)
             except InputError as e:  # damaged, foreign or of another version: made again below
                 recomputed = str(e)
         report = _FrameReport(store, window)
@@ -112,7 +127,7 @@ class Observe:
             report.close()
         store.write_bytes(path, encode_frames(frames))
         return StepResult(window.name, True, seconds=time.perf_counter() - t0, frames=len(frames),
-                          extra={"recomputed": recomputed} if recomputed else {})
+                          recomputed=recomputed)
 
     def _proposer(self, window: Window):
         from mining.proposals.make import make_proposer
@@ -182,29 +197,21 @@ def load_context(store: Store, window: Window, neighbours: list[Window]) -> list
     return frames
 
 
-def _write_row(job: Job, path: str, name: str, core: tuple[int, int], context: tuple[int, int], status: str,
-               started: datetime | None, error: str, **measures) -> None:
+def _write_row(job: Job, dataset: str, sequence: str, name: str, core: tuple[int, int], context: tuple[int, int],
+               status: str, started: datetime | None, error: str, **measures) -> None:
     store = job.store()
-    attempts = 1
-    if store.exists(path):
-        try:
-            attempts += int(store.read_table(path, ["attempts"]).column(0)[0].as_py())
-        except (InputError, IndexError, TypeError):
-            pass  # a damaged row: this attempt's row replaces it
-    row = {"run_id": job.run_id, "window": name, "core_start": core[0], "core_end": core[1],
-           "context_start": context[0], "context_end": context[1], "status": status,
-           "attempts": attempts, "started": started, "finished": _now(), "seconds_observe": None,
-           "seconds_tubes": None, "n_pieces": None, "context_complete": None, "error": error or None,
-           "params_hash": job.params_hash} | measures
-    store.write_table(path, to_table([row], "windows"))
+    prior = ManifestRow.load(store, dataset, sequence, name)  # a damaged row: this attempt's row replaces it
+    attempts = 1 + (prior.attempts if isinstance(prior, ManifestRow) else 0)
+    ManifestRow(job.run_id, name, tuple(core), tuple(context), status, attempts, job.params_hash, started, _now(),
+                error=error, **measures).save(store, dataset, sequence)
 
 
 def write_manifest(job: Job, window: Window, status: str, started: datetime | None, error: str = "",
                    seconds_observe: float | None = None, seconds_tubes: float | None = None,
                    n_pieces: int | None = None, context_complete: bool | None = None) -> None:
-    _write_row(job, manifest_path(window.dataset, window.sequence, window.name), window.name, window.core,
-               window.context, status, started, error, seconds_observe=seconds_observe,
-               seconds_tubes=seconds_tubes, n_pieces=n_pieces, context_complete=context_complete)
+    _write_row(job, window.dataset, window.sequence, window.name, window.core, window.context, status, started, error,
+               seconds_observe=seconds_observe, seconds_tubes=seconds_tubes, n_pieces=n_pieces,
+               context_complete=context_complete)
 
 
 def write_stitch_failure(job: Job, sequence: str, windows: list[Window], error: str,
@@ -213,7 +220,7 @@ def write_stitch_failure(job: Job, sequence: str, windows: list[Window], error: 
     the sequence's planned range as core and context. ``Finalize`` removes it once a stitch
     of the sequence succeeds."""
     span = (min(w.core[0] for w in windows), max(w.core[1] for w in windows)) if windows else (0, 0)
-    _write_row(job, stitch_path(job.cfg.source.dataset, sequence), STITCH_ROW, span, span, "failed", started, error)
+    _write_row(job, job.cfg.source.dataset, sequence, STITCH_ROW, span, span, "failed", started, error)
 
 
 class Track:
@@ -224,7 +231,7 @@ class Track:
         """Tube pieces of ``window``; ``observe`` are the observe results of its own core and neighbours."""
         job, store, started, t0 = self.job, self.job.store(), _now(), time.perf_counter()
         own = next(r for r in observe if r.window == window.name)
-        seconds_observe = own.seconds if not own.extra.get("cached") else None
+        seconds_observe = own.seconds if not own.cached else None
         if not own.ok:
             write_manifest(job, window, "failed", started, own.error, seconds_observe)
             return StepResult(window.name, False, own.error)
@@ -259,8 +266,7 @@ class Track:
         for table, rows in {"tubes": tubes, "tube_frames": tframes, "frames": frows}.items():
             store.write_table(part_path(table, d, s, window.name), to_table(rows, table, part=True))
         # Sizes and checksums of the parts, before the manifest row says done (integrity.py).
-        record = {"window": window.name, "files": window_files(store, window)}
-        store.write_bytes(files_path(d, s, window.name), json.dumps(record, indent=1).encode())
+        window_files(store, window).save(store)
         return len(tubes)
 
 
@@ -282,23 +288,23 @@ class Finalize:
         written = []
         for table, data in out.items():
             written += write_sequence(store, table, d, sequence, data)
-        rows = [store.read_table(manifest_path(d, sequence, w.name)) for w in windows
-                if store.exists(manifest_path(d, sequence, w.name))]
+        rows = [r for w in windows if (r := ManifestRow.load(store, d, sequence, w.name)) is not None]
+        if bad := next((r for r in rows if isinstance(r, Unreadable)), None):
+            raise InputError(bad.reason, store.full(bad.path))
         if rows:
-            written += write_sequence(store, "windows", d, sequence, pa.concat_tables(rows))
+            written += write_sequence(store, "windows", d, sequence, to_table([r.to_row() for r in rows], "windows"))
         store.remove(stitch_path(d, sequence))  # a failed stitch before this one is repaired
         # The marker comes last and records what it vouches for: the windows stitched, the
         # context of each, and the size and sha256 of every compacted file (integrity.py).
-        marker = {"params_hash": job.params_hash, "run_id": job.run_id, "dataset": d, "sequence": sequence,
-                  "windows": sorted(done), "contexts": {w.name: list(w.context) for w in ws},
-                  "planned": len(windows), "finished": _now().isoformat(),
-                  "files": sequence_files(store, written)}
-        store.write_bytes(done_path(d, sequence), json.dumps(marker, indent=1).encode())
+        SequenceMarker(d, sequence, tuple(sorted(done)), files=sequence_files(store, written),
+                       params_hash=job.params_hash, run_id=job.run_id,
+                       contexts={w.name: tuple(w.context) for w in ws}, planned=len(windows),
+                       finished=_now().isoformat()).save(store)
         tubes = out["tubes"]
         sel = np.asarray(tubes.column("selected").to_pylist(), bool)
         known = tubes.column("known").to_pylist()  # True, False or None (unclassified)
         return StepResult(sequence, True, seconds=time.perf_counter() - t0,
-                          extra={"tubes": int(sel.sum()), "candidates": len(sel),
-                                 "known": sum(bool(s) and k is True for s, k in zip(sel, known)),
-                                 "unknown": sum(bool(s) and k is False for s, k in zip(sel, known)),
-                                 "unclassified": sum(bool(s) and k is None for s, k in zip(sel, known))})
+                          tubes=TubeCounts(int(sel.sum()), len(sel),
+                                           known=sum(bool(s) and k is True for s, k in zip(sel, known)),
+                                           unknown=sum(bool(s) and k is False for s, k in zip(sel, known)),
+                                           unclassified=sum(bool(s) and k is None for s, k in zip(sel, known))))

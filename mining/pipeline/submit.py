@@ -12,10 +12,12 @@ a step that could not run leaves behind: the window's manifest row, or the seque
 Scheduling: a window is *tracked* once the observe steps of every window its context
 touches have finished, so tracking starts while later windows are still being
 observed; a sequence is *finalized* (stitched, compacted) once all its windows are
-settled. Resubmitting resumes: windows whose manifest row says done (same params, same
-core and context) and whose parts are as recorded are skipped, and a sequence whose
-catalogue already holds exactly its done windows, in files as recorded, is not rewritten.
-A finished job resubmitted does nothing; a damaged file is recomputed by what owns it.
+settled. Resubmitting resumes (``resume.py``: what the records left by earlier runs vouch
+for): windows whose manifest row says done (same params, same core and context) and whose
+parts are as recorded are skipped, and a sequence whose catalogue already holds exactly its
+done windows, in files as recorded, is not rewritten. A finished job resubmitted does
+nothing; a damaged file is recomputed by what owns it. What the run did is counted in a
+``Summary`` (``summary.py``).
 
 One writer: ``mine_job`` holds the catalogue's lock (``catalog/lock.py``) from planning to
 the last result. A resubmission must be the same job (``catalog/identity.py``), an
@@ -33,16 +35,13 @@ import sys
 import time
 import uuid
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any
 
 import pyarrow.fs as pafs
 
 from mining.catalog.identity import check_resubmit, job_identity
-from mining.catalog.integrity import marker_damage, read_json, window_damage
 from mining.catalog.layout import (FRESH_START, JOB, JOB_ENTRIES, LEGACY_CACHE_SUFFIX, PART_TABLES, REPLACED,
-                                   JobRecord, UnreadableRecord, cache_path, done_path, files_path, manifest_path,
-                                   part_path)
+                                   JobRecord, UnreadableRecord, cache_path, files_path, manifest_path, part_path)
 from mining.catalog.lock import OutputLock
 from mining.catalog.store import Store
 from mining.config import JobConfig
@@ -52,68 +51,13 @@ from mining.pipeline.failures import describe
 from mining.pipeline.localray import init_local_ray, prepare_local_ray
 from mining.pipeline.preflight import Preflight, preflight
 from mining.pipeline.running import RunningMarkers
-from mining.pipeline.schedule import Resume, Schedule, Task
+from mining.pipeline.resume import read_resume
+from mining.pipeline.schedule import Schedule, Step, Task
 from mining.pipeline.steps import Job, StepResult, observed_so_far, write_manifest, write_stitch_failure
+from mining.pipeline.summary import Summary
 from mining.progress import StepBar
 from mining.proposals.make import classifiers_line
 from mining.types import Window
-
-
-@dataclass
-class Summary:
-    windows: int = 0
-    skipped: int = 0
-    ok: int = 0
-    failed: dict[str, str] = field(default_factory=dict)  # window → error
-    unplanned: dict[str, str] = field(default_factory=dict)  # "dataset/sequence" left out by the preflight → why
-    frames: int = 0
-    tubes: int = 0
-    candidates: int = 0
-    known: int = 0
-    unknown: int = 0
-    unclassified: int = 0
-    seconds: float = 0.0  # the whole command: preflight, planning, Ray start, mining
-    mining_seconds: float = 0.0  # run_job's: from the first step to the last result (the frames/s denominator)
-    sequences_written: int = 0
-    classifiers: str = ""  # which proposers classified (proposals.make.classifiers_line)
-    recomputed: dict[str, str] = field(default_factory=dict)  # window → why its observation cache did not read back
-
-    def lines(self) -> list[str]:
-        out = [f"windows: {self.ok} ok, {len(self.failed)} failed, {self.skipped} already done (of {self.windows})",
-               f"tubes written this run: {self.tubes} selected ({self.known} known, {self.unknown} unknown, "
-               f"{self.unclassified} unclassified) of {self.candidates} candidates, in {self.sequences_written} sequence(s)",
-               *([self.classifiers] if self.classifiers else []),
-               f"time: {self.seconds:.1f} s in all, {self.mining_seconds:.1f} s mining: "
-               f"{self.frames / max(self.mining_seconds, 1e-9):.2f} frames/s (core frames tracked / mining time, "
-               f"as the bar)"]
-        for w, e in sorted(self.failed.items()):
-            out.append(f"FAILED {w}: {e.strip().splitlines()[0] if e.strip() else 'unknown error'}")
-        if self.unplanned:
-            out.append(f"sequences left out: {len(self.unplanned)} could not be planned (the others ran); "
-                       "fix them and rerun the same command")
-        for seq, e in sorted(self.unplanned.items()):
-            out.append(f"FAILED {seq} (planning): {e.strip().splitlines()[0] if e.strip() else 'unknown error'}")
-        for w, e in sorted(self.recomputed.items()):
-            out.append(f"RECOMPUTED {w}: its observation cache did not read back ({e})")
-        return out
-
-    def count(self, task: Task, result: StepResult, dataset: str) -> None:
-        """Add the result of a task."""
-        if task.step == "observe" and result.extra.get("recomputed"):
-            self.recomputed[task.target.name] = result.extra["recomputed"]
-        if task.step == "track":
-            self.frames += result.frames
-            if result.ok:
-                self.ok += 1
-            else:
-                self.failed[task.target.name] = result.error
-        elif task.step == "finalize":
-            if not result.ok:
-                self.failed[f"{dataset}/{task.target} (stitching)"] = result.error
-                return
-            self.sequences_written += 1
-            for k in ("tubes", "candidates", "known", "unknown", "unclassified"):
-                setattr(self, k, getattr(self, k) + result.extra[k])
 
 
 def _retire(store: Store, prior: list[Window], windows: list[Window]) -> None:
@@ -216,43 +160,6 @@ def set_aside_unreadable(store: Store) -> None:
         _announce(store, None, _move_aside(store, None), "its job.json did not read as a job record")
 
 
-def _row(store: Store, rel: str) -> dict | None:
-    """A window's manifest row, or None when it is missing or unreadable."""
-    if not store.exists(rel):
-        return None
-    try:
-        rows = store.read_table(rel).to_pylist()
-    except InputError:
-        return None
-    return rows[0] if rows else None
-
-
-def read_resume(store: Store, dataset: str, windows: list[Window], params_hash: str, verify: bool = False) -> Resume:
-    """What earlier runs left: windows whose manifest row says done with these params and
-    this window's core and context, and whose parts are all there as recorded (sizes;
-    checksums too with ``verify``), each with whether its context was complete when it was
-    tracked; and the sequences finalized with these params whose compacted files are all
-    there as recorded (the windows each holds). Anything else is recomputed: a window with
-    a damaged part runs again, a sequence with a damaged compacted file is stitched again."""
-    done = {}
-    for w in windows:
-        row = _row(store, manifest_path(w.dataset, w.sequence, w.name))
-        if (row is not None and row["status"] == "done" and row["params_hash"] == params_hash
-                and (row["core_start"], row["core_end"]) == w.core
-                and (row["context_start"], row["context_end"]) == w.context
-                and not window_damage(store, w, verify)):
-            done[w.name] = row.get("context_complete") is not False
-    finalized = {}
-    contexts = {w.name: list(w.context) for w in windows}
-    for seq in dict.fromkeys(w.sequence for w in windows):
-        marker = read_json(store, done_path(dataset, seq))
-        if (marker is not None and marker.get("params_hash") == params_hash
-                and all(contexts.get(n) == c for n, c in (marker.get("contexts") or {}).items())
-                and not marker_damage(store, marker, verify, dataset, seq)):
-            finalized[seq] = frozenset(marker.get("windows") or ())
-    return Resume(done, finalized)
-
-
 def open_job(cfg: JobConfig, out: str, sequences: list[str] | None = None,
              frames: tuple[int, int | None] = (0, None), mode: str = "resume",
              verify: bool = False, pf: Preflight | None = None) -> tuple[Job, Schedule, dict[str, str]]:
@@ -275,8 +182,7 @@ REFRESH_S = 1.0  # ours: the bar redraws at least this often while steps run
 def system_failure(task: Task, error: BaseException, max_retries: int) -> StepResult:
     """The failed result of a step that raised, or whose worker died with its retries spent:
     the step, the exception's type and message first (``failures.describe``)."""
-    name = task.target if task.step == "finalize" else task.target.name
-    return StepResult(name, False, describe(error, task.step, max_retries))
+    return StepResult(task.name, False, describe(error, task.step, max_retries))
 
 
 def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = False,
@@ -298,8 +204,8 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
     try:
         while schedule.outstanding or executor.pending():
             while executor.free() and (task := schedule.next_task()) is not None:
-                if task.step != "finalize" and task.target.name in todo:
-                    markers.mark(task.target, task.step)
+                if task.window is not None and task.window.name in todo:
+                    markers.mark(task.window, task.step)
                 ref = executor.submit(task.step, *task.args)
                 running[ref], started[ref] = task, time.perf_counter()
             if not executor.pending():
@@ -307,23 +213,23 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
             bar.running([t.step for t in running.values()])
             got = executor.wait(REFRESH_S if progress else None)
             if got is None:  # nothing finished yet: redraw (frames the workers report, elapsed, ETA), wait again
-                bar.observing = observed_so_far(store, [t.target for t in running.values() if t.step == "observe"])
+                bar.observing = observed_so_far(store, [t.window for t in running.values() if t.step == Step.OBSERVE])
                 bar.draw()
                 continue
             ref, result, err = got
             task = running.pop(ref)
             if err is not None:
                 result = system_failure(task, err, job.cfg.run.max_retries)
-                if task.step == "track":  # the step wrote no manifest row
-                    write_manifest(job, task.target, "failed", None, result.error)
-            if task.step == "finalize" and not result.ok:  # a row in the manifest, for `mine status`
-                write_stitch_failure(job, task.target, schedule.by_seq[task.target], result.error)
+                if task.step == Step.TRACK:  # the step wrote no manifest row
+                    write_manifest(job, task.window, "failed", None, result.error)
+            if task.step == Step.FINALIZE and not result.ok:  # a row in the manifest, for `mine status`
+                write_stitch_failure(job, task.sequence, schedule.by_seq[task.sequence], result.error)
             served = schedule.on_result(task, result)
-            if task.step in ("observe", "track") and task.target.name in todo:
-                bar.step_finished(task.step, task.target.core[1] - task.target.core[0],
+            if task.window is not None and task.window.name in todo:
+                bar.step_finished(task.step, task.window.core[1] - task.window.core[0],
                                   time.perf_counter() - started.pop(ref, time.perf_counter()))
-            if task.step == "track":
-                markers.clear(task.target)
+            if task.step == Step.TRACK:
+                markers.clear(task.window)
                 bar.update(result.ok, result.frames)
             summary.count(task, result, dataset)
             if not keep_cache:

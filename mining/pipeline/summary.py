@@ -1,0 +1,80 @@
+"""The end of ``mine submit``: what a run did, counted from its steps' results, in a few lines.
+
+``run_job`` (``submit.py``) hands every result to ``Summary.count``; ``mine_job`` adds the
+whole command's time, the classifiers and the sequences the preflight left out; the CLI
+prints ``lines()`` and exits 1 when a window, a stitch or a sequence's planning failed.
+Frames/s is the progress bar's definition: core frames of the windows tracked this run over
+the mining time (``run_job``'s, from its first step to its last result).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from mining.pipeline.schedule import Step, Task
+from mining.pipeline.steps import StepResult
+
+
+def _headline(error: str) -> str:
+    return error.strip().splitlines()[0] if error.strip() else "unknown error"
+
+
+@dataclass
+class Summary:
+    windows: int = 0
+    skipped: int = 0
+    ok: int = 0
+    failed: dict[str, str] = field(default_factory=dict)  # window → error
+    unplanned: dict[str, str] = field(default_factory=dict)  # "dataset/sequence" left out by the preflight → why
+    frames: int = 0
+    tubes: int = 0
+    candidates: int = 0
+    known: int = 0
+    unknown: int = 0
+    unclassified: int = 0
+    seconds: float = 0.0  # the whole command: preflight, planning, Ray start, mining
+    mining_seconds: float = 0.0  # run_job's: from the first step to the last result (the frames/s denominator)
+    sequences_written: int = 0
+    classifiers: str = ""  # which proposers classified (proposals.make.classifiers_line)
+    recomputed: dict[str, str] = field(default_factory=dict)  # window → why its observation cache did not read back
+
+    def lines(self) -> list[str]:
+        out = [f"windows: {self.ok} ok, {len(self.failed)} failed, {self.skipped} already done (of {self.windows})",
+               f"tubes written this run: {self.tubes} selected ({self.known} known, {self.unknown} unknown, "
+               f"{self.unclassified} unclassified) of {self.candidates} candidates, in {self.sequences_written} sequence(s)",
+               *([self.classifiers] if self.classifiers else []),
+               f"time: {self.seconds:.1f} s in all, {self.mining_seconds:.1f} s mining: "
+               f"{self.frames / max(self.mining_seconds, 1e-9):.2f} frames/s (core frames tracked / mining time, "
+               f"as the bar)"]
+        for w, e in sorted(self.failed.items()):
+            out.append(f"FAILED {w}: {_headline(e)}")
+        if self.unplanned:
+            out.append(f"sequences left out: {len(self.unplanned)} could not be planned (the others ran); "
+                       "fix them and rerun the same command")
+        for seq, e in sorted(self.unplanned.items()):
+            out.append(f"FAILED {seq} (planning): {_headline(e)}")
+        for w, e in sorted(self.recomputed.items()):
+            out.append(f"RECOMPUTED {w}: its observation cache did not read back ({e})")
+        return out
+
+    def count(self, task: Task, result: StepResult, dataset: str) -> None:
+        """Add the result of a task."""
+        if result.recomputed:  # an observe step that observed again
+            self.recomputed[task.name] = result.recomputed
+        if task.step == Step.TRACK:
+            self.frames += result.frames
+            if result.ok:
+                self.ok += 1
+            else:
+                self.failed[task.name] = result.error
+        elif task.step == Step.FINALIZE:
+            if not result.ok:
+                self.failed[f"{dataset}/{task.name} (stitching)"] = result.error
+                return
+            self.sequences_written += 1
+            t = result.tubes
+            self.tubes += t.selected
+            self.candidates += t.candidates
+            self.known += t.known
+            self.unknown += t.unknown
+            self.unclassified += t.unclassified
