@@ -12,9 +12,9 @@ from pycocotools import mask as mask_utils
 
 from mining.errors import InputError
 from mining.eval.recall import kitti_ground_truth, recall_at_n
+from mining.formats.coco import CATEGORY_ID_TO_INDEX, CLASS_INDEX, COCO_CATEGORY_IDS, COCO_CLASSES
 from mining.formats.kitti_tracking import read_kitti_tracking
 from mining.masks import mask_iou
-from mining.proposals.coco import CATEGORY_ID_TO_INDEX, CLASS_INDEX, COCO_CATEGORY_IDS, COCO_CLASSES
 from mining.proposals.config import JsonProposalsConfig, KittiDetectionsConfig, ProposalFilterConfig
 from mining.proposals.precomputed import (
     JSON_PROPOSER, KITTI_PROPOSER, JsonProposals, KittiDetections, objectness_from_score, read_proposal_json,

@@ -36,8 +36,8 @@ import numpy as np
 
 from mining.boxes import box_iou
 from mining.config import JobConfig
+from mining.formats.coco import COCO_CLASSES
 from mining.formats.kitti_tracking import read_kitti_tracking
-from mining.proposals.coco import COCO_CLASSES
 from mining.proposals.onnx_yolo import N_COCO, OnnxProposer
 from mining.sources import open_source
 

@@ -24,7 +24,7 @@ from mining.catalog.export import read_job
 from mining.catalog.store import Store
 from mining.catalog.views import connect
 from mining.errors import InputError
-from mining.proposals.coco import COCO_CLASSES
+from mining.formats.coco import COCO_CLASSES
 from mining.types import UNKNOWN_CLASS
 from mining.view.filters import CARD_COLUMNS, RANGE_COLUMNS, TooLarge, TubeFilter, sql_string
 

@@ -26,7 +26,7 @@ import math
 from dataclasses import dataclass
 
 from mining.names import NAME_RULE, name_problem
-from mining.proposals.coco import COCO_CLASSES
+from mining.formats.coco import COCO_CLASSES
 
 RANGE_COLUMNS = ("score", "score_motion", "score_mask", "score_objectness", "n_frames", "n_observed",
                  "category_prob", "class_evidence", "speed", "path_length")
