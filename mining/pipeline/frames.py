@@ -155,7 +155,7 @@ class FrameLoop:
         # Scene flow relates this frame to the one before only through a trusted egomotion.
         localised = localise(proposals, geom.depth, frame.calib, plane, geom.flow if T is not None else None,
                              dt, frame.t_ns, cfg.localise)
-        obs = localised.take(geometric_filter(localised, plane, cfg.proposals.filters))
+        obs = localised.take(geometric_filter(localised, plane, cfg.localise.filters))
         tracking = TrackingFrame(frame.index, frame.t_ns, frame.calib, pose, segment, obs, geom.depth)
         return FrameRecord(frame, position, geom, proposals, localised, plane, self._ground_age, tracking)
 
