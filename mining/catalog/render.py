@@ -51,7 +51,7 @@ from pycocotools import mask as mask_utils
 from mining.catalog import safe_files
 from mining.catalog.export import NothingMatched, category_label, job_source, read_job, selected_rows
 from mining.catalog.store import Store
-from mining.catalog.views import _sql_string, connect
+from mining.catalog.views import connect, sql_string
 from mining.errors import InputError, MiningError
 from mining.names import check_name
 
@@ -379,7 +379,7 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
     try:
         # The selection goes through the export's predicate helper; sequence and selection
         # are checked again below whatever the predicate did.
-        pred = f"selected AND dataset = {_sql_string(dataset)} AND sequence = {_sql_string(sequence)}"
+        pred = f"selected AND dataset = {sql_string(dataset)} AND sequence = {sql_string(sequence)}"
         tubes, tube_frames = selected_rows(con, pred if where is None else f"{pred} AND ({where})")
         mined = con.execute("SELECT min(position), max(position), count(*) FROM frames "
                             "WHERE dataset = ? AND sequence = ?", [dataset, sequence]).fetchone()

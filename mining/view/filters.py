@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from mining.catalog.views import sql_string
 from mining.names import NAME_RULE, name_problem
 from mining.formats.coco import COCO_CLASSES
 
@@ -68,11 +69,6 @@ def _number(name: str, text: str, integer: bool) -> float | int:
     if not math.isfinite(v):
         raise FilterError(f"parameter {name!r} must be finite, got {text!r}")
     return v
-
-
-def sql_string(s: str) -> str:
-    """``s`` as a SQL string literal (for the shown --where text only)."""
-    return "'" + s.replace("'", "''") + "'"
 
 
 @dataclass(frozen=True)
