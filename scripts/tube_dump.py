@@ -128,7 +128,10 @@ def run_case(name: str, data: Path, models: Path) -> list[str]:
         plan = source.plan("0005")
         return [tube_line(m) for m in mine_tubes(frames(source, plan, 0, 16, cfg), cfg)]
     if name == "detections":
-        from mining.eval.kitti_mot import read_seqmap
+        try:
+            from mining.formats.kitti_tracking import read_seqmap  # after issue 27
+        except ImportError:
+            from mining.eval.kitti_mot import read_seqmap  # before
 
         train = data / "kitti_tracking" / "training"
         cfg = load_config(str(REPO / "jobs" / "kitti-detections.toml"), [f'source.root="{data / "kitti_tracking"}"'])
