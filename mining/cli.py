@@ -8,13 +8,14 @@ import sys
 from pathlib import Path
 
 from mining.config import JobConfig, load_config, parse_override, validate
-from mining.errors import ConfigError, MiningError
+from mining.errors import ConfigError, MiningError, NothingMatched
 from mining.names import check_name
 from mining.proposals.make import classifiers_line
 from mining.score.unary import unary_line
 
 
 INTERRUPTED = 130  # the shell's exit status for a process ended by SIGINT (128 + 2)
+NOTHING_MATCHED = 1  # a predicate matched nothing and nothing was written (grep's "no match")
 
 
 def _frames(text: str) -> tuple[int, int | None]:
@@ -691,6 +692,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         _check_names(args)
         return args.func(args)
+    except NothingMatched as e:
+        print(f"mine {args.command}: {e}", file=sys.stderr)
+        return NOTHING_MATCHED
     except (MiningError, ConfigError) as e:
         print(f"mine: error: {e}", file=sys.stderr)
         return 2

@@ -61,7 +61,7 @@ from mining.catalog.layout import JobRecord
 from mining.catalog.predicate import tubes_query
 from mining.catalog.store import Store
 from mining.catalog.views import connect, execute_read_only
-from mining.errors import InputError, MiningError
+from mining.errors import InputError, MiningError, NothingMatched
 from mining.formats.kitti_tracking import ResultFrame, ResultTrack, kitti_type, write_tracking_results
 from mining.names import check_name, inside, name_problem, tube_folder
 from mining.progress import Ticker
@@ -398,10 +398,6 @@ RECORD = ".mine-export.json"  # in DEST: what the export wrote there, so --overw
 STAGING_PREFIX = "mine-export-partial-"  # the exporters' private folder in DEST (a safe name: a record may list it)
 
 
-class NothingMatched(InputError):
-    """The predicate matches no tube: nothing is written."""
-
-
 def _entries(dest: Path) -> list[str]:
     return sorted(p.name for p in dest.iterdir()) if dest.is_dir() else []
 
@@ -525,12 +521,10 @@ def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: floa
 
 def run_export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: float | None = None,
                images: bool = False, overwrite: bool = False) -> int:
-    """`mine export`: 0 on success; 1 when no tube matches; 2 with a message on standard error otherwise."""
+    """`mine export`: 0 on success; NothingMatched (``cli.main``: exit 1) when no tube matches; 2 with a
+    message on standard error otherwise."""
     try:
         n_tubes, n_items = export(out, where, fmt, dest, margin, images, overwrite)
-    except NothingMatched as e:
-        print(f"mine export: {e}", file=sys.stderr)
-        return 1
     except (MiningError, duckdb.Error) as e:
         print(f"mine export: {e}", file=sys.stderr)
         return 2

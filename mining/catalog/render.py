@@ -49,10 +49,10 @@ import numpy as np
 from pycocotools import mask as mask_utils
 
 from mining.catalog import safe_files
-from mining.catalog.export import NothingMatched, category_label, job_source, read_job, selected_rows
+from mining.catalog.export import category_label, job_source, read_job, selected_rows
 from mining.catalog.store import Store
 from mining.catalog.views import connect, sql_string
-from mining.errors import InputError, MiningError
+from mining.errors import InputError, MiningError, NothingMatched
 from mining.names import check_name
 
 GOLDEN_HUE_STEP = 0.618034  # ours: hue step between tubes (the golden ratio's fraction spreads any count)
@@ -398,7 +398,7 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
     keep = {t["tube_id"] for t in tube_rows}
     if not tube_rows:
         raise NothingMatched(f"no selected tube of sequence {sequence!r} matches"
-                              + ("" if where is None else f" --where {where!r}"))
+                             + ("" if where is None else f" --where {where!r}") + "; nothing written")
     plan = source.survey(sequence)
     if frames is not None:
         start, stop = frames
@@ -489,12 +489,10 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
 
 def run_render(out: str | Path, sequence: str, dest: str | Path, where: str | None = None, depth: bool = False,
                fps: float | None = None, frames: tuple[int, int | None] | None = None, overwrite: bool = False) -> int:
-    """`mine render`: 0 on success; 1 when no tube matches; 2 with a message otherwise."""
+    """`mine render`: 0 on success; NothingMatched (``cli.main``: exit 1) when no tube matches; 2 with a
+    message otherwise."""
     try:
         r = render(out, sequence, dest, where, depth, fps, frames, overwrite=overwrite)
-    except NothingMatched as e:
-        print(f"mine render: {e}; nothing written", file=sys.stderr)
-        return 1
     except (MiningError, duckdb.Error) as e:
         print(f"mine render: {e}", file=sys.stderr)
         return 2
