@@ -1,4 +1,5 @@
-"""Box algebra on x1, y1, x2, y2 pixel boxes: IoU, intersection over area, 2D size similarity.
+"""Box algebra on x1, y1, x2, y2 pixel boxes: IoU, intersection over area, 2D size similarity,
+class-agnostic NMS.
 
 One plain implementation of each, used by every stage and metric. ``box_gates`` is the
 tube gate's fused pass (IoU and size similarity of all prediction × observation pairs
@@ -8,6 +9,7 @@ on real boxes.
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 
@@ -146,3 +148,12 @@ def jittered_box_gates(pred: np.ndarray, obs: np.ndarray, min_iou: float, min_si
     real = ((pw > 0) & (ph > 0))[:, None] & ((ow > 0) & (oh > 0))[None, :]
     sim = _size_ratios(pw + jitter_px, ph + jitter_px, ow + jitter_px, oh + jitter_px)
     return real & (inter > gate[:, None] * union) & (sim > min_similarity)
+
+
+def nms_keep(boxes: np.ndarray, scores: np.ndarray, iou: float, top_k: int) -> np.ndarray:
+    """Class-agnostic NMS (OpenCV); indices of kept boxes, best score first."""
+    if len(boxes) == 0:
+        return np.zeros(0, np.int64)
+    xywh = np.column_stack([boxes[:, :2], boxes[:, 2:] - boxes[:, :2]]).astype(np.float64)
+    keep = cv2.dnn.NMSBoxes(xywh, scores.astype(np.float32), 0.0, iou, top_k=top_k)
+    return np.asarray(keep, np.int64).reshape(-1)

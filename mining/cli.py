@@ -10,7 +10,7 @@ import os
 import sys
 from typing import Any, NamedTuple
 
-from mining.errors import ConfigError, MiningError
+from mining.errors import ConfigError, MiningError, NothingMatched
 from mining.export.registry import FORMATS as EXPORT_FORMATS
 from mining.names import check_name
 from mining.pipeline.arguments import add_job_options as _add_job_options
@@ -19,6 +19,7 @@ from mining.pipeline.arguments import job_config as _job_config
 
 
 INTERRUPTED = 130  # the shell's exit status for a process ended by SIGINT (128 + 2)
+NOTHING_MATCHED = 1  # a predicate matched nothing and nothing was written (grep's "no match")
 
 
 class Command(NamedTuple):
@@ -296,6 +297,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         _check_names(args)
         return args.func(args)
+    except NothingMatched as e:
+        print(f"mine {args.command}: {e}", file=sys.stderr)
+        return NOTHING_MATCHED
     except (MiningError, ConfigError) as e:
         print(f"mine: error: {e}", file=sys.stderr)
         return 2

@@ -104,7 +104,10 @@ def _build(cls: type, data: dict[str, Any], where: str, prefix: str = "") -> Any
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = set(data) - names
     if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {sorted(prefix + k for k in unknown)}; known: {sorted(names)}")
+        keys = sorted(prefix + k for k in unknown)
+        moved = [f"{k} {moved_key(k)}" for k in keys if moved_key(k) is not None]
+        hint = f" (moved: {'; '.join(moved)})" if moved else ""
+        raise ConfigError(f"{where}: unknown key(s) {keys}{hint}; known: {sorted(names)}")
     kwargs = {}
     for key, value in data.items():
         hint = hints[key]
@@ -127,9 +130,21 @@ def section_from_dict(cls: type, data: dict[str, Any], where: str) -> Any:
 
 # Keys a recorded job (``job.json``'s ``config``) may hold from an older version of the code:
 # old dotted key → its new dotted key, or None where the setting is gone (it changed nothing).
+# A key moved here is refused in a job file or ``--set`` with a hint naming its new place.
 RENAMED_KEYS: dict[str, str | None] = {
     "tubes.kalman.velocity_noise_factor": "localise.velocity_noise_factor",  # moved at da118f8
+    "proposals.filters": "localise.filters",  # the geometric proposal filter, a localisation setting (issue 27)
 }
+
+
+def moved_key(key: str) -> str | None:
+    """What became of a dotted key of an older version ("is now localise.filters", "was removed"),
+    or None for a key RENAMED_KEYS does not name. A key inside a moved table moves with it:
+    ``proposals.filters.noise_sigmas`` is now ``localise.filters.noise_sigmas``."""
+    for old, new in RENAMED_KEYS.items():
+        if key == old or key.startswith(old + "."):
+            return "was removed (it changed nothing)" if new is None else f"is now {new}{key[len(old):]}"
+    return None
 
 
 def _renamed(data: dict[str, Any]) -> dict[str, Any]:

@@ -30,3 +30,11 @@ class InputError(MiningError):
 
 class ConfigError(MiningError):
     """A job configuration that cannot be used (unknown key, wrong type, bad value)."""
+
+
+class NothingMatched(Exception):
+    """A predicate matched nothing, so nothing was written (``mine export``, ``mine render``).
+
+    An answer, not a failure of the input: ``cli.main`` maps it to exit status 1 (as grep's
+    "no match"), once for every command. Not a MiningError on purpose: the commands report
+    those as failures (exit status 2)."""

@@ -97,6 +97,13 @@ def tube_line(mt) -> str:
                        "selected": bool(mt.selected), "frames": frames}, sort_keys=True)
 
 
+def _filters_key() -> str:
+    """Where the proposal filter's settings live: ``localise.filters`` since issue 27, ``proposals.filters`` before."""
+    from mining.config import JobConfig
+
+    return "localise.filters" if hasattr(JobConfig().localise, "filters") else "proposals.filters"
+
+
 def _kitti(data: Path, overrides: list[str]):
     from mining.config import load_config
     from mining.sources import open_source
@@ -114,14 +121,17 @@ def run_case(name: str, data: Path, models: Path) -> list[str]:
         props = data / "proposals_4dgvt_format" / "kitti_tracking_0005"
         over = {"kitti0005-json20": [f'proposals.proposer="json"', f'proposals.json.folder="{props / "top20"}"'],
                 "kitti0005-json500": [f'proposals.proposer="json"', f'proposals.json.folder="{props / "top500"}"',
-                                      "proposals.filters.max_proposals=500"],
+                                      f"{_filters_key()}.max_proposals=500"],
                 "kitti0005-onnx": [f'proposals.proposer="onnx"',
                                    f'proposals.onnx.model_path="{models / "yolov8n-seg_int8.onnx"}"']}[name]
         cfg, source = _kitti(data, over)
         plan = source.plan("0005")
         return [tube_line(m) for m in mine_tubes(frames(source, plan, 0, 16, cfg), cfg)]
     if name == "detections":
-        from mining.eval.kitti_mot import read_seqmap
+        try:
+            from mining.formats.kitti_tracking import read_seqmap  # after issue 27
+        except ImportError:
+            from mining.eval.kitti_mot import read_seqmap  # before
 
         train = data / "kitti_tracking" / "training"
         cfg = load_config(str(REPO / "jobs" / "kitti-detections.toml"), [f'source.root="{data / "kitti_tracking"}"'])

@@ -74,7 +74,7 @@ def kitti_0005_stereo(kitti_tracking_root: Path, n_frames: int):
     """The first ``n_frames`` real KITTI 0005 stereo pairs (RGB) and their StereoCalib,
     read through the project's own KITTI readers."""
     from mining.sources.kitti import read_rgb
-    from mining.sources.kitti_calib import read_tracking_calib
+    from mining.formats.kitti_calib import read_tracking_calib
 
     seq = kitti_tracking_root / "training"
     left = [read_rgb(seq / "image_02" / "0005" / f"{i:06d}.png", i) for i in range(n_frames)]

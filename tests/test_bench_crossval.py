@@ -11,7 +11,8 @@ import pytest
 from mining.bench.crossval import (KITTI_TRAINING_FOLDS, Setting, combined, cross_validate, grid_settings,
                                    make_folds, objective, parse_grid, score_grid, select_setting)
 from mining.config import load_config
-from mining.eval.kitti_mot import evaluate_kitti_mot, read_seqmap
+from mining.eval.kitti_mot import evaluate_kitti_mot
+from mining.formats.kitti_tracking import read_seqmap
 
 REPO = Path(__file__).resolve().parents[1]
 

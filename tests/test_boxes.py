@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mining.boxes import box_gates, box_ioa, box_iou, paired_box_iou, size_similarity
+from mining.boxes import box_gates, box_ioa, box_iou, nms_keep, paired_box_iou, size_similarity
 from mining.proposals.precomputed import JsonProposals
 from mining.tubes.config import TubeConfig
 
@@ -76,3 +76,15 @@ def test_ioa_and_degenerate_boxes():
     np.testing.assert_array_equal(box_iou(a, b), [[50 / 150, 0.0, 0.0], [0.0, 0.0, 0.0]])
     assert box_iou(a, np.empty((0, 4))).shape == (2, 0)
     assert not box_gates(a, b, 0.0, 0.0)[:, 1].any()  # zero-width boxes never gate
+
+
+def test_nms_keep_best_first_and_no_kept_pair_overlaps_more_than_the_threshold(frame_boxes):
+    boxes = frame_boxes[0]
+    scores = np.linspace(0.1, 0.9, len(boxes))[::-1].copy()
+    keep = nms_keep(boxes, scores, 0.5, 100)
+    assert len(keep) and np.all(np.diff(scores[keep]) <= 0)
+    iou = box_iou(boxes[keep], boxes[keep])
+    np.fill_diagonal(iou, 0)
+    assert iou.max() <= 0.5 + 1e-6
+    assert len(nms_keep(boxes, scores, 0.5, 2)) == 2
+    assert nms_keep(np.zeros((0, 4)), np.zeros(0), 0.5, 10).shape == (0,)

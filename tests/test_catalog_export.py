@@ -14,6 +14,7 @@ from pycocotools import mask as mask_utils
 from _catalog_data import DATASET, SEQUENCE
 from mining.catalog.schema import SCHEMAS
 from mining.catalog.store import Store, write_sequence
+from mining.cli import main
 from mining.export.crops import crop_box
 from mining.export.kitti import disjoint_masks
 from mining.export.run import run_export
@@ -191,8 +192,11 @@ def test_bad_predicates(catalogue, tmp_path, capsys):
     assert "no_such_column" in capsys.readouterr().err
     assert run_export(str(out), f"selected) TO '{out}/x.csv'; COPY (SELECT 1", "kitti", str(tmp_path / "b")) == 2
     assert not (out / "x.csv").exists()
-    assert run_export(str(out), "false", "kitti", str(tmp_path / "c")) == 1, "nothing matched"
-    assert "no tube matches" in capsys.readouterr().err and not (tmp_path / "c").exists()
+    capsys.readouterr()
+    # Nothing matched: exit 1 (cli.main maps NothingMatched), nothing written.
+    assert main(["export", "--out", str(out), "--where", "false", "--format", "kitti", str(tmp_path / "c")]) == 1
+    assert capsys.readouterr().err == "mine export: no tube matches --where 'false'; nothing written\n"
+    assert not (tmp_path / "c").exists()
 
 
 def test_exports_type_tubes_by_the_known_flag(catalogue, tmp_path):

@@ -241,7 +241,8 @@ def test_nothing_matched_exits_1_and_keeps_the_old_export(catalogue, tmp_path, c
     dest = tmp_path / "k"
     assert run_export(str(out), "selected", "kitti", str(dest)) == 0
     before = sorted(p.name for p in dest.iterdir())
-    assert run_export(str(out), "n_frames > 10000", "kitti", str(dest), overwrite=True) == 1
+    assert main(["export", "--out", str(out), "--where", "n_frames > 10000", "--format", "kitti", "--overwrite",
+                 str(dest)]) == 1
     assert "no tube matches" in capsys.readouterr().err
     assert sorted(p.name for p in dest.iterdir()) == before
 

@@ -147,8 +147,11 @@ def test_webm_is_vp8(catalogue, tmp_path):
 def test_nothing_matched_writes_nothing(catalogue, tmp_path, capsys):
     out, _ = catalogue
     dest = tmp_path / "none.mp4"
-    assert run_render(str(out), SEQUENCE, str(dest), where="n_frames > 10000") == 1
-    assert "no selected tube" in capsys.readouterr().err
+    from mining.cli import main
+
+    assert main(["render", "--out", str(out), "--sequence", SEQUENCE, "--where", "n_frames > 10000", str(dest)]) == 1
+    assert capsys.readouterr().err == (f"mine render: no selected tube of sequence {SEQUENCE!r} matches "
+                                       "--where 'n_frames > 10000'; nothing written\n")
     assert not dest.exists() and not list(tmp_path.iterdir())
 
 

@@ -93,6 +93,28 @@ def test_a_recorded_job_of_older_code_has_its_moved_keys_renamed():
     assert JobRecord("r", "h", old, []).job_config().localise.velocity_noise_factor == 3.0
 
 
+def test_a_recorded_job_from_before_the_filters_moved_reads_them_under_localise():
+    from mining.catalog.layout import JobRecord
+    from mining.config import JobConfig
+
+    old = JobConfig().to_dict()
+    old["proposals"]["filters"] = old["localise"].pop("filters")  # where it was before issue 27
+    old["proposals"]["filters"]["noise_sigmas"] = 0.0
+    assert JobRecord("r", "h", old, []).job_config().localise.filters.noise_sigmas == 0.0
+
+
+def test_a_moved_key_in_a_job_file_or_set_is_refused_saying_where_it_lives_now(tmp_path):
+    with pytest.raises(ConfigError, match=r"unknown key.*proposals\.filters is now localise\.filters"):
+        load_config(overrides=["proposals.filters.noise_sigmas=0.0"])
+    job = tmp_path / "old.toml"
+    job.write_text("[proposals.filters]\nmin_objectness = 0.3\n")
+    with pytest.raises(ConfigError, match=r"old\.toml: unknown key.*proposals\.filters is now localise\.filters"):
+        load_config(job)
+    with pytest.raises(ConfigError, match=r"tubes\.kalman\.velocity_noise_factor is now localise\.velocity_noise_factor"):
+        load_config(overrides=["tubes.kalman.velocity_noise_factor=2.0"])
+    assert load_config(REPO_JOBS / "kitti-detections.toml").localise.filters.min_objectness == 0.3
+
+
 def test_a_recorded_job_with_a_key_no_version_had_is_refused_naming_the_key():
     from mining.catalog.layout import JobRecord, UnreadableRecord
     from mining.config import JobConfig

@@ -11,8 +11,8 @@ import pytest
 
 from mining.errors import InputError
 from mining.boxes import box_ioa, box_iou
-from mining.eval.kitti_mot import evaluate_kitti_mot, format_table, read_seqmap
-from mining.formats.kitti_tracking import read_kitti_tracking, write_kitti_tracking
+from mining.eval.kitti_mot import evaluate_kitti_mot, format_table
+from mining.formats.kitti_tracking import read_kitti_tracking, read_seqmap, write_kitti_tracking
 
 # ---------------------------------------------------------------- helpers for hand-made files
 

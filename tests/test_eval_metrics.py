@@ -10,7 +10,7 @@ from mining.eval.odometry import odometry_errors
 from mining.eval.stereo import bad_n, d1_all
 from mining.formats.disparity import read_disparity_png, read_pfm, write_disparity_png
 from mining.formats.poses import read_poses, write_poses
-from mining.geometry.egomotion import chain_egomotion
+from mining.geometry.poses import chain_egomotion
 
 
 def _pose(x: float, z: float, yaw: float = 0.0) -> np.ndarray:

@@ -10,9 +10,9 @@ from _geometry_data import oxts_positions, raw_calib, raw_frame, tracking_calib,
 from mining.errors import InputError
 from mining.eval.odometry import odometry_errors, rotation_angle
 from mining.geometry.config import GeometryConfig, GroundConfig
-from mining.geometry.egomotion import chain_egomotion
 from mining.geometry.flow import match_quad, stereo_features
 from mining.geometry.ground import fit_ground_plane, ground_candidates
+from mining.geometry.poses import chain_egomotion
 from mining.geometry.stage import GeometryStage
 from mining.types import StereoFrame
 

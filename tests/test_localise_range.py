@@ -19,7 +19,7 @@ from mining.config import load_config
 from mining.formats.kitti_tracking import read_kitti_tracking
 from mining.geometry.config import GeometryConfig
 from mining.geometry.stage import GeometryStage
-from mining.localise.config import LocaliseConfig
+from mining.localise.config import LocaliseConfig, ProposalFilterConfig
 from mining.localise.localise import (
     filter_clauses,
     geometric_filter,
@@ -27,7 +27,6 @@ from mining.localise.localise import (
     triangulation_covariance,
 )
 from mining.pipeline.frames import FrameLoop
-from mining.proposals.config import ProposalFilterConfig
 from mining.sources import open_source
 from mining.types import Proposals
 
@@ -163,7 +162,7 @@ def test_bench_range_reports_every_bin_and_the_dropping_clause(kitti_tracking_ro
     from mining.cli import main
 
     data = kitti_tracking_root.parent
-    hard = ["--set", "proposals.filters.noise_sigmas=0.0"]
+    hard = ["--set", "localise.filters.noise_sigmas=0.0"]
     assert main(["bench", "range", "--data", str(data), "--sources", "kitti", "--kitti-frames", "0:2", *hard]) == 0
     out = capsys.readouterr().out
     assert "KITTI 0005 frames 0-1" in out and "proposer stereo" in out

@@ -12,10 +12,11 @@ from pycocotools import mask as mask_utils
 
 from mining.errors import InputError
 from mining.eval.recall import kitti_ground_truth, recall_at_n
+from mining.formats.coco import CATEGORY_ID_TO_INDEX, CLASS_INDEX, COCO_CATEGORY_IDS, COCO_CLASSES
 from mining.formats.kitti_tracking import read_kitti_tracking
+from mining.localise.config import ProposalFilterConfig
 from mining.masks import mask_iou
-from mining.proposals.coco import CATEGORY_ID_TO_INDEX, CLASS_INDEX, COCO_CATEGORY_IDS, COCO_CLASSES
-from mining.proposals.config import JsonProposalsConfig, KittiDetectionsConfig, ProposalFilterConfig
+from mining.proposals.config import JsonProposalsConfig, KittiDetectionsConfig
 from mining.proposals.precomputed import (
     JSON_PROPOSER, KITTI_PROPOSER, JsonProposals, KittiDetections, objectness_from_score, read_proposal_json,
 )
@@ -447,7 +448,7 @@ def test_filter_by_box_area_and_count(top500):
     cfg = ProposalFilterConfig()
     for f in (0, 9):
         p = top500[f]
-        q = filter_by_box_area_and_count(p, cfg)
+        q = filter_by_box_area_and_count(p, cfg.min_box_area_px, cfg.max_proposals)
         area = lambda b: (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])  # noqa: E731
         assert len(q) == min(cfg.max_proposals, int((area(p.boxes) >= cfg.min_box_area_px).sum()))
         assert (area(q.boxes) >= cfg.min_box_area_px).all()

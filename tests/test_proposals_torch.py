@@ -22,7 +22,7 @@ from pycocotools import mask as mask_utils
 
 from conftest import REPO, kitti_0005_stereo
 from mining.errors import ConfigError
-from mining.proposals.coco import CLASS_INDEX, COCO_CATEGORY_IDS
+from mining.formats.coco import CLASS_INDEX, COCO_CATEGORY_IDS
 from mining.proposals.config import ProposalConfig, TorchConfig
 from mining.types import N_CLASSES, UNKNOWN_CLASS
 

@@ -147,3 +147,35 @@ def test_new_run_moves_the_old_catalogue_aside(base_catalogue, tmp_path, capsys)
     assert record["run_id"] != old_run and record["identity"][f"frames.{SEQ}"] == "0:8"
     assert len(tables(out)["frames"]) == 8
     assert [r.window for r in job_status(str(out))] == [f"{SEQ}-0000000-0000008"]
+
+
+def _before_the_filters_moved(out: Path) -> None:
+    """Rewrite ``out``'s job.json as a version before issue 27 wrote it: the geometric proposal
+    filter under ``proposals.filters`` (config and identity), not ``localise.filters``."""
+    job = json.loads((out / "job.json").read_text())
+    job["config"]["proposals"]["filters"] = job["config"]["localise"].pop("filters")
+    job["identity"] = {k.replace("config.localise.filters.", "config.proposals.filters."): v
+                       for k, v in job["identity"].items()}
+    assert any(k.startswith("config.proposals.filters.") for k in job["identity"])
+    (out / "job.json").write_text(json.dumps(job, indent=1))
+
+
+def test_a_catalogue_made_before_the_filters_moved_is_refused_saying_why(base_catalogue, tmp_path):
+    from mining.catalog.layout import JobRecord
+    from mining.catalog.store import Store
+
+    out = copy_of(base_catalogue, tmp_path / "out")
+    _before_the_filters_moved(out)
+    before = _files(out)
+    # Its record still reads, with the keys at today's places; status still reads it.
+    assert JobRecord.load(Store(str(out))).job_config() == small_cfg()
+    assert [r.status for r in job_status(str(out))] == ["done", "done"]
+    # The same job: refused (its rows carry the old layout's params hash), naming the move and the ways out.
+    for mode in ("resume", "extend"):
+        with pytest.raises(ConfigError, match=r"made before proposals\.filters moved to localise\.filters") as e:
+            mine(out, mode=mode)
+        assert "--new-run" in str(e.value) and "also differs" not in str(e.value), str(e.value)
+    # Another difference besides the move is named too, as today's keys.
+    with pytest.raises(ConfigError, match=r"(?m)also differs in 1 key\(s\):\n  config\.localise\.filters\.noise_sigmas: 2\.0 → 0\.0$"):
+        mine(out, cfg=small_cfg("localise.filters.noise_sigmas=0.0"))
+    assert _files(out) == before, "the refused job wrote into the catalogue"

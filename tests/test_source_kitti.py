@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from mining.errors import InputError
+from mining.formats.kitti_calib import read_tracking_calib
 from mining.sources import open_source
 from mining.sources.kitti import KittiTrackingSource
-from mining.sources.kitti_calib import read_tracking_calib
 
 
 @pytest.fixture(scope="module")

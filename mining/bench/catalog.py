@@ -29,8 +29,8 @@ from mining.catalog.records import SequenceMarker
 from mining.catalog.schema import SCHEMA_VERSION, file_schema
 from mining.catalog.store import Store, write_sequence
 from mining.catalog.views import connect
+from mining.formats.coco import CLASS_INDEX
 from mining.masks import rle_counts
-from mining.proposals.coco import CLASS_INDEX
 
 DATA = Path(os.environ.get("TUBE_MINER_SHARED", Path(__file__).resolve().parents[3] / "shared")) / "data"
 PROPOSALS = DATA / "proposals_4dgvt_format" / "kitti_tracking_0005" / "top20"

@@ -38,7 +38,8 @@ from typing import Any
 
 from mining.bench.iou_tracker import iou_track, write_iou_tracks
 from mining.config import JobConfig, load_config, parse_override
-from mining.eval.kitti_mot import combine_kitti_mot, evaluate_kitti_mot, read_seqmap
+from mining.eval.kitti_mot import combine_kitti_mot, evaluate_kitti_mot
+from mining.formats.kitti_tracking import read_seqmap
 from mining.formats.poses import read_poses
 from mining.pipeline.arguments import add_data_option
 from mining.pipeline.detections import DETECTIONS, FRAME_INTERVAL_NS, detection_frames, write_detection_tubes

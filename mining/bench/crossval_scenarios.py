@@ -37,7 +37,7 @@ from mining.sources.synthetic.scenarios import SCENARIOS
 
 DEFAULT_GRID = {
     "tubes.start_hypotheses": ("0", "3"),  # REFERENCE: none (own-motion start only); ours: 3 displacement hypotheses
-    "proposals.filters.noise_sigmas": ("0", "2"),  # REFERENCE: limits on the point estimate; ours: allow 2σ stereo noise
+    "localise.filters.noise_sigmas": ("0", "2"),  # REFERENCE: limits on the point estimate; ours: allow 2σ stereo noise
 }
 DEFAULT_SEEDS = ("0000", "0001", "0002", "0003")
 

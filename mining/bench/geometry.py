@@ -31,7 +31,7 @@ from mining.formats.disparity import read_pfm
 from mining.formats.poses import read_poses
 from mining.geometry.config import GeometryConfig
 from mining.geometry.disparity import compute_disparity
-from mining.geometry.egomotion import chain_egomotion
+from mining.geometry.poses import chain_egomotion
 from mining.geometry.stage import GeometryStage
 from mining.pipeline.arguments import add_data_option, add_job_options, job_config
 from mining.sources import open_source

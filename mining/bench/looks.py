@@ -37,9 +37,9 @@ import numpy as np
 
 from mining.boxes import box_iou
 from mining.config import JobConfig
+from mining.formats.coco import COCO_CLASSES
 from mining.formats.kitti_tracking import read_kitti_tracking
 from mining.pipeline.arguments import add_data_option, add_job_options, default_data, job_config
-from mining.proposals.coco import COCO_CLASSES
 from mining.proposals.onnx_yolo import N_COCO, OnnxProposer
 from mining.sources import open_source
 

@@ -117,7 +117,7 @@ def _synthetic_truth(truth) -> Truth:
 
 def _rows(rec: FrameRecord, truth: Truth, cfg: JobConfig, perfect_depth: np.ndarray | None) -> list[GtRow]:
     loc = rec.localised
-    filt = cfg.proposals.filters
+    filt = cfg.localise.filters
     clauses = filter_clauses(loc, rec.ground, filt)
     kept = np.zeros(len(loc), bool)
     kept[geometric_filter(loc, rec.ground, filt)] = True

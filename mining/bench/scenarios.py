@@ -89,7 +89,7 @@ def _target_frames(rec: FrameRecord, roles: dict[int, Role], band, cfg: JobConfi
     h, w = truth.depth.shape
     counts, inliers = _flow_counts(rec.geometry.flow, h, w)
     props = rec.proposals
-    kept = set(geometric_filter(rec.localised, rec.ground, cfg.proposals.filters).tolist())
+    kept = set(geometric_filter(rec.localised, rec.ground, cfg.localise.filters).tolist())
     objs = [o for o in truth.objects if o.track_id in roles and o.mask.sum() >= min_px
             and _in_band(float(o.center_cam[2]), band)]
     if not objs:

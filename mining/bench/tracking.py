@@ -15,7 +15,8 @@ from pathlib import Path
 
 from mining.bench.iou_tracker import iou_track, write_iou_tracks
 from mining.config import JobConfig
-from mining.eval.kitti_mot import evaluate_kitti_mot, read_seqmap
+from mining.eval.kitti_mot import evaluate_kitti_mot
+from mining.formats.kitti_tracking import read_seqmap
 from mining.formats.poses import read_poses
 from mining.pipeline.arguments import add_data_option, add_job_options, job_config
 from mining.pipeline.detections import track_detections

@@ -36,7 +36,7 @@ def _geometry(data: Path, cfg: JobConfig, n_frames: int):
 
 
 def bench_setting(geoms, proposals: JsonProposals, limit: int | None, cfg: JobConfig) -> dict[str, float]:
-    filt = cfg.proposals.filters
+    filt = cfg.localise.filters
     filt.max_proposals = max(filt.max_proposals, 500)
     loop = FrameLoop(cfg)
     gen = tube_generator(cfg)

@@ -33,7 +33,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from mining.config import JobConfig
+from mining.config import RENAMED_KEYS, JobConfig
 from mining.errors import ConfigError
 from mining.types import SequencePlan
 
@@ -147,19 +147,58 @@ def _extends(key: str, old: Any, new: Any, old_id: Mapping[str, Any]) -> bool:
     return False
 
 
+def _under(key: str, table: str) -> bool:
+    return key == table or key.startswith(table + ".")
+
+
+def moved_since(identity: Mapping[str, Any]) -> list[tuple[str, str | None]]:
+    """The config moves (``config.RENAMED_KEYS``: old key → new, None = removed) made after the
+    job of this identity was recorded: its config keys still sit at their old places."""
+    return [(o, n) for o, n in RENAMED_KEYS.items() if any(_under(k, f"config.{o}") for k in identity)]
+
+
+def _renamed_identity(identity: Mapping[str, Any]) -> dict[str, Any]:
+    """``identity`` with its config keys at today's places (``moved_since``)."""
+    out = dict(identity)
+    for o, n in moved_since(identity):
+        for k in [k for k in out if _under(k, f"config.{o}")]:
+            v = out.pop(k)
+            if n is not None:
+                out[f"config.{n}{k[len(f'config.{o}'):]}"] = v
+    return out
+
+
 def check_resubmit(old: Mapping[str, Any], new: Mapping[str, Any], out: str, mode: str = "resume") -> None:
     """Refuse a resubmission whose identity differs from the catalogue's, naming every
     differing key; ``mode="extend"`` admits wider frame ranges and added sequences only.
     A record from before identities (``legacy_identity``: no ``sequences`` key) is
-    compared on the keys it has."""
+    compared on the keys it has.
+
+    A catalogue recorded before a config key moved (``moved_since``) is refused in both
+    modes, saying so: its rows carry the params hash of the old layout, which this version
+    never computes, so nothing of it could be resumed (the differences left after the move
+    are named too)."""
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    if mode == "new":
+        return
+    moves = moved_since(old)
+    if moves:
+        old = _renamed_identity(old)
     complete = "sequences" in old
     diffs = [(k, o, n) for k, o, n in differences(old, new)
              if (complete or o != ABSENT) and not _repaired(k, o, n, old)]
-    if not diffs or mode == "new":
-        return
     lines = "\n".join(f"  {k}: {_show(o)} → {_show(n)}" for k, o, n in diffs)
+    if moves:
+        what = "; ".join(f"{o} moved to {n}" if n else f"{o} was removed" for o, n in moves)
+        rest = f" Beyond the move, this job also differs in {len(diffs)} key(s):\n{lines}\n" if diffs else " "
+        raise ConfigError(
+            f"{out} holds a catalogue made before {what}: its job.json records the old keys and its rows carry "
+            f"the params hash of that layout, so this version can neither resume nor extend it.{rest}"
+            "Use --new-run to start a new catalogue there (the old one is moved aside), another --out, "
+            "or the version of the code that made it.")
+    if not diffs:
+        return
     if mode == "extend":
         bad = [k for k, o, n in diffs if not _extends(k, o, n, old)]
         if not bad:

@@ -59,7 +59,8 @@ class ReadOnlyError(InputError):
     """A statement that would change something, given to the read-only catalogue."""
 
 
-def _sql_string(s: str) -> str:
+def sql_string(s: str) -> str:
+    """``s`` as a SQL string literal: quoted, with its quotes doubled (DuckDB's own escaping)."""
     return "'" + s.replace("'", "''") + "'"
 
 
@@ -82,7 +83,7 @@ def _damaged_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, dama
     con.register(f"_schema_{table}", _as_read(SCHEMAS[table]).empty_table())
     types = con.sql(f"DESCRIBE _schema_{table}").fetchall()
     con.unregister(f"_schema_{table}")
-    err = f"error({_sql_string(msg)})"
+    err = f"error({sql_string(msg)})"
     cols = ", ".join(f'CAST({err} AS {t}) AS "{n}"' for n, t, *_ in types)
     con.execute(f"CREATE VIEW {table} AS SELECT {cols} FROM range(1) WHERE {err}")
 
@@ -115,8 +116,8 @@ def _folder_view(con: duckdb.DuckDBPyConnection, store: Store, name: str, folder
         return
     hive = "hive_partitioning = true, hive_types = {'dataset': 'VARCHAR', 'sequence': 'VARCHAR'}"
     if native:
-        what = (_sql_string(f"{store.full(folder)}/*/*/*{suffix}") if files is None
-                else "[" + ", ".join(_sql_string(store.full(f)) for f in files) + "]")
+        what = (sql_string(f"{store.full(folder)}/*/*/*{suffix}") if files is None
+                else "[" + ", ".join(sql_string(store.full(f)) for f in files) + "]")
         con.execute(f"CREATE VIEW {name} AS SELECT {cols} FROM read_parquet({what}, {hive})")
         return
     part = pa.schema([pa.field(n, pa.string()) for n in PARTITION])
@@ -171,10 +172,10 @@ def connect(out: str | Path, native: bool | None = None, memory_limit: str | Non
     con = duckdb.connect(":memory:")
     spill = tempfile.mkdtemp(prefix="tube-miner-duckdb-")  # private (0700); DuckDB makes and removes spill/ in it
     weakref.finalize(con, shutil.rmtree, spill, True)
-    con.execute(f"SET temp_directory = {_sql_string(spill + '/spill')}")
+    con.execute(f"SET temp_directory = {sql_string(spill + '/spill')}")
     try:
         if memory_limit is not None:
-            con.execute(f"SET memory_limit = {_sql_string(memory_limit)}")
+            con.execute(f"SET memory_limit = {sql_string(memory_limit)}")
         if threads is not None:
             con.execute(f"SET threads = {int(threads)}")
     except duckdb.Error as e:
@@ -189,7 +190,7 @@ def connect(out: str | Path, native: bool | None = None, memory_limit: str | Non
     con.execute(VIEWS_SQL.read_text())
     # From here on: no file access outside the catalogue, and no way to turn that back on.
     allowed = [store.root + "/"] if native else []
-    con.execute(f"SET allowed_directories = [{', '.join(_sql_string(a) for a in allowed)}]")
+    con.execute(f"SET allowed_directories = [{', '.join(sql_string(a) for a in allowed)}]")
     con.execute("SET enable_external_access = false")
     con.execute("SET autoinstall_known_extensions = false")
     con.execute("SET autoload_known_extensions = false")

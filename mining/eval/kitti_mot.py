@@ -46,7 +46,7 @@ from mining.errors import InputError
 from mining.eval.clear import clear_metrics, clear_sums, combine_clear_sums
 from mining.eval.hota import combine_hota_sums, hota_metrics, hota_sums
 from mining.eval.identity import combine_identity_sums, identity_metrics, identity_sums
-from mining.formats.kitti_tracking import KittiTrackingRows, read_kitti_tracking
+from mining.formats.kitti_tracking import KittiTrackingRows, read_kitti_tracking, read_seqmap
 
 # KITTI object types (devkit readme); DontCare marks regions that were not labelled.
 KITTI_TYPES = ("car", "van", "truck", "pedestrian", "person", "cyclist", "tram", "misc", "dontcare")
@@ -86,24 +86,6 @@ class ClassSequence:
     gt_ids: list[np.ndarray]  # per frame, contiguous 0-based gt ids
     tracker_ids: list[np.ndarray]  # per frame, contiguous 0-based tracker ids
     similarity: list[np.ndarray]  # per frame, (len(gt_ids[t]), len(tracker_ids[t])) box IoU
-
-
-def read_seqmap(path: str | Path) -> dict[str, int]:
-    """KITTI seqmap: ``SEQ empty 000000 NFRAMES`` per line → {seq: number of frames}."""
-    p = Path(path)
-    try:
-        lines = p.read_text().splitlines()
-    except OSError as e:
-        raise InputError(f"cannot read seqmap: {e.strerror or e}", p) from None
-    frames = {}
-    for line_no, line in enumerate(lines, start=1):
-        fields = line.split()
-        if not fields:
-            continue
-        if len(fields) < 4 or not fields[3].isdigit():
-            raise InputError(f"line {line_no}: expected 'SEQ empty START NFRAMES', got {line!r}", p)
-        frames[fields[0]] = int(fields[3])
-    return frames
 
 
 def _check_types(rows: KittiTrackingRows) -> np.ndarray:

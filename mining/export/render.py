@@ -35,11 +35,10 @@ import numpy as np
 
 from mining.catalog import safe_files
 from mining.catalog.rows import decode_mask
-from mining.catalog.views import _sql_string, connect
+from mining.catalog.views import connect, sql_string
 from mining.draw import FONT, Drawn, caption, draw_tubes, tube_colours
-from mining.errors import InputError, MiningError
+from mining.errors import InputError, MiningError, NothingMatched
 from mining.export.dest import check_file, publish_file
-from mining.export.run import NothingMatched
 from mining.export.selection import category_label, job_source, read_job, selected_rows
 from mining.export.video import check_container, check_video, codec_note, open_video
 from mining.names import check_name
@@ -141,7 +140,7 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
     try:
         # The selection goes through the export's predicate helper; sequence and selection
         # are checked again below whatever the predicate did.
-        pred = f"selected AND dataset = {_sql_string(dataset)} AND sequence = {_sql_string(sequence)}"
+        pred = f"selected AND dataset = {sql_string(dataset)} AND sequence = {sql_string(sequence)}"
         tubes, tube_frames = selected_rows(con, pred if where is None else f"{pred} AND ({where})")
         mined = con.execute("SELECT min(position), max(position), count(*) FROM frames "
                             "WHERE dataset = ? AND sequence = ?", [dataset, sequence]).fetchone()
@@ -160,7 +159,7 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
     keep = {t["tube_id"] for t in tube_rows}
     if not tube_rows:
         raise NothingMatched(f"no selected tube of sequence {sequence!r} matches"
-                              + ("" if where is None else f" --where {where!r}"))
+                             + ("" if where is None else f" --where {where!r}") + "; nothing written")
     plan = source.survey(sequence)
     if frames is not None:
         start, stop = frames
@@ -241,12 +240,10 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
 
 def run_render(out: str | Path, sequence: str, dest: str | Path, where: str | None = None, depth: bool = False,
                fps: float | None = None, frames: tuple[int, int | None] | None = None, overwrite: bool = False) -> int:
-    """`mine render`: 0 on success; 1 when no tube matches; 2 with a message otherwise."""
+    """`mine render`: 0 on success; NothingMatched (``cli.main``: exit 1) when no tube matches; 2 with a
+    message otherwise."""
     try:
         r = render(out, sequence, dest, where, depth, fps, frames, overwrite=overwrite)
-    except NothingMatched as e:
-        print(f"mine render: {e}; nothing written", file=sys.stderr)
-        return 1
     except (MiningError, duckdb.Error) as e:
         print(f"mine render: {e}", file=sys.stderr)
         return 2

@@ -24,14 +24,10 @@ import duckdb
 
 from mining.catalog import safe_files
 from mining.catalog.views import connect
-from mining.errors import InputError, MiningError
+from mining.errors import InputError, MiningError, NothingMatched
 from mining.export.dest import check_folder, publish_folder
 from mining.export.registry import FORMATS, VIDEO_FORMATS
 from mining.export.selection import mined_frames, read_job, selected_rows
-
-
-class NothingMatched(InputError):
-    """The predicate matches no tube: nothing is written."""
 
 
 def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: float | None = None,
@@ -78,12 +74,10 @@ def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: floa
 
 def run_export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: float | None = None,
                images: bool = False, overwrite: bool = False) -> int:
-    """`mine export`: 0 on success; 1 when no tube matches; 2 with a message on standard error otherwise."""
+    """`mine export`: 0 on success; NothingMatched (``cli.main``: exit 1) when no tube matches; 2 with a
+    message on standard error otherwise."""
     try:
         n_tubes, n_items = export(out, where, fmt, dest, margin, images, overwrite)
-    except NothingMatched as e:
-        print(f"mine export: {e}", file=sys.stderr)
-        return 1
     except (MiningError, duckdb.Error) as e:
         print(f"mine export: {e}", file=sys.stderr)
         return 2

@@ -11,7 +11,7 @@ the job's ``export.observed_only`` (the default) a frame where a tube is only pr
 (a gap) has no annotation (null in YouTube-VIS), as in the KITTI exports.
 
 Categories follow the ``known`` flag: a known tube's COCO class with its COCO annotation id
-(``mining/proposals/coco.py``); known false → ``unknown`` (id ``UNKNOWN_ID``); no
+(``mining/formats/coco.py``); known false → ``unknown`` (id ``UNKNOWN_ID``); no
 classifier → ``unclassified`` (``UNCLASSIFIED_ID``), both outside COCO's 1..90. Every
 annotation carries the tube's score (its weighted total, not a probability) and tube id.
 
@@ -45,7 +45,7 @@ from mining.errors import InputError
 from mining.export.selection import by_sequence, category_label, export_settings, frame_digits, frames_by_tube, job_source
 from mining.names import inside
 from mining.progress import Ticker
-from mining.proposals.coco import CLASS_INDEX, COCO_CATEGORY_IDS
+from mining.formats.coco import CLASS_INDEX, COCO_CATEGORY_IDS
 
 UNKNOWN_ID = 1000  # ours: category id of unknown tubes, outside COCO's 1..90
 UNCLASSIFIED_ID = 1001  # ours: category id of unclassified tubes

@@ -1,5 +1,7 @@
 """File formats of other tools and datasets, one module each, read and written in one place.
 
+* ``coco`` — the 80 COCO classes: contiguous order and the COCO category ids.
+* ``kitti_calib`` — KITTI calibration files (both tracking dialects and the raw-data ones).
 * ``kitti_tracking`` — KITTI tracking label / result rows (``label_02``, tracker output)
   and the one writer of tracking results from tubes.
 * ``kitti_detections`` — KITTI detection files: PointRCNN's and the result format.

@@ -9,6 +9,8 @@ column count throughout. DontCare rows carry track id −1 and placeholder value
 read like any other row (what they mean is up to the evaluation). Rows keep file order,
 which the evaluation relies on for reproducible matching.
 
+``read_seqmap`` reads a KITTI seqmap (the sequences of a split and their frame counts).
+
 ``write_tracking_results`` is the one writer of mined tubes as tracking results: `mine
 track` feeds it tubes in memory, `mine export --format kitti` tubes from the catalogue.
 """
@@ -154,6 +156,24 @@ def read_kitti_tracking(path: str | Path, require_score: bool = False) -> KittiT
         rotation_y=num[:, 13],
         score=num[:, 14],
     )
+
+
+def read_seqmap(path: str | Path) -> dict[str, int]:
+    """KITTI seqmap: ``SEQ empty 000000 NFRAMES`` per line → {seq: number of frames}."""
+    p = Path(path)
+    try:
+        lines = p.read_text().splitlines()
+    except OSError as e:
+        raise InputError(f"cannot read seqmap: {e.strerror or e}", p) from None
+    frames = {}
+    for line_no, line in enumerate(lines, start=1):
+        fields = line.split()
+        if not fields:
+            continue
+        if len(fields) < 4 or not fields[3].isdigit():
+            raise InputError(f"line {line_no}: expected 'SEQ empty START NFRAMES', got {line!r}", p)
+        frames[fields[0]] = int(fields[3])
+    return frames
 
 
 def write_kitti_tracking(path: str | Path, rows: KittiTrackingRows, with_score: bool = True) -> None:

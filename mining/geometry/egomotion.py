@@ -4,8 +4,8 @@ Like libviso2 in the original, hypotheses are scored by reprojecting the previou
 frame's triangulated points into BOTH the left and the right image at t, and the winner
 is refined over its inliers by Gauss–Newton least squares (with one re-selection of
 inliers). Unlike the original, a failure is reported (``ok=False`` with a reason and
-``T_cur_prev=None``), never replaced by the identity. ``chain_egomotion`` turns the
-per-frame motions into KITTI-odometry-style poses, NaN after a failure.
+``T_cur_prev=None``), never replaced by the identity. ``mining/geometry/poses.py`` chains
+the per-frame motions into poses.
 """
 
 from __future__ import annotations
@@ -141,21 +141,3 @@ def estimate_egomotion(
     if not np.isfinite(rmse) or rmse > cfg.max_rmse_px:
         return _failed(n, f"reprojection RMSE {rmse:.2f} px > {cfg.max_rmse_px} px", int(inl.sum()))
     return Egomotion(T_cur_prev=T, inliers=int(inl.sum()), matches=n, rmse_px=rmse, ok=True)
-
-
-def chain_egomotion(transforms: list[np.ndarray | None]) -> np.ndarray:
-    """Camera-to-world poses from per-frame egomotions ``T_cur_prev`` (first entry ignored).
-
-    A failed egomotion (None) breaks the chain: that pose and every later one are NaN,
-    because nothing links them to the first frame. They are never guessed.
-    """
-    poses = np.full((len(transforms), 4, 4), np.nan)
-    if not transforms:
-        return poses
-    poses[0] = np.eye(4)
-    for k in range(1, len(transforms)):
-        T = transforms[k]
-        if T is None or not np.isfinite(poses[k - 1]).all():
-            continue
-        poses[k] = poses[k - 1] @ np.linalg.inv(T)
-    return poses

@@ -2,10 +2,32 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Annotated
 
-from mining.checks import Count, Positive, Range
+from mining.checks import Count, Fraction, Positive, Range
+
+
+@dataclass
+class ProposalFilterConfig:
+    """The geometric proposal filter, applied once proposals are localised in 3D (``[localise.filters]``,
+    ``localise.geometric_filter``)."""
+
+    min_box_area_px: float = 100.0  # REFERENCE: drop proposals whose box area < 100 px²
+    max_abs_x_m: float = 50.0  # REFERENCE: drop ground-projected |X| > 50 m
+    # The stereo range: the paper tracks to 40–50 m and REFERENCE's filter allows 60 m. At 60 m
+    # KITTI's disparity is bf/Z ≈ 6.4 px and one point's depth std ≈ 6.6 m (0.5 px per image column).
+    z_range_m: tuple[float, float] = (0.0, 60.0)  # REFERENCE: drop ground-projected Z outside (0, 60) m
+    height_range_m: tuple[float, float] = (0.1, 5.0)  # REFERENCE: drop height above ground outside (0.1, 5.0) m
+    # The limits above are on the object's true place; a stereo estimate is only dropped when it
+    # lies beyond them by more than this many of its own standard deviations (the observation's
+    # triangulation covariance: σ_Z grows as Z², σ_h = √(nᵀΣn)). For |X| and Z the test is on the
+    # nearest point of the viewing ray within that many disparity stds (disparity noise is
+    # Gaussian, depth noise is not): on KITTI, with 0.5 px pixel noise, an estimate is dropped beyond
+    # Z ≈ 77 m, not 60 m. 0 = the hard limits on the estimate.
+    noise_sigmas: float = 2.0  # ours: 2 std (≤ 2.3 % of objects at a limit dropped); synthetic 0000 + KITTI 0005, `mine bench range`
+    max_proposals: Count = 300  # REFERENCE: sorted by score, at most 300 kept (authors advise ≤ 500)
+    min_objectness: Fraction = 0.0  # ours: 0 keeps every proposal (REFERENCE's 0.8 cut defeats generic proposals); detectors may want one
 
 
 @dataclass
@@ -31,3 +53,4 @@ class LocaliseConfig:
     # 5: 0.490/0.554/0.512 (all three axes instead of depth alone, 5: 0.491/0.554/0.514, 2× the time)
     point_depth_outlier_units: float = 5.0
     size_percentiles: Annotated[tuple[float, float], Range(0, 100)] = (5.0, 95.0)  # ours: robust extent of the mask's points
+    filters: ProposalFilterConfig = field(default_factory=ProposalFilterConfig)

@@ -15,9 +15,8 @@ import math
 
 import numpy as np
 
-from mining.localise.config import LocaliseConfig
+from mining.localise.config import LocaliseConfig, ProposalFilterConfig
 from mining.masks import batch_mask_pixels
-from mining.proposals.config import ProposalFilterConfig
 from mining.types import GroundPlane, Observations, Proposals, SceneFlow, StereoCalib
 
 

@@ -45,7 +45,7 @@ def detection_frames(kitti_root: str | Path, sequence: str, detections: str | Pa
         t_ns = index * FRAME_INTERVAL_NS
         props = dets(index)
         obs = localise_detections(props, calib, t_ns, cfg.localise)
-        obs = obs.take(geometric_filter(obs, no_ground, cfg.proposals.filters, stereo_noise=False))  # LiDAR boxes
+        obs = obs.take(geometric_filter(obs, no_ground, cfg.localise.filters, stereo_noise=False))  # LiDAR boxes
         yield TrackingFrame(index=index, t_ns=t_ns, calib=calib, pose=pose, segment=0, observations=obs, depth=None)
 
 

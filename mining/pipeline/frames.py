@@ -3,9 +3,9 @@
 Every per-frame loop of the project runs through ``FrameLoop`` (``mine track``, the
 windows' observe step, the benchmarks and the tests), so the rules below hold everywhere:
 
-* **Pose segments.** Poses chain the egomotion within a *segment* (``PoseChain``). A
-  frame without a trusted egomotion from the frame before it starts a new segment with
-  its own world frame, and tubes never cross the border. That is a failed egomotion
+* **Pose segments.** Poses chain the egomotion within a *segment* (``PoseChain``,
+  ``mining/geometry/poses.py``). A frame without a trusted egomotion from the frame before
+  it starts a new segment with its own world frame, and tubes never cross the border. That is a failed egomotion
   (never replaced by the identity) and a frame that does not follow the one before it:
   a recording gap (``SequencePlan.gaps``: a RobotCar chunk not downloaded, a dropped MCAP
   frame) or a missing window.
@@ -16,7 +16,7 @@ windows' observe step, the benchmarks and the tests), so the rules below hold ev
   estimated across it. After a failed egomotion the previous frame's features stay: the
   next frame is matched to them afresh, with no prior.
 * **Ground.** A frame whose ground plane failed uses the last good plane moved by the
-  egomotion (``ground_age`` counts the frames since it was measured); with no plane at
+  egomotion (``move_plane``; ``ground_age`` counts the frames since it was measured); with no plane at
   all the frame's proposals cannot be placed on the ground and are dropped.
 """
 
@@ -29,6 +29,7 @@ import numpy as np
 
 from mining.config import JobConfig
 from mining.geometry.config import GeometryConfig
+from mining.geometry.poses import PoseChain, move_plane
 from mining.geometry.stage import GeometryStage
 from mining.localise.localise import geometric_filter, localise
 from mining.proposals.make import Proposer, make_proposer
@@ -55,49 +56,6 @@ class FrameRecord:
         """The frame's trusted egomotion T_cur_prev, None when it failed or is absent."""
         ego = self.geometry.egomotion
         return ego.T_cur_prev if ego is not None and ego.ok else None
-
-
-def move_plane(plane: GroundPlane, T_cur_prev: np.ndarray) -> GroundPlane:
-    """The plane n·X + d = 0 of the previous camera, expressed in the current camera."""
-    R, t = T_cur_prev[:3, :3], T_cur_prev[:3, 3]
-    n = R @ plane.normal
-    return GroundPlane(n, float(plane.d - n @ t), plane.inliers, True, "carried from an earlier frame")
-
-
-class PoseChain:
-    """Camera-to-world poses chained from egomotions, one world frame per pose segment.
-
-    ``step(T_cur_prev)`` takes each frame's egomotion from the frame before it, or None
-    when there is none to trust (failed, absent after a gap, or the frame before is
-    missing): the frame then starts a new segment whose world is its own camera. The
-    first frame's egomotion is not used: its world is its camera.
-    """
-
-    def __init__(self) -> None:
-        self.pose = np.eye(4)
-        self.segment = 0
-        self._first = True
-
-    def step(self, T_cur_prev: np.ndarray | None) -> tuple[np.ndarray, int]:
-        if self._first:
-            self._first = False
-        elif T_cur_prev is not None:
-            self.pose = self.pose @ np.linalg.inv(T_cur_prev)  # pose_cur = pose_prev · T_cur_prev⁻¹
-        else:
-            self.pose, self.segment = np.eye(4), self.segment + 1
-        return self.pose.copy(), self.segment
-
-
-def chain(positions: list[int], motions: list[np.ndarray | None]) -> list[tuple[np.ndarray, int]]:
-    """Camera-to-world pose and segment of each frame, chained from the first frame.
-
-    ``motions[i]`` is frame i's egomotion T_cur_prev (None when failed or absent). A frame
-    without one, or not the plan successor of the frame before it (a missing window),
-    starts a new segment with its own world frame.
-    """
-    poses = PoseChain()
-    return [poses.step(T if i == 0 or positions[i] == positions[i - 1] + 1 else None)
-            for i, T in enumerate(motions)]
 
 
 class FrameLoop:
@@ -155,7 +113,7 @@ class FrameLoop:
         # Scene flow relates this frame to the one before only through a trusted egomotion.
         localised = localise(proposals, geom.depth, frame.calib, plane, geom.flow if T is not None else None,
                              dt, frame.t_ns, cfg.localise)
-        obs = localised.take(geometric_filter(localised, plane, cfg.proposals.filters))
+        obs = localised.take(geometric_filter(localised, plane, cfg.localise.filters))
         tracking = TrackingFrame(frame.index, frame.t_ns, frame.calib, pose, segment, obs, geom.depth)
         return FrameRecord(frame, position, geom, proposals, localised, plane, self._ground_age, tracking)
 

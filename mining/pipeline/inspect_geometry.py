@@ -28,7 +28,7 @@ from mining.errors import MiningError
 from mining.formats.disparity import write_disparity_png
 from mining.formats.poses import write_poses
 from mining.geometry.config import GeometryConfig
-from mining.geometry.egomotion import chain_egomotion
+from mining.geometry.poses import chain_egomotion
 from mining.pipeline.arguments import add_job_options, frame_range, job_config
 from mining.pipeline.frames import plan_geometry
 from mining.sources.base import Source

@@ -32,7 +32,7 @@ from mining.config import JobConfig
 from mining.errors import InputError, MiningError
 from mining.pipeline.cache import decode_frames, encode_frames
 from mining.pipeline.stitch import stitch_sequence
-from mining.pipeline.window import ObservedFrame, chain_poses, observe_window, track_window
+from mining.pipeline.window import ObservedFrame, observe_window, track_window
 from mining.sources.base import Source
 from mining.types import SequencePlan, Window
 
@@ -238,8 +238,8 @@ class Track:
         try:
             ok = {r.window for r in observe if r.ok}
             frames = load_context(store, window, [w for w in neighbours if w.name in ok])
-            mined = track_window(frames, job.cfg)
-            n = self._write_parts(window, frames, mined)
+            mined, poses = track_window(frames, job.cfg)
+            n = self._write_parts(window, frames, mined, poses)
         except (InputError, MiningError) as e:
             write_manifest(job, window, "failed", started, _error(e), seconds_observe)
             return StepResult(window.name, False, _error(e))
@@ -248,9 +248,10 @@ class Track:
                        context_complete=all(r.ok for r in observe))
         return StepResult(window.name, True, seconds=seconds, frames=window.core[1] - window.core[0])
 
-    def _write_parts(self, window: Window, frames: list[ObservedFrame], mined) -> int:
+    def _write_parts(self, window: Window, frames: list[ObservedFrame], mined,
+                     poses: list[tuple[np.ndarray, int]]) -> int:
+        """``poses``: each frame's camera-to-world pose and segment, as ``track_window`` chained them."""
         job, store = self.job, self.job.store()
-        poses = chain_poses(frames)
         cam_from_world = {f.index: np.linalg.inv(p) for f, (p, _) in zip(frames, poses)}
         core_frames = {f.index for f in frames if window.core[0] <= f.position < window.core[1]}
         run = job.run_info(window.sequence)

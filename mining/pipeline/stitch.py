@@ -28,7 +28,7 @@ from scipy.optimize import linear_sum_assignment
 from mining.catalog.rows import RunInfo, frame_rows, part_tube_frame, to_table, tube_row
 from mining.catalog.schema import file_schema
 from mining.config import JobConfig
-from mining.pipeline.frames import chain
+from mining.geometry.poses import chain_poses
 from mining.pipeline.mine import judge
 from mining.tubes.link import link_fragments
 from mining.types import Tube, Window
@@ -50,7 +50,7 @@ def chain_sequence(frames: pa.Table) -> tuple[pa.Table, SequencePoses]:
     frames = frames.sort_by("position")
     cols = frames.to_pydict()
     motions = [None if T is None else np.asarray(T, np.float64).reshape(4, 4) for T in cols["T_cur_prev"]]
-    chained = chain(cols["position"], motions)
+    chained = chain_poses(cols["position"], motions)
     poses, segments = [p for p, _ in chained], [s for _, s in chained]
     out = {k: v for k, v in cols.items() if k not in ("T_cur_prev", "segment", "pose")}
     out["segment"] = segments

@@ -25,7 +25,8 @@ import numpy as np
 
 from mining.config import JobConfig
 from mining.errors import InputError
-from mining.pipeline.frames import chain, frame_records
+from mining.geometry.poses import chain_poses
+from mining.pipeline.frames import frame_records
 from mining.pipeline.mine import mine_tubes
 from mining.proposals.make import Proposer
 from mining.sources.base import Source
@@ -92,15 +93,13 @@ def _observe(source: Source, plan: SequencePlan, start: int, s: int, e: int, cfg
     return out
 
 
-def chain_poses(frames: list[ObservedFrame]) -> list[tuple[np.ndarray, int]]:
-    """``chain`` over observed frames in plan order."""
-    return chain([f.position for f in frames], [f.T_cur_prev for f in frames])
-
-
-def track_window(frames: list[ObservedFrame], cfg: JobConfig) -> list[MinedTube]:
+def track_window(frames: list[ObservedFrame],
+                 cfg: JobConfig) -> tuple[list[MinedTube], list[tuple[np.ndarray, int]]]:
     """Tubes, scores and co-selection over a window's context frames (in plan order); no
-    linking of fragments, which the stitcher does over the whole sequence."""
-    poses = chain_poses(frames)
+    linking of fragments, which the stitcher does over the whole sequence. Also the
+    camera-to-world pose and segment of each frame it chained (``chain_poses``), for the
+    catalogue's rows: nothing chains them a second time."""
+    poses = chain_poses([f.position for f in frames], [f.T_cur_prev for f in frames])
     tracking = (TrackingFrame(f.index, f.t_ns, f.calib, pose, segment, f.observations, None)
                 for f, (pose, segment) in zip(frames, poses))
-    return mine_tubes(tracking, cfg, link=False)  # fragments are linked over the stitched sequence
+    return mine_tubes(tracking, cfg, link=False), poses  # fragments are linked over the stitched sequence

@@ -72,27 +72,6 @@ class TorchConfig:
 
 
 @dataclass
-class ProposalFilterConfig:
-    """Geometric filters applied once proposals are localised in 3D (a later stage)."""
-
-    min_box_area_px: float = 100.0  # REFERENCE: drop proposals whose box area < 100 px²
-    max_abs_x_m: float = 50.0  # REFERENCE: drop ground-projected |X| > 50 m
-    # The stereo range: the paper tracks to 40–50 m and REFERENCE's filter allows 60 m. At 60 m
-    # KITTI's disparity is bf/Z ≈ 6.4 px and one point's depth std ≈ 6.6 m (0.5 px per image column).
-    z_range_m: tuple[float, float] = (0.0, 60.0)  # REFERENCE: drop ground-projected Z outside (0, 60) m
-    height_range_m: tuple[float, float] = (0.1, 5.0)  # REFERENCE: drop height above ground outside (0.1, 5.0) m
-    # The limits above are on the object's true place; a stereo estimate is only dropped when it
-    # lies beyond them by more than this many of its own standard deviations (the observation's
-    # triangulation covariance: σ_Z grows as Z², σ_h = √(nᵀΣn)). For |X| and Z the test is on the
-    # nearest point of the viewing ray within that many disparity stds (disparity noise is
-    # Gaussian, depth noise is not): on KITTI, with 0.5 px pixel noise, an estimate is dropped beyond
-    # Z ≈ 77 m, not 60 m. 0 = the hard limits on the estimate.
-    noise_sigmas: float = 2.0  # ours: 2 std (≤ 2.3 % of objects at a limit dropped); synthetic 0000 + KITTI 0005, `mine bench range`
-    max_proposals: Count = 300  # REFERENCE: sorted by score, at most 300 kept (authors advise ≤ 500)
-    min_objectness: Fraction = 0.0  # ours: 0 keeps every proposal (REFERENCE's 0.8 cut defeats generic proposals); detectors may want one
-
-
-@dataclass
 class JsonProposalsConfig:
     """Per-frame proposal files in the original 4D-GVT JSON format (``precomputed`` proposer)."""
 
@@ -139,7 +118,6 @@ class ProposalConfig:
     proposer: Annotated[str, Satisfies(_proposer_names)] = "stereo"  # ours: "stereo" (weight-free default), "onnx", "torch", "json", or a union: "onnx+stereo"
     onnx: OnnxConfig = field(default_factory=OnnxConfig)
     torch: TorchConfig = field(default_factory=TorchConfig)
-    filters: ProposalFilterConfig = field(default_factory=ProposalFilterConfig)
     json: JsonProposalsConfig = field(default_factory=JsonProposalsConfig)
     kitti_detections: KittiDetectionsConfig = field(default_factory=KittiDetectionsConfig)
     union: UnionConfig = field(default_factory=UnionConfig)

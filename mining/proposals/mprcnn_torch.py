@@ -46,7 +46,7 @@ unpickled) come in either of two layouts, told apart by their keys:
                                                                        paper), M = 90 when converted
   roi_heads.box_predictor.cls_score.weight / .bias      (81, 1024)     class head: row 0 background, rows
                                                                        1..80 the COCO classes in
-                                                                       mining.proposals.coco order
+                                                                       mining.formats.coco order
   roi_heads.box_predictor.bbox_pred.weight / .bias      (4·C, 1024)    box deltas; C = 2 (background,
                                                                        object: category-agnostic) or C = 81
                                                                        (per class, class-head order)
@@ -74,8 +74,8 @@ from pathlib import Path
 import numpy as np
 
 from mining.errors import ConfigError, InputError
+from mining.formats.coco import COCO_CATEGORY_IDS
 from mining.masks import crop_rle
-from mining.proposals.coco import COCO_CATEGORY_IDS
 from mining.proposals.config import TorchConfig
 from mining.types import N_CLASSES, Proposals
 

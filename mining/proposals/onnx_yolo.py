@@ -30,10 +30,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from mining.boxes import nms_keep
 from mining.errors import ConfigError, InputError
+from mining.masks import crop_rle
 from mining.proposals.config import OnnxConfig
 from mining.proposals.onnx_convert import converted_model
-from mining.masks import crop_rle
 from mining.types import N_CLASSES, Proposals
 
 PROPOSER_NAME = "onnx"
@@ -91,15 +92,6 @@ def class_posterior(probs: np.ndarray) -> np.ndarray:
     u = 1.0 - p.max(axis=1, keepdims=True)
     full = np.concatenate([p, u], axis=1)
     return (full / full.sum(axis=1, keepdims=True)).astype(np.float32)
-
-
-def nms_keep(boxes: np.ndarray, scores: np.ndarray, iou: float, top_k: int) -> np.ndarray:
-    """Class-agnostic NMS (OpenCV); indices of kept boxes, best score first."""
-    if len(boxes) == 0:
-        return np.zeros(0, np.int64)
-    xywh = np.column_stack([boxes[:, :2], boxes[:, 2:] - boxes[:, :2]]).astype(np.float64)
-    keep = cv2.dnn.NMSBoxes(xywh, scores.astype(np.float32), 0.0, iou, top_k=top_k)
-    return np.asarray(keep, np.int64).reshape(-1)
 
 
 class OnnxProposer:

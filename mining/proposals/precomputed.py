@@ -42,10 +42,10 @@ import numpy as np
 from pycocotools import mask as mask_utils
 
 from mining.errors import InputError
+from mining.formats.coco import CATEGORY_ID_TO_INDEX, CLASS_INDEX
+from mining.formats.kitti_calib import KittiCalib
 from mining.formats.kitti_detections import read_kitti_detections
-from mining.proposals.coco import CATEGORY_ID_TO_INDEX, CLASS_INDEX
 from mining.proposals.config import JsonProposalsConfig, KittiDetectionsConfig
-from mining.sources.kitti_calib import KittiCalib
 from mining.types import N_CLASSES, UNKNOWN_CLASS, Proposals
 
 JSON_PROPOSER = "json"

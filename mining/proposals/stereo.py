@@ -65,9 +65,9 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
+from mining.boxes import nms_keep
 from mining.errors import InputError
 from mining.masks import crop_rle
-from mining.proposals.onnx_yolo import nms_keep
 from mining.proposals.stereo_config import StereoProposerConfig
 from mining.types import FrameGeometry, GroundPlane, Proposals, StereoCalib, StereoFrame
 

@@ -43,7 +43,7 @@ from pycocotools import mask as mask_utils
 
 from mining.errors import InputError
 from mining.masks import mask_iou
-from mining.proposals.config import ProposalFilterConfig, UnionConfig
+from mining.proposals.config import UnionConfig
 from mining.types import UNKNOWN_CLASS, Proposals
 
 
@@ -165,10 +165,11 @@ def _keep_better_masks(out: Proposals, merged: Proposals, keep: np.ndarray, part
             out.boxes[row] = merged.boxes[j]
 
 
-def filter_by_box_area_and_count(proposals: Proposals, cfg: ProposalFilterConfig) -> Proposals:
-    """Drop boxes smaller than ``min_box_area_px``, then keep the ``max_proposals`` best by objectness."""
+def filter_by_box_area_and_count(proposals: Proposals, min_box_area_px: float, max_proposals: int) -> Proposals:
+    """Drop boxes smaller than ``min_box_area_px``, then keep the ``max_proposals`` best by objectness
+    (the caller gives the values: the filter's settings are ``[localise.filters]``, a later stage's)."""
     b = proposals.boxes.reshape(-1, 4).astype(np.float64)
     area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
-    big = np.flatnonzero(area >= cfg.min_box_area_px)
+    big = np.flatnonzero(area >= min_box_area_px)
     order = big[np.argsort(-proposals.objectness[big], kind="stable")]
-    return proposals.take(order[: cfg.max_proposals])
+    return proposals.take(order[:max_proposals])

@@ -15,9 +15,9 @@ import cv2
 import numpy as np
 
 from mining.errors import InputError
+from mining.formats.kitti_calib import KittiCalib, read_tracking_calib
 from mining.names import check_name
 from mining.sources.base import Source
-from mining.sources.kitti_calib import KittiCalib, read_tracking_calib
 from mining.types import SequencePlan, StereoCalib, StereoFrame
 
 KITTI_FRAME_PERIOD_NS = 100_000_000  # ours: KITTI records at 10 Hz (Geiger et al. 2013); tracking has no timestamp file

@@ -17,9 +17,9 @@ from typing import NamedTuple
 import numpy as np
 
 from mining.errors import InputError
+from mining.formats.kitti_calib import KittiCalib, read_raw_calib
 from mining.sources.base import Source
 from mining.sources.kitti import listed_frames, png_size, read_stereo_pair
-from mining.sources.kitti_calib import KittiCalib, read_raw_calib
 from mining.types import SequencePlan, StereoFrame
 
 _DATE = re.compile(r"\d{4}_\d{2}_\d{2}")

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mining.proposals.coco import COCO_CLASSES
+from mining.formats.coco import COCO_CLASSES
 from mining.types import UNKNOWN_CLASS, Tube, TubeCategory
 
 UNCLASSIFIED = TubeCategory(None, None, float("nan"), None, None, 0, 0.0)

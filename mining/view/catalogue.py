@@ -22,12 +22,12 @@ import duckdb
 
 from mining.catalog.layout import JOB, JobRecord
 from mining.catalog.store import Store
-from mining.catalog.views import connect
+from mining.catalog.views import connect, sql_string
 from mining.config import JobConfig
 from mining.errors import InputError
-from mining.proposals.coco import COCO_CLASSES
+from mining.formats.coco import COCO_CLASSES
 from mining.types import UNKNOWN_CLASS
-from mining.view.filters import CARD_COLUMNS, RANGE_COLUMNS, TooLarge, TubeFilter, sql_string
+from mining.view.filters import CARD_COLUMNS, RANGE_COLUMNS, TooLarge, TubeFilter
 
 CLASS_NAMES = (*COCO_CLASSES, "unknown")
 assert len(CLASS_NAMES) == UNKNOWN_CLASS + 1

@@ -25,8 +25,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from mining.catalog.views import sql_string
 from mining.names import NAME_RULE, name_problem
-from mining.proposals.coco import COCO_CLASSES
+from mining.formats.coco import COCO_CLASSES
 
 RANGE_COLUMNS = ("score", "score_motion", "score_mask", "score_objectness", "n_frames", "n_observed",
                  "category_prob", "class_evidence", "speed", "path_length")
@@ -68,11 +69,6 @@ def _number(name: str, text: str, integer: bool) -> float | int:
     if not math.isfinite(v):
         raise FilterError(f"parameter {name!r} must be finite, got {text!r}")
     return v
-
-
-def sql_string(s: str) -> str:
-    """``s`` as a SQL string literal (for the shown --where text only)."""
-    return "'" + s.replace("'", "''") + "'"
 
 
 @dataclass(frozen=True)
