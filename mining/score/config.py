@@ -35,14 +35,14 @@ class ScoreConfig:
     # "reference" = the weighted sum above (REFERENCE.md); "calibrated" = ours: a log-odds fit on
     # synthetic truth per proposer (mining/score/calibrated.py; weights in CALIBRATED, from `mine bench calibrate`),
     # refused for a proposer without weights; "auto" = ours, the default: calibrated where the proposer has
-    # weights, else reference (held-out seeds 0007–0009, onnx+stereo: clutter 47/41/20 → 31/17/17 %, HOTA up on each)
+    # weights, else reference (held out: less clutter and higher HOTA on every seed, docs/RESULTS.md)
     model: Annotated[str, OneOf(("reference", "calibrated", "auto"))] = "auto"
     # proposer → term → weight of θ = w₀ + Σ_t w·φ_t (mining.score.calibrated.TERMS); a table in a job config
     # changes the terms it names and keeps CALIBRATED's others (to drop a proposer's weights: model = "reference")
     calibrated: dict[str, dict[str, Signed]] = field(default_factory=dict)
 
     # Known / unknown / unclassified (mining/tubes/category.py).
-    known_log_margin: Signed = -1.0  # paper: argmax over the 81 entries is 0; −1 by `mine bench classify` on synthetic training seeds 0000–0002 (balanced accuracy 0.745 → 0.863)
+    known_log_margin: Signed = -1.0  # paper: argmax over the 81 entries is 0; ours: −1, calibrated by `mine bench classify` on synthetic training seeds 0000–0002 (docs/RESULTS.md)
     min_class_evidence: float = 1.0  # ours: classified only with ≥ one frame-equivalent of classifier evidence
 
     def __post_init__(self) -> None:

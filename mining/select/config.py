@@ -23,9 +23,8 @@ class SelectConfig:
     # (parked cars in a row) keep o small, since visible masks share only boundary pixels
     # (a few columns: o ≈ 0.05 → 1.5 a frame), so they stay selected (tests/test_select_parts.py).
     epsilon2: float = 30.0  # REFERENCE: ε2, weight of the pairwise overlap penalty
-    # ours: ε2 with the calibrated unary (`mine bench calibrate`, leave-one-seed-out on synthetic seeds 0000–0006,
-    # onnx+stereo: of 30 / 10 / 3 / 1, HOTA 0.470 / 0.484 / 0.493 / 0.498); 3, not 1: a duplicate (mask IoU ≥ 0.4 a
-    # frame) must still cost more than a strong object's log-odds a frame (≈ 1)
+    # ours: ε2 with the calibrated unary, chosen by `mine bench calibrate` (docs/RESULTS.md, "The calibrated unary");
+    # 3, not 1: a duplicate (mask IoU ≥ 0.4 a frame) must still cost more than a strong object's log-odds a frame (≈ 1)
     epsilon2_calibrated: float = 3.0
     window_frames: Count = 100  # REFERENCE/paper: batches of 100 frames (original: ±50 frames around each frame)
     box_iou_gate: Fraction = 0.1  # REFERENCE: a frame's overlap counts only when the boxes' overlap (IoU; for "min": intersection over the smaller box) exceeds this

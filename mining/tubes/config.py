@@ -33,9 +33,8 @@ class TubeConfig:
     # Association.
     density_extra_var: float = 0.2  # REFERENCE: Gaussian density with observation covariance + 0.2·I
     min_association: float = 0.02  # REFERENCE: a tube takes its best gated observation if score > 0.02
-    # default "innovation" + 2 px jitter (issue 18): synthetic training seeds 0004–0006, onnx+stereo, HOTA 0.396/0.397/0.517 →
-    # 0.445/0.435/0.564; KITTI 0005 frames 0–15, onnx, Car HOTA 0.747 → 0.805. Detections-only keeps "reference" (its job
-    # file: `mine bench crossval` chose it)
+    # default "innovation" + 2 px jitter: HOTA up on synthetic training seeds and KITTI 0005 (docs/RESULTS.md,
+    # "Association"); detections-only keeps "reference" (jobs/kitti-detections.toml: `mine bench crossval` chose it)
     association: Annotated[str, OneOf(("reference", "normalised", "innovation"))] = "innovation"  # "reference" = REFERENCE: IoU × Gaussian density > min_association; "normalised" = ours: the density is replaced by its value relative to its peak, exp(−½·m²), so the score means the same at every depth (the Mahalanobis gate already bounds the distance in σ), threshold min_association_normalised; "innovation" = ours: the same with m under the Kalman innovation covariance (prediction + observation + 0.2·I, the gate's), the textbook normalised innovation
     min_association_normalised: Fraction = 0.068  # ours: 0.02 / 0.296 = the reference's floor over the density's peak at 10 m on KITTI (f 721 px, b 0.54 m, 0.5 px: σx 0.71, σz 0.46 m, +0.2·I → 1/(2π·0.84·0.64)), so both rules accept the same pairs there (at 50 m, σz 4.6 m, the reference's floor is 0.48 in these units)
     # Mask prediction by 3D warping.
@@ -58,12 +57,12 @@ class TubeConfig:
     max_gap_frames: int = 5  # REFERENCE: gap limit min(5, max(1, round(0.2 × inliers)))
     gap_inlier_factor: float = 0.2  # REFERENCE: gap limit min(5, max(1, round(0.2 × inliers)))
     # Joining fragments (issue 18): a tube ended by a gap waits this long for a new tube that continues it.
-    join_gate_sigmas: float = 1.0  # ours: over a gap the IoU gates tolerate gate_jitter_px + this many σ of the predicted footpoint's lateral position in pixels (a 3-frame-old prediction drifts tens of px at 40 m); training seeds 0004–0006 (joining only): 0 / 1 / 2 σ HOTA 0.465,0.538,0.499 / 0.470,0.542,0.501 / 0.467,0.541,0.498
+    join_gate_sigmas: float = 1.0  # ours: over a gap the IoU gates tolerate gate_jitter_px + this many σ of the predicted footpoint's lateral position in pixels (a 3-frame-old prediction drifts tens of px at 40 m); 1 measured best of 0 / 1 / 2 (docs/RESULTS.md, "Fragments")
     join_max_gap_s: float = 1.0  # ours: a confirmed new tube (3 back-step inliers) whose first observation is the ended tube's best gated one, predicted over ≤ 1 s (10 KITTI frames), continues it; 0 = REFERENCE (no joining)
     # Linking fragments of one object before selection (issue 18; mining/tubes/link.py).
     link_fragments: bool = True  # ours: add the joined tube of every chain of fragments as a candidate; False = REFERENCE (none)
     link_mask_iou: Fraction = 0.5  # REFERENCE's mask gate (> 0.5): two fragments' masks agree in a frame both observed when their IoU exceeds it
-    link_agree_share: Fraction = 0.5  # ours: share of the frames both fragments observed whose masks agree; training seeds 0004–0006 HOTA with all (1.0) 0.476/0.550/0.509, with half 0.483/0.554/0.509
+    link_agree_share: Fraction = 0.5  # ours: share of the frames both fragments observed whose masks agree; half measured better than all (docs/RESULTS.md, "Fragments")
     link_min_common: Count = 1  # ours: frames both fragments observed (and agree in) before they are one object
     # Tube NMS.
     nms_min_age: int = 4  # REFERENCE: tube NMS on tubes older than 4 frames
