@@ -25,19 +25,14 @@ class ProposalFilterConfig:
     # nearest point of the viewing ray within that many disparity stds (disparity noise is
     # Gaussian, depth noise is not): on KITTI, with 0.5 px pixel noise, an estimate is dropped beyond
     # Z ≈ 77 m, not 60 m. 0 = the hard limits on the estimate.
-    noise_sigmas: float = 2.0  # ours: 2 std (≤ 2.3 % of objects at a limit dropped); synthetic 0000 + KITTI 0005, `mine bench range`
+    noise_sigmas: float = 2.0  # ours: 2 std drops few objects at a limit (`mine bench range`, docs/RESULTS.md)
     max_proposals: Count = 300  # REFERENCE: sorted by score, at most 300 kept (authors advise ≤ 500)
     min_objectness: Fraction = 0.0  # ours: 0 keeps every proposal (REFERENCE's 0.8 cut defeats generic proposals); detectors may want one
 
 
 @dataclass
 class LocaliseConfig:
-    # Checked at range (`mine bench range`): the disparity std is √2 · 0.5 = 0.71 px. Measured per
-    # object pixel: synthetic 0.5–0.6 px at 10–50 m, 1.0 px at 50–60 m (SGBM at half resolution
-    # pulls the disparity towards whole half-resolution pixels by up to ±0.3 px); KITTI raw 0001
-    # against LiDAR 0.5–0.85 px, biased by −0.1…−0.6 px beyond 10 m. A mask's median averages
-    # the independent part: its depth error is 0.4–0.8 σ_Z on synthetic and 1.0–1.4 σ_Z on
-    # KITTI 0005's cars at 30–60 m (the bias), so the covariance is honest at range; it stays.
+    # Checked at range (`mine bench range`; docs/RESULTS.md): the covariance is honest at 10–60 m, so it stays.
     pixel_noise_px: Positive = 0.5  # REFERENCE: stereo triangulation with 0.5 px pixel noise
     prior_var_x: float = 0.5  # REFERENCE: covariance prior, +0.5 on x (m²)
     prior_var_z: float = 0.18  # REFERENCE: covariance prior, +0.18 on z (m²)
@@ -49,8 +44,7 @@ class LocaliseConfig:
     point_outlier_mahalanobis: float = 10.0  # REFERENCE: mask points beyond 10 Mahalanobis units from the median are dropped before warping
     # ours: of the points left, one whose depth lies this many robust units (1.4826 MAD, floored by the stereo depth
     # noise) from the mask's median depth takes the median depth on its own pixel (``at_median_depth``); 0 = REFERENCE
-    # (warped at its own depth). Training seeds 0004–0006, onnx+stereo, HOTA 0.483/0.554/0.509 → 3: 0.487/0.554/0.512,
-    # 5: 0.490/0.554/0.512 (all three axes instead of depth alone, 5: 0.491/0.554/0.514, 2× the time)
+    # (warped at its own depth). Chosen on training seeds 0004–0006 (docs/RESULTS.md).
     point_depth_outlier_units: float = 5.0
     size_percentiles: Annotated[tuple[float, float], Range(0, 100)] = (5.0, 95.0)  # ours: robust extent of the mask's points
     filters: ProposalFilterConfig = field(default_factory=ProposalFilterConfig)

@@ -102,12 +102,12 @@ class KittiDetectionsConfig:
 class UnionConfig:
     """Several proposers' outputs merged into one set per frame."""
 
-    mask_iou: Fraction = 0.5  # ours: same object above it; 0005 box vs YOLO masks: same 0.56–0.86, other < 0.4
+    mask_iou: Fraction = 0.5  # ours: same object above it (KITTI 0005 box vs YOLO masks separate there)
     # A class-agnostic proposal no classifier covers counts toward "unknown" with weight
     # 1 / (1 + exp(−(ln h − ln detect_h50_px) / detect_log_scale)), h its box height (union.py).
-    detect_h50_px: Positive = 7.3  # ours: ML fit, `mine bench classify` (KITTI 0005 frames 0–15 + synthetic seeds 0000–0002, 611 objects)
+    detect_h50_px: Positive = 7.3  # ours: maximum-likelihood fit, `mine bench classify` (docs/RESULTS.md)
     detect_log_scale: Positive = 0.59  # ours: spread of that curve in ln(height); same fit
-    better_mask: bool = False  # ours: off — on synthetic seeds 0000–0002 the learned mask is better on average (truth IoU 0.787 vs the depth rule's 0.766–0.782, `mine bench classify`)
+    better_mask: bool = False  # ours: off — the learned mask is better on average than the depth rule's (`mine bench classify`, docs/RESULTS.md)
     better_mask_margin: Fraction = 0.2  # ours: the later mask must agree better by this much (IoU with the depth region); `mine bench classify`
     depth_band_m: float = 2.5  # ours: depth extent of an object around its median (half a car's length + margin)
     band_noise_px: float = 1.0  # ours: disparity noise allowed on top of that band (2 × SGBM's ~0.5 px)
