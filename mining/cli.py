@@ -13,9 +13,7 @@ from typing import Any, NamedTuple
 from mining.errors import ConfigError, MiningError, NothingMatched
 from mining.export.registry import FORMATS as EXPORT_FORMATS
 from mining.names import check_name
-from mining.pipeline.arguments import add_job_options as _add_job_options
-from mining.pipeline.arguments import frame_range as _frames
-from mining.pipeline.arguments import job_config as _job_config
+from mining.pipeline.arguments import add_job_options, frame_range, job_config
 
 
 INTERRUPTED = 130  # the shell's exit status for a process ended by SIGINT (128 + 2)
@@ -116,7 +114,7 @@ def add_commands(sub: Any) -> None:
 
 
 def cmd_submit(args: argparse.Namespace) -> int:
-    cfg = _job_config(args)
+    cfg = job_config(args)
     if args.new_run and args.extend:
         raise ConfigError("--new-run and --extend exclude each other")
     if args.address and args.address.startswith("http"):
@@ -188,9 +186,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     smt = sub.add_parser("submit", help="plan windows and mine them on Ray (local, or a cluster with --address)")
-    _add_job_options(smt)
+    add_job_options(smt)
     smt.add_argument("--sequences", nargs="+", help="default: the config's, else every sequence the source finds")
-    smt.add_argument("--frames", type=_frames, default=(0, None), metavar="A:B",
+    smt.add_argument("--frames", type=frame_range, default=(0, None), metavar="A:B",
                      help="plan positions [A, B) of every sequence (default: all)")
     smt.add_argument("--out", default="out/catalog", help="catalogue folder or pyarrow filesystem URI")
     smt.add_argument("--address", help="http://HEAD:8265: hand the job to that cluster through Ray Jobs (--config, "
@@ -261,7 +259,7 @@ def build_parser() -> argparse.ArgumentParser:
     rnd.add_argument("--where", help="SQL predicate over the tubes table: draw only the selected tubes it matches")
     rnd.add_argument("--depth", action="store_true", help="add a stereo depth panel beside each frame")
     rnd.add_argument("--fps", type=float, help="frame rate (default: the sequence's, from its timestamps)")
-    rnd.add_argument("--frames", type=_frames, default=None, metavar="A:B",
+    rnd.add_argument("--frames", type=frame_range, default=None, metavar="A:B",
                      help="plan positions [A, B) (default: the frames the catalogue mined)")
     rnd.add_argument("--overwrite", action="store_true",
                      help="DEST exists: replace it (a plain file only; without this flag an existing DEST is refused)")

@@ -173,8 +173,8 @@ def mask_choice(seeds: Sequence[str], n_frames: int, cfg: JobConfig, step: int =
     stereo mask and of the one the depth rule keeps (best-matching truth object of either)."""
     from mining.masks import mask_iou
     from mining.pipeline.frames import plan_geometry
-    from mining.proposals.make import _one
-    from mining.proposals.union import _focal, depth_agreement
+    from mining.proposals.make import make_one
+    from mining.proposals.union import baseline_focal, depth_agreement
 
     union_cfg = cfg.proposals.union
     rows = []
@@ -182,7 +182,7 @@ def mask_choice(seeds: Sequence[str], n_frames: int, cfg: JobConfig, step: int =
         src = open_source("synthetic", None, n_frames=n_frames)
         plan = src.plan(seed)
         size = (plan.calib.height, plan.calib.width)
-        learned, stereo = _one("onnx", cfg.proposals, size), _one("stereo", cfg.proposals, size)
+        learned, stereo = make_one("onnx", cfg.proposals, size), make_one("stereo", cfg.proposals, size)
         for pos, frame, geom, _ in plan_geometry(src, plan, 0, len(plan), cfg.geometry):
             if pos % step:
                 continue
@@ -191,7 +191,7 @@ def mask_choice(seeds: Sequence[str], n_frames: int, cfg: JobConfig, step: int =
             if not len(a) or not len(b) or not len(gt.rles):
                 continue
             pair = mask_iou(a.rles, b.rles)
-            bf = _focal(geom.disparity, geom.depth)
+            bf = baseline_focal(geom.disparity, geom.depth)
             ta, tb = mask_iou(a.rles, gt.rles), mask_iou(b.rles, gt.rles)
             for i in range(len(a)):
                 j = int(np.argmax(pair[i]))

@@ -48,7 +48,8 @@ def classifiers_line(proposer: str) -> str:
             if len(cls) < len(names) else f"classes: {what} classified (proposer {proposer})")
 
 
-def _one(name: str, cfg: ProposalConfig, frame_size: tuple[int, int]) -> Proposer:
+def make_one(name: str, cfg: ProposalConfig, frame_size: tuple[int, int]) -> Proposer:
+    """One named proposer of a union (``stereo``, ``onnx``, ``torch``, ``json``, ``kitti_detections``)."""
     if name == "stereo":
         from mining.proposals.stereo import StereoProposer
 
@@ -77,7 +78,7 @@ def make_proposer(cfg: ProposalConfig, frame_size: tuple[int, int]) -> Proposer:
     names = proposer_names(cfg.proposer)
     if not names:
         raise ConfigError("proposals.proposer is empty")
-    parts = [_one(n, cfg, frame_size) for n in names]
+    parts = [make_one(n, cfg, frame_size) for n in names]
     if len(parts) == 1:
         return parts[0]
     return lambda frame, geometry: union([p(frame, geometry) for p in parts], cfg.union.mask_iou, cfg.union,

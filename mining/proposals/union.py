@@ -78,7 +78,7 @@ def depth_agreement(a: dict, b: dict, disparity: np.ndarray, cfg: UnionConfig, b
     return iou(ma), iou(mb)
 
 
-def _focal(disparity: np.ndarray | None, depth: np.ndarray | None) -> float:
+def baseline_focal(disparity: np.ndarray | None, depth: np.ndarray | None) -> float:
     """b·f from the geometry stage's maps (depth = b·f / disparity)."""
     if disparity is None or depth is None:
         return float("nan")
@@ -153,7 +153,7 @@ def _classify_agnostic(p: Proposals, parts: Sequence[Proposals], group: np.ndarr
 
 def _keep_better_masks(out: Proposals, merged: Proposals, keep: np.ndarray, partner: np.ndarray,
                        disparity: np.ndarray, depth: np.ndarray | None, cfg: UnionConfig) -> None:
-    bf = _focal(disparity, depth)
+    bf = baseline_focal(disparity, depth)
     if not np.isfinite(bf):
         return
     for row, (i, j) in enumerate(zip(keep, partner)):
