@@ -1,7 +1,16 @@
-"""``mine status`` on a real (tiny) catalogue: done, failed and pending windows."""
+"""``mine status`` on a real (tiny) catalogue: done, failed, pending and running windows.
+
+What `mine status` calls running and pending (issue 11, item 6; no Ray: the markers a driver
+writes): a window is running while a live driver holds its marker (``mining/pipeline/running.py``);
+a marker whose driver process is gone (a driver killed with SIGKILL leaves it behind) makes the
+window pending again. Markers of another job's params are ignored.
+"""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -11,6 +20,7 @@ from mining.catalog.store import Store
 from mining.config import load_config
 from mining.errors import InputError
 from mining.pipeline.executors import LocalExecutor
+from mining.pipeline.running import RunningMarkers
 from mining.pipeline.status import job_status, print_status
 from mining.pipeline.submit import mine_job
 from mining.types import Window
@@ -195,3 +205,38 @@ def test_an_observe_step_reports_its_frames_as_it_goes(tmp_path):
     assert result.ok and seen == list(range(1, window.core[1] - window.core[0] + 1))
     assert not store.exists(observed_path(window.dataset, window.sequence, window.name))
     assert steps.observed_so_far(store, [window]) == 0
+
+
+def test_running_needs_a_live_driver(tmp_path, capsys):
+    out = str(tmp_path / "cat")
+    mine_job(_cfg(), out, executor=LocalExecutor)
+    assert not list((tmp_path / "cat").glob("_running/**/*.json")), "a finished run leaves no marker"
+    store = Store(out)
+    job = JobRecord.load(store)
+    later = [Window("synthetic", "0000", (12, 18), (10, 20)), Window("synthetic", "0000", (18, 24), (16, 24))]
+    job.windows += later
+    job.save(store)
+
+    live = RunningMarkers(store, job.run_id, job.params_hash)  # this process: alive
+    live.mark(later[0], "track")
+    # A driver that marked a window and died without clearing it (as SIGKILL leaves it).
+    subprocess.run([sys.executable, "-c", "import sys; from mining.catalog.store import Store; "
+                    "from mining.pipeline.running import RunningMarkers; from mining.types import Window; "
+                    "RunningMarkers(Store(sys.argv[1]), sys.argv[2], sys.argv[3])"
+                    ".mark(Window('synthetic', '0000', (18, 24), (16, 24)), 'observe')", out, job.run_id,
+                    job.params_hash], check=True, cwd=REPO, env=dict(os.environ, PYTHONPATH=str(REPO)))
+    assert (tmp_path / "cat" / "_running" / "dataset=synthetic" / "sequence=0000" / f"{later[1].name}.json").exists()
+
+    rows = {r.window: r for r in job_status(out)}
+    assert rows[later[0].name].status == "running" and "track step, driver pid" in rows[later[0].name].running
+    assert rows[later[1].name].status == "pending"
+    assert print_status(out) == 0
+    shown = capsys.readouterr().out
+    assert "4 windows: 2 done, 0 failed, 1 pending, 1 running" in shown
+    assert f"running  synthetic/{later[0].name}  attempts 0  track step, driver pid " in shown
+
+    other = RunningMarkers(store, "other-run", "0" * 16)  # another job's params: not this job's window
+    other.mark(later[1], "track")
+    assert {r.window: r.status for r in job_status(out)}[later[1].name] == "pending"
+    live.clear_all()
+    assert {r.window: r.status for r in job_status(out)}[later[0].name] == "pending"
