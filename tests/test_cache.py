@@ -30,6 +30,7 @@ from mining.errors import InputError
 from mining.pipeline.executors import LocalExecutor
 from mining.pipeline.steps import Observe, StepResult, Track
 from mining.pipeline.submit import mine_job, open_job
+from _jobs import tiny_cfg
 
 REPO = Path(__file__).resolve().parents[1]
 # Every name an observation cache has had: pickle before issue 11, zstd-framed NPZ since.
@@ -40,12 +41,6 @@ def _cfg():
     return load_config(REPO / "jobs" / "synthetic.toml", [
         "source.options.n_frames=12", "source.options.width=621", "source.options.height=188",
         "source.options.fx=360.77", "window.core=6", "window.context_before=2", "window.context_after=2"])
-
-
-def _tiny_cfg():
-    return load_config(REPO / "jobs" / "synthetic.toml", [
-        "source.options.n_frames=12", "source.options.width=320", "source.options.height=96",
-        "source.options.fx=186.0", "window.core=6", "window.context_before=2", "window.context_after=2"])
 
 
 def _observed(out: str):
@@ -173,7 +168,7 @@ def test_planted_pickles_never_run_on_resubmit(tmp_path):
     assert marker.read_text() == "ran"
     marker.unlink()
 
-    cfg = _tiny_cfg()
+    cfg = tiny_cfg()
     clean = str(tmp_path / "clean")
     assert mine_job(cfg, clean, executor=LocalExecutor).ok == 2
 

@@ -20,7 +20,8 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
-from _reliability_b import ANSI, TINY, TINY_WINDOWS, status, submit
+from _jobs import TINY, TINY_WINDOWS
+from _run import ANSI, status, submit
 from conftest import kitti_0005_stereo
 
 from mining.errors import InputError

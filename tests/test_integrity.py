@@ -15,8 +15,8 @@ failure below was reproduced on the code before: a flipped bit in a compacted fi
 served as a changed value with exit 0; a crash during a sequence's first stitch served its
 tubes without their frames; a sequence folder no marker records was served (every tube twice).
 
-Real files, real DuckDB, ``LocalExecutor``: the small synthetic job of ``_reliability_c``
-(mined once, copied).
+Real files, real DuckDB, ``LocalExecutor``: the small synthetic job of ``tests/_jobs.py``
+(``base_catalogue``: mined once, copied).
 """
 
 from __future__ import annotations
@@ -30,10 +30,8 @@ import pytest
 
 from mining.catalog import integrity
 from mining.catalog.views import connect
-from mining.cli import main
-from _reliability_c import SEQ, copy_of, mine, tables
-
-pytest_plugins = ["_reliability_c_fixtures"]  # base_catalogue: one base job for all three files
+from _jobs import SEQ, copy_of, mine, tables
+from _run import cli, cli_status
 
 D = f"dataset=synthetic/sequence={SEQ}"
 TUBES = f"catalog/tubes/{D}/part-0.parquet"
@@ -43,24 +41,12 @@ W0, W1 = f"{SEQ}-0000000-0000008", f"{SEQ}-0000008-0000016"
 MARKER = f"catalog/_sequences/{D}.json"
 
 
-def _cli(capsys, *argv: str) -> tuple[int, str, str]:
-    capsys.readouterr()
-    rc = main(list(argv))
-    got = capsys.readouterr()
-    return rc, got.out, got.err
-
-
-def _status(capsys, out: Path, *extra: str) -> tuple[int, str]:
-    rc, o, e = _cli(capsys, "status", "--out", str(out), *extra)
-    return rc, o + e
+def _query(capsys, out: Path, sql: str) -> tuple[int, str, str]:
+    return cli(capsys, "query", sql, "--out", str(out), "--format", "csv")
 
 
 def _count(capsys, out: Path, table: str) -> tuple[int, str, str]:
-    return _cli(capsys, "query", f"SELECT count(*) AS n FROM {table}", "--out", str(out), "--format", "csv")
-
-
-def _query(capsys, out: Path, sql: str) -> tuple[int, str, str]:
-    return _cli(capsys, "query", sql, "--out", str(out), "--format", "csv")
+    return _query(capsys, out, f"SELECT count(*) AS n FROM {table}")
 
 
 def _flip_a_value(path: Path) -> None:
@@ -91,7 +77,7 @@ def test_a_deleted_compacted_file_is_named_and_re_stitched_from_its_parts(base_c
     n_frames = len(base_catalogue[1]["frames"])
     (out / TUBES).unlink()
 
-    rc, text = _status(capsys, out)
+    rc, text = cli_status(capsys, out)
     assert rc != 0 and f"damaged  {TUBES}: missing (a resubmission stitches sequence {SEQ} again)" in text, text
     rc, o, e = _count(capsys, out, "tubes")
     assert rc == 2 and str(out / TUBES) in e and "missing" in e, o + e  # not "0 rows"
@@ -101,18 +87,18 @@ def test_a_deleted_compacted_file_is_named_and_re_stitched_from_its_parts(base_c
     s = mine(out)
     assert (s.ok, s.skipped, s.sequences_written) == (0, 2, 1), s.lines()  # no window ran: stitched again
     assert tables(out) == base_catalogue[1]
-    assert _status(capsys, out)[0] == 0
+    assert cli_status(capsys, out)[0] == 0
 
 
 def test_a_truncated_compacted_file_breaks_only_its_table(base_catalogue, tmp_path, capsys):
     out = copy_of(base_catalogue, tmp_path / "out")
     _truncate(out / TUBE_FRAMES)
 
-    rc, text = _status(capsys, out)
+    rc, text = cli_status(capsys, out)
     assert rc != 0 and f"damaged  {TUBE_FRAMES}: " in text and "bytes," in text and "recorded" in text, text
     rc, o, e = _count(capsys, out, "tube_frames")
     assert rc == 2 and str(out / TUBE_FRAMES) in e, o + e
-    rc, o, e = _cli(capsys, "query", "SELECT count(*) FROM tube_tracks", "--out", str(out))  # a view over it
+    rc, o, e = cli(capsys, "query", "SELECT count(*) FROM tube_tracks", "--out", str(out))  # a view over it
     assert rc == 2 and str(out / TUBE_FRAMES) in e, o + e
     for table, n in (("tubes", len(base_catalogue[1]["tubes"])), ("frames", len(base_catalogue[1]["frames"])),
                      ("windows", 2), ("selected_tubes", None)):
@@ -132,11 +118,11 @@ def test_status_verify_finds_a_file_damaged_in_place(base_catalogue, tmp_path, c
     data[len(data) // 2] ^= 0xFF  # one flipped byte: the size is as recorded
     path.write_bytes(bytes(data))
 
-    rc, text = _status(capsys, out)
+    rc, text = cli_status(capsys, out)
     # the catalogue's files (what queries read) are always checked by checksum (issue 19)
     assert rc != 0 and f"damaged  {FRAMES}: sha256 " in text and "integrity: 1 damaged" in text, text
     assert "(a resubmission with --verify stitches sequence" in text, text
-    rc, text = _status(capsys, out, "--verify")
+    rc, text = cli_status(capsys, out, "--verify")
     assert rc != 0 and f"damaged  {FRAMES}: sha256 " in text and "integrity: 1 damaged" in text, text
 
     s = mine(out)  # sizes only: nothing seen, nothing done
@@ -145,7 +131,7 @@ def test_status_verify_finds_a_file_damaged_in_place(base_catalogue, tmp_path, c
     assert (s.ok, s.skipped, s.sequences_written) == (0, 2, 1), s.lines()
     assert path.read_bytes() != bytes(data)
     assert tables(out) == base_catalogue[1]
-    assert _status(capsys, out, "--verify")[0] == 0
+    assert cli_status(capsys, out, "--verify")[0] == 0
 
 
 @pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
@@ -154,12 +140,12 @@ def test_a_damaged_part_runs_its_window_again(base_catalogue, tmp_path, capsys):
     part = f"_parts/tube_frames/{D}/{W1}.part"
     _truncate(out / part)
 
-    rc, text = _status(capsys, out)
+    rc, text = cli_status(capsys, out)
     assert rc != 0 and f"damaged  {part}: " in text and f"runs window {W1} again" in text, text
     s = mine(out)
     assert (s.ok, s.skipped, s.sequences_written) == (1, 1, 1), s.lines()  # that window, then the stitch
     assert tables(out) == base_catalogue[1]
-    assert _status(capsys, out, "--verify")[0] == 0
+    assert cli_status(capsys, out, "--verify")[0] == 0
 
 
 @pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
@@ -169,7 +155,7 @@ def test_a_damaged_compacted_file_without_its_parts_runs_their_windows_again(bas
     for p in (out / "_parts").rglob("*.part"):
         p.unlink()
 
-    rc, text = _status(capsys, out)
+    rc, text = cli_status(capsys, out)
     assert rc != 0 and TUBES in text and f"runs window {W0} again" in text and f"runs window {W1} again" in text
     s = mine(out)
     assert (s.ok, s.skipped, s.sequences_written) == (2, 0, 1), s.lines()
@@ -182,25 +168,25 @@ def test_an_unreadable_manifest_row_is_named_and_its_window_runs_again(base_cata
     row = f"manifest/{D}/{W0}.parquet"
     (out / row).write_bytes(b"not parquet")
 
-    rc, text = _status(capsys, out)
+    rc, text = cli_status(capsys, out)
     assert rc != 0 and f"damaged  {row}: unreadable" in text, text
     rc, o, e = _count(capsys, out, "tubes")
     assert rc == 0, o + e
     s = mine(out)
     assert (s.ok, s.skipped) == (1, 1), s.lines()
     assert tables(out) == base_catalogue[1]
-    assert _status(capsys, out)[0] == 0
+    assert cli_status(capsys, out)[0] == 0
 
 
 def test_an_export_over_a_damaged_table_names_the_file_not_the_predicate(base_catalogue, tmp_path, capsys):
     out = copy_of(base_catalogue, tmp_path / "out")
     _truncate(out / TUBE_FRAMES)
     dest = tmp_path / "crops"
-    rc, o, e = _cli(capsys, "export", "--out", str(out), "--where", "selected", "--format", "youtube-vis", str(dest))
+    rc, o, e = cli(capsys, "export", "--out", str(out), "--where", "selected", "--format", "youtube-vis", str(dest))
     assert rc == 2 and str(out / TUBE_FRAMES) in e and "predicate" not in e, o + e
     assert not dest.exists() or not any(dest.iterdir())
-    rc, o, e = _cli(capsys, "export", "--out", str(out), "--where", "no_such_column > 1", "--format", "youtube-vis",
-                    str(dest))
+    rc, o, e = cli(capsys, "export", "--out", str(out), "--where", "no_such_column > 1", "--format", "youtube-vis",
+                   str(dest))
     assert rc == 2 and "--where" in e and "no_such_column" in e, o + e
 
 
@@ -221,7 +207,7 @@ def test_a_flipped_bit_is_an_error_naming_the_file_never_a_value(base_catalogue,
     assert rc == 0 and o.split()[1:] == [str(n_frames)], o + e
 
     dest = tmp_path / "export"
-    rc, o, e = _cli(capsys, "export", "--out", str(out), "--where", "selected", "--format", "youtube-vis", str(dest))
+    rc, o, e = cli(capsys, "export", "--out", str(out), "--where", "selected", "--format", "youtube-vis", str(dest))
     assert rc == 2 and str(out / TUBES) in e, o + e
     assert not dest.exists() or not any(dest.iterdir())
 
@@ -232,7 +218,7 @@ def test_plain_status_finds_a_flipped_bit_in_the_catalogues_files(base_catalogue
     (only --verify found it): the compacted files, what queries read, are checked by checksum."""
     out = copy_of(base_catalogue, tmp_path / "out")
     _flip_a_value(out / TUBES)
-    rc, o, e = _cli(capsys, "status", "--out", str(out))
+    rc, o, e = cli(capsys, "status", "--out", str(out))
     assert rc == 1, o + e
     assert f"damaged  {TUBES}: sha256" in o and "integrity: 1 damaged" in o, o
 

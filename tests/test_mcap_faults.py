@@ -203,13 +203,13 @@ def test_a_job_mines_the_good_windows_and_names_the_chunk_in_the_failed_one(kitt
 
 @pytest.mark.slow  # `mine submit` on a local Ray
 def test_submit_exits_1_mines_the_good_windows_and_names_the_chunk(kitti, tmp_path):
-    from _reliability_d import submit
+    from _run import submit
 
     root, chunk = _recording_with_a_bad_chunk(kitti, tmp_path)
     out = tmp_path / "out"
     rc, stdout, stderr = submit(out, "--dataset", "mcap", "--root", str(root), "--sequences", "rec", "--frames", "0:6",
                                 "--set", "window.core=2", "--set", "window.context_before=0",
-                                "--set", "window.context_after=0")
+                                "--set", "window.context_after=0", workers=1)
     assert rc == 1, (rc, stdout, stderr)
     assert "Traceback" not in stderr
     assert "windows: 2 ok, 1 failed, 0 already done (of 3)" in stdout, stdout

@@ -22,7 +22,8 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from _reliability_b import ANSI, TINY, TINY_WINDOWS, status, submit
+from _jobs import TINY, TINY_WINDOWS
+from _run import ANSI, status, submit
 
 from mining.catalog.layout import part_path
 from mining.catalog.store import Store

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from pycocotools import mask as mask_utils
 
-from conftest import MODELS
+from conftest import MODEL
 from mining.boxes import box_iou
 from mining.errors import ConfigError, InputError
 from mining.formats.kitti_tracking import read_kitti_tracking
@@ -25,14 +25,13 @@ from mining.types import N_CLASSES
 onnx = pytest.importorskip("onnx")
 ort = pytest.importorskip("onnxruntime")
 
-INT8_MODEL = MODELS / "yolov8n-seg_int8.onnx"
 
 
 @pytest.fixture(scope="module")
 def model_path():
-    if not INT8_MODEL.is_file():
-        pytest.skip(f"shared model not present at {INT8_MODEL}")
-    return INT8_MODEL
+    if not MODEL.is_file():
+        pytest.skip(f"shared model not present at {MODEL}")
+    return MODEL
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -20,6 +19,7 @@ import numpy as np
 import pytest
 from pycocotools import mask as mask_utils
 
+from _run import env
 from conftest import REPO, kitti_0005_stereo
 from mining.errors import ConfigError
 from mining.proposals.coco import CLASS_INDEX, COCO_CATEGORY_IDS
@@ -264,8 +264,7 @@ try:
 except ConfigError as e:
     print("ConfigError:", e)
 """
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=REPO, timeout=120,
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env(), cwd=REPO, timeout=120,
                          check=False)
     assert out.returncode == 0, out.stderr
     assert "ConfigError:" in out.stdout and "pip install -e .[torch]" in out.stdout

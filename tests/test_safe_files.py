@@ -44,7 +44,6 @@ import os
 import resource
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pyarrow as pa
@@ -61,14 +60,12 @@ from mining.catalog.safe_files import LinkError, WriteError
 from mining.catalog.schema import SCHEMAS
 from mining.catalog.store import Store, write_sequence
 from mining.cli import main
-from _reliability_c import CLI_SMALL, copy_of, mine, tables
-
-pytest_plugins = ["_reliability_c_fixtures"]  # base_catalogue: the small job over frames 0:16, mined once
+from _jobs import CLI_SMALL, SYNTHETIC, catalogue_files, copy_of, mine, tables
+from _run import env, mine_cmd
 
 REPO = Path(__file__).resolve().parents[1]
 SECRET = "line one\nline two\n"  # the outside file a planted link points at: it must keep these bytes
-TINY = ["--dataset", "synthetic", "--sequences", "0000", "--option", "n_frames=8", "--option", "width=621",
-        "--option", "height=188", "--workers", "1", "--no-progress"]
+TINY = [*SYNTHETIC, "--workers", "1", "--no-progress"]
 
 
 def _outside(tmp_path: Path) -> Path:
@@ -147,11 +144,8 @@ def test_mine_submit_refuses_a_lock_link_and_keeps_its_target(tmp_path):
     out, secret = tmp_path / "out", _outside(tmp_path)
     out.mkdir()
     (out / ".mine.lock").symlink_to(secret)
-    done = subprocess.run([sys.executable, "-m", "mining.cli", "submit", "--dataset", "synthetic",
-                           "--sequences", "0000", "--option", "n_frames=8", "--option", "width=621",
-                           "--option", "height=188", "--workers", "1", "--no-progress", "--out", str(out)],
-                          cwd=REPO, capture_output=True, text=True, timeout=300,
-                          env={**os.environ, "PYTHONPATH": str(REPO), "RAY_USAGE_STATS_ENABLED": "0"})
+    done = subprocess.run(mine_cmd("submit", *TINY, "--out", str(out)), cwd=REPO, capture_output=True, text=True,
+                          timeout=300, env=env())
     assert done.returncode == 2, done.stdout + done.stderr
     assert "is a link" in done.stderr and "Traceback" not in done.stderr and "taking over" not in done.stderr
     assert secret.read_text() == SECRET
@@ -455,21 +449,12 @@ def fill(disk: Path, free: int) -> Path:
     return filler
 
 
-def _env() -> dict[str, str]:
-    return {**os.environ, "PYTHONPATH": str(REPO), "RAY_USAGE_STATS_ENABLED": "0"}
-
-
-def _files(out: Path) -> dict[str, bytes]:
-    return {str(p.relative_to(out)): p.read_bytes() for p in sorted(out.rglob("*"))
-            if p.is_file() and p.name != ".mine.lock"}
-
-
 @pytest.mark.slow  # a `mine submit` process (it fails before Ray starts)
 def test_mine_submit_with_8_kb_free_says_no_space_left_in_one_line(small_disk):
     out = small_disk / "out"
     fill(small_disk, 8 * 1024)
-    done = subprocess.run([sys.executable, "-m", "mining.cli", "submit", *TINY, "--out", str(out)], cwd=REPO,
-                          env=_env(), capture_output=True, text=True, timeout=300)
+    done = subprocess.run(mine_cmd("submit", *TINY, "--out", str(out)), cwd=REPO, env=env(), capture_output=True,
+                          text=True, timeout=300)
     assert done.returncode == 2, done.stdout + done.stderr
     err = done.stderr.strip().splitlines()
     assert err == [f"mine: error: file {out}/job.json: cannot be written: no space left on device (free some space "
@@ -481,13 +466,13 @@ def test_a_full_disk_while_rewriting_job_json_keeps_the_old_one(base_catalogue, 
     """``--extend`` rewrites job.json: on a full disk it fails naming the file, and the
     catalogue (job.json included) is as it was, byte for byte."""
     out = copy_of(base_catalogue, small_disk / "out")
-    before = _files(out)
+    before = catalogue_files(out)
     fill(small_disk, 8 * 1024)
     with pytest.raises(WriteError) as e:
         mine(out, (0, 24), mode="extend")
     assert str(e.value) == (f"file {out}/job.json: cannot be written: no space left on device (free some space and "
                             "run the command again)")
-    assert _files(out) == before
+    assert catalogue_files(out) == before
 
 
 @pytest.mark.slow  # mines (and fails) a window
@@ -523,8 +508,8 @@ def test_mine_submit_under_a_file_size_limit_says_file_too_large_in_one_line(tmp
     """No root needed: RLIMIT_FSIZE of 8 KB, job.json (≈ 17 KB) does not fit (EFBIG; Python
     ignores SIGXFSZ, so the write returns the error)."""
     out = tmp_path / "out"
-    done = subprocess.run([sys.executable, "-m", "mining.cli", "submit", *TINY, "--out", str(out)], cwd=REPO,
-                          env=_env(), capture_output=True, text=True, timeout=300, preexec_fn=_limit_file_size(8192))
+    done = subprocess.run(mine_cmd("submit", *TINY, "--out", str(out)), cwd=REPO, env=env(), capture_output=True,
+                          text=True, timeout=300, preexec_fn=_limit_file_size(8192))
     assert done.returncode == 2, done.stdout + done.stderr
     err = done.stderr.strip().splitlines()
     assert err == [f"mine: error: file {out}/job.json: cannot be written: file too large (the file exceeds the size "
@@ -535,12 +520,12 @@ def test_mine_submit_under_a_file_size_limit_says_file_too_large_in_one_line(tmp
 @pytest.mark.slow  # a `mine submit` process (it fails before Ray starts)
 def test_an_existing_job_json_survives_a_failed_rewrite_under_a_file_size_limit(base_catalogue, tmp_path):
     out = copy_of(base_catalogue, tmp_path / "out")
-    before = _files(out)
-    done = subprocess.run([sys.executable, "-m", "mining.cli", "submit", *CLI_SMALL, "--frames", "0:24", "--extend",
-                           "--out", str(out), "--workers", "1", "--no-progress"], cwd=REPO, env=_env(),
+    before = catalogue_files(out)
+    done = subprocess.run(mine_cmd("submit", *CLI_SMALL, "--frames", "0:24", "--extend", "--out", str(out),
+                                   "--workers", "1", "--no-progress"), cwd=REPO, env=env(),
                           capture_output=True, text=True, timeout=300, preexec_fn=_limit_file_size(8192))
     assert done.returncode == 2, done.stdout + done.stderr
     assert done.stderr.strip().splitlines() == [f"mine: error: file {out}/job.json: cannot be written: file too large "
                                                 "(the file exceeds the size limit of this process or filesystem)"]
-    assert _files(out) == before
+    assert catalogue_files(out) == before
     shutil.rmtree(out)

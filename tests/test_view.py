@@ -14,6 +14,7 @@ import pytest
 from pycocotools import mask as mask_utils
 
 from _catalog_data import DATASET, SEQUENCE
+from _run import env
 from conftest import count_tubes, get, json_get, serving
 from mining.catalog.views import connect
 from mining.cli import main
@@ -319,17 +320,15 @@ def test_a_damaged_table_is_503_naming_the_file(catalogue, tmp_path):
 
 
 def test_mine_view_serves_until_ctrl_c(catalogue, tmp_path):
-    import os
     import re
     import signal
     import subprocess
     import sys
 
     out, _ = catalogue
-    env = dict(os.environ, PYTHONPATH=str(REPO))
     proc = subprocess.Popen([sys.executable, "-m", "mining.cli", "view", "--out", str(out), "--port", "0",
                              "--cache", str(tmp_path / "cache")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env=env)
+                            text=True, env=env())
     try:
         line = proc.stdout.readline()
         m = re.search(r"serving (http://127\.0\.0\.1:\d+)/", line)

@@ -39,6 +39,7 @@ import pytest
 import _cdp
 from _catalog_data import DATASET, SEQUENCE
 from _cdp import Browser
+from _run import env
 from conftest import get, json_get, serving
 from mining.catalog.store import Store, write_sequence
 from mining.view import catalogue as view_catalogue
@@ -321,9 +322,8 @@ def test_idle_connections_cannot_exhaust_the_descriptors(catalogue, tmp_path):
     """The adversary's 1,024 idle sockets against the usual limit of 1,024 descriptors, scaled down:
     300 idle sockets against a server process allowed 256."""
     out, _ = catalogue
-    env = dict(os.environ, PYTHONPATH=str(REPO))
     proc = subprocess.Popen([sys.executable, "-c", SERVE_WITH_FEW_DESCRIPTORS, str(out), str(tmp_path / "cache")],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env())
     idle = []
     try:
         port = int(proc.stdout.readline())
