@@ -13,7 +13,7 @@ from mining.bench.crossval import (KITTI_TRAINING_FOLDS, Setting, combined, cros
 from mining.config import load_config
 from mining.eval.kitti_mot import evaluate_kitti_mot, read_seqmap
 
-REPO = Path(__file__).resolve().parents[1]
+from conftest import REPO
 
 
 def _is_partition(folds, sequences) -> bool:

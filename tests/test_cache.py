@@ -31,8 +31,8 @@ from mining.pipeline.executors import LocalExecutor
 from mining.pipeline.steps import Observe, StepResult, Track
 from mining.pipeline.submit import mine_job, open_job
 from _jobs import tiny_cfg
+from conftest import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 # Every name an observation cache has had: pickle before issue 11, zstd-framed NPZ since.
 CACHE_NAMES = ("{w}.pkl", "{w}.npz.zst")
 

@@ -17,7 +17,7 @@ import pytest
 
 from _jobs import SYNTHETIC
 from _run import clean_error, cli, submit
-from conftest import MODEL
+from conftest import MODEL, REPO
 
 
 def _submit(capsys, out: Path, *args: str) -> tuple[int, str, str]:
@@ -132,7 +132,7 @@ def test_corrupt_job_json_is_a_clear_error_for_submit_status_and_export(tmp_path
 def test_every_shipped_job_config_keeps_its_own_rules():
     from mining.config import load_config, validate
 
-    for path in sorted((Path(__file__).resolve().parents[1] / "jobs").glob("*.toml")):
+    for path in sorted((REPO / "jobs").glob("*.toml")):
         validate(load_config(path), str(path))
     validate(load_config())
 

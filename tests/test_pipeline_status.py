@@ -25,8 +25,7 @@ from mining.pipeline.submit import mine_job
 from mining.types import Window
 from _jobs import tiny_cfg
 from _run import env
-
-REPO = Path(__file__).resolve().parents[1]
+from conftest import REPO
 
 
 @pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes

@@ -17,8 +17,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
@@ -35,7 +33,7 @@ from mining.sources.synthetic import SyntheticSource
 from mining.catalog.rows import RunInfo
 from mining.types import plan_windows
 
-REPO = Path(__file__).resolve().parents[1]
+from conftest import REPO
 
 pytestmark = pytest.mark.slow  # a 24-frame job in this process; three `mine submit` runs on local Rays
 

@@ -13,7 +13,8 @@ from mining.pipeline.window import chain_poses, observe_window
 from mining.sources.kitti import KittiTrackingSource
 from mining.types import plan_windows
 
-REPO = Path(__file__).resolve().parents[1]
+from conftest import REPO
+
 N = 8
 
 

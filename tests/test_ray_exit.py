@@ -19,8 +19,8 @@ from pathlib import Path
 import pytest
 
 from _run import env, mine_cmd
+from conftest import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 HERE = Path(__file__).resolve().parent
 
 pytestmark = pytest.mark.slow  # child pytest processes, some with a local Ray

@@ -62,8 +62,8 @@ from mining.catalog.store import Store, write_sequence
 from mining.cli import main
 from _jobs import CLI_SMALL, SYNTHETIC, catalogue_files, copy_of, mine, tables
 from _run import env, mine_cmd
+from conftest import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 SECRET = "line one\nline two\n"  # the outside file a planted link points at: it must keep these bytes
 TINY = [*SYNTHETIC, "--workers", "1", "--no-progress"]
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import shutil
 import tomllib
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -15,14 +14,12 @@ from pycocotools import mask as mask_utils
 
 from _catalog_data import DATASET, SEQUENCE
 from _run import env
-from conftest import count_tubes, get, json_get, serving
+from conftest import REPO, count_tubes, get, json_get, serving
 from mining.catalog.views import connect
 from mining.cli import main
 from mining.errors import InputError
 from mining.view.images import JPEG_QUALITY, THUMB_SIZE
 from mining.view.server import make_server
-
-REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")

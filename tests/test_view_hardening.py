@@ -45,7 +45,6 @@ from mining.catalog.store import Store, write_sequence
 from mining.view import catalogue as view_catalogue
 from mining.view.images import THUMB_SIZE, best_frame, default_cache_dir
 
-REPO = Path(__file__).resolve().parents[1]
 MAX_TUBE_FRAMES = getattr(view_catalogue, "MAX_TUBE_FRAMES", 10_000)  # so that the old code runs this file too
 REBOUND = "rebound.example"  # a name the test's Chromium resolves to 127.0.0.1, as a rebinding attacker's would
 
