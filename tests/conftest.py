@@ -116,6 +116,28 @@ def base_catalogue(tmp_path_factory) -> tuple[Path, dict]:
     return out, t
 
 
+# ── the torch proposer with random weights (tests/test_proposals_torch.py, test_proposals_contract.py) ──
+
+# The network runs on a frame downscaled by min_size/max_size (128×424) so that the tests stay fast.
+TORCH_SMALL = {"device": "cpu", "min_size": 128, "max_size": 424, "rpn_post_nms_top_n": 200, "max_proposals": 20}
+
+
+@pytest.fixture(scope="session")
+def torch_checkpoint(tmp_path_factory) -> Path:
+    """The real maskrcnn_resnet50_fpn in torchvision's COCO layout (91 classes) with random initial
+    weights (seed 0), saved with torch.save: no weights are bundled or downloaded. Random weights say
+    nothing about accuracy; they exercise the output contract, the checkpoint layouts and the pipeline."""
+    torch = pytest.importorskip("torch")
+    pytest.importorskip("torchvision")
+    from torchvision.models.detection import maskrcnn_resnet50_fpn
+
+    torch.manual_seed(0)
+    model = maskrcnn_resnet50_fpn(weights=None, weights_backbone=None)
+    path = tmp_path_factory.mktemp("torch_ckpt") / "maskrcnn_resnet50_fpn_random.pt"
+    torch.save(model.state_dict(), path)
+    return path
+
+
 # ── `mine view` (tests/test_view.py, test_view_browser.py, test_view_hardening.py) ──
 
 
