@@ -21,7 +21,8 @@ from mining.catalog.schema import SCHEMAS, file_schema
 from mining.catalog.store import Store, write_sequence
 from mining.config import load_config
 
-REPO = Path(__file__).resolve().parents[1]
+from conftest import REPO
+
 DATASET, SEQUENCE, N_FRAMES = "kitti", "0005", 16
 RUN_ID = "test-run"
 

@@ -20,6 +20,7 @@ REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("TUBE_MINER_SHARED", REPO.parent / "shared"))
 DATA = SHARED / "data"
 MODELS = SHARED / "models"
+MODEL = MODELS / "yolov8n-seg_int8.onnx"  # the shared ONNX proposer model (YOLOv8n-seg, int8): user-provided, not bundled
 
 os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
 # Ray's single-host mode, read when `ray` is first imported (test modules import it at
@@ -70,6 +71,14 @@ def oxford_data() -> Path:
     return _require(DATA / "oxford")
 
 
+def coco_rle(mask) -> dict:
+    """The COCO compressed RLE of a boolean mask, as ``pycocotools.mask.encode`` makes it."""
+    import numpy as np
+    from pycocotools import mask as mask_utils
+
+    return mask_utils.encode(np.asfortranarray(mask.astype(np.uint8)))
+
+
 def kitti_0005_stereo(kitti_tracking_root: Path, n_frames: int):
     """The first ``n_frames`` real KITTI 0005 stereo pairs (RGB) and their StereoCalib,
     read through the project's own KITTI readers."""
@@ -93,7 +102,43 @@ def catalogue(tmp_path_factory, kitti_tracking_root):
     return out, build_catalogue(out, kitti_tracking_root)
 
 
-# ── `mine view` (tests/test_view.py, test_view_browser.py, test_reliability_e_view.py) ──
+@pytest.fixture(scope="session")
+def base_catalogue(tmp_path_factory) -> tuple[Path, dict]:
+    """(folder, its tables) of the small synthetic job of tests/_jobs.py over frames 0:16, mined
+    once per session; tests damage or resubmit to a copy (``_jobs.copy_of``)."""
+    from _jobs import mine, tables
+
+    out = tmp_path_factory.mktemp("small_job") / "base"
+    s = mine(out)
+    assert s.ok == 2 and not s.failed, s.lines()
+    t = tables(out)
+    assert t["tubes"] and len(t["frames"]) == 16, "the base job found no tubes: comparisons would be empty"
+    return out, t
+
+
+# ── the torch proposer with random weights (tests/test_proposals_torch.py, test_proposals_contract.py) ──
+
+# The network runs on a frame downscaled by min_size/max_size (128×424) so that the tests stay fast.
+TORCH_SMALL = {"device": "cpu", "min_size": 128, "max_size": 424, "rpn_post_nms_top_n": 200, "max_proposals": 20}
+
+
+@pytest.fixture(scope="session")
+def torch_checkpoint(tmp_path_factory) -> Path:
+    """The real maskrcnn_resnet50_fpn in torchvision's COCO layout (91 classes) with random initial
+    weights (seed 0), saved with torch.save: no weights are bundled or downloaded. Random weights say
+    nothing about accuracy; they exercise the output contract, the checkpoint layouts and the pipeline."""
+    torch = pytest.importorskip("torch")
+    pytest.importorskip("torchvision")
+    from torchvision.models.detection import maskrcnn_resnet50_fpn
+
+    torch.manual_seed(0)
+    model = maskrcnn_resnet50_fpn(weights=None, weights_backbone=None)
+    path = tmp_path_factory.mktemp("torch_ckpt") / "maskrcnn_resnet50_fpn_random.pt"
+    torch.save(model.state_dict(), path)
+    return path
+
+
+# ── `mine view` (tests/test_view.py, test_view_browser.py, test_view_hardening.py) ──
 
 
 @pytest.fixture(scope="module")

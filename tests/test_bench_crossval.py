@@ -14,7 +14,7 @@ from mining.config import load_config
 from mining.eval.kitti_mot import evaluate_kitti_mot
 from mining.formats.kitti_tracking import read_seqmap
 
-REPO = Path(__file__).resolve().parents[1]
+from conftest import REPO
 
 
 def _is_partition(folds, sequences) -> bool:

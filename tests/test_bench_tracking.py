@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import pytest
 
-from pathlib import Path
-
 from mining.bench.iou_tracker import iou_track
 from mining.bench.tracking import run_tracking_bench
 from mining.config import load_config
@@ -14,7 +12,7 @@ from mining.formats.poses import read_poses
 from mining.proposals.precomputed import KittiDetections
 from mining.sources.kitti import KittiTrackingSource
 
-REPO = Path(__file__).resolve().parents[1]
+from conftest import REPO
 
 
 def test_iou_baseline_links_real_detections(kitti_tracking_root):

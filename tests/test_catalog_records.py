@@ -2,7 +2,7 @@
 (a damaged record is an ``Unreadable`` naming the file and why, never an exception), saves as
 the pipeline always wrote it, and ``mine status`` names a record that does not read; a
 resubmission then recomputes what it vouched for. The catalogue cases use the small synthetic
-job of ``_reliability_c`` (mined once, copied).
+job of ``conftest.base_catalogue`` (mined once, copied).
 """
 
 from __future__ import annotations
@@ -12,14 +12,13 @@ from pathlib import Path
 
 import pytest
 
-from _reliability_c import SEQ, copy_of, mine, tables
+from _jobs import SEQ, copy_of, mine, tables
 from mining.catalog.layout import done_path, files_path, stitch_path
 from mining.catalog.records import ManifestRow, SequenceMarker, Unreadable, WindowFiles
 from mining.catalog.store import Store
 from mining.cli import main
 from mining.types import Window
 
-pytest_plugins = ["_reliability_c_fixtures"]  # base_catalogue: one base job, mined once
 
 D = f"dataset=synthetic/sequence={SEQ}"
 MARKER = f"catalog/_sequences/{D}.json"

@@ -5,12 +5,12 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 from pycocotools import mask as mask_utils
+from conftest import REPO
 
 from _catalog_data import N_FRAMES, SEQUENCE
 from mining.export.render import run_render
@@ -130,7 +130,7 @@ def test_without_pyav_mp4_is_mpeg4_part2_and_says_so(catalogue, tmp_path):
     code = ("import sys; sys.modules['av'] = None; from mining.cli import main; "  # `import av` fails, as without it
             f"sys.exit(main(['render', '--out', {str(out)!r}, '--sequence', {SEQUENCE!r}, '--frames', '0:2', {str(dest)!r}]))")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
-                          env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
+                          env={**os.environ, "PYTHONPATH": str(REPO)})
     assert done.returncode == 0, done.stderr
     assert _codec(dest) in {"mp4v", "FMP4"} and len(_frames(dest)) == 2  # FFmpeg reads MPEG-4 Part 2 back as FMP4
     assert "browsers do not" in done.stdout and "tube-miner[video]" in done.stdout

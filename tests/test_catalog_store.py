@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-from pathlib import Path
 
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -19,7 +18,7 @@ from mining.catalog.views import connect
 from mining.errors import ConfigError, InputError
 from mining.types import Window
 
-REPO = Path(__file__).resolve().parents[1]
+from conftest import REPO
 
 
 def test_write_table_replaces_whole_file(tmp_path):

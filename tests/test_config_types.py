@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import REPO
 
 from mining.config import load_config
 from mining.errors import ConfigError, InputError
 from mining.types import SequencePlan, StereoCalib, plan_windows
 
-REPO_JOBS = __import__("pathlib").Path(__file__).resolve().parents[1] / "jobs"
+REPO_JOBS = REPO / "jobs"
 
 
 def test_defaults_come_from_reference():

@@ -7,7 +7,7 @@ import json
 import cv2
 import numpy as np
 import pytest
-from pycocotools import mask as mask_utils
+from conftest import coco_rle
 
 from mining.bench.synthetic import run_synthetic
 from mining.config import load_config
@@ -26,10 +26,6 @@ def rect(x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
     return m
 
 
-def encode(mask: np.ndarray) -> dict:
-    return mask_utils.encode(np.asfortranarray(mask.astype(np.uint8)))
-
-
 def box(mask: np.ndarray) -> list[float]:
     ys, xs = np.nonzero(mask)
     return [float(xs.min()), float(ys.min()), float(xs.max() + 1), float(ys.max() + 1)]
@@ -41,7 +37,7 @@ def gt(*objects: tuple[int, str, bool, np.ndarray, float]) -> GtFrame:
         track_ids=np.array([o[0] for o in objects], np.int64),
         known=np.array([o[2] for o in objects], bool),
         categories=[o[1] for o in objects],
-        rles=[encode(o[3]) for o in objects],
+        rles=[coco_rle(o[3]) for o in objects],
         areas=np.array([int(o[3].sum()) for o in objects], np.int64),
         boxes=np.array([box(o[3]) for o in objects], np.float64).reshape(-1, 4),
         depth=np.array([o[4] for o in objects], np.float64),
@@ -50,12 +46,12 @@ def gt(*objects: tuple[int, str, bool, np.ndarray, float]) -> GtFrame:
 
 
 def props(*masks: np.ndarray) -> StageFrame:
-    return StageFrame([encode(m) for m in masks], np.array([box(m) for m in masks], np.float64).reshape(-1, 4))
+    return StageFrame([coco_rle(m) for m in masks], np.array([box(m) for m in masks], np.float64).reshape(-1, 4))
 
 
 def tube(tube_id: int, entries: list[tuple[int, np.ndarray]], selected: bool = True,
          score: tuple[float, float, float] = (0.0, 0.0, 0.0), known: bool | None = False) -> MinedTube:
-    frames = [TubeFrame(f, f * 100_000_000, True, 0, encode(m), np.array(box(m)), np.zeros(3), np.zeros(3),
+    frames = [TubeFrame(f, f * 100_000_000, True, 0, coco_rle(m), np.array(box(m)), np.zeros(3), np.zeros(3),
                         np.ones(3), np.zeros(3), 0.5, np.nan, np.nan) for f, m in entries]
     motion, mask, obj = score
     total = BETA * (ALPHA * motion + (1 - ALPHA) * mask) + (1 - BETA) * obj

@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pytest
 from pycocotools import mask as mask_utils
+from conftest import coco_rle
 
 from mining.bench.synthetic import run_synthetic
 from mining.config import load_config
@@ -23,10 +24,6 @@ def rect(x0: int, y0: int, x1: int, y1: int, h: int = H, w: int = W) -> np.ndarr
     return m
 
 
-def encode(mask: np.ndarray) -> dict:
-    return mask_utils.encode(np.asfortranarray(mask.astype(np.uint8)))
-
-
 def obj(track_id: int, category: str, known: bool, mask: np.ndarray) -> ObjectTruth:
     ys, xs = np.nonzero(mask)
     box = (float(xs.min()), float(ys.min()), float(xs.max() + 1), float(ys.max() + 1))
@@ -42,7 +39,7 @@ def mined(tube_id: int, entries: list[tuple[int, np.ndarray]], selected: bool = 
           observed: bool = True, known: bool | None = False) -> MinedTube:
     frames = []
     for f, m in entries:
-        rle = encode(m)
+        rle = coco_rle(m)
         x, y, w, h = mask_utils.toBbox(rle)
         frames.append(TubeFrame(f, f * 100_000_000, observed, 0 if observed else -1, rle, np.array([x, y, x + w, y + h]),
                                 np.zeros(3), np.zeros(3), np.ones(3), np.zeros(3), 0.5, np.nan, np.nan))

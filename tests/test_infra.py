@@ -11,7 +11,7 @@ import json
 import re
 import shlex
 import tomllib
-from pathlib import Path, PurePosixPath
+from pathlib import PurePosixPath
 
 import pytest
 import yaml
@@ -333,7 +333,7 @@ def test_version_is_one_number_and_mine_prints_it():
 
     import mining
 
-    root = Path(__file__).resolve().parents[1]
+    root = REPO
     assert tomllib.loads((root / "pyproject.toml").read_text())["project"]["version"] == mining.__version__
     r = subprocess.run([sys.executable, "-m", "mining.cli", "--version"], capture_output=True, text=True, cwd=root)
     assert r.returncode == 0 and r.stdout.strip() == f"mine (tube-miner) {mining.__version__}, catalogue schema v2"

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import MODELS
+from conftest import MODEL
 
 from mining.boxes import box_iou
 from mining.config import load_config
@@ -25,7 +25,6 @@ from mining.sources import open_source
 from mining.tubes.warp import mask_points, predict_boxes
 from mining.types import StereoCalib
 
-MODEL = MODELS / "yolov8n-seg_int8.onnx"
 PERSON = 250  # track id in synthetic seed 0004 (200 frames)
 
 

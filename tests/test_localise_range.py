@@ -11,7 +11,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from conftest import MODELS
+from conftest import MODEL
 from pycocotools import mask as mask_utils
 
 from mining.boxes import box_iou
@@ -30,7 +30,6 @@ from mining.pipeline.frames import FrameLoop
 from mining.sources import open_source
 from mining.types import Proposals
 
-INT8_MODEL = MODELS / "yolov8n-seg_int8.onnx"
 HALF_NORMAL_MEDIAN = 0.6745  # median of |x| for a standard normal x
 
 
@@ -44,9 +43,9 @@ def kitti_far_car(kitti_tracking_root):
     """KITTI 0005 frame 0 through the frame loop with the ONNX proposer, and the observation
     that matches car 1 (label_02: bottom centre at Z = 57.6 m in rectified camera 0)."""
     pytest.importorskip("onnxruntime")
-    if not INT8_MODEL.is_file():
-        pytest.skip(f"shared model not present at {INT8_MODEL}")
-    cfg = load_config(None, ['proposals.proposer="onnx"', f'proposals.onnx.model_path="{INT8_MODEL.as_posix()}"'])
+    if not MODEL.is_file():
+        pytest.skip(f"shared model not present at {MODEL}")
+    cfg = load_config(None, ['proposals.proposer="onnx"', f'proposals.onnx.model_path="{MODEL.as_posix()}"'])
     source = open_source("kitti", str(kitti_tracking_root))
     plan = source.plan("0005")
     rec = FrameLoop(cfg).step(source.read_frame(plan, 0), position=0)

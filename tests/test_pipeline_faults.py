@@ -20,8 +20,6 @@ import os
 import re
 import shutil
 import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -29,8 +27,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from mining.catalog.views import connect
-from _reliability_b import kill_session, session_pids
-from conftest import REPO
+from _run import JOB_TIMEOUT_S, SUMMARY, Mine, status, submit
 
 pytestmark = pytest.mark.slow  # `mine submit` processes on local Rays, killed and resumed
 
@@ -41,66 +38,14 @@ WINDOWS = ["0000-0000000-0000010", "0000-0000010-0000020", "0000-0000020-0000030
 SMALL_WINDOWS = ["--set", "window.core=10", "--set", "window.context_before=5", "--set", "window.context_after=5"]
 SYNTHETIC = ["--dataset", "synthetic", "--sequences", "0000", "--option", f"n_frames={N_FRAMES}",
              "--option", "width=621", "--option", "height=188", *SMALL_WINDOWS]
-JOB_TIMEOUT_S = 420  # a hung job fails the test instead of the whole run (a loaded 2-core machine is slow)
-SUMMARY = re.compile(r"windows: (\d+) ok, (\d+) failed, (\d+) already done \(of (\d+)\)")
 
 
 # -- processes ------------------------------------------------------------------------
-
-def _mine_cmd(*args: str) -> list[str]:
-    return [sys.executable, "-m", "mining.cli", *args]
-
-
-def _env() -> dict[str, str]:
-    env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0", PYTHONPATH=str(REPO))
-    env.pop("RAY_ADDRESS", None)  # always a fresh local Ray of the job's own
-    return env
-
-
-class Mine:
-    """``mine submit`` running in a session of its own; ``finish()`` or ``kill()`` ends it."""
-
-    def __init__(self, out: Path, *args: str, logs: Path):
-        self.stdout, self.stderr = open(logs / "stdout.txt", "w+"), open(logs / "stderr.txt", "w+")
-        self.proc = subprocess.Popen(_mine_cmd("submit", *args, "--out", str(out), "--workers", "2", "--no-progress"),
-                                     cwd=REPO, env=_env(), stdout=self.stdout, stderr=self.stderr,
-                                     start_new_session=True)
-
-    def finish(self) -> tuple[int, str, str]:
-        try:
-            rc = self.proc.wait(JOB_TIMEOUT_S)
-        finally:
-            self.kill()
-        texts = []
-        for f in (self.stdout, self.stderr):
-            f.seek(0)
-            texts.append(f.read())
-            f.close()
-        return rc, *texts
-
-    def kill(self) -> None:
-        kill_session(self.proc.pid)  # the session id is the driver's pid
-        self.proc.wait(10)
-
-    def running(self) -> dict[int, str]:
-        return session_pids(self.proc.pid)
-
-
-def submit(out: Path, *args: str, logs: Path) -> tuple[int, str, str]:
-    logs.mkdir(parents=True, exist_ok=True)
-    return Mine(out, *args, logs=logs).finish()
-
 
 def summary(stdout: str) -> dict[str, int]:
     m = SUMMARY.search(stdout)
     assert m, f"no summary line in: {stdout}"
     return dict(zip(("ok", "failed", "skipped", "windows"), map(int, m.groups())))
-
-
-def status(out: Path) -> tuple[int, str]:
-    p = subprocess.run(_mine_cmd("status", "--out", str(out)), cwd=REPO, env=_env(), capture_output=True, text=True,
-                       timeout=60)
-    return p.returncode, p.stdout + p.stderr
 
 
 def manifests(out: Path) -> dict[str, Path]:

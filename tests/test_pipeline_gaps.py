@@ -11,7 +11,7 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 
-from conftest import kitti_0005_stereo
+from conftest import REPO, kitti_0005_stereo
 from mining.config import load_config
 from mining.pipeline.frames import frame_records
 from mining.pipeline.mine import mine_tubes
@@ -20,7 +20,6 @@ from mining.pipeline.submit import mine_job
 from mining.sources.oxford import OxfordSource
 from mining.testing.fixtures import write_robotcar_fixture
 
-REPO = Path(__file__).resolve().parents[1]
 N_FRAMES = 10  # KITTI 0005 frames 0-9, chunks of 2: chunk 3 (frames 4, 5) missing
 
 

@@ -7,7 +7,7 @@ import pytest
 
 
 from mining.cli import main
-from conftest import MODELS
+from conftest import MODEL
 
 
 def _run(kitti_tracking_root, tmp_path, capsys, *settings: str) -> dict:
@@ -31,7 +31,7 @@ def _run(kitti_tracking_root, tmp_path, capsys, *settings: str) -> dict:
 
 @pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_onnx_pipeline_tracks_the_cars(kitti_tracking_root, tmp_path, capsys):
-    model = MODELS / "yolov8n-seg_int8.onnx"
+    model = MODEL
     assert model.exists()
     r = _run(kitti_tracking_root, tmp_path, capsys, 'proposals.proposer="onnx"', f'proposals.onnx.model_path="{model}"')
     assert r["HOTA"] > 0.6 and r["MOTA"] > 0.6 and r["IDSW"] == 0

@@ -9,11 +9,10 @@ prediction that guides matching reaches back further than the two warm-up frames
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 import ray
+from conftest import REPO
 
 from mining.catalog.layout import cache_path
 from mining.catalog.store import Store
@@ -29,8 +28,6 @@ from mining.testing.sharding import AGREE_IOU, selected_tube_masks, tube_agreeme
 from mining.types import Window
 
 pytestmark = pytest.mark.slow  # 500 frames at full resolution on a local Ray
-
-REPO = Path(__file__).resolve().parents[1]
 
 
 def test_observations_do_not_depend_on_the_window():

@@ -1,7 +1,15 @@
-"""``mine status`` on a real (tiny) catalogue: done, failed and pending windows."""
+"""``mine status`` on a real (tiny) catalogue: done, failed, pending and running windows.
+
+What `mine status` calls running and pending (issue 11, item 6; no Ray: the markers a driver
+writes): a window is running while a live driver holds its marker (``mining/pipeline/running.py``);
+a marker whose driver process is gone (a driver killed with SIGKILL leaves it behind) makes the
+window pending again. Markers of another job's params are ignored.
+"""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -11,23 +19,19 @@ from mining.catalog.store import Store
 from mining.config import load_config
 from mining.errors import InputError
 from mining.pipeline.executors import LocalExecutor
+from mining.pipeline.running import RunningMarkers
 from mining.pipeline.status import job_status, print_status
 from mining.pipeline.submit import mine_job
 from mining.types import Window
-
-REPO = Path(__file__).resolve().parents[1]
-
-
-def _cfg():
-    return load_config(REPO / "jobs" / "synthetic.toml", [
-        "source.options.n_frames=12", "source.options.width=320", "source.options.height=96",
-        "source.options.fx=186.0", "window.core=6", "window.context_before=2", "window.context_after=2"])
+from _jobs import tiny_cfg
+from _run import env
+from conftest import REPO
 
 
 @pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
 def test_status_of_a_finished_job_and_of_a_window_planned_later(tmp_path, capsys):
     out = str(tmp_path / "cat")
-    summary = mine_job(_cfg(), out, executor=LocalExecutor)
+    summary = mine_job(tiny_cfg(), out, executor=LocalExecutor)
     assert summary.ok == 2 and not summary.failed
     rows = job_status(out)
     assert [(r.window, r.status, r.attempts) for r in rows] == [
@@ -82,7 +86,7 @@ def test_working_files_sit_where_hive_readers_skip_them(tmp_path):
     import pyarrow.dataset as ds
 
     out = tmp_path / "cat"
-    cfg = _cfg()
+    cfg = tiny_cfg()
     assert mine_job(cfg, str(out), executor=LocalExecutor, keep_cache=True).ok == 2
     parts = list((out / "_parts").rglob("*.part"))
     caches = list((out / "_cache").rglob("*.npz.zst"))
@@ -135,7 +139,7 @@ def test_provisional_views_show_finished_windows_of_sequences_not_stitched_yet(t
 
 
 def test_progress_bar_shows_phases_eta_and_the_summarys_frames_per_second(tmp_path, capsys):
-    summary = mine_job(_cfg(), str(tmp_path / "cat"), executor=LocalExecutor, progress=True)
+    summary = mine_job(tiny_cfg(), str(tmp_path / "cat"), executor=LocalExecutor, progress=True)
     bar = capsys.readouterr().err
     assert "windows 2/2 (0 failed)" in bar and "frames/s" in bar and "ETA" in bar
     assert "track 1" in bar or "observe 1" in bar  # the phase of the step in flight
@@ -175,7 +179,7 @@ def test_an_observe_step_reports_its_frames_as_it_goes(tmp_path):
     from mining.pipeline import steps
     from mining.pipeline.submit import open_job
 
-    cfg = _cfg()
+    cfg = tiny_cfg()
     job, schedule, _ = open_job(cfg, str(tmp_path / "cat"))
     window = schedule.windows[0]
     store = job.store()
@@ -195,3 +199,38 @@ def test_an_observe_step_reports_its_frames_as_it_goes(tmp_path):
     assert result.ok and seen == list(range(1, window.core[1] - window.core[0] + 1))
     assert not store.exists(observed_path(window.dataset, window.sequence, window.name))
     assert steps.observed_so_far(store, [window]) == 0
+
+
+def test_running_needs_a_live_driver(tmp_path, capsys):
+    out = str(tmp_path / "cat")
+    mine_job(tiny_cfg(), out, executor=LocalExecutor)
+    assert not list((tmp_path / "cat").glob("_running/**/*.json")), "a finished run leaves no marker"
+    store = Store(out)
+    job = JobRecord.load(store)
+    later = [Window("synthetic", "0000", (12, 18), (10, 20)), Window("synthetic", "0000", (18, 24), (16, 24))]
+    job.windows += later
+    job.save(store)
+
+    live = RunningMarkers(store, job.run_id, job.params_hash)  # this process: alive
+    live.mark(later[0], "track")
+    # A driver that marked a window and died without clearing it (as SIGKILL leaves it).
+    subprocess.run([sys.executable, "-c", "import sys; from mining.catalog.store import Store; "
+                    "from mining.pipeline.running import RunningMarkers; from mining.types import Window; "
+                    "RunningMarkers(Store(sys.argv[1]), sys.argv[2], sys.argv[3])"
+                    ".mark(Window('synthetic', '0000', (18, 24), (16, 24)), 'observe')", out, job.run_id,
+                    job.params_hash], check=True, cwd=REPO, env=env())
+    assert (tmp_path / "cat" / "_running" / "dataset=synthetic" / "sequence=0000" / f"{later[1].name}.json").exists()
+
+    rows = {r.window: r for r in job_status(out)}
+    assert rows[later[0].name].status == "running" and "track step, driver pid" in rows[later[0].name].running
+    assert rows[later[1].name].status == "pending"
+    assert print_status(out) == 0
+    shown = capsys.readouterr().out
+    assert "4 windows: 2 done, 0 failed, 1 pending, 1 running" in shown
+    assert f"running  synthetic/{later[0].name}  attempts 0  track step, driver pid " in shown
+
+    other = RunningMarkers(store, "other-run", "0" * 16)  # another job's params: not this job's window
+    other.mark(later[1], "track")
+    assert {r.window: r.status for r in job_status(out)}[later[1].name] == "pending"
+    live.clear_all()
+    assert {r.window: r.status for r in job_status(out)}[later[0].name] == "pending"

@@ -13,7 +13,8 @@ from mining.pipeline.window import observe_window, track_window
 from mining.sources.kitti import KittiTrackingSource
 from mining.types import plan_windows
 
-REPO = Path(__file__).resolve().parents[1]
+from conftest import REPO
+
 N = 8
 
 

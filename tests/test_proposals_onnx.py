@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from pycocotools import mask as mask_utils
 
-from conftest import MODELS
+from conftest import MODEL
 from mining.boxes import box_iou
 from mining.errors import ConfigError, InputError
 from mining.formats.kitti_tracking import read_kitti_tracking
@@ -20,19 +20,17 @@ from mining.masks import crop_rle
 from mining.proposals.config import OnnxConfig
 from mining.proposals.onnx_convert import anchor_grid, converted_model, convert_to_float
 from mining.proposals.onnx_yolo import OnnxProposer, decode_predictions, letterbox_image, plan_letterbox
-from mining.types import N_CLASSES
 
 onnx = pytest.importorskip("onnx")
 ort = pytest.importorskip("onnxruntime")
 
-INT8_MODEL = MODELS / "yolov8n-seg_int8.onnx"
 
 
 @pytest.fixture(scope="module")
 def model_path():
-    if not INT8_MODEL.is_file():
-        pytest.skip(f"shared model not present at {INT8_MODEL}")
-    return INT8_MODEL
+    if not MODEL.is_file():
+        pytest.skip(f"shared model not present at {MODEL}")
+    return MODEL
 
 
 @pytest.fixture(scope="module")
@@ -186,19 +184,12 @@ def test_full_aspect_finds_far_more_cars_than_320(full_proposer, square_proposer
 
 
 def test_proposals_are_valid(full_proposer, frames):
+    # What every proposer keeps (shapes, dtypes, ranges, order, canonical RLEs): tests/test_proposals_contract.py.
     cfg = full_proposer.cfg
     p = full_proposer(3, frames[3])
     n = len(p)
     assert 0 < n <= cfg.max_proposals
-    assert p.frame == 3 and p.proposer == ["onnx"] * n
-    assert p.boxes.shape == (n, 4) and p.boxes.dtype == np.float32
-    assert (p.boxes[:, 2:] > p.boxes[:, :2]).all()
-    assert (p.boxes >= 0).all() and (p.boxes[:, [0, 2]] <= 1242).all() and (p.boxes[:, [1, 3]] <= 375).all()
-    assert ((p.objectness >= cfg.score_threshold) & (p.objectness <= 1)).all()
-    assert (np.diff(p.objectness) <= 0).all()  # sorted by score
-    assert p.posterior.shape == (n, N_CLASSES) and p.posterior.dtype == np.float32
-    np.testing.assert_allclose(p.posterior.sum(1), 1.0, atol=1e-5)
-    assert (p.posterior >= 0).all()
+    assert (p.objectness >= cfg.score_threshold).all()
     # Unknown mass grows as confidence drops: the most confident proposal has the least.
     assert p.posterior[0, 80] <= p.posterior[-1, 80]
     # Class-agnostic NMS: no kept pair overlaps more than nms_iou.
@@ -207,11 +198,7 @@ def test_proposals_are_valid(full_proposer, frames):
     assert iou.max() <= cfg.nms_iou + 1e-6
     boxes_of_masks = mask_utils.toBbox(p.rles)  # x, y, w, h of each mask
     for rle, box, mbox in zip(p.rles, p.boxes, boxes_of_masks):
-        assert rle["size"] == [375, 1242] and isinstance(rle["counts"], bytes)
-        m = mask_utils.decode(rle)
-        assert m.shape == (375, 1242) and m.any()
-        # Canonical RLE: identical to what pycocotools makes from the full mask.
-        assert mask_utils.encode(np.asfortranarray(m))["counts"] == rle["counts"]
+        assert mask_utils.decode(rle).any()
         # Every mask pixel's centre lies inside the box.
         x, y, w, h = mbox
         assert x + 0.5 >= box[0] - 1e-3 and x + w - 0.5 <= box[2] + 1e-3

@@ -11,7 +11,6 @@ the Ray-starting commands exit 0 run after run.
 
 from __future__ import annotations
 
-import os
 import shutil
 import subprocess
 import sys
@@ -19,7 +18,9 @@ from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
+from _run import env, mine_cmd
+from conftest import REPO
+
 HERE = Path(__file__).resolve().parent
 
 pytestmark = pytest.mark.slow  # child pytest processes, some with a local Ray
@@ -86,13 +87,6 @@ def test_the_previous_module_was_torn_down():
     assert "RESOURCE_OPEN" not in os.environ
 '''
 
-def _env() -> dict[str, str]:
-    env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0", PYTHONPATH=str(REPO))
-    env.pop("RAY_ADDRESS", None)
-    env.pop("TUBE_MINER_OWN_PROCESS", None)
-    return env
-
-
 @pytest.fixture
 def suite(tmp_path) -> Path:
     """A small test folder that uses this suite's conftest (the hook and the guard)."""
@@ -106,7 +100,7 @@ def suite(tmp_path) -> Path:
 
 def _run_suite(suite: Path, *args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "pytest", "-q", "-rA", "-p", "no:cacheprovider", "--rootdir",
-                           str(suite), *args, str(suite)], cwd=suite, env=_env(), capture_output=True, text=True,
+                           str(suite), *args, str(suite)], cwd=suite, env=env(), capture_output=True, text=True,
                           timeout=600)
 
 
@@ -136,8 +130,8 @@ def test_mine_submit_exits_0_run_after_run(tmp_path):
     # Each run starts (and stops) a local Ray of its own, in a fresh catalogue.
     for k in range(3):
         out = tmp_path / f"out{k}"
-        p = subprocess.run([sys.executable, "-m", "mining.cli", "submit", *TINY, "--workers", "1", "--no-progress",
-                            "--out", str(out)], cwd=REPO, env=_env(), capture_output=True, text=True, timeout=600)
+        p = subprocess.run(mine_cmd("submit", *TINY, "--workers", "1", "--no-progress", "--out", str(out)), cwd=REPO,
+                           env=env(), capture_output=True, text=True, timeout=600)
         assert p.returncode == 0, (k, p.returncode, p.stdout[-2000:], p.stderr[-3000:])
         assert "windows: 2 ok, 0 failed" in p.stdout, p.stdout
 

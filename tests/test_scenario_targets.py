@@ -23,13 +23,12 @@ from typing import Any
 
 import pytest
 
-from conftest import MODELS
+from conftest import MODEL
 from mining.bench.synthetic import run_synthetic
 from mining.config import load_config
 
 pytestmark = pytest.mark.slow  # the whole pipeline over 30–40 rendered frames each
 
-MODEL = MODELS / "yolov8n-seg_int8.onnx"
 HALF = {"width": 621, "height": 188}  # half KITTI size: the scenario's objects at half the pixels
 
 

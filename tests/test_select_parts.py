@@ -12,7 +12,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from pycocotools import mask as mask_utils
+from conftest import coco_rle
 
 from mining.masks import mask_ioa, mask_overlap_min, rle_box
 from mining.select.config import SelectConfig
@@ -25,10 +25,6 @@ CAR, PART = 80.0, 25.0  # typical mined scores (mine eval synthetic: ~3.5 a fram
 IOU, MIN = SelectConfig(overlap="iou"), SelectConfig(overlap="min")
 
 
-def _rle(mask: np.ndarray) -> dict:
-    return mask_utils.encode(np.asfortranarray(mask.astype(np.uint8)))
-
-
 def _rect(x1: int, y1: int, x2: int, y2: int, h: int = H, w: int = W) -> np.ndarray:
     m = np.zeros((h, w), bool)
     m[y1:y2, x1:x2] = True
@@ -39,7 +35,7 @@ def _tube(tube_id: int, masks: list[np.ndarray], first: int = 0) -> Tube:
     """A tube observed in consecutive frames with the given masks (box from the mask)."""
     t = Tube(tube_id, 0)
     for k, mask in enumerate(masks):
-        rle = _rle(mask)
+        rle = coco_rle(mask)
         t.frames.append(TubeFrame(first + k, (first + k) * 100_000_000, True, 0, rle, rle_box(rle), np.zeros(3),
                                   np.zeros(3), np.ones(3), np.zeros(3), 0.9, np.nan if k == 0 else 0.8,
                                   np.nan if k == 0 else 0.5))
@@ -62,9 +58,9 @@ def _moving(x1: int, y1: int, x2: int, y2: int, n: int = 10, step: int = 2) -> l
 def test_overlap_min_on_hand_made_masks(a, b, expected):
     by_pixels = (a & b).sum() / min(a.sum(), b.sum())
     assert by_pixels == expected
-    got = mask_overlap_min([_rle(a)], [_rle(b)])
+    got = mask_overlap_min([coco_rle(a)], [coco_rle(b)])
     assert got.shape == (1, 1) and got[0, 0] == pytest.approx(expected, abs=1e-12)
-    assert mask_overlap_min([_rle(b)], [_rle(a)])[0, 0] == pytest.approx(expected, abs=1e-12)  # symmetric
+    assert mask_overlap_min([coco_rle(b)], [coco_rle(a)])[0, 0] == pytest.approx(expected, abs=1e-12)  # symmetric
 
 
 def test_overlap_min_equals_pixel_counting_on_random_shapes():
@@ -75,7 +71,7 @@ def test_overlap_min_equals_pixel_counting_on_random_shapes():
         yy, xx = np.mgrid[:80, :100]
         masks.append((xx - cx) ** 2 + 0.5 * (yy - cy) ** 2 < r * r)
     masks.append(np.zeros((80, 100), bool))  # an empty mask overlaps nothing
-    got = mask_overlap_min([_rle(m) for m in masks[:5]], [_rle(m) for m in masks[3:]])
+    got = mask_overlap_min([coco_rle(m) for m in masks[:5]], [coco_rle(m) for m in masks[3:]])
     for i, a in enumerate(masks[:5]):
         for j, b in enumerate(masks[3:]):
             smaller = min(a.sum(), b.sum())
@@ -86,8 +82,8 @@ def test_pycocotools_crowd_rule_divides_by_the_first_list():
     """mask_ioa (pycocotools' iscrowd=1) is |A∩B| / |A| with A from its first argument,
     which mask_overlap_min relies on."""
     big, small = _rect(0, 0, 40, 40, 60, 60), _rect(5, 5, 15, 15, 60, 60)
-    assert mask_ioa([_rle(small)], [_rle(big)])[0, 0] == 1.0
-    assert mask_ioa([_rle(big)], [_rle(small)])[0, 0] == pytest.approx(100 / 1600)
+    assert mask_ioa([coco_rle(small)], [coco_rle(big)])[0, 0] == 1.0
+    assert mask_ioa([coco_rle(big)], [coco_rle(small)])[0, 0] == pytest.approx(100 / 1600)
 
 
 # --------------------------------------------------------------------------- selection

@@ -200,7 +200,7 @@ def test_corrupt_chunk_is_named_by_file_and_frame(kitti, tmp_path):
     assert str(path) in str(err.value) and "corrupt" in str(err.value)
     assert np.array_equal(src.read_frame(plan, 3).left, left[3])  # other chunks are intact
     # Planned afresh, the file still plans (issue 19): the bad chunk's frame keeps its place
-    # and fails on read, naming the chunk (tests/test_reliability_e_mcap.py).
+    # and fails on read, naming the chunk (tests/test_mcap_faults.py).
     fresh = McapSource(path)
     assert fresh.plan("flip").frames == plan.frames
     assert [d["offset"] for d in fresh.damaged("flip")] == [chunk.chunk_start_offset]

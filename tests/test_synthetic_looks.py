@@ -6,14 +6,13 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from conftest import MODELS
+from conftest import MODEL
 
 from mining.sources.synthetic import SyntheticSource
 from mining.sources.synthetic.faces import R_N, R_NV, R_OBJ, R_PART
 from mining.sources.synthetic.meshes import CAR_SHAPES, build_mesh, part_poses, rig
 from mining.sources.synthetic.scene import KNOWN, Motion, frame_faces
 
-MODEL = MODELS / "yolov8n-seg_int8.onnx"
 
 
 @pytest.fixture(scope="module")

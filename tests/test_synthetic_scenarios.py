@@ -9,11 +9,11 @@ frames at half resolution. The mining results of the scenarios (the "before" num
 from __future__ import annotations
 
 from functools import cache
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from conftest import REPO
 
 from mining.errors import InputError
 from mining.sources.synthetic import SyntheticSource
@@ -255,7 +255,7 @@ def test_bench_harness_on_a_short_scenario():
     from mining.cli import build_parser
     from mining.config import load_config
 
-    cfg = load_config(Path(__file__).resolve().parents[1] / "jobs" / "synthetic.toml")
+    cfg = load_config(REPO / "jobs" / "synthetic.toml")
     cfgs = flow_configs(cfg)
     assert cfgs["off"].localise.min_flow_samples == FLOW_OFF_SAMPLES and cfgs["on"] is cfg
     assert cfg.localise.min_flow_samples != FLOW_OFF_SAMPLES

@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
+from conftest import REPO
 
 from mining.config import load_config
 from mining.localise.config import LocaliseConfig
@@ -19,8 +18,6 @@ from mining.tubes.category import tube_category
 from mining.tubes.config import KalmanConfig, TubeConfig
 from mining.tubes.generate import TubeGenerator
 from mining.tubes.kalman import TubeFilter
-
-REPO = Path(__file__).resolve().parents[1]
 from mining.tubes.warp import mask_points, predict_mask
 from mining.types import UNKNOWN_CLASS, GroundPlane, Proposals, StereoCalib, TrackingFrame, Tube, TubeFrame
 
@@ -230,7 +227,7 @@ def test_detections_only_kitti_0005(kitti_tracking_root, tmp_path):
     from mining.pipeline.detections import track_detections
 
     train = kitti_tracking_root / "training"
-    cfg = load_config(__import__("pathlib").Path(__file__).resolve().parents[1] / "jobs" / "kitti-detections.toml")
+    cfg = load_config(REPO / "jobs" / "kitti-detections.toml")
     out = tmp_path / "res"
     mined = track_detections(kitti_tracking_root, "0005", train / "det_pointrcnn",
                              train / "egoposes_orbslam3" / "0005.txt", cfg, out / "0005.txt")

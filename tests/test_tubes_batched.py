@@ -4,10 +4,9 @@ PointRCNN detections."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
+from conftest import REPO
 
 from mining.config import load_config
 from mining.masks import mask_pixels
@@ -20,7 +19,6 @@ from mining.tubes.world import WorldObservations
 from mining.types import TrackingFrame
 
 N_FRAMES = 8
-REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from conftest import MODELS
+from conftest import MODEL
 from mining.config import load_config
 from mining.eval.synthetic import gt_frame
 from mining.masks import mask_iou
@@ -20,7 +20,6 @@ from mining.tubes.link import candidate_links, join_chain, link_fragments, one_t
 
 pytestmark = pytest.mark.slow  # rendered frames with stereo and the ONNX proposer
 
-MODEL = MODELS / "yolov8n-seg_int8.onnx"
 N_FRAMES = 24
 GAP = range(10, 13)  # the frames whose proposals of the target are removed
 

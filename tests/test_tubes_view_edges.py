@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import MODELS
+from conftest import MODEL
 
 from mining.boxes import cut_at_sides
 from mining.config import load_config
@@ -27,7 +27,6 @@ from mining.tubes.gating import paired_obs_boxes, view_edge_gates
 from mining.tubes.warp import view_sides
 from mining.types import StereoCalib
 
-MODEL = MODELS / "yolov8n-seg_int8.onnx"
 CAR = 40  # track id in synthetic seed 0004 (200 frames)
 FIRST, END = 120, 146
 CALIB = StereoCalib(fx=721.5, fy=721.5, cx=609.6, cy=172.9, baseline_m=0.54, width=1242, height=375)

@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import shutil
 import tomllib
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -14,14 +13,13 @@ import pytest
 from pycocotools import mask as mask_utils
 
 from _catalog_data import DATASET, SEQUENCE
-from conftest import count_tubes, get, json_get, serving
+from _run import env
+from conftest import REPO, count_tubes, get, json_get, serving
 from mining.catalog.views import connect
 from mining.cli import main
 from mining.errors import InputError
 from mining.view.images import JPEG_QUALITY, THUMB_SIZE
 from mining.view.server import make_server
-
-REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
@@ -319,17 +317,15 @@ def test_a_damaged_table_is_503_naming_the_file(catalogue, tmp_path):
 
 
 def test_mine_view_serves_until_ctrl_c(catalogue, tmp_path):
-    import os
     import re
     import signal
     import subprocess
     import sys
 
     out, _ = catalogue
-    env = dict(os.environ, PYTHONPATH=str(REPO))
     proc = subprocess.Popen([sys.executable, "-m", "mining.cli", "view", "--out", str(out), "--port", "0",
                              "--cache", str(tmp_path / "cache")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env=env)
+                            text=True, env=env())
     try:
         line = proc.stdout.readline()
         m = re.search(r"serving (http://127\.0\.0\.1:\d+)/", line)

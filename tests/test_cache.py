@@ -1,8 +1,15 @@
-"""A damaged, foreign or outdated observation cache is a clear InputError naming the file
-(issue 11, item 1): the observe step recomputes its window, a track step that meets one
-fails its window with that reason, and nothing in the file can run code.
+"""The observation cache (issue 11, item 1): nothing in it can run code, and a damaged one is said.
 
-Real frames: a small synthetic recording observed by the pipeline's own observe step."""
+* A damaged, foreign or outdated observation cache is a clear InputError naming the file:
+  the observe step recomputes its window, a track step that meets one fails its window with
+  that reason, and nothing in the file can run code.
+* Nothing executes from the output folder: a pickle payload planted at every
+  observation-cache path, old (``.pkl``) and new, never runs on a resubmit. The observe
+  steps run, then someone who can write to ``--out`` replaces every cache with a payload
+  whose ``__reduce__`` writes a marker file, and the job is resubmitted.
+
+Real frames: small synthetic recordings observed by the pipeline's own observe step, mined in
+this process (LocalExecutor, real files)."""
 
 from __future__ import annotations
 
@@ -23,8 +30,11 @@ from mining.errors import InputError
 from mining.pipeline.executors import LocalExecutor
 from mining.pipeline.steps import Observe, StepResult, Track
 from mining.pipeline.submit import mine_job, open_job
+from _jobs import tiny_cfg
+from conftest import REPO
 
-REPO = Path(__file__).resolve().parents[1]
+# Every name an observation cache has had: pickle before issue 11, zstd-framed NPZ since.
+CACHE_NAMES = ("{w}.pkl", "{w}.npz.zst")
 
 
 def _cfg():
@@ -44,7 +54,8 @@ def _observed(out: str):
 def _tubes(out: str) -> list[tuple]:
     con = connect(out)
     try:
-        return con.execute("SELECT tube_id, n_frames, round(score, 9), selected FROM tubes ORDER BY tube_id").fetchall()
+        return con.execute("SELECT tube_id, t_start, t_end, n_frames, round(score, 9), selected FROM tubes "
+                           "ORDER BY tube_id").fetchall()
     finally:
         con.close()
 
@@ -81,6 +92,8 @@ def test_a_track_that_meets_a_damaged_cache_fails_its_window_with_the_reason(tmp
 
 
 class _Payload:
+    """Unpickling this runs ``code``: what an attacker plants."""
+
     def __init__(self, code: str):
         self.code = code
 
@@ -145,3 +158,38 @@ def _np_bytes(arrays: dict) -> bytes:
     buf = io.BytesIO()
     np.savez(buf, **arrays)
     return buf.getvalue()
+
+
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
+def test_planted_pickles_never_run_on_resubmit(tmp_path):
+    marker = tmp_path / "pwned"
+    payload = pickle.dumps(_Payload(f"open({str(marker)!r}, 'w').write('ran')"))
+    pickle.loads(payload)  # the control: the payload is live
+    assert marker.read_text() == "ran"
+    marker.unlink()
+
+    cfg = tiny_cfg()
+    clean = str(tmp_path / "clean")
+    assert mine_job(cfg, clean, executor=LocalExecutor).ok == 2
+
+    # A job whose observe steps ran and whose driver died before any track.
+    out = str(tmp_path / "out")
+    job, schedule, _ = open_job(cfg, out)
+    for w in schedule.windows:
+        assert Observe(job).run(w).ok
+    store = Store(out)
+    planted = []
+    for w in schedule.windows:
+        for name in CACHE_NAMES:
+            rel = f"_cache/obs/dataset={w.dataset}/sequence={w.sequence}/{name.format(w=w.name)}"
+            store.write_bytes(rel, payload)
+            planted.append(rel)
+    assert len(planted) == 4 and all(store.exists(rel) for rel in planted)
+
+    summary = mine_job(cfg, out, executor=LocalExecutor)  # the resubmission
+
+    assert not marker.exists(), "a planted pickle ran"
+    assert summary.ok == 2 and not summary.failed
+    assert sorted(summary.recomputed) == [w.name for w in schedule.windows], "the planted caches are reported"
+    assert _tubes(out) == _tubes(clean), "the recomputed windows give the clean run's catalogue"
+    assert not any(store.exists(rel) for rel in planted), "the caches (and the old .pkl ones) are gone after use"

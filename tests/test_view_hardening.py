@@ -39,12 +39,12 @@ import pytest
 import _cdp
 from _catalog_data import DATASET, SEQUENCE
 from _cdp import Browser
+from _run import env
 from conftest import get, json_get, serving
 from mining.catalog.store import Store, write_sequence
 from mining.view import catalogue as view_catalogue
 from mining.view.images import THUMB_SIZE, best_frame, default_cache_dir
 
-REPO = Path(__file__).resolve().parents[1]
 MAX_TUBE_FRAMES = getattr(view_catalogue, "MAX_TUBE_FRAMES", 10_000)  # so that the old code runs this file too
 REBOUND = "rebound.example"  # a name the test's Chromium resolves to 127.0.0.1, as a rebinding attacker's would
 
@@ -321,9 +321,8 @@ def test_idle_connections_cannot_exhaust_the_descriptors(catalogue, tmp_path):
     """The adversary's 1,024 idle sockets against the usual limit of 1,024 descriptors, scaled down:
     300 idle sockets against a server process allowed 256."""
     out, _ = catalogue
-    env = dict(os.environ, PYTHONPATH=str(REPO))
     proc = subprocess.Popen([sys.executable, "-c", SERVE_WITH_FEW_DESCRIPTORS, str(out), str(tmp_path / "cache")],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env())
     idle = []
     try:
         port = int(proc.stdout.readline())

@@ -1,9 +1,17 @@
-"""Issue 11 item 6: a 0-byte RobotCar PNG is an InputError naming the file and the frame.
+"""A failure says why, in one line, without Ray's noise (issue 11, item 6).
 
-Before, ``cv2.imdecode`` raised a bare ``cv2.error`` on the empty buffer, and the user saw
-``system failure: ray::Worker.run() (pid=…)`` in terminal colours. Now the reader says
-what is wrong and where, the window fails alone, and the run summary, ``mine status``
-and the manifest's error column all say it in their first line.
+* A 0-byte RobotCar PNG is an InputError naming the file and the frame. Before,
+  ``cv2.imdecode`` raised a bare ``cv2.error`` on the empty buffer, and the user saw
+  ``system failure: ray::Worker.run() (pid=…)`` in terminal colours. Now the reader says
+  what is wrong and where, the window fails alone, and the run summary, ``mine status``
+  and the manifest's error column all say it in their first line.
+* A bad ``geometry.stereo.num_disparities=95`` says why: the disparity stage raises
+  ValueError on a search range that is not a multiple of 16. Before, the window's error was
+  ``system failure: ray::Worker.run() (pid=…)`` in terminal colours, the reason 1.5 kB deep
+  in the manifest. Now either the driver refuses the config before Ray starts (a
+  preflight), or every window fails with the step, the exception type and the message in
+  its first line — in the summary, in ``mine status`` and in the manifest's error column —
+  and ``mine submit`` exits non-zero.
 """
 
 from __future__ import annotations
@@ -12,7 +20,8 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
-from _reliability_b import ANSI, status, submit
+from _jobs import TINY, TINY_WINDOWS
+from _run import ANSI, status, submit
 from conftest import kitti_0005_stereo
 
 from mining.errors import InputError
@@ -22,6 +31,7 @@ from mining.testing.fixtures import write_robotcar_fixture
 N_FRAMES = 6
 EMPTY = 4  # the frame whose left image is emptied (not the first: planning reads that one's header)
 WINDOWS = ["t-0000000-0000003", "t-0000003-0000006"]
+REASON = "num_disparities must be a positive multiple of 16, got 95"
 
 
 @pytest.fixture(scope="module")
@@ -64,3 +74,24 @@ def test_a_submit_reports_the_empty_png_in_the_summary_status_and_manifest(robot
     assert "1 done, 1 failed, 0 pending" in shown
     row = pq.read_table(out / "manifest" / "dataset=oxford" / "sequence=t" / f"{WINDOWS[1]}.parquet").to_pylist()[0]
     assert row["status"] == "failed" and row["error"].splitlines()[0].startswith(why)
+
+
+@pytest.mark.slow  # a `mine submit` on a local Ray
+def test_num_disparities_95_fails_with_its_reason(tmp_path):
+    out = tmp_path / "cat"
+    rc, stdout, stderr = submit(out, *TINY, "--set", "geometry.stereo.num_disparities=95", logs=tmp_path / "logs")
+    assert rc != 0, stdout + stderr
+    assert ANSI not in stdout + stderr and "ray::" not in stdout + stderr and "Traceback" not in stderr
+    if not (out / "manifest").exists():  # refused before any window ran (a preflight)
+        assert "num_disparities" in stderr, stderr
+        return
+    failed = sorted(ln for ln in stdout.splitlines() if ln.startswith("FAILED"))
+    assert failed == [f"FAILED {w}: observe step raised ValueError: {REASON}" for w in TINY_WINDOWS], stdout
+    rc, shown = status(out)
+    assert rc == 1 and "0 done, 2 failed, 0 pending" in shown, shown
+    for w in TINY_WINDOWS:
+        assert f"failed   synthetic/{w}  attempts 1  observe step raised ValueError: {REASON}" in shown, shown
+        row = pq.read_table(out / "manifest" / "dataset=synthetic" / "sequence=0000" / f"{w}.parquet").to_pylist()[0]
+        first, *detail = row["error"].splitlines()
+        assert first == f"observe step raised ValueError: {REASON}" and ANSI not in row["error"]
+        assert any("disparity" in ln for ln in detail), row["error"]  # the end of the worker's traceback follows

@@ -1,5 +1,6 @@
-"""A corrupt MCAP chunk fails only the frames in it, naming the chunk (issue 19, item 5).
+"""Faults of an MCAP recording fail only what they touch, and say where (issues 11 and 19).
 
+A corrupt MCAP chunk fails only the frames in it, naming the chunk (issue 19, item 5).
 Before, one chunk with bad bytes failed the whole recording at planning ("cannot read
 messages (corrupt chunk?)"), naming no chunk, time or frame. Now ``plan`` reads the file
 chunk by chunk: the unreadable chunk is named (byte offset, log-time range), its frames keep
@@ -8,6 +9,10 @@ on read, and every other frame reads back bit-exact. The recordings are real MCA
 written by the mcap ROS 2 writer from real KITTI 0005 frames (one image per chunk: a
 1.4 MB rgb8 image overflows the writer's 1 MB chunk size), with bytes zeroed in the middle
 of one chunk.
+
+Duplicate MCAP stamps are an error or an explicit gap, never a silent drop (issue 11, item 7):
+a ROS 2 recording written from real KITTI 0005 frames where frame 2 repeats frame 1's header
+stamp on both cameras. Before, pairing kept one of the two and dropped the other without a word.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ import pytest
 
 from conftest import kitti_0005_stereo
 from mining.errors import InputError
+from mining.sources import open_source
 from mining.sources.mcap import McapSource
 from mining.testing.fixtures import write_stereo_mcap
 
@@ -27,6 +33,7 @@ N = 6
 T0 = 1_700_000_000_000_000_000
 PERIOD = 100_000_000
 DELAY = 3_000_000  # the fixture's log time − header stamp
+STAMPS = [T0, T0 + PERIOD, T0 + PERIOD, T0 + 3 * PERIOD]  # frame 2 repeats frame 1's stamp
 
 
 @pytest.fixture(scope="module")
@@ -196,15 +203,55 @@ def test_a_job_mines_the_good_windows_and_names_the_chunk_in_the_failed_one(kitt
 
 @pytest.mark.slow  # `mine submit` on a local Ray
 def test_submit_exits_1_mines_the_good_windows_and_names_the_chunk(kitti, tmp_path):
-    from _reliability_d import submit
+    from _run import submit
 
     root, chunk = _recording_with_a_bad_chunk(kitti, tmp_path)
     out = tmp_path / "out"
     rc, stdout, stderr = submit(out, "--dataset", "mcap", "--root", str(root), "--sequences", "rec", "--frames", "0:6",
                                 "--set", "window.core=2", "--set", "window.context_before=0",
-                                "--set", "window.context_after=0")
+                                "--set", "window.context_after=0", workers=1)
     assert rc == 1, (rc, stdout, stderr)
     assert "Traceback" not in stderr
     assert "windows: 2 ok, 1 failed, 0 already done (of 3)" in stdout, stdout
     assert _named(chunk) in stdout and "rec-0000002-0000004" in stdout, stdout
     assert _mined_frames(out) == [0, 1, 4, 5]
+
+
+# -- duplicate stamps --------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory, kitti_tracking_root):
+    left, right, calib = kitti_0005_stereo(kitti_tracking_root, len(STAMPS))
+    root = tmp_path_factory.mktemp("mcap")
+    topics = write_stereo_mcap(root / "dup.mcap", left, right, calib, t0_ns=T0, stamps_ns=STAMPS)
+    return root, topics, left, right
+
+
+def test_duplicate_stamps_are_an_error_naming_topic_and_stamp(recording):
+    root, topics, _, _ = recording
+    with pytest.raises(InputError) as e:
+        open_source("mcap", str(root)).plan("dup")
+    msg = str(e.value)
+    assert str(root / "dup.mcap") in msg and topics["left"] in msg and f"stamp {T0 + PERIOD} ns" in msg
+    assert "duplicate_stamps='gap'" in msg
+
+
+def test_duplicate_stamps_as_gaps_are_explicit(recording):
+    root, _, left, right = recording
+    src = open_source("mcap", str(root), duplicate_stamps="gap")
+    plan = src.plan("dup")
+    assert plan.frames == (0, 1, 3) and plan.gaps == (2,)  # the repeat is a recording gap
+    pairing = src.pairing("dup")
+    assert (pairing["repeated_left"], pairing["repeated_right"], pairing["pairs"]) == (1, 1, 3)
+    for pos, k in enumerate((0, 1, 3)):  # the first message of a stamp is the one kept
+        f = src.read_frame(plan, pos)
+        assert np.array_equal(f.left, left[k]) and np.array_equal(f.right, right[k])
+
+
+def test_duplicate_stamps_option_is_checked(recording):
+    from mining.errors import ConfigError
+
+    root, _, _, _ = recording
+    with pytest.raises(ConfigError, match="duplicate_stamps"):
+        open_source("mcap", str(root), duplicate_stamps="drop")

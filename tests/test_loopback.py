@@ -9,15 +9,71 @@ launcher, KubeRay) may name 0.0.0.0 only beside a comment saying what protects i
 
 from __future__ import annotations
 
+import ipaddress
+import os
 import re
 import sys
 import time
+from pathlib import Path
 
 import pytest
-from _reliability_b import TINY, Mine, is_loopback, listening_sockets, session_pids
+from _jobs import TINY
+from _run import Mine, session_pids
 from conftest import REPO
 
 pytest.importorskip("ray")
+
+
+# -- listening sockets, from /proc ------------------------------------------------------
+
+def _address(hex_addr: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address:
+    """An address of /proc/net/tcp{,6}: 32-bit words in host (little-endian) order."""
+    raw = bytes.fromhex(hex_addr)
+    return ipaddress.ip_address(b"".join(raw[i:i + 4][::-1] for i in range(0, len(raw), 4)))
+
+
+def _name(pid: int) -> str:
+    """The process name (``/proc/PID/comm``, at most 15 characters: gcs_server, raylet, ray::IDLE...)."""
+    try:
+        return Path(f"/proc/{pid}/comm").read_text().strip()
+    except OSError:
+        return "?"
+
+
+def listening_sockets(pids: dict[int, str]) -> set[tuple[int, str, str, int]]:
+    """TCP sockets in LISTEN state owned by ``pids``: (pid, process name, address, port)."""
+    owner: dict[str, int] = {}
+    for pid in pids:
+        try:
+            fds = os.listdir(f"/proc/{pid}/fd")
+        except (FileNotFoundError, PermissionError, ProcessLookupError):
+            continue
+        for fd in fds:
+            try:
+                link = os.readlink(f"/proc/{pid}/fd/{fd}")
+            except OSError:
+                continue
+            if link.startswith("socket:["):
+                owner[link[len("socket:["):-1]] = pid
+    out = set()
+    for table in ("tcp", "tcp6"):
+        for line in Path(f"/proc/net/{table}").read_text().splitlines()[1:]:
+            f = line.split()
+            local, state, inode = f[1], f[3], f[9]
+            if state == "0A" and inode in owner:  # 0A: TCP_LISTEN
+                host, port = local.split(":")
+                pid = owner[inode]
+                out.add((pid, _name(pid), str(_address(host)), int(port, 16)))
+    return out
+
+
+def is_loopback(address: str) -> bool:
+    ip = ipaddress.ip_address(address)
+    mapped = getattr(ip, "ipv4_mapped", None)  # ::ffff:127.0.0.1, an IPv6 socket bound to IPv4 loopback
+    return ip.is_loopback or (mapped is not None and mapped.is_loopback)
+
+
+# -- the tests ------------------------------------------------------------------------
 
 
 @pytest.mark.slow

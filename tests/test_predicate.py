@@ -14,12 +14,12 @@ from pathlib import Path
 
 import pytest
 
-from _reliability_d import main
+from _run import cli
 from mining.catalog.views import connect
 
 
 def _export(capsys, cat: Path, dest: Path, where: str) -> tuple[int, str, str]:
-    return main(capsys, "export", str(dest), "--format", "kitti", "--where", where, "--out", str(cat))
+    return cli(capsys, "export", str(dest), "--format", "kitti", "--where", where, "--out", str(cat))
 
 
 def _exported_rows(dest: Path) -> int:
@@ -68,7 +68,7 @@ def test_duckdb_temp_folder_is_private_and_exposes_no_file(catalogue, tmp_path, 
     (tmp_path / ".tmp").mkdir()
     (tmp_path / ".tmp" / "secret.csv").write_text("token\nhunter2\n")
     monkeypatch.chdir(tmp_path)
-    rc, stdout, stderr = main(capsys, "query", "SELECT * FROM read_csv('.tmp/secret.csv')", "--out", str(cat))
+    rc, stdout, stderr = cli(capsys, "query", "SELECT * FROM read_csv('.tmp/secret.csv')", "--out", str(cat))
     assert rc == 2 and "hunter2" not in stdout, stdout
     assert "Permission" in stderr or "disabled" in stderr, stderr
     # The folder it spills to instead is its own: mode 0700, gone with the connection.
@@ -86,8 +86,8 @@ def test_duckdb_temp_folder_is_private_and_exposes_no_file(catalogue, tmp_path, 
 def test_query_stops_at_its_time_limit(catalogue, capsys):
     cat, _ = catalogue
     t0 = time.perf_counter()
-    rc, stdout, stderr = main(capsys, "query", "SELECT count(*) FROM range(10000000000000) t(i) WHERE i % 7 = 3",
-                              "--out", str(cat), "--timeout", "1")
+    rc, stdout, stderr = cli(capsys, "query", "SELECT count(*) FROM range(10000000000000) t(i) WHERE i % 7 = 3",
+                             "--out", str(cat), "--timeout", "1")
     elapsed = time.perf_counter() - t0
     assert rc == 2 and "ran past --timeout 1 s" in stderr, (stdout, stderr)
     assert elapsed < 30, elapsed
@@ -96,14 +96,14 @@ def test_query_stops_at_its_time_limit(catalogue, capsys):
 def test_query_memory_and_thread_limits(catalogue, capsys):
     cat, _ = catalogue
     sql = "SELECT current_setting('threads') AS threads, current_setting('memory_limit') AS memory"
-    rc, stdout, _ = main(capsys, "query", sql, "--out", str(cat), "--format", "json")
+    rc, stdout, _ = cli(capsys, "query", sql, "--out", str(cat), "--format", "json")
     assert rc == 0
     row = json.loads(stdout)[0]
     assert row["threads"] == 2 and row["memory"].endswith("GiB") and float(row["memory"].split()[0]) < 2.0
-    rc, stdout, _ = main(capsys, "query", sql, "--out", str(cat), "--format", "json", "--threads", "1",
-                         "--memory-limit", "500MB")
+    rc, stdout, _ = cli(capsys, "query", sql, "--out", str(cat), "--format", "json", "--threads", "1",
+                        "--memory-limit", "500MB")
     row = json.loads(stdout)[0]
     assert rc == 0 and row["threads"] == 1 and row["memory"].endswith("MiB")
     # A query cannot lift its limits (SET is not a read; the configuration is locked anyway).
-    rc, _, stderr = main(capsys, "query", "SET threads = 8", "--out", str(cat))
+    rc, _, stderr = cli(capsys, "query", "SET threads = 8", "--out", str(cat))
     assert rc == 2 and "read-only" in stderr

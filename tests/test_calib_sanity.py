@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import pytest
 
-from _reliability_d import clean_error, kitti_copy, main, set_calib_value
+from _kitti_copy import kitti_copy, set_calib_value
+from _run import clean_error, cli
 
 
 @pytest.fixture
@@ -17,8 +18,8 @@ def kitti(tmp_path, kitti_tracking_root):
 
 
 def _submit(capsys, kitti, out, *args):
-    return main(capsys, "submit", "--dataset", "kitti", "--root", str(kitti), "--sequences", "0005",
-                "--out", str(out), "--workers", "1", "--no-progress", *args)
+    return cli(capsys, "submit", "--dataset", "kitti", "--root", str(kitti), "--sequences", "0005",
+               "--out", str(out), "--workers", "1", "--no-progress", *args)
 
 
 @pytest.mark.parametrize("value", ["0.0", "nan", "-721.5377"], ids=["zero", "nan", "negative"])

@@ -13,7 +13,9 @@ import re
 
 import pytest
 
-from _reliability_d import SYNTHETIC, clean_error, kitti_copy, submit
+from _jobs import SYNTHETIC
+from _kitti_copy import kitti_copy
+from _run import clean_error, cli_status, submit
 from mining.catalog.views import connect
 from mining.config import load_config
 from mining.errors import InputError
@@ -54,15 +56,6 @@ def _break(split, seq: str, how: str):
     raise AssertionError(how)
 
 
-def _status(capsys, out: str) -> tuple[int, str]:
-    from mining.cli import main
-
-    capsys.readouterr()
-    rc = main(["status", "--out", out])
-    got = capsys.readouterr()
-    return rc, got.out + got.err
-
-
 @pytest.mark.parametrize("how", ["right-image", "calib-file", "empty-folder"])
 def test_a_planning_problem_fails_its_sequence_and_the_other_runs(tmp_path, kitti_tracking_root, how, capsys):
     root = kitti_copy(tmp_path / "kitti", kitti_tracking_root, ("0005", "0006"), n_frames=4)
@@ -74,7 +67,7 @@ def test_a_planning_problem_fails_its_sequence_and_the_other_runs(tmp_path, kitt
     assert any(line.startswith("FAILED kitti/0006 (planning):") and named in line for line in summary.lines())
     assert _frames_in_catalogue(out) == {"0005": 4}
     # `mine status` keeps saying so after the submit has gone, and exits 1.
-    rc, text = _status(capsys, out)
+    rc, text = cli_status(capsys, out)
     assert rc == 1 and "sequences not planned: 1" in text, text
     line = next(x for x in text.splitlines() if x.startswith("failed   kitti/0006 planning"))
     assert named in line, text
@@ -83,7 +76,7 @@ def test_a_planning_problem_fails_its_sequence_and_the_other_runs(tmp_path, kitt
     again = mine_job(_cfg(root), out, ["0005", "0006"], (0, 4), executor=LocalExecutor)
     assert (again.ok, again.skipped, again.unplanned) == (1, 1, {})
     assert _frames_in_catalogue(out) == {"0005": 4, "0006": 4}
-    rc, text = _status(capsys, out)
+    rc, text = cli_status(capsys, out)
     assert rc == 0 and "not planned" not in text and not any(x.startswith("failed") for x in text.splitlines()), text
 
 
@@ -124,7 +117,7 @@ def test_submit_on_ray_mines_the_good_sequence_and_names_the_bad_one(tmp_path, k
     named, _ = _break(root / "training", "0006", "right-image")
     out = tmp_path / "out"
     rc, stdout, stderr = submit(out, "--dataset", "kitti", "--root", str(root), "--sequences", "0005", "0006",
-                                "--frames", "0:4")
+                                "--frames", "0:4", workers=1)
     assert rc == 1, (rc, stdout, stderr)
     assert "Traceback" not in stderr
     assert "windows: 1 ok, 0 failed, 0 already done (of 1)" in stdout
@@ -137,9 +130,9 @@ def test_after_a_preflight_failure_the_fixed_command_runs_on_the_same_out(tmp_pa
     # Before, a bad proposer name failed every window after Ray started and left a job.json
     # by which the fixed command was then refused on the same --out.
     out = tmp_path / "out"
-    rc, stdout, stderr = submit(out, *SYNTHETIC, "--set", 'proposals.proposer="stero"')
+    rc, stdout, stderr = submit(out, *SYNTHETIC, "--set", 'proposals.proposer="stero"', workers=1)
     assert rc == 2 and "unknown proposer 'stero'" in clean_error(stderr), (rc, stdout, stderr)
     assert not (out / "job.json").exists()
-    rc, stdout, stderr = submit(out, *SYNTHETIC, "--set", 'proposals.proposer="stereo"')
+    rc, stdout, stderr = submit(out, *SYNTHETIC, "--set", 'proposals.proposer="stereo"', workers=1)
     assert rc == 0, (rc, stdout, stderr)
     assert "windows: 1 ok, 0 failed, 0 already done (of 1)" in stdout

@@ -16,7 +16,7 @@ import signal
 import time
 
 import pytest
-from _reliability_b import JOB_TIMEOUT_S, Mine, status, submit
+from _run import JOB_TIMEOUT_S, Mine, status, submit
 
 pytestmark = pytest.mark.slow  # `mine submit` processes on local Rays, interrupted and resumed
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import signal
 import socket
 import subprocess
 import sys
@@ -26,46 +25,13 @@ import pytest
 
 from mining.catalog.lock import LockedError, OutputLock, read_holder
 from mining.catalog.store import Store
-from _reliability_c import CLI_SMALL, REPO, copy_of, mine, tables
-
-pytest_plugins = ["_reliability_c_fixtures"]  # base_catalogue: one base job for all three files
-
-JOB_TIMEOUT_S = 420  # a hung job fails the test, not the run
-SUMMARY = re.compile(r"windows: (\d+) ok, (\d+) failed, (\d+) already done \(of (\d+)\)")
+from _jobs import CLI_SMALL, copy_of, mine, tables
+from _run import JOB_TIMEOUT_S, SUMMARY, Mine, env, status
+from conftest import REPO
 
 
-def _env() -> dict[str, str]:
-    env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0", PYTHONPATH=str(REPO))
-    env.pop("RAY_ADDRESS", None)
-    return env
-
-
-def _submit(out: Path, *extra: str, logs: Path) -> subprocess.Popen:
-    logs.mkdir(parents=True, exist_ok=True)
-    cmd = [sys.executable, "-m", "mining.cli", "submit", *CLI_SMALL, "--frames", "0:16", "--out", str(out),
-           "--workers", "1", "--no-progress", *extra]
-    return subprocess.Popen(cmd, cwd=REPO, env=_env(), stdout=open(logs / "stdout", "w"),
-                            stderr=open(logs / "stderr", "w"), start_new_session=True)
-
-
-def _finish(p: subprocess.Popen, logs: Path) -> tuple[int, str, str]:
-    try:
-        rc = p.wait(JOB_TIMEOUT_S)
-    finally:
-        _kill_session(p.pid)
-    return rc, (logs / "stdout").read_text(), (logs / "stderr").read_text()
-
-
-def _kill_session(sid: int) -> None:
-    """SIGKILL what is left of the session ``sid`` started (the driver's Ray processes), and only that."""
-    ps = subprocess.run(["ps", "-eo", "pid=,sid="], capture_output=True, text=True, check=True).stdout
-    for line in ps.splitlines():
-        pid, s = map(int, line.split())
-        if s == sid and pid != os.getpid():
-            try:
-                os.kill(pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
+def _submit(out: Path, *extra: str, logs: Path) -> Mine:
+    return Mine(out, *CLI_SMALL, "--frames", "0:16", *extra, logs=logs, workers=1)
 
 
 @pytest.mark.slow  # two `mine submit` processes, one on a local Ray
@@ -74,24 +40,24 @@ def test_a_second_submit_on_one_out_is_refused_naming_the_holder_or_waits(tmp_pa
     first = _submit(out, logs=tmp_path / "first")
     deadline = time.monotonic() + JOB_TIMEOUT_S
     while not read_holder(Store(out)):
-        assert first.poll() is None, (tmp_path / "first" / "stderr").read_text()
+        assert first.proc.poll() is None, (tmp_path / "first" / "stderr.txt").read_text()
         assert time.monotonic() < deadline
         time.sleep(0.05)
     holder = read_holder(Store(out))
-    assert holder["pid"] == first.pid and holder["host"] == socket.gethostname()
+    assert holder["pid"] == first.proc.pid and holder["host"] == socket.gethostname()
 
-    rc, stdout, err = _finish(_submit(out, logs=tmp_path / "second"), tmp_path / "second")
+    rc, stdout, err = _submit(out, logs=tmp_path / "second").finish()
     assert rc == 2, stdout + err
-    assert f"is being written by pid {first.pid} on host {socket.gethostname()} since {holder['started']}" in err, err
+    assert (f"is being written by pid {first.proc.pid} on host {socket.gethostname()} since {holder['started']}"
+            in err), err
     assert "--lock-wait" in err and "Traceback" not in err
-    assert first.poll() is None, "the first job ended before the second was refused: the test proved nothing"
-    status = subprocess.run([sys.executable, "-m", "mining.cli", "status", "--out", str(out)], cwd=REPO, env=_env(),
-                            capture_output=True, text=True, timeout=60)
-    assert f"being written now by pid {first.pid} on host" in status.stdout, status.stdout + status.stderr
+    assert first.proc.poll() is None, "the first job ended before the second was refused: the test proved nothing"
+    _, shown = status(out)
+    assert f"being written now by pid {first.proc.pid} on host" in shown, shown
 
     waiting = _submit(out, "--lock-wait", str(JOB_TIMEOUT_S), logs=tmp_path / "waiting")
-    rc1, stdout1, err1 = _finish(first, tmp_path / "first")
-    rc2, stdout2, err2 = _finish(waiting, tmp_path / "waiting")
+    rc1, stdout1, err1 = first.finish()
+    rc2, stdout2, err2 = waiting.finish()
     assert rc1 == 0, stdout1 + err1
     assert SUMMARY.search(stdout1).groups() == ("2", "0", "0", "2"), stdout1
     assert rc2 == 0, stdout2 + err2
@@ -105,7 +71,7 @@ def test_a_stale_lock_of_a_killed_process_is_taken_over(base_catalogue, tmp_path
     out = copy_of(base_catalogue, tmp_path / "out")
     code = ("import sys, time; from mining.catalog.lock import OutputLock; from mining.catalog.store import Store; "
             "OutputLock(Store(sys.argv[1])).acquire(); print('held', flush=True); time.sleep(600)")
-    holder = subprocess.Popen([sys.executable, "-c", code, str(out)], cwd=REPO, env=_env(), stdout=subprocess.PIPE,
+    holder = subprocess.Popen([sys.executable, "-c", code, str(out)], cwd=REPO, env=env(), stdout=subprocess.PIPE,
                               text=True)
     try:
         assert holder.stdout.readline().strip() == "held"

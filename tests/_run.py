@@ -1,40 +1,75 @@
-"""Helpers of the reliability tests of issue 11 items 3 and 6: `mine` subprocesses and their sockets.
+"""How a test runs ``mine``: in this process (``cli``), or as a subprocess in a session of its own.
 
-Every `mine submit` runs in a session of its own (``start_new_session``), so a test can
-list, signal and finally SIGKILL exactly the processes that job started (the driver and
-its local Ray), never another job's on a shared machine.
+Every ``mine submit`` subprocess runs in a session of its own (``start_new_session``), so a
+test can list, signal and finally SIGKILL exactly the processes that job started (the driver
+and its local Ray), never another job's on a shared machine.
 """
 
 from __future__ import annotations
 
-import ipaddress
 import os
+import re
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 from conftest import REPO
 
 JOB_TIMEOUT_S = 420  # a hung job fails its test, not the whole run (a loaded 2-core machine is slow)
-# A tiny synthetic job: 12 frames, two 6-frame windows (seconds of work once Ray is up).
-TINY = ["--dataset", "synthetic", "--sequences", "0000", "--option", "n_frames=12", "--option", "width=320",
-        "--option", "height=96", "--option", "fx=186.0", "--set", "window.core=6", "--set", "window.context_before=2",
-        "--set", "window.context_after=2"]
-TINY_WINDOWS = ["0000-0000000-0000006", "0000-0000006-0000012"]
+SUMMARY = re.compile(r"windows: (\d+) ok, (\d+) failed, (\d+) already done \(of (\d+)\)")  # `mine submit`'s last line
 ANSI = "\x1b["
 
 
 def mine_cmd(*args: str) -> list[str]:
+    """The command line of ``mine ARGS`` with this interpreter."""
     return [sys.executable, "-m", "mining.cli", *args]
 
 
 def env() -> dict[str, str]:
+    """The environment of a subprocess of this checkout's code: a fresh local Ray of its own."""
     e = dict(os.environ, RAY_USAGE_STATS_ENABLED="0", PYTHONPATH=str(REPO))
     e.pop("RAY_ADDRESS", None)  # always a fresh local Ray of the job's own
     e.pop("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", None)  # conftest's: `mine submit` must keep Ray on loopback itself
+    e.pop("TUBE_MINER_OWN_PROCESS", None)  # a child pytest hands its own_process tests on (tests/_own_process.py)
     return e
+
+
+# -- in this process ------------------------------------------------------------------------
+
+
+def cli(capsys, *args: str) -> tuple[int, str, str]:
+    """(exit status, stdout, stderr) of ``mine ARGS`` run in this process (``mining.cli.main``):
+    for the cases that start no Ray, without an interpreter's start-up each."""
+    from mining.cli import main
+
+    capsys.readouterr()
+    try:
+        rc = main(list(args))
+    except SystemExit as e:  # argparse's own errors
+        rc = e.code
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def cli_status(capsys, out: Path | str, *extra: str) -> tuple[int, str]:
+    """(exit status, what it printed) of ``mine status --out OUT`` in this process."""
+    rc, o, e = cli(capsys, "status", "--out", str(out), *extra)
+    return rc, o + e
+
+
+def clean_error(stderr: str) -> str:
+    """The error line (``mine: error: …``, ``mine export: …``), the last of standard error;
+    asserts there is no traceback."""
+    assert "Traceback" not in stderr, stderr
+    lines = [ln for ln in stderr.splitlines() if ln.strip()]
+    assert lines, "no error message"
+    return lines[-1]
+
+
+# -- in a session of its own ----------------------------------------------------------------
 
 
 def session_pids(sid: int) -> dict[int, str]:
@@ -76,6 +111,10 @@ class Mine:
     def sid(self) -> int:
         return self.proc.pid  # the session id is the driver's pid
 
+    def running(self) -> dict[int, str]:
+        """The live processes of the job: pid → command line."""
+        return session_pids(self.sid)
+
     def finish(self, timeout: float = JOB_TIMEOUT_S) -> tuple[int, str, str]:
         try:
             rc = self.proc.wait(timeout)
@@ -93,60 +132,17 @@ class Mine:
         self.proc.wait(10)
 
 
-def submit(out: Path, *args: str, logs: Path) -> tuple[int, str, str]:
-    return Mine(out, *args, logs=logs).finish()
+def submit(out: Path, *args: str, logs: Path | None = None, workers: int = 2) -> tuple[int, str, str]:
+    """(exit status, stdout, stderr) of a finished ``mine submit ARGS --out OUT``; its output is
+    kept under ``logs`` when given."""
+    if logs is not None:
+        return Mine(out, *args, logs=logs, workers=workers).finish()
+    with tempfile.TemporaryDirectory(prefix="mine-logs-") as tmp:
+        return Mine(out, *args, logs=Path(tmp), workers=workers).finish()
 
 
 def status(out: Path) -> tuple[int, str]:
+    """(exit status, what it printed) of ``mine status --out OUT`` as a subprocess."""
     p = subprocess.run(mine_cmd("status", "--out", str(out)), cwd=REPO, env=env(), capture_output=True, text=True,
                        timeout=120)
     return p.returncode, p.stdout + p.stderr
-
-
-# -- listening sockets, from /proc ------------------------------------------------------
-
-def _address(hex_addr: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address:
-    """An address of /proc/net/tcp{,6}: 32-bit words in host (little-endian) order."""
-    raw = bytes.fromhex(hex_addr)
-    return ipaddress.ip_address(b"".join(raw[i:i + 4][::-1] for i in range(0, len(raw), 4)))
-
-
-def _name(pid: int) -> str:
-    """The process name (``/proc/PID/comm``, at most 15 characters: gcs_server, raylet, ray::IDLE...)."""
-    try:
-        return Path(f"/proc/{pid}/comm").read_text().strip()
-    except OSError:
-        return "?"
-
-
-def listening_sockets(pids: dict[int, str]) -> set[tuple[int, str, str, int]]:
-    """TCP sockets in LISTEN state owned by ``pids``: (pid, process name, address, port)."""
-    owner: dict[str, int] = {}
-    for pid in pids:
-        try:
-            fds = os.listdir(f"/proc/{pid}/fd")
-        except (FileNotFoundError, PermissionError, ProcessLookupError):
-            continue
-        for fd in fds:
-            try:
-                link = os.readlink(f"/proc/{pid}/fd/{fd}")
-            except OSError:
-                continue
-            if link.startswith("socket:["):
-                owner[link[len("socket:["):-1]] = pid
-    out = set()
-    for table in ("tcp", "tcp6"):
-        for line in Path(f"/proc/net/{table}").read_text().splitlines()[1:]:
-            f = line.split()
-            local, state, inode = f[1], f[3], f[9]
-            if state == "0A" and inode in owner:  # 0A: TCP_LISTEN
-                host, port = local.split(":")
-                pid = owner[inode]
-                out.add((pid, _name(pid), str(_address(host)), int(port, 16)))
-    return out
-
-
-def is_loopback(address: str) -> bool:
-    ip = ipaddress.ip_address(address)
-    mapped = getattr(ip, "ipv4_mapped", None)  # ::ffff:127.0.0.1, an IPv6 socket bound to IPv4 loopback
-    return ip.is_loopback or (mapped is not None and mapped.is_loopback)

@@ -15,12 +15,13 @@ from pathlib import Path
 
 import pytest
 
-from _reliability_d import SYNTHETIC, clean_error, main, submit
-from conftest import MODELS
+from _jobs import SYNTHETIC
+from _run import clean_error, cli, submit
+from conftest import MODEL, REPO
 
 
 def _submit(capsys, out: Path, *args: str) -> tuple[int, str, str]:
-    return main(capsys, "submit", *args, "--out", str(out), "--workers", "1", "--no-progress")
+    return cli(capsys, "submit", *args, "--out", str(out), "--workers", "1", "--no-progress")
 
 
 @pytest.fixture
@@ -78,7 +79,7 @@ def test_missing_model_file_fails_once_before_ray(tmp_path, refused):
 def test_unreadable_model_file_is_loaded_once_and_refused(tmp_path, refused):
     # The real model cut short: onnx cannot parse it. Loaded in the driver, not in every window.
     model = tmp_path / "cut.onnx"
-    model.write_bytes((MODELS / "yolov8n-seg_int8.onnx").read_bytes()[:4096])
+    model.write_bytes(MODEL.read_bytes()[:4096])
     line = refused("--set", 'proposals.proposer="onnx"', "--set", f'proposals.onnx.model_path="{model}"')
     assert str(model) in line
 
@@ -95,7 +96,7 @@ def _unwritable(tmp_path: Path) -> Path:
 def test_read_only_output_folder_is_a_clear_error(tmp_path):
     # The real command line, as a subprocess: this one also shows the CLI's exit path.
     out = _unwritable(tmp_path)
-    rc, stdout, stderr = submit(out, *SYNTHETIC)
+    rc, stdout, stderr = submit(out, *SYNTHETIC, workers=1)
     assert rc == 2, (rc, stdout, stderr)
     line = clean_error(stderr)
     assert str(out) in line and "cannot be written" in line
@@ -121,7 +122,7 @@ def test_corrupt_job_json_is_a_clear_error_for_submit_status_and_export(tmp_path
     (out / "job.json").write_bytes(content)
     for args in (["submit", *SYNTHETIC, "--out", str(out), "--no-progress"], ["status", "--out", str(out)],
                  ["export", str(tmp_path / "dest"), "--format", "crops", "--out", str(out)]):
-        rc, stdout, stderr = main(capsys, *args)
+        rc, stdout, stderr = cli(capsys, *args)
         assert rc == 2, (args[0], rc, stdout, stderr)
         line = clean_error(stderr)
         assert str(out / "job.json") in line and expected in line, (args[0], line)
@@ -131,7 +132,7 @@ def test_corrupt_job_json_is_a_clear_error_for_submit_status_and_export(tmp_path
 def test_every_shipped_job_config_keeps_its_own_rules():
     from mining.config import load_config, validate
 
-    for path in sorted((Path(__file__).resolve().parents[1] / "jobs").glob("*.toml")):
+    for path in sorted((REPO / "jobs").glob("*.toml")):
         validate(load_config(path), str(path))
     validate(load_config())
 

@@ -1,0 +1,246 @@
+"""Names (issue 11, item 2): one rule for every name that becomes a path, wherever the name comes from.
+
+* The rule (``mining/names.py``): every real sequence name of the shared datasets passes it,
+  everything that could act as a path (or a hive key, a hidden file, a command-line flag)
+  does not, and ``inside`` follows symbolic links.
+* A sequence name is never a path: ``--sequences ../../../…/<a real traversal>`` with the
+  oxford source used to plan that traversal, write Parquet and pickle files outside
+  ``--out`` (into the dataset folder) and crash with IndexError in ``write_manifest``
+  because every table resolved to one file. Now the job is refused before anything is
+  written, naming the bad name and where it came from.
+* A source's own listing is checked like a user's names: a RobotCar root holding a
+  traversal folder whose name is not a safe name (a copy named ``… (copy)``, a hidden
+  ``.…`` folder) fails that sequence at planning, named with where the name came from, and
+  the other traversals are mined; nothing of the bad ones is written. Before, their names
+  went into paths under ``--out`` as they were.
+* ``mine export`` never writes outside DEST: a catalogue whose tube id is ``..`` made
+  ``--format crops`` write into DEST's parent (``tube_folder`` replaced only ``/``). Now an
+  unsafe tube id (``..``, ``a/../../x``) or sequence name read from the catalogue is an
+  error naming it, and nothing is written outside DEST.
+
+The recordings are RobotCar-layout traversals of real KITTI 0005 frames; the catalogue is the
+real KITTI 0005 one of ``tests/_catalog_data.py``, one tube renamed."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import pyarrow as pa
+import pytest
+
+from _catalog_data import DATASET, SEQUENCE
+from conftest import kitti_0005_stereo
+from mining.export.dest import RECORD
+from mining.export.run import run_export
+from mining.catalog.schema import SCHEMAS
+from mining.catalog.store import Store, write_sequence
+from mining.catalog.views import connect
+from mining.cli import main
+from mining.config import load_config
+from mining.errors import InputError
+from mining.names import MAX_NAME_LENGTH, check_name, check_tube_id, inside, tube_folder
+from mining.pipeline.executors import LocalExecutor
+from mining.pipeline.submit import mine_job
+from mining.sources import open_source
+from mining.testing.fixtures import write_robotcar_fixture
+
+N_FRAMES = 6
+# From <tmp>/r1/r2/r3/root, four levels up is <tmp>: this name reaches <tmp>/elsewhere/victim.
+ESCAPE = "../../../../elsewhere/victim"
+GOOD = "2014-12-09-13-21-02"
+BAD = ("2014-12-09-13-21-02 (copy)", ".2014-12-10-18-10-13")
+
+
+# -- the rule ----------------------------------------------------------------------------
+
+
+def test_the_real_sequence_names_are_names(kitti_tracking_root, kitti_raw_root):
+    names = open_source("kitti", str(kitti_tracking_root)).sequences() + \
+            open_source("kitti-raw", str(kitti_raw_root)).sequences()
+    assert "0005" in names and "2011_09_26_drive_0001_sync" in names
+    names += ["2014-12-09-13-21-02", "training_0005", "0000", "rosbag2_2024_01_31-12_00_00_0", "a" * MAX_NAME_LENGTH]
+    for name in names:
+        assert check_name(name, "sequence", "test") == name
+
+
+@pytest.mark.parametrize("name", ["", ".", "..", "../x", "a/b", "a\\b", "/abs", ".hidden", "-rf", "a..b", "a b",
+                                  "sequence=x", "x\n", "caf\u00e9", "a*", "a" * (MAX_NAME_LENGTH + 1), 5, None])
+def test_anything_else_is_refused_naming_it_and_its_origin(name):
+    with pytest.raises(InputError) as e:
+        check_name(name, "sequence", "--sequences")
+    assert repr(name) in str(e.value) and "--sequences" in str(e.value)
+
+
+def test_tube_ids_and_their_folders():
+    assert tube_folder("kitti/0005/0000012.003-1") == "kitti_0005_0000012.003-1"
+    assert check_tube_id("kitti-raw/2011_09_26_drive_0005_sync/0000001.000", "t")
+    for bad in ("..", "a/../../x", "/kitti/0005/1.0", "kitti//1.0", "kitti/0005/", "kitti/.x/1.0"):
+        with pytest.raises(InputError, match="tube id"):
+            tube_folder(bad)
+
+
+def test_inside_follows_links(tmp_path):
+    dest = tmp_path / "dest"
+    (dest / "real").mkdir(parents=True)
+    os.symlink(tmp_path, dest / "link")
+    assert inside(dest, "real/a.png") == dest / "real" / "a.png"
+    for escape in ("../x", "link/x", str(tmp_path / "x")):
+        with pytest.raises(InputError, match="outside"):
+            inside(dest, escape)
+
+
+# -- a sequence name is never a path -----------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def recordings(kitti_tracking_root, tmp_path_factory) -> Path:
+    left, right, calib = kitti_0005_stereo(kitti_tracking_root, N_FRAMES)
+    base = tmp_path_factory.mktemp("escape")
+    write_robotcar_fixture(base / "r1/r2/r3/root", left, right, calib, traversal="t1")
+    write_robotcar_fixture(base / "elsewhere", left, right, calib, traversal="victim")
+    return base
+
+
+def _files(folder: Path) -> set[Path]:
+    return {p for p in folder.rglob("*")}
+
+
+def _cfg(base: Path, shared_data: Path, *extra: str):
+    folder = shared_data / "proposals_4dgvt_format" / "kitti_tracking_0005" / "top20"
+    return load_config(None, ['source.dataset="oxford"', f'source.root="{base / "r1/r2/r3/root"}"',
+                              'proposals.proposer="json"', f'proposals.json.folder="{folder}"', "window.core=3",
+                              *extra])
+
+
+def test_sequences_flag_cannot_leave_the_source_or_the_output(recordings, shared_data, tmp_path):
+    out = tmp_path / "o1" / "o2" / "out"
+    before = _files(recordings) | _files(tmp_path)
+    with pytest.raises(InputError) as e:
+        mine_job(_cfg(recordings, shared_data), str(out), [ESCAPE], executor=LocalExecutor)
+    msg = str(e.value)
+    assert repr(ESCAPE) in msg and "--sequences" in msg and "'/'" in msg and "'..'" in msg
+    assert _files(recordings) | _files(tmp_path) == before, "nothing is written anywhere"
+
+
+def test_config_sequences_are_checked_too(recordings, shared_data, tmp_path):
+    cfg = _cfg(recordings, shared_data, f'source.sequences=["t1", "{ESCAPE}"]')
+    before = _files(recordings)
+    with pytest.raises(InputError, match=r"source\.sequences"):
+        mine_job(cfg, str(tmp_path / "out"), executor=LocalExecutor)
+    assert _files(recordings) == before and not (tmp_path / "out").exists()
+
+
+def test_mine_submit_refuses_the_name_before_ray_starts(recordings, tmp_path, capsys):
+    out = tmp_path / "out"
+    rc = main(["submit", "--dataset", "oxford", "--root", str(recordings / "r1/r2/r3/root"), "--out", str(out),
+               "--sequences", "t1", ESCAPE, "--no-progress"])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert repr(ESCAPE) in err and "--sequences" in err and "Traceback" not in err
+    assert not out.exists()
+
+
+# -- a source's own listing --------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def robotcar(kitti_tracking_root, tmp_path_factory) -> Path:
+    left, right, calib = kitti_0005_stereo(kitti_tracking_root, N_FRAMES)
+    root = tmp_path_factory.mktemp("robotcar")
+    for name in (GOOD, *BAD):
+        write_robotcar_fixture(root, left, right, calib, traversal=name)
+    return root
+
+
+def test_a_badly_named_traversal_fails_alone_and_the_others_run(robotcar, shared_data, tmp_path, capsys):
+    folder = shared_data / "proposals_4dgvt_format" / "kitti_tracking_0005" / "top20"
+    cfg = load_config(None, ['source.dataset="oxford"', f'source.root="{robotcar}"', 'proposals.proposer="json"',
+                             f'proposals.json.folder="{folder}"', "window.core=3"])
+    out = tmp_path / "out"
+    summary = mine_job(cfg, str(out), executor=LocalExecutor)  # no --sequences: the source's listing
+
+    assert summary.ok == 2 and summary.windows == 2, "the good traversal's two windows ran"
+    assert not summary.failed
+    failed = dict(summary.unplanned)  # left out at planning, named in the summary
+    assert sorted(failed) == sorted(f"oxford/{name}" for name in BAD)
+    for name in BAD:
+        reason = failed[f"oxford/{name}"]
+        assert repr(name) in reason and "listing" in reason and str(robotcar) in reason
+    assert any(f"FAILED oxford/{BAD[0]} (planning)" in line for line in summary.lines())
+
+    written = [p.relative_to(out).as_posix() for p in out.rglob("*")]
+    assert not [p for p in written if any(b in p for b in BAD)], "nothing of the bad traversals is written"
+    # `mine status` names them too (job.json keeps why; no path is made from the names).
+    from mining.pipeline.status import print_status
+
+    capsys.readouterr()
+    assert print_status(str(out)) == 1
+    text = capsys.readouterr().out
+    assert f"sequences not planned: {len(BAD)}" in text
+    for name in BAD:
+        assert any(x.startswith(f"failed   oxford/{name} planning") and "listing" in x for x in text.splitlines()), text
+    con = connect(out)
+    try:
+        assert con.execute("SELECT DISTINCT sequence FROM frames").fetchall() == [(GOOD,)]
+        assert con.execute("SELECT count(*) FROM frames").fetchone()[0] == N_FRAMES
+    finally:
+        con.close()
+
+
+# -- names read from the catalogue by mine export ----------------------------------------
+
+
+def _with_tube_id(catalogue, tmp_path: Path, tube_id: str) -> Path:
+    """A copy of the catalogue with its longest selected tube renamed ``tube_id``."""
+    out, tables = catalogue
+    tubes, tf = tables["tubes"].to_pylist(), tables["tube_frames"].to_pylist()
+    victim = max((t for t in tubes if t["selected"]), key=lambda t: t["n_frames"])["tube_id"]
+    cat = tmp_path / "cat"
+    shutil.copytree(out, cat)
+    store = Store(cat)
+    rename = {victim: tube_id}
+    write_sequence(store, "tubes", DATASET, SEQUENCE, pa.Table.from_pylist(
+        [dict(t, tube_id=rename.get(t["tube_id"], t["tube_id"])) for t in tubes], schema=SCHEMAS["tubes"]))
+    write_sequence(store, "tube_frames", DATASET, SEQUENCE, pa.Table.from_pylist(
+        [dict(f, tube_id=rename.get(f["tube_id"], f["tube_id"])) for f in tf], schema=SCHEMAS["tube_frames"]))
+    return cat
+
+
+@pytest.mark.parametrize("tube_id", ["..", "a/../../x", f"{DATASET}/{SEQUENCE}/../../../escaped"])
+def test_crops_of_an_unsafe_tube_id_stay_inside_dest(catalogue, tmp_path, capsys, tube_id):
+    cat = _with_tube_id(catalogue, tmp_path, tube_id)
+    work = tmp_path / "work"
+    dest = work / "dest"
+    work.mkdir()
+    before = {p for p in tmp_path.rglob("*")}
+    where = "tube_id = '" + tube_id.replace("'", "''") + "'"
+    assert run_export(str(cat), where, "crops", str(dest)) == 2
+    err = capsys.readouterr().err
+    assert repr(tube_id) in err and "tube id" in err
+    assert {p for p in tmp_path.rglob("*")} - before <= {dest}, "nothing but DEST itself is made"
+
+
+def test_the_other_tubes_still_export_and_a_safe_id_keeps_its_folder(catalogue, tmp_path):
+    cat = _with_tube_id(catalogue, tmp_path, f"{DATASET}/{SEQUENCE}/renamed.000")
+    dest = tmp_path / "dest"
+    assert run_export(str(cat), "tube_id LIKE '%renamed%'", "crops", str(dest)) == 0
+    assert sorted(p.name for p in dest.iterdir()) == [RECORD, "index.json", "index.parquet",
+                                                      f"{DATASET}_{SEQUENCE}_renamed.000"]
+
+
+def test_kitti_export_of_an_unsafe_sequence_name(catalogue, tmp_path, capsys):
+    """A hive folder ``sequence=..%2F..%2Fescaped`` reads back (DuckDB and pyarrow decode
+    it) as the sequence ``../../escaped``, which the KITTI export made a file name of."""
+    out, _ = catalogue
+    cat = tmp_path / "cat"
+    shutil.copytree(out, cat)
+    for table in ("tubes", "tube_frames"):
+        folder = cat / "catalog" / table / f"dataset={DATASET}"
+        (folder / f"sequence={SEQUENCE}").rename(folder / "sequence=..%2F..%2Fescaped")
+    dest = tmp_path / "work" / "dest"
+    before = {p for p in tmp_path.rglob("*")}
+    assert run_export(str(cat), "selected", "kitti", str(dest)) == 2
+    assert "sequence name '../../escaped'" in capsys.readouterr().err
+    assert {p for p in tmp_path.rglob("*")} - before <= {tmp_path / "work", dest}, "nothing written"
