@@ -323,6 +323,64 @@ def test_json_reading_400000_proposals_keeps_memory_flat(json_root, tmp_path):
     assert peak_mib < 1024, f"peak RSS {peak_mib} MiB reading a {size >> 20} MiB file"
 
 
+
+def _bad_counts(counts):
+    def edit(raw):
+        raw[0]["segmentation"]["counts"] = counts
+        return raw
+
+    return edit
+
+
+def test_json_malformed_counts_is_one_input_error(json_root, tmp_path):
+    # A run past the frame's end (pycocotools' decoders read past the mask for it: the
+    # observe step raised IndexError), a number cut off, runs that stop short, non-ASCII.
+    past_end = mask_utils.frPyObjects({"size": [H, W], "counts": [1000, 15_255_089]}, H, W)["counts"].decode()
+    real = json.loads((json_root / "top20" / "000004.json").read_text())[0]["segmentation"]["counts"]
+    for counts in (past_end, real + "e", real[: len(real) // 2], "é" + real):
+        text = _bad_json(json_root, tmp_path, _bad_counts(counts))
+        assert "element 0: malformed segmentation" in text, text
+    assert "runs do not cover exactly 1242x375 pixels" in _bad_json(json_root, tmp_path, _bad_counts(past_end))
+
+
+def test_json_deep_nesting_and_wrong_shapes_are_input_errors(json_root, tmp_path):
+    deep = 100_000  # past Python's recursion limit, for the standard library's parser too
+    assert "nested too deeply" in _bad_json(json_root, tmp_path, lambda raw: "[" * deep + "]" * deep)
+
+    def deep_in_an_element(raw):
+        return json.dumps(raw)[:-1] + ', {"score": 0.5, "x": ' + "[" * deep + "]" * deep + "}]"
+
+    assert "nested too deeply" in _bad_json(json_root, tmp_path, deep_in_an_element)
+
+    def superscript_index(raw):  # "²".isdigit() holds, int("²") raises
+        raw[0]["second_posterior"]["values"]["²"] = 0.1
+        return raw
+
+    assert "malformed proposal file (ValueError" in _bad_json(json_root, tmp_path, superscript_index)
+    assert "expected a JSON list" in _bad_json(json_root, tmp_path, lambda raw: {"proposals": raw})
+    assert "line 1" in _bad_json(json_root, tmp_path, lambda raw: json.dumps(raw) + " []")  # extra data
+    assert "bbox" in _bad_json(json_root, tmp_path, lambda raw: [{**raw[0], "bbox": [1, 2, 3]}] + raw[1:])
+
+
+def test_a_malformed_proposal_file_fails_the_observe_step_naming_file_and_frame(json_root, kitti_tracking_root,
+                                                                              tmp_path, capsys):
+    from _run import cli
+
+    props = tmp_path / "props"
+    props.mkdir()
+    for f in range(2):
+        raw = json.loads((json_root / "top20" / f"{f:06d}.json").read_text())
+        if f == 0:
+            raw[0]["segmentation"]["counts"] = mask_utils.frPyObjects(
+                {"size": [H, W], "counts": [1000, 15_255_089]}, H, W)["counts"].decode()
+        (props / f"{f:06d}.json").write_text(json.dumps(raw))
+    rc, out, err = cli(capsys, "track", "images", "--dataset", "kitti", "--root", str(kitti_tracking_root),
+                       "--sequence", "0005", "--frames", "0:2", "--out", str(tmp_path / "res"),
+                       "--set", 'proposals.proposer="json"', "--set", f'proposals.json.folder="{props}"')
+    assert rc == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert f"file {props / '000000.json'}, frame 0: element 0: malformed segmentation" in err
+
+
 # -- KITTI detection files ----------------------------------------------------------
 
 
