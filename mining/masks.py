@@ -44,6 +44,26 @@ def rle_counts(rle: dict) -> np.ndarray:
     return values
 
 
+def rle_problem(h: object, w: object, counts: object) -> str | None:
+    """Why a compressed COCO RLE of ``h`` × ``w`` pixels with ``counts`` is malformed, or None.
+
+    pycocotools trusts an RLE's runs (a run past the frame reads and writes outside its
+    buffers), so every reader checks them before any decoder sees them: the size positive,
+    the counts an ASCII string, the runs non-negative and covering exactly H × W pixels."""
+    if not (isinstance(h, int) and isinstance(w, int) and h > 0 and w > 0):
+        return f"its size {w}x{h} is not positive"
+    if not isinstance(counts, str) or not counts.isascii():
+        return "its counts are not an RLE string"
+    try:
+        runs = rle_counts({"size": [h, w], "counts": counts})
+    except (ValueError, IndexError):  # a number cut off at the end of the string
+        runs = np.array([-1])
+    # Each run within 0..H·W first, so that their sum cannot wrap around.
+    if runs.size == 0 or runs.min() < 0 or runs.max() > h * w or int(runs.sum()) != h * w:
+        return f"its runs do not cover exactly {w}x{h} pixels"
+    return None
+
+
 def mask_pixels(rle: dict) -> tuple[np.ndarray, np.ndarray]:
     """Row and column indices of a mask's pixels, without building the full frame."""
     h = int(rle["size"][0])

@@ -227,6 +227,160 @@ def test_json_bad_input(json_root, tmp_path):
     assert e.value.frame == 16
 
 
+
+# -- 4D-GVT JSON: bounded inputs and malformed files -------------------------------
+
+
+def _many_proposals(json_root, folder, n: int, posterior: bool) -> list[float]:
+    """Write ``folder/000000.json``: ``n`` copies of one real proposal of frame 0 (with or
+    without its second_posterior), each with its own score; return the scores in file order.
+    The scores have three decimals, so ties occur and file order must break them."""
+    raw = json.loads((json_root / "top500" / "000000.json").read_text())
+    one = next(r for r in raw if len(r["segmentation"]["counts"]) <= 40)
+    if not posterior:
+        del one["second_posterior"]
+    head, tail = json.dumps({**one, "score": 0.123456789}, separators=(",", ":")).split("0.123456789")
+    scores = np.random.default_rng(0).integers(0, 1000, n) / 1000
+    folder.mkdir(exist_ok=True)
+    (folder / "000000.json").write_text("[" + ",\n".join(f"{head}{s!r}{tail}" for s in scores.tolist()) + "]")
+    return scores.tolist()
+
+
+def test_json_file_over_the_size_bound_is_refused(json_root, tmp_path):
+    real = (json_root / "top20" / "000003.json").read_text()
+    (tmp_path / "000003.json").write_text(real)
+    size = len(real.encode())
+    assert len(JsonProposals(tmp_path, JsonProposalsConfig(max_file_bytes=size))(3)) > 0
+    with pytest.raises(InputError, match="max_file_bytes") as e:
+        JsonProposals(tmp_path, JsonProposalsConfig(max_file_bytes=size - 1))(3)
+    assert e.value.path == str(tmp_path / "000003.json") and e.value.frame == 3
+    # The default bound: a valid list of real proposals padded with whitespace past it.
+    limit = JsonProposalsConfig().max_file_bytes
+    assert limit > 100 * max(f.stat().st_size for f in json_root.glob("*/*.json"))  # well above real files
+    (tmp_path / "000003.json").write_text(real[:-1] + " " * limit + "]")
+    with pytest.raises(InputError, match=f"over proposals.json.max_file_bytes = {limit}") as e:
+        JsonProposals(tmp_path)(3)
+    assert e.value.path == str(tmp_path / "000003.json") and e.value.frame == 3
+
+
+# 400,000: the reported file's count (~5 s to parse on two loaded cores); 20,000 for the fast tier.
+@pytest.mark.parametrize("n", [20_000, pytest.param(400_000, marks=pytest.mark.slow)])
+def test_json_many_proposals_keep_the_best_before_any_mask_is_decoded(json_root, tmp_path, monkeypatch, n):
+    import mining.proposals.precomputed as precomputed
+
+    scores = _many_proposals(json_root, tmp_path, n, posterior=False)
+    assert (tmp_path / "000000.json").stat().st_size < JsonProposalsConfig().max_file_bytes
+    checked = []  # each mask whose runs are checked is one about to be decoded
+
+    def counting(h, w, counts):
+        checked.append(counts)
+        return real_check(h, w, counts)
+
+    real_check = precomputed.rle_problem
+    monkeypatch.setattr(precomputed, "rle_problem", counting)
+    monkeypatch.setattr(precomputed.mask_utils, "toBbox", lambda *a: pytest.fail("a mask decoded for its box"))
+    k = JsonProposalsConfig().max_proposals
+    p = JsonProposals(tmp_path, image_size=(W, H))(0)
+    assert len(p) == k == len(checked) and len(p.rles) == len(p.boxes) == k
+    # The best by score, ties in file order: what a stable sort of all of them gives first.
+    order = np.argsort(-np.asarray(scores), kind="stable")[:k]
+    np.testing.assert_array_equal(p.objectness, np.asarray(scores, np.float32)[order])
+    # On a real file: the top k of it are the first k of reading it whole.
+    full = read_proposal_json(json_root / "top500" / "000009.json", 9)
+    top = read_proposal_json(json_root / "top500" / "000009.json", 9, max_proposals=20)
+    np.testing.assert_array_equal(top.objectness, full.objectness[:20])
+    np.testing.assert_array_equal(top.boxes, full.boxes[:20])
+    np.testing.assert_array_equal(top.posterior, full.posterior[:20])
+    assert top.rles == full.rles[:20]
+
+
+@pytest.mark.slow  # writes and reads a 170 MB file
+def test_json_reading_400000_proposals_keeps_memory_flat(json_root, tmp_path):
+    # The reported case: 400,000 real proposals with their posteriors, ~170 MB. Refused by
+    # default; with the size bound raised past it, read in a child process whose peak
+    # resident memory is measured (reading it whole took 1.5 GB, the worker after it 19.6 GB).
+    import subprocess
+    import sys
+
+    from _run import env
+
+    _many_proposals(json_root, tmp_path, 400_000, posterior=True)
+    size = (tmp_path / "000000.json").stat().st_size
+    with pytest.raises(InputError, match="max_file_bytes"):
+        JsonProposals(tmp_path)(0)
+    code = (
+        "import resource, sys\n"
+        "from mining.proposals.config import JsonProposalsConfig\n"
+        "from mining.proposals.precomputed import JsonProposals\n"
+        f"p = JsonProposals(sys.argv[1], JsonProposalsConfig(max_file_bytes={2 * size}), image_size=({W}, {H}))(0)\n"
+        "print(len(p), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, env=env(),
+                         timeout=300)
+    assert out.returncode == 0, out.stderr
+    n, peak_mib = map(int, out.stdout.split())
+    assert n == JsonProposalsConfig().max_proposals
+    assert peak_mib < 1024, f"peak RSS {peak_mib} MiB reading a {size >> 20} MiB file"
+
+
+
+def _bad_counts(counts):
+    def edit(raw):
+        raw[0]["segmentation"]["counts"] = counts
+        return raw
+
+    return edit
+
+
+def test_json_malformed_counts_is_one_input_error(json_root, tmp_path):
+    # A run past the frame's end (pycocotools' decoders read past the mask for it: the
+    # observe step raised IndexError), a number cut off, runs that stop short, non-ASCII.
+    past_end = mask_utils.frPyObjects({"size": [H, W], "counts": [1000, 15_255_089]}, H, W)["counts"].decode()
+    real = json.loads((json_root / "top20" / "000004.json").read_text())[0]["segmentation"]["counts"]
+    for counts in (past_end, real + "e", real[: len(real) // 2], "é" + real):
+        text = _bad_json(json_root, tmp_path, _bad_counts(counts))
+        assert "element 0: malformed segmentation" in text, text
+    assert "runs do not cover exactly 1242x375 pixels" in _bad_json(json_root, tmp_path, _bad_counts(past_end))
+
+
+def test_json_deep_nesting_and_wrong_shapes_are_input_errors(json_root, tmp_path):
+    deep = 100_000  # past Python's recursion limit, for the standard library's parser too
+    assert "nested too deeply" in _bad_json(json_root, tmp_path, lambda raw: "[" * deep + "]" * deep)
+
+    def deep_in_an_element(raw):
+        return json.dumps(raw)[:-1] + ', {"score": 0.5, "x": ' + "[" * deep + "]" * deep + "}]"
+
+    assert "nested too deeply" in _bad_json(json_root, tmp_path, deep_in_an_element)
+
+    def superscript_index(raw):  # "²".isdigit() holds, int("²") raises
+        raw[0]["second_posterior"]["values"]["²"] = 0.1
+        return raw
+
+    assert "malformed proposal file (ValueError" in _bad_json(json_root, tmp_path, superscript_index)
+    assert "expected a JSON list" in _bad_json(json_root, tmp_path, lambda raw: {"proposals": raw})
+    assert "line 1" in _bad_json(json_root, tmp_path, lambda raw: json.dumps(raw) + " []")  # extra data
+    assert "bbox" in _bad_json(json_root, tmp_path, lambda raw: [{**raw[0], "bbox": [1, 2, 3]}] + raw[1:])
+
+
+def test_a_malformed_proposal_file_fails_the_observe_step_naming_file_and_frame(json_root, kitti_tracking_root,
+                                                                              tmp_path, capsys):
+    from _run import cli
+
+    props = tmp_path / "props"
+    props.mkdir()
+    for f in range(2):
+        raw = json.loads((json_root / "top20" / f"{f:06d}.json").read_text())
+        if f == 0:
+            raw[0]["segmentation"]["counts"] = mask_utils.frPyObjects(
+                {"size": [H, W], "counts": [1000, 15_255_089]}, H, W)["counts"].decode()
+        (props / f"{f:06d}.json").write_text(json.dumps(raw))
+    rc, out, err = cli(capsys, "track", "images", "--dataset", "kitti", "--root", str(kitti_tracking_root),
+                       "--sequence", "0005", "--frames", "0:2", "--out", str(tmp_path / "res"),
+                       "--set", 'proposals.proposer="json"', "--set", f'proposals.json.folder="{props}"')
+    assert rc == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert f"file {props / '000000.json'}, frame 0: element 0: malformed segmentation" in err
+
+
 # -- KITTI detection files ----------------------------------------------------------
 
 

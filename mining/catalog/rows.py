@@ -24,7 +24,7 @@ from pycocotools import mask as mask_utils
 
 from mining.catalog.schema import SCHEMA_VERSION, file_schema, part_schema
 from mining.errors import InputError
-from mining.masks import rle_counts
+from mining.masks import rle_problem
 from mining.types import MinedTube, TubeFrame
 
 MASK_TABLE = "tube_frames"  # the table whose rows carry the masks
@@ -154,20 +154,8 @@ class BadMask(InputError):
 
 def mask_problem(row: dict) -> str | None:
     """Why a ``tube_frames`` row's RLE (``rle_h``, ``rle_w``, ``rle_counts``) is malformed, or
-    None: its size must be positive and its runs non-negative, covering exactly H × W pixels."""
-    h, w, counts = row["rle_h"], row["rle_w"], row["rle_counts"]
-    if not (isinstance(h, int) and isinstance(w, int) and h > 0 and w > 0):
-        return f"its size {w}x{h} is not positive"
-    if not isinstance(counts, str) or not counts.isascii():
-        return "its counts are not an RLE string"
-    try:
-        runs = rle_counts({"size": [h, w], "counts": counts})
-    except (ValueError, IndexError):  # a number cut off at the end of the string
-        runs = np.array([-1])
-    # Each run within 0..H·W first, so that their sum cannot wrap around.
-    if runs.size == 0 or runs.min() < 0 or runs.max() > h * w or int(runs.sum()) != h * w:
-        return f"its runs do not cover exactly {w}x{h} pixels"
-    return None
+    None (``mining.masks.rle_problem``: its size positive, its runs covering exactly H × W)."""
+    return rle_problem(row["rle_h"], row["rle_w"], row["rle_counts"])
 
 
 def mask_rle(row: dict, shape: tuple[int, int] | None = None, path: str | None = None) -> dict:

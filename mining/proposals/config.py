@@ -78,6 +78,11 @@ class JsonProposalsConfig:
     folder: str = ""  # ours: user-given folder of NNNNNN.json files, one per frame
     filename_digits: Count = 6  # ours: zero-padded frame index in the file name (4D-GVT files: 000042.json)
     category_ids: Annotated[str, OneOf(("agnostic", "coco"))] = "agnostic"  # ours: category_id without second_posterior: "agnostic" (no classes) or "coco" ids
+    # Bounds on what one frame's file may cost a worker: the file is refused above max_file_bytes
+    # (read as text once, its proposals parsed one at a time), and of more than max_proposals
+    # only the best by score are kept, before any mask is decoded.
+    max_file_bytes: Count = 64 * 2**20  # ours: 64 MiB, ~390× the largest shared file (171 KB, 500 proposals); a worker holds it about twice
+    max_proposals: Count = 1000  # ours: twice the 500 the authors advise at most (REFERENCE); localise.filters keeps its own max_proposals of these later
 
 
 @dataclass

@@ -16,6 +16,12 @@ Two inputs:
   that class and 1 − score on unknown, the same split the original uses for background.
   A file where only some elements carry ``second_posterior`` is rejected.
 
+  Bounded (``JsonProposalsConfig``): a file over ``max_file_bytes`` is refused; its elements
+  are parsed one at a time and only the ``max_proposals`` best by score are kept (what the
+  ONNX proposer keeps, and what localise.filters ranks by later) — only their masks are
+  checked (``mining.masks.rle_problem``) and decoded. A malformed file of any shape is an
+  InputError naming the file, the frame and the reason.
+
 * ``KittiDetections`` — KITTI tracking detection files: PointRCNN's comma-separated 15-column
   files (SOURCES.md §1.6) and the 18-column tracking result format (§1.5), read by
   ``mining/formats/kitti_detections.py``. Each detection
@@ -32,10 +38,12 @@ Two inputs:
 
 from __future__ import annotations
 
+import heapq
 import json
 import math
+import os
 import re
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +53,7 @@ from mining.errors import InputError
 from mining.formats.coco import CATEGORY_ID_TO_INDEX, CLASS_INDEX
 from mining.formats.kitti_calib import KittiCalib
 from mining.formats.kitti_detections import read_kitti_detections
+from mining.masks import rle_problem
 from mining.proposals.config import JsonProposalsConfig, KittiDetectionsConfig
 from mining.types import N_CLASSES, UNKNOWN_CLASS, Proposals
 
@@ -99,74 +108,164 @@ class JsonProposals:
     def __call__(self, frame: int, image: np.ndarray | None = None) -> Proposals:
         """Proposals of ``frame``; ``image`` (optional) only checks the frame size."""
         size = self.image_size if image is None else (image.shape[1], image.shape[0])
-        return read_proposal_json(self.path(frame), frame, self.cfg.category_ids, size, self.name)
+        return read_proposal_json(self.path(frame), frame, self.cfg.category_ids, size, self.name,
+                                  max_proposals=self.cfg.max_proposals, max_file_bytes=self.cfg.max_file_bytes)
 
 
 def read_proposal_json(path: str | Path, frame: int, category_ids: str = "agnostic",
-                       image_size: tuple[int, int] | None = None, name: str = JSON_PROPOSER) -> Proposals:
-    """One 4D-GVT proposal JSON file → Proposals sorted by score (see the module doc)."""
+                       image_size: tuple[int, int] | None = None, name: str = JSON_PROPOSER, *,
+                       max_proposals: int = JsonProposalsConfig.max_proposals,
+                       max_file_bytes: int = JsonProposalsConfig.max_file_bytes) -> Proposals:
+    """One 4D-GVT proposal JSON file → Proposals sorted by score (see the module doc).
+
+    Bounded: a file over ``max_file_bytes`` is refused; of more than ``max_proposals``
+    proposals the best by score are kept (ties: the earlier in the file), and only those
+    have their masks checked and decoded. Any malformed file is an InputError naming it,
+    the frame and the reason.
+    """
     path = Path(path)
     try:
-        items = json.loads(path.read_text())
+        return _read_proposal_json(path, frame, category_ids, image_size, name, max_proposals, max_file_bytes)
     except FileNotFoundError:
         raise InputError("proposal file for this frame is missing", path, frame) from None
     except json.JSONDecodeError as e:
         raise InputError(f"not valid JSON at line {e.lineno} column {e.colno}: {e.msg}", path, frame) from None
-    if not isinstance(items, list):
-        raise InputError(f"expected a JSON list of proposals, got {type(items).__name__}", path, frame)
-    if not items:  # an empty posterior array fits files with and without classes alike
-        return empty_proposals(frame, True, False, name)
+    except UnicodeDecodeError as e:
+        raise InputError(f"not UTF-8 text (byte {e.start}): {e.reason}", path, frame) from None
+    except RecursionError:
+        raise InputError("nested too deeply to be a list of proposals", path, frame) from None
+    except OSError as e:
+        raise InputError(f"cannot be read: {e.strerror or e}", path, frame) from None
+    except (ValueError, TypeError, KeyError, IndexError) as e:  # a wrongly shaped file a check missed
+        raise InputError(f"malformed proposal file ({type(e).__name__}: {e})", path, frame) from None
 
-    n = len(items)
+
+def _read_proposal_json(path: Path, frame: int, category_ids: str, image_size: tuple[int, int] | None, name: str,
+                        max_proposals: int, max_file_bytes: int) -> Proposals:
+    kept, n_items, all_post = _best_elements(_bounded_text(path, frame, max_file_bytes), path, frame, max_proposals)
+    if not n_items:  # an empty posterior array fits files with and without classes alike
+        return empty_proposals(frame, True, False, name)
+    in_file_order = sorted(kept, key=lambda e: e[0])  # so that the first bad element is the one named
+    for j, (i, it) in enumerate(in_file_order):
+        _check_element(i, it, in_file_order[0] if j else None, image_size, path, frame)
+    n = len(kept)
     rles, boxes, scores = [], np.zeros((n, 4)), np.zeros(n)
-    has_post = [isinstance(it, dict) and "second_posterior" in it for it in items]
-    if any(has_post) and not all(has_post):
-        raise InputError(f"element {has_post.index(False)}: no second_posterior where other elements have one",
-                         path, frame)
-    posterior = np.zeros((n, N_CLASSES)) if (all(has_post) or category_ids == "coco") else None
-    frame_hw = None
-    for i, it in enumerate(items):
+    posterior = np.zeros((n, N_CLASSES)) if (all_post or category_ids == "coco") else None
+    for row, (i, it) in enumerate(kept):
         def bad(reason: str) -> InputError:
             return InputError(f"element {i}: {reason}", path, frame)
 
-        if not isinstance(it, dict):
-            raise bad(f"expected an object, got {type(it).__name__}")
-        seg = it.get("segmentation")
-        if not (isinstance(seg, dict) and isinstance(seg.get("counts"), str) and isinstance(seg.get("size"), list)
-                and len(seg["size"]) == 2 and all(isinstance(v, int) and v > 0 for v in seg["size"])):
-            raise bad("segmentation must be a compressed COCO RLE {size: [h, w], counts: str}")
-        hw = tuple(seg["size"])
-        if frame_hw is None:
-            frame_hw = hw
-            if image_size is not None and hw != (image_size[1], image_size[0]):
-                raise bad(f"mask size {hw[1]}×{hw[0]} differs from the image size {image_size[0]}×{image_size[1]}")
-        elif hw != frame_hw:
-            raise bad(f"mask size {hw} differs from element 0's {frame_hw}")
-        rles.append({"size": list(hw), "counts": seg["counts"].encode("ascii")})
-        score = it.get("score")
-        if isinstance(score, bool) or not isinstance(score, (int, float)) or not 0.0 <= score <= 1.0:
-            raise bad(f"score must be a number in [0, 1], got {score!r}")
-        scores[i] = score
+        seg = it["segmentation"]
+        rles.append({"size": list(seg["size"]), "counts": seg["counts"].encode("ascii")})
+        scores[row] = it["score"]
         bbox = it.get("bbox")
-        if bbox is not None:
-            if not (isinstance(bbox, list) and len(bbox) == 4 and all(_finite(v) for v in bbox)) or min(bbox[2:]) < 0:
-                raise bad(f"bbox must be [x, y, w, h] with w, h ≥ 0, got {bbox!r}")
-            boxes[i] = bbox
-        else:
-            boxes[i] = mask_utils.toBbox(rles[-1])
+        boxes[row] = bbox if bbox is not None else mask_utils.toBbox(rles[-1])
         if posterior is not None:
-            posterior[i] = (_second_posterior(it["second_posterior"], bad) if has_post[i]
-                            else _coco_one_hot(it.get("category_id"), score, bad))
+            posterior[row] = (_second_posterior(it["second_posterior"], bad) if all_post
+                              else _coco_one_hot(it.get("category_id"), it["score"], bad))
     boxes[:, 2:] += boxes[:, :2]
-    order = np.argsort(-scores, kind="stable")
     return Proposals(
-        frame=frame,
-        rles=[rles[i] for i in order],
-        boxes=boxes[order].astype(np.float32),
-        objectness=scores[order].astype(np.float32),
-        posterior=None if posterior is None else posterior[order].astype(np.float32),
-        proposer=[name] * n,
+        frame=frame, rles=rles, boxes=boxes.astype(np.float32), objectness=scores.astype(np.float32),
+        posterior=None if posterior is None else posterior.astype(np.float32), proposer=[name] * n,
     )
+
+
+def _bounded_text(path: Path, frame: int, max_file_bytes: int) -> str:
+    """The file's text, refused above ``max_file_bytes`` before it is read."""
+    with path.open(encoding="utf-8") as f:
+        size = os.fstat(f.fileno()).st_size
+        if size > max_file_bytes:
+            raise InputError(f"{size} bytes, over proposals.json.max_file_bytes = {max_file_bytes}", path, frame)
+        text = f.read(max_file_bytes + 1)  # a file that grows, or is not a regular file, stops here too
+    if len(text) > max_file_bytes:
+        raise InputError(f"over proposals.json.max_file_bytes = {max_file_bytes}", path, frame)
+    return text
+
+
+def _best_elements(text: str, path: Path, frame: int, max_proposals: int) -> tuple[list[tuple[int, dict]], int, bool]:
+    """(the ``max_proposals`` best elements of the list ``text`` as (index, element), best
+    score first, ties in file order; the number of elements; whether they carry
+    ``second_posterior``). Each element is parsed on its own and only its score (which ranks
+    it) is checked here, so memory is the text and the kept elements."""
+    heap: list[tuple[float, int, dict]] = []  # (score, −index, element): the worst kept one on top
+    first_with = first_without = None  # elements with and without second_posterior
+    n = 0
+    for i, it in enumerate(_list_elements(text, path, frame)):
+        n = i + 1
+        if not isinstance(it, dict):
+            raise InputError(f"element {i}: expected an object, got {type(it).__name__}", path, frame)
+        if "second_posterior" in it:
+            first_with = i if first_with is None else first_with
+        elif first_without is None:
+            first_without = i
+        if first_with is not None and first_without is not None:
+            raise InputError(f"element {first_without}: no second_posterior where other elements have one",
+                             path, frame)
+        score = it.get("score")
+        if score.__class__ not in (int, float) or not 0.0 <= score <= 1.0:
+            raise InputError(f"element {i}: score must be a number in [0, 1], got {score!r}", path, frame)
+        if len(heap) < max_proposals:
+            heapq.heappush(heap, (score, -i, it))
+        elif (score, -i) > heap[0][:2]:
+            heapq.heapreplace(heap, (score, -i, it))
+    kept = [(-neg_i, it) for _, neg_i, it in sorted(heap, key=lambda e: e[:2], reverse=True)]
+    return kept, n, first_with is not None
+
+
+def _check_element(i: int, it: dict, first: tuple[int, dict] | None, image_size: tuple[int, int] | None,
+                   path: Path, frame: int) -> None:
+    """Check a kept element before its mask is decoded: the RLE (``mining.masks.rle_problem``),
+    its size against the image and against ``first`` (the first kept element), its bbox."""
+    def bad(reason: str) -> InputError:
+        return InputError(f"element {i}: {reason}", path, frame)
+
+    seg = it.get("segmentation")
+    if not (isinstance(seg, dict) and isinstance(seg.get("counts"), str) and isinstance(seg.get("size"), list)
+            and len(seg["size"]) == 2 and all(isinstance(v, int) and v > 0 for v in seg["size"])):
+        raise bad("segmentation must be a compressed COCO RLE {size: [h, w], counts: str}")
+    hw = tuple(seg["size"])
+    if first is None and image_size is not None and hw != (image_size[1], image_size[0]):
+        raise bad(f"mask size {hw[1]}×{hw[0]} differs from the image size {image_size[0]}×{image_size[1]}")
+    if first is not None and hw != tuple(first[1]["segmentation"]["size"]):
+        raise bad(f"mask size {hw} differs from element {first[0]}'s {tuple(first[1]['segmentation']['size'])}")
+    problem = rle_problem(hw[0], hw[1], seg["counts"])
+    if problem is not None:
+        raise bad(f"malformed segmentation ({problem})")
+    bbox = it.get("bbox")
+    if bbox is not None and (not (isinstance(bbox, list) and len(bbox) == 4 and all(_finite(v) for v in bbox))
+                             or min(bbox[2:]) < 0):
+        raise bad(f"bbox must be [x, y, w, h] with w, h ≥ 0, got {bbox!r}")
+
+
+_SPACE = re.compile(r"[ \t\n\r]*")  # JSON's whitespace
+_NEXT = re.compile(r"[ \t\n\r]*([,\]])[ \t\n\r]*")  # what follows a list element
+
+
+def _list_elements(text: str, path: Path, frame: int) -> Iterator:
+    """The elements of the JSON list ``text``, parsed one at a time by the standard library,
+    so that a file of many proposals never exists as one Python list."""
+    decoder = json.JSONDecoder()
+    i = _SPACE.match(text).end()
+    if not text.startswith("[", i):
+        value, _ = decoder.raw_decode(text, i)  # the JSONDecodeError of a file that is not JSON at all
+        raise InputError(f"expected a JSON list of proposals, got {type(value).__name__}", path, frame)
+    i = _SPACE.match(text, i + 1).end()
+    if text.startswith("]", i):
+        i += 1
+    else:
+        while True:
+            item, i = decoder.raw_decode(text, i)
+            yield item
+            sep = _NEXT.match(text, i)
+            if sep is None:
+                raise json.JSONDecodeError("Expecting ',' delimiter", text, _SPACE.match(text, i).end())
+            if sep.group(1) == "]":
+                i = sep.start(1) + 1
+                break
+            i = sep.end()
+    i = _SPACE.match(text, i).end()
+    if i != len(text):
+        raise json.JSONDecodeError("Extra data", text, i)
 
 
 def _finite(v) -> bool:
