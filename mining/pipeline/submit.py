@@ -48,7 +48,7 @@ from mining.config import JobConfig
 from mining.errors import ConfigError, InputError
 from mining.pipeline.executors import Executor, RayExecutor
 from mining.pipeline.failures import describe
-from mining.pipeline.localray import init_local_ray, prepare_local_ray
+from mining.pipeline.localray import exposure_line, init_local_ray, prepare_local_ray
 from mining.pipeline.preflight import Preflight, preflight
 from mining.pipeline.running import RunningMarkers
 from mining.pipeline.resume import read_resume
@@ -284,16 +284,19 @@ def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frame
 def mine_on_ray(cfg: JobConfig, out: str, sequences: list[str] | None = None,
                 frames: tuple[int, int | None] = (0, None), address: str | None = None,
                 workers: int | None = None, progress: bool = True, mode: str = "resume", verify: bool = False,
-                lock_wait: float = 0.0) -> Summary:
+                lock_wait: float = 0.0, bind_origin: str = "the job config") -> Summary:
     """``mine submit`` here: the steps on the running cluster at ``address`` (or
     ``RAY_ADDRESS``), which decides the CPUs, or else on a Ray of its own with ``workers``
     CPUs (never one that happens to run on this machine), listening on
-    ``cfg.run.bind_host`` only (``localray.py``). Ray starts only when there is work, and
-    is shut down at the end."""
+    ``cfg.run.bind_host`` only (``localray.py``; a bind beyond loopback is one line on
+    standard error, naming ``bind_origin``, where the setting came from). Ray starts only
+    when there is work, and is shut down at the end."""
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     address = address or os.environ.get("RAY_ADDRESS")
     if not address:
         prepare_local_ray(cfg.run.bind_host)  # before `import ray`; a bad --host fails before planning
+        if (line := exposure_line(cfg.run.bind_host, bind_origin)) is not None:
+            print(line, file=sys.stderr, flush=True)  # before planning: said even when the job then stops
     import ray
 
     started = []  # Ray is started (and so shut down) here at most once: see the docstring
