@@ -132,7 +132,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
                           bind_origin=bind_origin(args.host, args.set, args.config))
     for line in summary.lines():
         print(line)
-    return 1 if summary.failed or summary.unplanned else 0
+    return 1 if summary.any_failed else 0
 
 
 def cmd_status(args: argparse.Namespace) -> int:
