@@ -40,6 +40,7 @@ class Summary:
     sequences_written: int = 0
     classifiers: str = ""  # which proposers classified (proposals.make.classifiers_line)
     recomputed: dict[str, str] = field(default_factory=dict)  # window → why its observation cache did not read back
+    swept: list[str] = field(default_factory=list)  # temporary files an interrupted run left, removed by this one
 
     @property
     def any_failed(self) -> bool:
@@ -56,6 +57,9 @@ class Summary:
                f"time: {self.seconds:.1f} s in all, {self.mining_seconds:.1f} s mining: "
                f"{self.frames / max(self.mining_seconds, 1e-9):.2f} frames/s (core frames tracked / mining time, "
                f"as the bar)"]
+        if self.swept:
+            more = f" and {len(self.swept) - 1} more" if len(self.swept) > 1 else ""
+            out.append(f"swept {len(self.swept)} temporary file(s) an interrupted run left: {self.swept[0]}{more}")
         for w, e in sorted(self.failed.items()):
             out.append(f"FAILED {w}: {_headline(e)}")
         for seq, e in sorted(self.stitch_failed.items()):
