@@ -133,7 +133,7 @@ class Store:
                     continue  # absent, a file, or a link: none of our folders
             except FileNotFoundError:
                 continue
-            for where, dirs, names in os.walk(start, followlinks=False):
+            for where, _, names in os.walk(start, followlinks=False):
                 for name in names:
                     path = os.path.join(where, name)
                     if LEFTOVER.fullmatch(name) and stat.S_ISREG(os.lstat(path).st_mode):

@@ -65,20 +65,21 @@ def chain_sequence(frames: pa.Table) -> tuple[pa.Table, SequencePoses]:
 
 
 def schema_differences(schema: pa.Schema, reference: pa.Schema) -> list[str]:
-    """How ``schema`` differs from ``reference``, column by column (type, nullability, a
-    column missing or added, the order); empty when a table of it concatenates with one of
-    ``reference``."""
+    """How ``schema`` ("here") differs from ``reference`` ("there"), column by column (type,
+    nullability, a column missing or added, the order); empty when a table of it
+    concatenates with one of ``reference``."""
     ref = {f.name: f for f in reference}
     own = {f.name: f for f in schema}
-    out = [f"column {n} is missing" for n in ref if n not in own]
-    out += [f"column {n} is extra" for n in own if n not in ref]
+    out = [f"column {n} is missing here" for n in ref if n not in own]
+    out += [f"column {n} is only here" for n in own if n not in ref]
     for n, f in own.items():
         if n in ref and not f.type.equals(ref[n].type):
-            out.append(f"column {n} is {f.type}, not {ref[n].type}")
+            out.append(f"column {n} is {f.type} here, {ref[n].type} there")
         elif n in ref and f.nullable != ref[n].nullable:
-            out.append(f"column {n} is {'nullable' if f.nullable else 'not nullable'}, unlike the other")
+            out.append(f"column {n} is {'' if f.nullable else 'not '}nullable here, {'' if ref[n].nullable else 'not '}"
+                       "there")
     if not out and schema.names != reference.names:
-        out.append("its columns are in another order")
+        out.append("the columns are in another order")
     return out
 
 
@@ -100,7 +101,7 @@ def concat_parts(table: str, parts: list[tuple[str, pa.Table]]) -> pa.Table:
     if other_path == path:
         other_path, other = odd[0]
     diff = "; ".join(schema_differences(t.schema, other.schema))
-    raise InputError(f"this {table} part cannot be stitched with the others: {diff} (as in {other_path}); "
+    raise InputError(f"this {table} part cannot be stitched with the others (there: {other_path}): {diff}; "
                      "remove it and resubmit to run its window again", path)
 
 
