@@ -123,14 +123,16 @@ def cmd_submit(args: argparse.Namespace) -> int:
         return submit_ray_job(args.address, args.argv, args.out, wait=not args.no_wait)
     if args.no_wait:
         raise ConfigError("--no-wait needs --address http://HEAD:8265 (a job handed to a cluster through Ray Jobs)")
+    from mining.pipeline.localray import bind_origin
     from mining.pipeline.submit import mine_on_ray
 
     mode = "new" if args.new_run else "extend" if args.extend else "resume"
     summary = mine_on_ray(cfg, args.out, args.sequences, args.frames, address=args.address, workers=args.workers,
-                          progress=not args.no_progress, mode=mode, verify=args.verify, lock_wait=args.lock_wait)
+                          progress=not args.no_progress, mode=mode, verify=args.verify, lock_wait=args.lock_wait,
+                          bind_origin=bind_origin(args.host, args.set, args.config))
     for line in summary.lines():
         print(line)
-    return 1 if summary.failed or summary.unplanned else 0
+    return 1 if summary.any_failed else 0
 
 
 def cmd_status(args: argparse.Namespace) -> int:

@@ -152,7 +152,7 @@ def run_case(name: str, data: Path, models: Path) -> list[str]:
         cfg = load_config(str(REPO / "jobs" / "synthetic.toml"), ["source.options.n_frames=200"])
         with tempfile.TemporaryDirectory() as tmp:
             summary = run_job(cfg, tmp)
-            assert not summary.failed, summary.failed
+            assert not summary.failed and not getattr(summary, "stitch_failed", None), summary.lines()
             lines = []
             for table in ("tubes", "tube_frames", "frames"):
                 t = pq.read_table(Path(tmp) / "catalog" / table)

@@ -151,14 +151,29 @@ def test_crops_of_frames_the_source_lacks_fail_clearly(catalogue, tmp_path):
     assert run_export(str(cat), "selected", "crops", str(tmp_path / "c")) == 2
 
 
-def _with_a_malformed_mask(catalogue, cat):
-    """A copy of the catalogue at ``cat`` where one observed frame of a selected tube has RLE
-    counts whose runs do not cover the mask; that tube's id."""
+HUGE = 5700  # a 5700 × 5700 mask: 32.5 MP, under the viewer's 8K bound, but not the size of KITTI's frames
+
+
+def _huge_rle() -> tuple[str, int, int]:
+    """(counts, h, w) of a well-formed 5700 × 5700 RLE: a 100 × 100 square in an empty frame."""
+    runs = [0, 100] + [HUGE - 100, 100] * 99  # the top 100 pixels of the first 100 columns (column-major)
+    runs.append(HUGE * HUGE - sum(runs))
+    rle = mask_utils.frPyObjects({"size": [HUGE, HUGE], "counts": runs}, HUGE, HUGE)
+    return rle["counts"].decode(), HUGE, HUGE
+
+
+def _with_a_bad_mask(catalogue, cat, damage: str):
+    """A copy of the catalogue at ``cat`` where one observed frame of a selected tube has a bad
+    mask: ``malformed`` RLE counts whose runs do not cover the mask, or a well-formed ``5700²``
+    mask on KITTI's 1242 × 375 frames; that tube's id."""
     out, tables = catalogue
     selected = sorted(t["tube_id"] for t in tables["tubes"].to_pylist() if t["selected"])
     rows = tables["tube_frames"].to_pylist()
     bad = next(r for r in rows if r["tube_id"] == selected[0] and r["observed"])
-    bad["rle_counts"] = "0" + bad["rle_counts"]  # one more run: the runs no longer add up to H × W
+    if damage == "malformed":
+        bad["rle_counts"] = "0" + bad["rle_counts"]  # one more run: the runs no longer add up to H × W
+    else:
+        bad["rle_counts"], bad["rle_h"], bad["rle_w"] = _huge_rle()
     store = Store(cat)
     write_sequence(store, "tubes", DATASET, SEQUENCE, tables["tubes"])
     write_sequence(store, "tube_frames", DATASET, SEQUENCE, pa.Table.from_pylist(rows, schema=SCHEMAS["tube_frames"]))
@@ -166,24 +181,64 @@ def _with_a_malformed_mask(catalogue, cat):
     return selected[0]
 
 
-@pytest.mark.parametrize("fmt", ["crops", "kitti-mots", "youtube-vis", "tao", "render"])
-def test_a_malformed_mask_stops_export_and_render_in_one_line(catalogue, tmp_path, capsys, fmt):
-    """The catalogue's masks are checked as the viewer checks them before anything decodes them
-    (pycocotools trusts the runs): one line naming the tube and the table, exit 2, nothing written."""
+def _product(cat, fmt: str, dest, where: str = "selected") -> int:
     from mining.export.render import run_render
 
-    tube = _with_a_malformed_mask(catalogue, tmp_path / "cat")
-    dest = tmp_path / ("v.webm" if fmt == "render" else "dest")
     if fmt == "render":
-        code = run_render(str(tmp_path / "cat"), SEQUENCE, str(dest))
+        return run_render(str(cat), SEQUENCE, str(dest), where)
+    return run_export(str(cat), where, fmt, str(dest))
+
+
+def _files(dest) -> dict[str, bytes]:
+    """An export's files but its record (which names the predicate)."""
+    return {str(p.relative_to(dest)): p.read_bytes() for p in sorted(dest.rglob("*"))
+            if p.is_file() and p.name != ".mine-export.json"}
+
+
+@pytest.mark.parametrize("damage", ["malformed", "5700²"])
+@pytest.mark.parametrize("fmt", ["crops", "kitti-mots", "youtube-vis", "tao", "render"])
+def test_a_bad_mask_fails_only_its_tube_naming_it_and_the_table(catalogue, tmp_path, capsys, fmt, damage):
+    """The catalogue's masks are checked as the viewer checks them, before anything decodes them
+    (pycocotools trusts the runs): malformed runs, and the size against the sequence's frames
+    (the old code: a traceback in pycocotools, or a KITTI-MOTS broadcast error, or a 5700²
+    mask copied into the JSON). The bad tube is left out, named with the table in one line,
+    exit 1; the rest is written exactly as an export of the other tubes."""
+    cat = tmp_path / "cat"
+    tube = _with_a_bad_mask(catalogue, cat, damage)
+    name = (lambda k: f"{k}.webm") if fmt == "render" else (lambda k: k)
+    code = _product(cat, fmt, tmp_path / name("dest"))
+    out, err = capsys.readouterr()
+    err = [ln for ln in err.strip().splitlines() if "frames/s" not in ln]  # not render's progress
+    assert code == 1, (out, err)
+    assert len(err) == 1 and tube in err[0] and "tube_frames" in err[0], err
+    assert ("malformed" if damage == "malformed" else f"{HUGE}×{HUGE}") in err[0], err
+    assert "Traceback" not in err[0] and "left out" in err[0], err
+    # Written without the bad tube, as if it had not been asked for.
+    others = f"selected AND tube_id <> '{tube}'"
+    assert _product(cat, fmt, tmp_path / name("others"), others) == 0
+    if fmt == "render":
+        n = int(out.split(" tubes,")[0].rsplit(" ", 1)[1])
+        assert f" {n} tubes," in capsys.readouterr().out and (tmp_path / "dest.webm").stat().st_size > 0
     else:
-        code = run_export(str(tmp_path / "cat"), "selected", fmt, str(dest))
+        assert _files(tmp_path / "dest") == _files(tmp_path / "others") and _files(tmp_path / "dest")
+        assert tube.encode() not in b"".join(_files(tmp_path / "dest").values()) or fmt == "kitti-mots"
+    # Only the bad tube asked for: nothing to write, exit 2, one line, nothing written.
+    capsys.readouterr()
+    assert _product(cat, fmt, tmp_path / name("only"), f"tube_id = '{tube}'") == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert code == 2
-    assert len(err) == 1 and tube in err[0] and "tube_frames" in err[0] and "malformed" in err[0], err
-    assert "Traceback" not in err[0]
-    assert not dest.exists() or not list(dest.iterdir()), "nothing written"
-    assert sorted(p.name for p in tmp_path.iterdir()) == (["cat"] if fmt == "render" else ["cat", "dest"])
+    assert len(err) == 1 and tube in err[0] and "tube_frames" in err[0] and "Traceback" not in err[0], err
+    assert not (tmp_path / name("only")).exists() or not list((tmp_path / "only").iterdir()), "nothing written"
+
+
+def test_a_mask_larger_than_any_frame_is_refused_before_decoding():
+    """A mask over an 8K frame's pixels is malformed whatever the frame (the viewer's bound)."""
+    from mining.catalog.rows import BadMask, mask_rle
+
+    n = 60000  # 3.6 · 10⁹ pixels: a 3.6 GB decode
+    counts = mask_utils.frPyObjects({"size": [n, n], "counts": [n * n]}, n, n)["counts"].decode()
+    row = {"tube_id": "t", "frame": 0, "rle_h": n, "rle_w": n, "rle_counts": counts}
+    with pytest.raises(BadMask, match="MP"):
+        mask_rle(row)
 
 
 def test_bad_predicates(catalogue, tmp_path, capsys):

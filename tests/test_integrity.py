@@ -281,3 +281,51 @@ def test_the_viewer_refuses_a_damaged_table(base_catalogue, tmp_path):
     cat = CatalogueBrowser(out)
     with pytest.raises(Exception, match="sha256"):
         cat.con.sql("SELECT max(size[1]) FROM tubes").fetchall()
+
+
+def test_temporary_files_a_kill_left_are_reported_by_status_and_swept_by_the_next_submit(base_catalogue, tmp_path,
+                                                                                         capsys):
+    """A whole-session kill during the first stitch leaves ``.part-0.parquet.tmp-<hex>`` (the name
+    the safe write path stages under); before, nothing removed it and ``mine status`` did not
+    mention it. Now status counts and names it without removing it, and the next submit removes
+    exactly such files in the job's own folders, saying so in one line: not a name of another
+    pattern, not a link (nor what it points to), nothing outside the job's folders."""
+    out = copy_of(base_catalogue, tmp_path / "out")
+    stray = out / f"catalog/tube_frames/{D}/.part-0.parquet.tmp-0123456789ab"
+    stray.write_bytes((out / TUBE_FRAMES).read_bytes()[:100])
+    cache_stray = out / "_cache" / ".x.npz.zst.tmp-abcdefabcdef"
+    cache_stray.parent.mkdir(exist_ok=True)
+    cache_stray.write_bytes(b"half")
+    root_stray = out / ".job.json.tmp-00aa00aa00aa"
+    root_stray.write_bytes(b"{")
+    elsewhere = tmp_path / "elsewhere.txt"
+    elsewhere.write_text("not the catalogue's\n")
+    keep = [out / f"catalog/tube_frames/{D}/.part-0.parquet.tmp-notahexname",  # not the pattern
+            out / f"catalog/tubes/{D}/notes.tmp-0123456789ab",  # no leading dot: not a staged name
+            out / "_replaced" / ".part-0.parquet.tmp-0123456789ab"]  # not a folder the job writes
+    for p in keep:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_bytes(b"keep")
+    link = out / f"catalog/frames/{D}/.part-0.parquet.tmp-ffffffffffff"
+    link.symlink_to(elsewhere)
+
+    rc, text = cli_status(capsys, out)
+    assert rc == 0, text  # readers skip them: not damage
+    said = [ln for ln in text.splitlines() if ln.startswith("temporary files:")]
+    assert len(said) == 1 and said[0].startswith("temporary files: 3 left by unfinished writes"), text
+    assert str(root_stray) in said[0] or str(cache_stray) in said[0] or str(stray) in said[0], said
+    assert stray.exists() and cache_stray.exists() and root_stray.exists(), "status removes nothing"
+
+    s = mine(out)
+    swept = [ln for ln in s.lines() if ln.startswith("swept")]
+    assert len(swept) == 1 and swept[0].startswith("swept 3 temporary file(s) an interrupted run left: "), s.lines()
+    assert sorted(s.swept) == sorted(str(p) for p in (stray, cache_stray, root_stray)), s.swept
+    assert not stray.exists() and not cache_stray.exists() and not root_stray.exists()
+    assert all(p.read_bytes() == b"keep" for p in keep)
+    assert link.is_symlink() and elsewhere.read_text() == "not the catalogue's\n"
+    assert tables(out) == base_catalogue[1]
+
+    link.unlink()
+    rc, text = cli_status(capsys, out)
+    assert rc == 0 and "temporary files:" not in text, text
+    assert not [ln for ln in mine(out).lines() if ln.startswith("swept")], "nothing left to sweep"

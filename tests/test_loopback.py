@@ -110,3 +110,39 @@ def test_infra_names_no_open_interface_without_saying_what_protects_it():
     readme = (REPO / "infra" / "README.md").read_text()
     for how in ("ray dashboard", "kubectl port-forward", "NetworkPolicy"):
         assert how in readme, how
+
+
+def _refused_submit(capsys, tmp_path: Path, *args: str) -> str:
+    """Standard error of a real ``mine submit`` (in this process) whose preflight refuses the
+    job (its --out is a plain file), so that no Ray starts."""
+    from _jobs import SYNTHETIC
+    from _run import cli
+
+    out = tmp_path / "not-a-folder"
+    out.write_text("a file, not a catalogue\n")
+    rc, stdout, stderr = cli(capsys, "submit", *SYNTHETIC, *args, "--out", str(out), "--workers", "1",
+                             "--no-progress")
+    assert rc == 2 and "windows:" not in stdout, (rc, stdout, stderr)
+    assert "Traceback" not in stderr, stderr
+    return stderr
+
+
+def _exposure_lines(stderr: str) -> list[str]:
+    return [ln for ln in stderr.splitlines() if "unauthenticated" in ln]
+
+
+def test_a_bind_beyond_loopback_is_one_line_naming_the_interface_and_where_it_came_from(tmp_path, capsys):
+    job_file = tmp_path / "someone-elses.toml"
+    job_file.write_text('[run]\nbind_host = "0.0.0.0"\n')
+    cases = [(("--host", "0.0.0.0"), "0.0.0.0", "--host"),
+             (("--config", str(job_file)), "0.0.0.0", str(job_file)),
+             (("--set", "run.bind_host=10.1.2.3"), "10.1.2.3", "--set run.bind_host=10.1.2.3"),
+             (("--config", str(job_file), "--host", "192.168.7.7"), "192.168.7.7", "--host")]
+    for args, interface, origin in cases:
+        lines = _exposure_lines(_refused_submit(capsys, tmp_path, *args))
+        assert len(lines) == 1, (args, lines)
+        assert interface in lines[0] and origin in lines[0] and "Ray" in lines[0], (args, lines[0])
+    assert "every interface" in _exposure_lines(_refused_submit(capsys, tmp_path, "--host", "0.0.0.0"))[0]
+    # Loopback (the default, or named) says nothing.
+    for args in [(), ("--host", "127.0.0.1"), ("--set", 'run.bind_host="::1"')]:
+        assert not _exposure_lines(_refused_submit(capsys, tmp_path, *args)), args

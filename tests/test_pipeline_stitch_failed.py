@@ -98,3 +98,43 @@ def test_a_failed_stitch_is_a_manifest_row_that_status_shows(tmp_path):
     assert not (out / "manifest" / SEQ / "stitch.parquet").exists()
     rc, shown = status(out)
     assert rc == 0 and "1 stitched, 0 failed to stitch" in shown, shown
+
+
+def test_a_part_of_another_schema_fails_the_stitch_alone_naming_the_file_and_the_column(base_catalogue, tmp_path,
+                                                                                          capsys):
+    """A window's tube_frames part whose ``frame`` column is int64 (another writer's, or planted;
+    its integrity record made to match, so resume trusts it) and the sequence's marker gone:
+    the resubmission stitches again, and that stitch fails. The summary counts the stitch apart
+    from the windows (before: ``windows: 0 ok, 1 failed, 2 already done (of 2)``) and names the
+    part file and the column (before: ``ArrowInvalid: Schema at index 1 was different``), as
+    does ``mine status``."""
+    from _jobs import copy_of, mine
+    from _run import cli_status
+
+    from mining.catalog.integrity import window_files
+    from mining.catalog.layout import JobRecord, done_path
+
+    out = copy_of(base_catalogue, tmp_path / "cat")
+    store = Store(str(out))
+    window = JobRecord.load(store).windows[1]
+    rel = part_path("tube_frames", window.dataset, window.sequence, window.name)
+    part = pq.read_table(out / rel)
+    i = part.schema.get_field_index("frame")
+    pq.write_table(part.set_column(i, pa.field("frame", pa.int64(), False), part.column(i).cast(pa.int64())), out / rel)
+    window_files(store, window).save(store)  # the record vouches for the new file: only the stitch can see it
+    store.remove(done_path(window.dataset, window.sequence))
+
+    s = mine(out)
+    lines = s.lines()
+    assert lines[0] == "windows: 0 ok, 0 failed, 2 already done (of 2); stitch: 1 failed", lines
+    assert not s.failed and list(s.stitch_failed) == ["synthetic/0000"], lines
+    failed = [ln for ln in lines if ln.startswith("FAILED")]
+    assert len(failed) == 1 and failed[0].startswith(
+        f"FAILED synthetic/0000 (stitching): finalize step raised InputError: file {store.full(rel)}: "), failed
+    assert "column frame is int64 here, int32 there" in failed[0] and "ArrowInvalid" not in failed[0], failed
+
+    rc, shown = cli_status(capsys, out)
+    assert rc == 1, shown
+    assert "2 windows: 2 done, 0 failed, 0 pending" in shown and "0 stitched, 1 failed to stitch" in shown, shown
+    stitch = [ln for ln in shown.splitlines() if "stitching" in ln]
+    assert len(stitch) == 1 and store.full(rel) in stitch[0] and "column frame is int64" in stitch[0], shown

@@ -216,7 +216,7 @@ def measure_run_here(cfg: JobConfig, out: str | Path, workers: int) -> dict[str,
             summary = mine_job(cfg, str(out), executor=lambda job: RayExecutor(job, workers), keep_cache=True)
     finally:
         ray.shutdown()
-    if summary.failed:
+    if summary.failed or summary.stitch_failed:
         raise RuntimeError(f"bench job failed: {summary.lines()}")
     rows = _window_rows(out)
     step_s = sum((r["seconds_observe"] or 0.0) + (r["seconds_tubes"] or 0.0) for r in rows)

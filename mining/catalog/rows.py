@@ -8,8 +8,9 @@ the sequence); ``frames_row`` is a frame's row of a window's ``frames`` part. De
 Masks: ``mask_rle`` and ``decode_mask`` are the one reader of a ``tube_frames`` row's mask
 for export, render and the viewer. pycocotools trusts an RLE's runs, so they are checked
 first (non-negative, covering exactly H × W pixels) and, given the frame the mask is drawn
-on, its size against the frame's: a bad row is a ``BadMask`` naming the tube, the frame and
-the table, never a crash inside the decoder or a mask of garbage.
+on, its size against the frame's; a mask over ``MAX_MASK_PIXELS`` is malformed whatever the
+frame. A bad row is a ``BadMask`` naming the tube, the frame and the table, never a crash
+inside the decoder, a mask of garbage or gigabytes allocated.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from mining.masks import rle_problem
 from mining.types import MinedTube, TubeFrame
 
 MASK_TABLE = "tube_frames"  # the table whose rows carry the masks
+MAX_MASK_PIXELS = 7680 * 4320  # ours: an 8K UHD frame (KITTI's is 0.47 MP); a larger mask is never decoded
 
 
 @dataclass(frozen=True)
@@ -154,8 +156,12 @@ class BadMask(InputError):
 
 def mask_problem(row: dict) -> str | None:
     """Why a ``tube_frames`` row's RLE (``rle_h``, ``rle_w``, ``rle_counts``) is malformed, or
-    None (``mining.masks.rle_problem``: its size positive, its runs covering exactly H × W)."""
-    return rle_problem(row["rle_h"], row["rle_w"], row["rle_counts"])
+    None: its size at most MAX_MASK_PIXELS, then ``mining.masks.rle_problem`` (its size positive, its runs
+    covering exactly H × W pixels)."""
+    h, w = row["rle_h"], row["rle_w"]
+    if isinstance(h, int) and isinstance(w, int) and h > 0 and w > 0 and h * w > MAX_MASK_PIXELS:
+        return f"its size {w}x{h} ({h * w / 1e6:.0f} MP) is over the {MAX_MASK_PIXELS / 1e6:.1f} MP of an 8K frame"
+    return rle_problem(h, w, row["rle_counts"])
 
 
 def mask_rle(row: dict, shape: tuple[int, int] | None = None, path: str | None = None) -> dict:

@@ -14,6 +14,10 @@ but a single object appears only once its upload completes, so the copy that ``m
 does there is just as invisible while in flight. A write that fails (a full disk…) raises
 ``safe_files.WriteError`` naming the file; the file it would have replaced is untouched.
 
+A kill between a write's two halves leaves its temporary file; ``temporaries`` finds those
+(the exact names writes make, ``LEFTOVER``: plain files only, no link followed) for ``mine
+status`` to report and the next ``mine submit`` to remove.
+
 ``write_sequence`` compacts one table of one sequence into few large, sorted Parquet
 files under ``catalog/<table>/dataset=D/sequence=S/part-<k>.parquet``. Which path holds
 what is ``layout.py``'s; this module only reads and writes.
@@ -21,8 +25,12 @@ what is ``layout.py``'s; this module only reads and writes.
 
 from __future__ import annotations
 
+import os
 import posixpath
+import re
+import stat
 import uuid
+from collections.abc import Iterable
 from pathlib import Path
 
 import pyarrow as pa
@@ -31,7 +39,7 @@ import pyarrow.fs as pafs
 import pyarrow.parquet as pq
 
 from mining.catalog import safe_files
-from mining.catalog.layout import catalog_dir, catalog_file
+from mining.catalog.layout import JOB, JOB_ENTRIES, RUNNING, catalog_dir, catalog_file
 from mining.catalog.safe_files import TMP_MARK, write_error
 from mining.catalog.schema import PARTITION, file_schema
 from mining.errors import InputError
@@ -47,6 +55,11 @@ SORT_KEYS = {
     "frames": [("frame", "ascending")],
     "windows": [("window", "ascending")],
 }
+
+
+# The temporary name of a write (``safe_files.stage``, ``Store._temporary``): ".<name>.tmp-" and 12 hex digits.
+LEFTOVER = re.compile(rf"\..+{re.escape(TMP_MARK)}[0-9a-f]{{12}}")
+OWN_FOLDERS = (*(e for e in JOB_ENTRIES if e != JOB), RUNNING)  # what a job writes below --out's root
 
 
 def is_temporary(name: str) -> bool:
@@ -95,6 +108,36 @@ class Store:
             if info.type != pafs.FileType.File or not info.base_name.endswith(suffix) or is_temporary(info.base_name):
                 continue
             out.append(posixpath.relpath(info.path, self.root))
+        return sorted(out)
+
+    def temporaries(self, folders: Iterable[str] = OWN_FOLDERS) -> list[str]:
+        """The temporary files of unfinished writes (``LEFTOVER`` names) in the root and
+        under ``folders`` (recursive; default: the job's own), sorted. Plain files only, and
+        no link is followed: a folder that is a link is not entered, a link with such a name
+        is not one."""
+        if not self.root_exists():
+            return []
+        if not self.local:
+            infos = self.fs.get_file_info(pafs.FileSelector(self.root, allow_not_found=True))
+            for f in folders:
+                infos += self.fs.get_file_info(pafs.FileSelector(self.full(f), recursive=True, allow_not_found=True))
+            return sorted(posixpath.relpath(i.path, self.root) for i in infos
+                          if i.type == pafs.FileType.File and LEFTOVER.fullmatch(i.base_name))
+        out = []
+        with os.scandir(self.root) as top:
+            out += [e.name for e in top if e.is_file(follow_symlinks=False) and LEFTOVER.fullmatch(e.name)]
+        for f in folders:
+            start = self.full(f)
+            try:
+                if not stat.S_ISDIR(os.lstat(start).st_mode):
+                    continue  # absent, a file, or a link: none of our folders
+            except FileNotFoundError:
+                continue
+            for where, _, names in os.walk(start, followlinks=False):
+                for name in names:
+                    path = os.path.join(where, name)
+                    if LEFTOVER.fullmatch(name) and stat.S_ISREG(os.lstat(path).st_mode):
+                        out.append(posixpath.relpath(path, self.root))
         return sorted(out)
 
     # -- reads ---------------------------------------------------------------------

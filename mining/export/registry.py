@@ -22,6 +22,7 @@ class ExportFormat:
     writer: str  # its writing function
     items: str  # what the count a writer returns counts (the command's summary line)
     options: tuple[str, ...] = ()  # keyword options beyond the rows: margin (crops); images, video_frames (videos)
+    masks: bool = True  # the format writes or reads the masks: a tube with a bad one is left out (selection.py)
 
     @property
     def video(self) -> bool:
@@ -34,7 +35,7 @@ class ExportFormat:
 
 
 FORMATS: dict[str, ExportFormat] = {f.name: f for f in (
-    ExportFormat("kitti", "kitti", "export_kitti", "rows"),
+    ExportFormat("kitti", "kitti", "export_kitti", "rows", masks=False),  # boxes only: masks are not read
     ExportFormat("kitti-mots", "kitti", "export_kitti_mots", "masks"),
     ExportFormat("crops", "crops", "export_crops", "crops", ("margin",)),
     ExportFormat("youtube-vis", "video_json", "export_youtube_vis", "tube annotations", ("images", "video_frames")),

@@ -17,8 +17,10 @@ The painter is ``mining/draw.py`` (the viewer's too); the container and codec ar
 ``video.py``'s (``.mp4``: H.264 with PyAV, ``.webm``: VP8), and the written file is read back
 before the command reports success. DEST follows ``dest.py``'s rules for a file: replaced
 only with ``--overwrite`` and only when it is a plain file; written in a private folder beside
-it and moved on; a failed render leaves DEST as it was. A mask that is malformed or of
-another size than its frame stops the render naming the tube.
+it and moved on; a failed render leaves DEST as it was. A bad tube fails only itself: one
+whose ``tube_frames`` rows hold a malformed mask, or one of another size than the
+sequence's frames (its calibration), is not drawn, and is named with the table in one line
+(exit 1); when no selected tube is left, nothing is written (exit 2).
 """
 
 from __future__ import annotations
@@ -39,7 +41,8 @@ from mining.catalog.views import connect, sql_string
 from mining.draw import FONT, Drawn, caption, draw_tubes, tube_colours
 from mining.errors import InputError, MiningError, NothingMatched
 from mining.export.dest import check_file, publish_file
-from mining.export.selection import category_label, job_source, read_job, selected_rows
+from mining.export.selection import (category_label, job_source, left_out_line, read_job, selected_rows,
+                                     without_bad_masks)
 from mining.export.video import check_container, check_video, codec_note, open_video
 from mining.names import check_name
 from mining.progress import Ticker
@@ -113,6 +116,7 @@ class RenderResult:
     codec: str  # h264, avc1, mp4v or VP80
     fps: float
     seconds: float
+    left_out: dict[str, str]  # tubes not drawn for a bad mask: tube id → why
 
 
 def check_dest(dest: Path, overwrite: bool) -> None:
@@ -175,6 +179,10 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
         raise InputError(f"--frames {start}:{stop} holds no frame of {sequence!r} (the plan has {len(plan)})")
     plan = source.plan(sequence, start, stop)  # refuses a frame in the range the source cannot read
     fps = fps or _fps(plan.t_ns[start:stop])
+    h, w = plan.calib.height, plan.calib.width
+    tubes, tube_frames, left_out = without_bad_masks(tubes, tube_frames, lambda d, s: (h, w))
+    tube_rows = [t for t in tube_rows if t["tube_id"] not in left_out]
+    keep = {t["tube_id"] for t in tube_rows}  # not empty: without_bad_masks refuses when no tube is left
 
     colours = tube_colours(list(keep))
     info = {t["tube_id"]: (f"{short_id(t['tube_id'])} {category_label(t)}", colours[t["tube_id"]]) for t in tube_rows}
@@ -189,7 +197,6 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
 
         matcher, far = StereoMatcher(job.geometry.stereo), job.geometry.stereo.max_depth_m
 
-    h, w = plan.calib.height, plan.calib.width
     # 4:2:0 video needs even sides: an odd one gets a black row / column (KITTI's 375 rows → 376).
     width = 2 * w if depth else w
     size = (width + width % 2, h + h % 2)
@@ -235,13 +242,15 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
         return writer.codec
 
     codec = publish_file(dest, overwrite, write)
-    return RenderResult(dest, stop - start, len(drawn), size[0], size[1], codec, fps, time.perf_counter() - t0)
+    return RenderResult(dest, stop - start, len(drawn), size[0], size[1], codec, fps, time.perf_counter() - t0,
+                        left_out)
 
 
 def run_render(out: str | Path, sequence: str, dest: str | Path, where: str | None = None, depth: bool = False,
                fps: float | None = None, frames: tuple[int, int | None] | None = None, overwrite: bool = False) -> int:
-    """`mine render`: 0 on success; NothingMatched (``cli.main``: exit 1) when no tube matches; 2 with a
-    message otherwise."""
+    """`mine render`: 0 on success; 1 when tubes with a bad mask were left out (one line on
+    standard error names them); NothingMatched (``cli.main``: exit 1) when no tube matches; 2
+    with a message otherwise."""
     try:
         r = render(out, sequence, dest, where, depth, fps, frames, overwrite=overwrite)
     except (MiningError, duckdb.Error) as e:
@@ -252,4 +261,7 @@ def run_render(out: str | Path, sequence: str, dest: str | Path, where: str | No
         return 2
     print(f"mine render: {r.frames} frames, {r.tubes} tubes, {r.width}×{r.height} {r.codec} at {r.fps:g} fps → "
           f"{r.dest} ({r.seconds:.1f} s){codec_note(r.codec)}")
+    if r.left_out:
+        print(f"mine render: {left_out_line(r.left_out, str(r.dest))}", file=sys.stderr)
+        return 1
     return 0

@@ -10,6 +10,12 @@ export's (its record names what is replaced); the writer fills a private folder 
 moved in only when it has finished. A predicate that matches no tube writes and removes
 nothing and exits 1.
 
+A bad tube fails only itself: a tube whose ``tube_frames`` rows hold a malformed mask, or one
+of another size than the sequence's frames (``selection.without_bad_masks``), is left out of
+every format that writes masks (``kitti`` writes boxes only), named with the table in one
+line on standard error and in DEST's record (``left_out``); the others are written and the
+command exits 1. When every tube asked for is bad, nothing is written (exit 2).
+
 Names read from the catalogue are data: the dataset and sequence names and the tube ids
 must pass ``mining/names.py`` before a file name is made from them, two tubes may not
 share a folder, and every file written must resolve inside DEST.
@@ -27,12 +33,16 @@ from mining.catalog.views import connect
 from mining.errors import InputError, MiningError, NothingMatched
 from mining.export.dest import check_folder, publish_folder
 from mining.export.registry import FORMATS, VIDEO_FORMATS
-from mining.export.selection import mined_frames, read_job, selected_rows
+from mining.export.selection import (frame_sizes, left_out_line, mined_frames, read_job, selected_rows,
+                                     without_bad_masks)
+
+LEFT_OUT = 1  # exit status: written, but tubes with a bad mask were left out (as `mine submit` with a failed window)
 
 
 def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: float | None = None,
-           images: bool = False, overwrite: bool = False) -> tuple[int, int]:
-    """Export the tubes of catalogue ``out`` matching ``where``; (tubes, items written).
+           images: bool = False, overwrite: bool = False) -> tuple[int, int, dict[str, str]]:
+    """Export the tubes of catalogue ``out`` matching ``where``; (tubes, items written, tubes
+    left out for a bad mask: tube id → why).
 
     DEST must be empty (or absent); with ``overwrite`` the entries an earlier export
     recorded in DEST's record are replaced (nothing else in DEST, nothing outside it), once
@@ -56,28 +66,34 @@ def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: floa
     con = connect(out)
     try:
         tubes, frames = selected_rows(con, where)
+        if not tubes.num_rows:
+            raise NothingMatched(f"no tube matches --where {where!r}; nothing written")
+        left_out: dict[str, str] = {}
+        if form.masks:
+            sizes = frame_sizes(con, tubes)
+            tubes, frames, left_out = without_bad_masks(tubes, frames, lambda d, s: sizes.get((d, s)))
         if form.video:
             options["video_frames"] = mined_frames(con, tubes)
     finally:
         con.close()
-    if not tubes.num_rows:
-        raise NothingMatched(f"no tube matches --where {where!r}; nothing written")
     write = form.load()
 
     def record(n: int) -> dict:
         return {"format": fmt, "catalogue": str(out), "where": where, "tubes": tubes.num_rows, "items": n,
-                "options": {k: v for k, v in options.items() if k != "video_frames"}}
+                "options": {k: v for k, v in options.items() if k != "video_frames"}} | (
+                    {"left_out": left_out} if left_out else {})
 
     n = publish_folder(dest, replaced, lambda staging: write(tubes, frames, job, staging, **options), record)
-    return tubes.num_rows, n
+    return tubes.num_rows, n, left_out
 
 
 def run_export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: float | None = None,
                images: bool = False, overwrite: bool = False) -> int:
-    """`mine export`: 0 on success; NothingMatched (``cli.main``: exit 1) when no tube matches; 2 with a
-    message on standard error otherwise."""
+    """`mine export`: 0 on success; LEFT_OUT (1) when tubes with a bad mask were left out (one
+    line on standard error names them); NothingMatched (``cli.main``: exit 1) when no tube
+    matches; 2 with a message on standard error otherwise."""
     try:
-        n_tubes, n_items = export(out, where, fmt, dest, margin, images, overwrite)
+        n_tubes, n_items, left_out = export(out, where, fmt, dest, margin, images, overwrite)
     except (MiningError, duckdb.Error) as e:
         print(f"mine export: {e}", file=sys.stderr)
         return 2
@@ -85,4 +101,7 @@ def run_export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: 
         print(f"mine export: {safe_files.write_error(e, e.filename or dest)}", file=sys.stderr)
         return 2
     print(f"mine export: {n_tubes} tubes, {n_items} {FORMATS[fmt].items} → {dest}")
+    if left_out:
+        print(f"mine export: {left_out_line(left_out, str(dest))}", file=sys.stderr)
+        return LEFT_OUT
     return 0

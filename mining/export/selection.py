@@ -7,19 +7,26 @@ selects, and the groupings the formats share.
 * ``selected_rows`` — (tubes, tube_frames) of the tubes matching a ``--where`` predicate,
   through the read-only checks of ``catalog/views.py``; ``mined_frames`` — the frames the
   catalogue mined per sequence (the videos of YouTube-VIS and TAO).
+* ``frame_sizes`` and ``without_bad_masks`` — a bad tube fails only itself: a tube with a
+  ``tube_frames`` row whose mask is malformed or not of its frames' size (``rows.mask_rle``)
+  is left out of what is written and named (``left_out_line``); when every tube asked for
+  is bad, nothing is written.
 * ``by_sequence``, ``frames_by_tube``, ``category_label``, ``frame_digits`` — the groupings
   and names the formats share.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import duckdb
 import pyarrow as pa
+import pyarrow.compute as pc
 
 from mining.catalog.layout import JOB, JobRecord
 from mining.catalog.predicate import tubes_query
+from mining.catalog.rows import MASK_TABLE, BadMask, mask_rle
 from mining.catalog.store import Store
 from mining.catalog.views import execute_read_only
 from mining.config import ExportConfig, JobConfig
@@ -80,6 +87,73 @@ def mined_frames(con: duckdb.DuckDBPyConnection, tubes: pa.Table) -> dict[tuple[
         if (d, s) in seqs:
             out.setdefault((d, s), []).append(f)
     return out
+
+
+def frame_sizes(con: duckdb.DuckDBPyConnection, tubes: pa.Table) -> dict[tuple[str, str], tuple[int, int]]:
+    """The catalogue's frame size (height, width) per (dataset, sequence) of ``tubes``: the
+    size most of the sequence's masks share, over all its ``tube_frames`` rows (the catalogue
+    records no image size; every mask of a sequence is drawn on its frames)."""
+    seqs = {(d, s) for d, s in zip(tubes.column("dataset").to_pylist(), tubes.column("sequence").to_pylist())}
+    counted: dict[tuple[str, str], tuple[int, int, int]] = {}
+    try:
+        rows = con.execute(f"SELECT dataset, sequence, rle_h, rle_w, count(*) FROM {MASK_TABLE} "
+                           "GROUP BY ALL ORDER BY ALL").fetchall()
+    except duckdb.Error as e:  # a damaged file (the message names it)
+        raise InputError(f"cannot read the catalogue: {e}") from None
+    for d, s, h, w, n in rows:
+        if (d, s) in seqs and n > counted.get((d, s), (0, 0, 0))[0]:
+            counted[(d, s)] = (n, h, w)
+    return {k: (h, w) for k, (_, h, w) in counted.items()}
+
+
+def _fault(e: BadMask, row: dict, size: tuple[int, int] | None) -> str:
+    """Why a row's mask cannot be drawn, in a few words: the frame and the size or problem."""
+    if e.mismatch and size is not None:
+        return f"frame {row['frame']}: a {row['rle_h']}×{row['rle_w']} mask on the sequence's {size[0]}×{size[1]} frames"
+    return f"frame {row['frame']}: a malformed mask ({e.problem})"
+
+
+def without_bad_masks(tubes: pa.Table, frames: pa.Table,
+                      size_of: Callable[[str, str], tuple[int, int] | None]) -> tuple[pa.Table, pa.Table, dict[str, str]]:
+    """(tubes, tube_frames, left out) without the tubes that have a ``tube_frames`` row whose
+    mask is malformed or, against ``size_of(dataset, sequence)`` (height, width; None: not
+    compared), of another size; left out: tube id → why (its first bad row). An InputError
+    naming them when no tube is left: nothing is then written."""
+    left_out: dict[str, str] = {}
+    for row in frames.to_pylist():
+        tube = row["tube_id"]
+        if tube in left_out:
+            continue
+        size = size_of(row["dataset"], row["sequence"])
+        try:
+            mask_rle(row, size)
+        except BadMask as e:
+            left_out[tube] = _fault(e, row, size)
+    if not left_out:
+        return tubes, frames, left_out
+    bad = pa.array(sorted(left_out), pa.string())
+    tubes = tubes.filter(pc.invert(pc.is_in(tubes.column("tube_id"), bad)))
+    frames = frames.filter(pc.invert(pc.is_in(frames.column("tube_id"), bad)))
+    if not tubes.num_rows:
+        raise InputError(f"{_bad_tubes(left_out)}: no tube is left to write; nothing written")
+    return tubes, frames, left_out
+
+
+LEFT_OUT_SHOWN = 5  # ours: tubes a left-out line names one by one (then "and N more")
+
+
+def _bad_tubes(left_out: dict[str, str]) -> str:
+    names = [f"{t} ({why})" for t, why in sorted(left_out.items())[:LEFT_OUT_SHOWN]]
+    more = len(left_out) - len(names)
+    tubes = "tube" if len(left_out) == 1 else "tubes"
+    return (f"{len(left_out)} {tubes} with a bad mask in the {MASK_TABLE} table: {'; '.join(names)}"
+            + (f"; and {more} more" if more else ""))
+
+
+def left_out_line(left_out: dict[str, str], written: str) -> str:
+    """The one line that says which tubes were left out of ``written`` (what the rest went to)
+    and why."""
+    return f"left out {_bad_tubes(left_out)}; the other tubes are written to {written}"
 
 
 def category_label(tube: dict) -> str:

@@ -10,6 +10,8 @@ loopback, and Ray's single-host mode (``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0``, i
 default on Windows and macOS) keeps Ray from swapping 127.0.0.1 for the host's address
 and binds every server to the node address. ``run.bind_host`` (``mine submit --host``)
 names another interface for a user who wants one; ``0.0.0.0`` means Ray's own choice.
+Such a bind is said out loud: ``exposure_line`` is the one line ``mine submit`` prints on
+standard error, naming the interface and where the setting came from (``bind_origin``).
 
 The mode is read when ``ray`` is first imported, so it is set before that; a process
 that imported Ray earlier in cluster mode gets a ConfigError rather than open ports.
@@ -22,6 +24,7 @@ import ipaddress
 import os
 from typing import Any
 
+from mining.config import parse_override
 from mining.errors import ConfigError
 
 LOOPBACK = "127.0.0.1"  # ours: the default of run.bind_host
@@ -34,6 +37,28 @@ def _is_loopback(host: str) -> bool:
         return ipaddress.ip_address(host).is_loopback
     except ValueError:
         raise ConfigError(f"run.bind_host must be an IP address (e.g. {LOOPBACK}), got {host!r}") from None
+
+
+def bind_origin(host_flag: str | None, sets: list[str], config: str | None) -> str:
+    """Where ``run.bind_host`` came from, in the words of the command line: the ``--host``
+    flag, else the last ``--set`` that names it (``run.bind_host=…`` or ``run={bind_host=…}``),
+    else the job file, else the default."""
+    if host_flag:
+        return "the --host flag"
+    named = [s for s in sets if "bind_host" in (parse_override(s).get("run") or {})]
+    if named:
+        return f"--set {named[-1]}"
+    return f"the job file {config}" if config else "the default run.bind_host"
+
+
+def exposure_line(bind_host: str, origin: str) -> str | None:
+    """The one warning of a bind beyond loopback (None on loopback): the interface, where
+    the setting came from, and what it exposes."""
+    if _is_loopback(bind_host):
+        return None
+    where = "every interface" if ipaddress.ip_address(bind_host).is_unspecified else "a non-loopback interface"
+    return (f"mine submit: Ray will listen on {bind_host} ({where}; run.bind_host from {origin}): Ray's ports run "
+            "code unauthenticated for anyone who can reach them; use it only on a network you trust")
 
 
 def prepare_local_ray(bind_host: str = LOOPBACK) -> bool:

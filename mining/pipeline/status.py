@@ -16,6 +16,8 @@ record that does not read (``catalog/records.py``: a truncated or foreign marker
 unreadable manifest row), with why. The records are read with the same predicates resume
 uses (``resume.py``).
 Exits 1 when any window or stitch failed, a sequence could not be planned, or any file is damaged.
+Temporary files that unfinished writes left (``Store.temporaries``) are counted, one named;
+readers skip them and the next ``mine submit`` removes them, so they change no exit status.
 """
 
 from __future__ import annotations
@@ -203,4 +205,8 @@ def print_status(out: str, verify: bool = False) -> int:
     checked = ("sizes and checksums" if verify else
                "sizes and checksums of the catalogue's files, sizes of the windows' parts; --verify also checks their checksums")
     print(f"integrity: {len(damage)} damaged or missing file(s) ({checked})")
+    if leftover := Store(out).temporaries():  # looked at, never removed: that is the next submit's
+        print(f"temporary files: {len(leftover)} left by unfinished writes, e.g. {Store(out).full(leftover[0])} "
+              "(readers skip them; the next `mine submit` removes them"
+              + ("; some may be the writes in flight" if writer else "") + ")")
     return 1 if counts["failed"] or stitched["failed"] or damage or unplanned else 0

@@ -21,7 +21,6 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 
 import numpy as np
-import pyarrow as pa
 
 from mining.catalog.integrity import sequence_files, window_files
 from mining.catalog.layout import PART_TABLES, STITCH_ROW, cache_path, observed_path, part_path, stitch_path
@@ -31,7 +30,7 @@ from mining.catalog.store import Store, write_sequence
 from mining.config import JobConfig
 from mining.errors import InputError, MiningError
 from mining.pipeline.cache import decode_frames, encode_frames
-from mining.pipeline.stitch import stitch_sequence
+from mining.pipeline.stitch import concat_parts, stitch_sequence
 from mining.pipeline.window import ObservedFrame, observe_window, track_window
 from mining.sources.base import Source
 from mining.types import SequencePlan, Window
@@ -281,9 +280,9 @@ class Finalize:
         d = job.cfg.source.dataset
         ws = [w for w in windows if w.name in set(done)]
         parts = {}
-        for table in PART_TABLES:
-            tabs = [store.read_table(part_path(table, d, sequence, w.name)) for w in ws]
-            parts[table] = pa.concat_tables(tabs) if tabs else to_table([], table, part=True)
+        for table in PART_TABLES:  # parts of differing schemas fail here, naming the file and the columns
+            paths = [part_path(table, d, sequence, w.name) for w in ws]
+            parts[table] = concat_parts(table, [(store.full(p), store.read_table(p)) for p in paths])
         out = stitch_sequence(ws, parts["tubes"], parts["tube_frames"], parts["frames"], job.cfg,
                               job.run_info(sequence))
         written = []

@@ -14,6 +14,9 @@ with its square): selection then does not depend on where the borders fell.
 Worlds: each window chained poses from its own first frame, so pieces store footpoints
 in camera coordinates; here they move into the sequence's world, chained over all
 frames, one world per pose segment.
+
+The parts meet in ``concat_parts``: parts of different schemas (a part written by other
+code, or planted) fail the stitch naming the part file and each column that differs.
 """
 
 from __future__ import annotations
@@ -26,8 +29,9 @@ import pyarrow as pa
 from scipy.optimize import linear_sum_assignment
 
 from mining.catalog.rows import RunInfo, frame_rows, part_tube_frame, to_table, tube_row
-from mining.catalog.schema import file_schema
+from mining.catalog.schema import file_schema, part_schema
 from mining.config import JobConfig
+from mining.errors import InputError
 from mining.geometry.poses import chain_poses
 from mining.pipeline.mine import judge
 from mining.tubes.link import link_fragments
@@ -58,6 +62,47 @@ def chain_sequence(frames: pa.Table) -> tuple[pa.Table, SequencePoses]:
     table = pa.Table.from_pydict(out, schema=file_schema("frames"))
     return table, SequencePoses(dict(zip(cols["frame"], poses)), dict(zip(cols["frame"], segments)),
                                 dict(zip(cols["frame"], cols["position"])))
+
+
+def schema_differences(schema: pa.Schema, reference: pa.Schema) -> list[str]:
+    """How ``schema`` ("here") differs from ``reference`` ("there"), column by column (type,
+    nullability, a column missing or added, the order); empty when a table of it
+    concatenates with one of ``reference``."""
+    ref = {f.name: f for f in reference}
+    own = {f.name: f for f in schema}
+    out = [f"column {n} is missing here" for n in ref if n not in own]
+    out += [f"column {n} is only here" for n in own if n not in ref]
+    for n, f in own.items():
+        if n in ref and not f.type.equals(ref[n].type):
+            out.append(f"column {n} is {f.type} here, {ref[n].type} there")
+        elif n in ref and f.nullable != ref[n].nullable:
+            out.append(f"column {n} is {'' if f.nullable else 'not '}nullable here, {'' if ref[n].nullable else 'not '}"
+                       "there")
+    if not out and schema.names != reference.names:
+        out.append("the columns are in another order")
+    return out
+
+
+def concat_parts(table: str, parts: list[tuple[str, pa.Table]]) -> pa.Table:
+    """The windows' parts of ``table`` (each with its file's path) as one table. Parts whose
+    schemas differ cannot be stitched: an InputError names a part that differs (one that
+    differs from the schema this code writes, else the first that differs from the first
+    part) and each column that differs."""
+    if not parts:
+        return to_table([], table, part=True)
+    first_path, first = parts[0]
+    odd = [(path, t) for path, t in parts[1:] if schema_differences(t.schema, first.schema)]
+    if not odd:
+        return pa.concat_tables([t for _, t in parts])
+    written = part_schema(table)
+    fits = {p for p, t in parts if not schema_differences(t.schema, written)}
+    path, t = next(((p, t) for p, t in parts if p not in fits), odd[0])  # the odd one out
+    other_path, other = next(((p, u) for p, u in parts if p in fits), (first_path, first))  # what it should match
+    if other_path == path:
+        other_path, other = odd[0]
+    diff = "; ".join(schema_differences(t.schema, other.schema))
+    raise InputError(f"this {table} part cannot be stitched with the others (there: {other_path}): {diff}; "
+                     "remove it and resubmit to run its window again", path)
 
 
 def _pieces(tube_frames: pa.Table) -> dict[str, list[dict]]:

@@ -20,7 +20,9 @@ nothing; a damaged file is recomputed by what owns it. What the run did is count
 ``Summary`` (``summary.py``).
 
 One writer: ``mine_job`` holds the catalogue's lock (``catalog/lock.py``) from planning to
-the last result. A resubmission must be the same job (``catalog/identity.py``), an
+the last result. Holding it, it first removes the temporary files a killed run's writes
+left (``sweep_temporaries``: only the names those writes make, only in the job's own
+folders, no link followed), counted in the summary. A resubmission must be the same job (``catalog/identity.py``), an
 extension of it (``mode="extend"``) or a new run (``mode="new"``).
 
 ``mine_on_ray`` is ``mine submit`` without a Ray Jobs address (that one is
@@ -48,7 +50,7 @@ from mining.config import JobConfig
 from mining.errors import ConfigError, InputError
 from mining.pipeline.executors import Executor, RayExecutor
 from mining.pipeline.failures import describe
-from mining.pipeline.localray import init_local_ray, prepare_local_ray
+from mining.pipeline.localray import exposure_line, init_local_ray, prepare_local_ray
 from mining.pipeline.preflight import Preflight, preflight
 from mining.pipeline.running import RunningMarkers
 from mining.pipeline.resume import read_resume
@@ -160,6 +162,15 @@ def set_aside_unreadable(store: Store) -> None:
         _announce(store, None, _move_aside(store, None), "its job.json did not read as a job record")
 
 
+def sweep_temporaries(store: Store) -> list[str]:
+    """Remove the temporary files unfinished writes left under ``store`` (``Store.temporaries``);
+    their full paths. Call it holding the catalogue's lock: then no write is in flight."""
+    swept = store.temporaries()
+    for rel in swept:
+        store.remove(rel)  # the entry itself, its folders entered without following a link
+    return [store.full(rel) for rel in swept]
+
+
 def open_job(cfg: JobConfig, out: str, sequences: list[str] | None = None,
              frames: tuple[int, int | None] = (0, None), mode: str = "resume",
              verify: bool = False, pf: Preflight | None = None) -> tuple[Job, Schedule, dict[str, str]]:
@@ -263,6 +274,7 @@ def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frame
             raise
         pf = None  # --new-run over an unreadable job.json: set aside under the lock, then checked again
     with OutputLock(Store(out), lock_wait):
+        swept = sweep_temporaries(Store(out))  # what a killed run left: no write of ours is in flight
         if pf is None:
             set_aside_unreadable(Store(out))
             pf = preflight(cfg, out, sequences, frames)
@@ -277,6 +289,7 @@ def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frame
                 ex.shutdown()
     summary.seconds = time.perf_counter() - t0
     summary.classifiers = classifiers_line(cfg.proposals.proposer)
+    summary.swept = swept
     summary.unplanned = {f"{cfg.source.dataset}/{seq}": error for seq, error in unplanned.items()}
     return summary
 
@@ -284,16 +297,19 @@ def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frame
 def mine_on_ray(cfg: JobConfig, out: str, sequences: list[str] | None = None,
                 frames: tuple[int, int | None] = (0, None), address: str | None = None,
                 workers: int | None = None, progress: bool = True, mode: str = "resume", verify: bool = False,
-                lock_wait: float = 0.0) -> Summary:
+                lock_wait: float = 0.0, bind_origin: str = "the job config") -> Summary:
     """``mine submit`` here: the steps on the running cluster at ``address`` (or
     ``RAY_ADDRESS``), which decides the CPUs, or else on a Ray of its own with ``workers``
     CPUs (never one that happens to run on this machine), listening on
-    ``cfg.run.bind_host`` only (``localray.py``). Ray starts only when there is work, and
-    is shut down at the end."""
+    ``cfg.run.bind_host`` only (``localray.py``; a bind beyond loopback is one line on
+    standard error, naming ``bind_origin``, where the setting came from). Ray starts only
+    when there is work, and is shut down at the end."""
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     address = address or os.environ.get("RAY_ADDRESS")
     if not address:
         prepare_local_ray(cfg.run.bind_host)  # before `import ray`; a bad --host fails before planning
+        if (line := exposure_line(cfg.run.bind_host, bind_origin)) is not None:
+            print(line, file=sys.stderr, flush=True)  # before planning: said even when the job then stops
     import ray
 
     started = []  # Ray is started (and so shut down) here at most once: see the docstring

@@ -2,7 +2,9 @@
 
 ``run_job`` (``submit.py``) hands every result to ``Summary.count``; ``mine_job`` adds the
 whole command's time, the classifiers and the sequences the preflight left out; the CLI
-prints ``lines()`` and exits 1 when a window, a stitch or a sequence's planning failed.
+prints ``lines()`` and exits 1 when a window, a stitch or a sequence's planning failed
+(``any_failed``). A sequence's stitch is counted apart from its windows: ``failed`` holds
+windows, ``stitch_failed`` sequences.
 Frames/s is the progress bar's definition: core frames of the windows tracked this run over
 the mining time (``run_job``'s, from its first step to its last result).
 """
@@ -25,6 +27,7 @@ class Summary:
     skipped: int = 0
     ok: int = 0
     failed: dict[str, str] = field(default_factory=dict)  # window → error
+    stitch_failed: dict[str, str] = field(default_factory=dict)  # "dataset/sequence" whose stitch failed → error
     unplanned: dict[str, str] = field(default_factory=dict)  # "dataset/sequence" left out by the preflight → why
     frames: int = 0
     tubes: int = 0
@@ -37,17 +40,30 @@ class Summary:
     sequences_written: int = 0
     classifiers: str = ""  # which proposers classified (proposals.make.classifiers_line)
     recomputed: dict[str, str] = field(default_factory=dict)  # window → why its observation cache did not read back
+    swept: list[str] = field(default_factory=list)  # temporary files an interrupted run left, removed by this one
+
+    @property
+    def any_failed(self) -> bool:
+        """A window, a stitch or a sequence's planning failed (``mine submit`` exits 1)."""
+        return bool(self.failed or self.stitch_failed or self.unplanned)
 
     def lines(self) -> list[str]:
-        out = [f"windows: {self.ok} ok, {len(self.failed)} failed, {self.skipped} already done (of {self.windows})",
+        stitch = f"; stitch: {len(self.stitch_failed)} failed" if self.stitch_failed else ""
+        out = [f"windows: {self.ok} ok, {len(self.failed)} failed, {self.skipped} already done (of {self.windows})"
+               f"{stitch}",
                f"tubes written this run: {self.tubes} selected ({self.known} known, {self.unknown} unknown, "
                f"{self.unclassified} unclassified) of {self.candidates} candidates, in {self.sequences_written} sequence(s)",
                *([self.classifiers] if self.classifiers else []),
                f"time: {self.seconds:.1f} s in all, {self.mining_seconds:.1f} s mining: "
                f"{self.frames / max(self.mining_seconds, 1e-9):.2f} frames/s (core frames tracked / mining time, "
                f"as the bar)"]
+        if self.swept:
+            more = f" and {len(self.swept) - 1} more" if len(self.swept) > 1 else ""
+            out.append(f"swept {len(self.swept)} temporary file(s) an interrupted run left: {self.swept[0]}{more}")
         for w, e in sorted(self.failed.items()):
             out.append(f"FAILED {w}: {_headline(e)}")
+        for seq, e in sorted(self.stitch_failed.items()):
+            out.append(f"FAILED {seq} (stitching): {_headline(e)}")
         if self.unplanned:
             out.append(f"sequences left out: {len(self.unplanned)} could not be planned (the others ran); "
                        "fix them and rerun the same command")
@@ -69,7 +85,7 @@ class Summary:
                 self.failed[task.name] = result.error
         elif task.step == Step.FINALIZE:
             if not result.ok:
-                self.failed[f"{dataset}/{task.name} (stitching)"] = result.error
+                self.stitch_failed[f"{dataset}/{task.name}"] = result.error
                 return
             self.sequences_written += 1
             t = result.tubes

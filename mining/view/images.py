@@ -43,7 +43,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from mining.catalog.rows import BadMask, decode_mask, mask_rle
+from mining.catalog.rows import MAX_MASK_PIXELS, BadMask, decode_mask, mask_rle
 from mining.config import JobConfig
 from mining.draw import CLASS_COLOURS, PREDICTED_COLOUR, draw_mask
 from mining.errors import ConfigError, MiningError
@@ -60,7 +60,7 @@ JPEG_QUALITY = 85  # ours
 MEMORY_CACHE_BYTES = 64 << 20  # ours: encoded pictures kept in memory
 FRAME_CACHE = 24  # ours: decoded source frames kept in memory (neighbouring tubes share frames)
 SIZES = ("full", "strip")
-MAX_PICTURE_PIXELS = 7680 * 4320  # ours: an 8K UHD frame (KITTI's is 0.47 MP); a larger mask is refused, 413
+MAX_PICTURE_PIXELS = MAX_MASK_PIXELS  # an 8K UHD frame (catalog/rows.py): a larger mask is refused, 413
 PLACEHOLDER_MAX_SIDE = 2048  # ours: a placeholder keeps the frame's shape, not its size
 MAX_CACHED_FILE_BYTES = 16 << 20  # ours: a cache file larger than this is not read (ours are ~20-300 KB)
 KEY_FILE = "key"
