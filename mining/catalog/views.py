@@ -45,7 +45,7 @@ import duckdb
 import pyarrow as pa
 import pyarrow.dataset as ds
 
-from mining.catalog.integrity import Damage, unreadable_parquet, vouched_files
+from mining.catalog.integrity import Damage, check_versions, unreadable_parquet, vouched_files
 from mining.catalog.layout import PART_SUFFIX, PARTS, TABLE_DIRS
 from mining.catalog.schema import PARTITION, SCHEMAS, file_schema, part_schema
 from mining.catalog.store import Store
@@ -159,7 +159,9 @@ def connect(out: str | Path, native: bool | None = None, memory_limit: str | Non
     ``threads`` limit queries (default: DuckDB's). ``verify`` (default) checks the sha256 of
     every compacted file against its marker, once per process per file (``integrity.
     vouched_files``; False: sizes only, for measuring its cost). Raises InputError when
-    ``out`` is not a catalogue folder, or for a limit DuckDB does not accept.
+    ``out`` is not a catalogue folder, or for a limit DuckDB does not accept, and
+    ``versions.SchemaVersionError`` for a catalogue of a schema version this code does not
+    read (``integrity.check_versions``).
     """
     store = Store(out)
     if not store.root_exists():
@@ -181,7 +183,12 @@ def connect(out: str | Path, native: bool | None = None, memory_limit: str | Non
     except duckdb.Error as e:
         con.close()
         raise InputError(f"DuckDB refuses the query limits (memory {memory_limit!r}, threads {threads!r}): {e}") from None
-    vouched = vouched_files(store, verify=verify)
+    try:
+        check_versions(store)  # a catalogue of a schema this code does not read is refused whole
+        vouched = vouched_files(store, verify=verify)
+    except InputError:
+        con.close()
+        raise
     for table in SCHEMAS:  # windows: the manifest's rows (the live status), as listed
         _base_view(con, store, table, native, vouched.damage.get(table),
                    None if table == "windows" else vouched.files[table])
