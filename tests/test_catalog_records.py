@@ -44,7 +44,7 @@ def test_a_marker_saves_as_the_stitch_wrote_it_and_loads_back(tmp_path):
     m.save(store)
     written = json.loads((tmp_path / done_path("d", "s")).read_text())
     assert list(written) == ["params_hash", "run_id", "dataset", "sequence", "windows", "contexts", "planned",
-                             "finished", "files"]
+                             "finished", "files", "schema_version"]
     assert SequenceMarker.load(store, "d", "s") == m
     assert SequenceMarker.load(store, "d", "other") is None
     assert m.of_job("p", {"s-0000000-0000008": (0, 12)}) and not m.of_job("q")

@@ -329,3 +329,36 @@ def test_temporary_files_a_kill_left_are_reported_by_status_and_swept_by_the_nex
     rc, text = cli_status(capsys, out)
     assert rc == 0 and "temporary files:" not in text, text
     assert not [ln for ln in mine(out).lines() if ln.startswith("swept")], "nothing left to sweep"
+
+
+def test_file_functions_in_a_query_read_only_the_files_the_markers_vouch_for(base_catalogue, tmp_path, capsys):
+    """``read_parquet('<out>/catalog/tubes/…/part-0.parquet')`` inside ``mine query`` read a bit-flipped
+    file and returned a changed value (exit 0) where the named tables refused it. DuckDB's file
+    functions may read a compacted file only as the tables do: when its sha256 checked out."""
+    out = copy_of(base_catalogue, tmp_path / "out")
+    n_tubes = len(base_catalogue[1]["tubes"])
+    rc, o, e = _query(capsys, out, f"SELECT count(*) AS n FROM read_parquet('{out / TUBES}')")
+    assert rc == 0 and o.split()[1:] == [str(n_tubes)], o + e  # vouched for (its sha256 checked): read
+
+    _flip_a_value(out / TUBES)
+    for sql in (f"SELECT max(score) FROM read_parquet('{out / TUBES}')", f"SELECT * FROM parquet_scan('{out / TUBES}')",
+                f"SELECT * FROM '{out / TUBES}'", f"SELECT length(content) FROM read_blob('{out / TUBES}')",
+                f"SELECT * FROM parquet_metadata('{out / TUBES}')"):
+        rc, o, e = _query(capsys, out, sql)
+        assert rc == 2 and o == "" and len(e.strip().splitlines()) == 1, f"{sql}: {o + e}"  # was rc 0, a changed value
+        assert str(out / TUBES) in e and "damaged" in e and "sha256" in e, f"{sql}: {e}"
+    rc, o, e = _query(capsys, out, "SELECT max(score) FROM tubes")  # the named table, as before
+    assert rc == 2 and str(out / TUBES) in e and "sha256" in e, o + e
+
+    # No other way in: a pattern, a folder no marker records, the job record, a file outside --out.
+    stray = out / "catalog" / "tubes" / "dataset=synthetic" / "sequence=0001" / "part-0.parquet"
+    stray.parent.mkdir(parents=True)
+    shutil.copy(out / TUBES, stray)
+    for path in (out / "catalog/tubes/*/*/*.parquet", stray, out / "job.json"):
+        rc, o, e = _query(capsys, out, f"SELECT * FROM read_text('{path}')")
+        assert rc == 2 and str(path) in e and "not a file this catalogue vouches for" in e, f"{path}: {o + e}"
+    rc, o, e = _query(capsys, out, "SELECT * FROM read_text('/etc/hostname')")
+    assert rc == 2 and "outside the catalogue" in e, o + e
+    # The windows table and the provisional views read the manifest and the parts as listed: so may SQL.
+    rc, o, e = _query(capsys, out, f"SELECT count(*) AS n FROM read_parquet('{out}/manifest/*/*/*.parquet')")
+    assert rc == 0 and o.split()[1:] == ["2"], o + e

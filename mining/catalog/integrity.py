@@ -32,9 +32,10 @@ from dataclasses import dataclass
 
 import pyarrow.fs as pafs
 
-from mining.catalog.layout import CATALOG, JOB, MARKERS, PART_TABLES, catalog_dir, files_path, part_path
+from mining.catalog.layout import CATALOG, JOB, MANIFEST, MARKERS, PART_TABLES, catalog_dir, files_path, part_path
 from mining.catalog.records import SequenceMarker, Unreadable, WindowFiles
 from mining.catalog.store import Store, is_temporary
+from mining.catalog.versions import check_file, check_record_version
 from mining.types import Window
 
 CHUNK = 1 << 20  # ours: bytes read per step while hashing
@@ -228,6 +229,22 @@ def mined(store: Store) -> bool:
         return False
     job = read_json(store, JOB)
     return job is None or not isinstance(job.get("windows"), list) or bool(job["windows"])
+
+
+def check_versions(store: Store, oldest: bool = True) -> None:
+    """Refuse a catalogue of a schema version this code does not read (``versions.py``), before
+    anything of it is read: ``job.json``, every sequence marker, every Parquet file of the
+    compacted tables and of the manifest (the files the query views and ``mine status`` read).
+    ``oldest`` False (a submission): rows older than this code reads are not refused (see
+    ``versions.py``). Raises ``versions.SchemaVersionError`` naming the file."""
+    check_record_version(read_json(store, JOB), store.full(JOB))
+    SequenceMarker.load_all(store)  # a marker of a newer version raises
+    rels = [r for r in store.list(CATALOG) if r.split("/")[1] in TABLES] + store.list(MANIFEST)
+    infos = store.fs.get_file_info([store.full(r) for r in rels]) if rels else []
+    for rel, info in zip(rels, infos):
+        if info.type == pafs.FileType.File:
+            check_file(store, rel, rel.split("/")[1] if rel.startswith(CATALOG + "/") else "windows", info.size,
+                       info.mtime_ns, oldest)
 
 
 def vouched_files(store: Store, verify: bool = True) -> Vouched:

@@ -36,6 +36,8 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from mining.catalog.identity import legacy_identity
+from mining.catalog.schema import SCHEMA_VERSION
+from mining.catalog.versions import RECORD_KEY, check_record_version
 from mining.errors import ConfigError, InputError
 from mining.names import check_name
 from mining.types import Window
@@ -191,6 +193,7 @@ class JobRecord:
         except ValueError as e:  # not UTF-8, not JSON (a truncated or overwritten file)
             raise UnreadableRecord(f"job.json is not a job record: not valid JSON ({e}); {FRESH_START}",
                                    store.full(JOB)) from None
+        check_record_version(d, store.full(JOB))  # a newer version's record is refused, not set aside
         if (problem := _record_problem(d)) is not None:
             raise UnreadableRecord(f"job.json is not a job record: {problem}; {FRESH_START}", store.full(JOB))
         identity = d["identity"] if "identity" in d else legacy_identity(d["config"])
@@ -228,4 +231,5 @@ class JobRecord:
                   "config": self.config, "windows": [_window_entry(w) for w in self.windows]}
         if self.unplanned:
             record["unplanned"] = self.unplanned
+        record[RECORD_KEY] = SCHEMA_VERSION
         store.write_bytes(JOB, json.dumps(record, indent=1, default=str).encode())

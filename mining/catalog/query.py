@@ -20,7 +20,7 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
-from mining.catalog.views import connect, execute_read_only
+from mining.catalog.views import connect, execute_read_only, file_refused
 from mining.errors import MiningError
 
 FORMATS = ("table", "csv", "json", "parquet")
@@ -46,6 +46,8 @@ def query_table(sql: str, out: str | Path, memory_limit: str | None = MEMORY_LIM
             timer.start()
         rel = execute_read_only(con, sql)
         return rel.to_arrow_table() if rel is not None else pa.table({})
+    except duckdb.PermissionException as e:  # a file function on a file the views do not vouch for
+        raise file_refused(con, e) from None
     except duckdb.InterruptException:
         raise QueryTimeout(f"the query ran past --timeout {timeout_s:g} s and was stopped") from None
     finally:

@@ -10,9 +10,10 @@
 
 Every ``load`` is tolerant: a record that is not there is None, and one that is there but does
 not read as its record (unreadable, truncated, not JSON, of another shape, another window's or
-sequence's) is an ``Unreadable`` naming the file and why. It never raises: a damaged record
-proves nothing, and what reads it (resume, ``mine status``, the query views) decides what that
-means. ``save`` writes through the ``Store`` (atomic, never through a link: ``safe_files.py``).
+sequence's) is an ``Unreadable`` naming the file and why. It never raises for damage: a damaged
+record proves nothing, and what reads it (resume, ``mine status``, the query views) decides what
+that means. A record of a newer catalogue schema than this code reads is not damage (recomputing
+it would overwrite a newer version's work): ``load`` raises ``versions.SchemaVersionError``. ``save`` writes through the ``Store`` (atomic, never through a link: ``safe_files.py``).
 
 Each record has the predicate resume (``pipeline/resume.py``), ``mine status`` and the
 integrity checks (``integrity.py``, which check the files a record lists against what is
@@ -30,6 +31,8 @@ from typing import TYPE_CHECKING, Any
 from mining.catalog.layout import (MARKERS, PART_TABLES, STITCH_ROW, done_path, files_path, manifest_path, part_path,
                                    stitch_path)
 from mining.catalog.rows import to_table
+from mining.catalog.schema import SCHEMA_VERSION
+from mining.catalog.versions import RECORD_KEY, check_columns, check_record_version
 from mining.errors import InputError
 from mining.types import Window
 
@@ -137,6 +140,7 @@ class WindowFiles:
         d = _read_json(store, rel)
         if d is None or isinstance(d, Unreadable):
             return d
+        check_record_version(d, store.full(rel))
         try:
             d = _object(d)
             name = _key(d, "window", _is_str, "a window name")
@@ -148,7 +152,7 @@ class WindowFiles:
         return cls(window, files)
 
     def save(self, store: Store) -> None:
-        record = {"window": self.window.name, "files": dict(self.files)}
+        record = {"window": self.window.name, "files": dict(self.files), RECORD_KEY: SCHEMA_VERSION}
         store.write_bytes(self.path, json.dumps(record, indent=1).encode())
 
     def missing(self) -> list[str]:
@@ -216,6 +220,7 @@ class SequenceMarker:
         d = _read_json(store, rel)
         if d is None or isinstance(d, Unreadable):
             return d
+        check_record_version(d, store.full(rel))
         try:
             d = _object(d)
             for key, own in (("dataset", dataset), ("sequence", sequence)):
@@ -236,12 +241,13 @@ class SequenceMarker:
         return marker
 
     def to_dict(self) -> dict[str, Any]:
-        """The marker as JSON (what it does not record left out, as older writers left it)."""
+        """The marker as JSON (what it does not record left out, as older writers left it; the schema
+        version last)."""
         d = {"params_hash": self.params_hash, "run_id": self.run_id, "dataset": self.dataset,
              "sequence": self.sequence, "windows": list(self.windows),
              "contexts": None if self.contexts is None else {n: list(c) for n, c in self.contexts.items()},
              "planned": self.planned, "finished": self.finished,
-             "files": None if self.files is None else dict(self.files)}
+             "files": None if self.files is None else dict(self.files), RECORD_KEY: SCHEMA_VERSION}
         return {k: v for k, v in d.items() if v is not None}
 
     def save(self, store: Store) -> None:
@@ -298,6 +304,7 @@ class ManifestRow:
             rows = store.read_table(rel).to_pylist()
         except InputError as e:
             return Unreadable(rel, e.reason)
+        check_columns(list(rows[0]) if rows else [], "windows", store.full(rel))  # a newer version's row
         if not rows:
             return Unreadable(rel, "holds no row")
         r = rows[0]

@@ -22,10 +22,16 @@ read: ``integrity.py``) is a view that fails every query that reads it, naming t
 the other tables answer as usual. A local catalogue is read by DuckDB's own Parquet reader (projection
 and row-group pushdown); any other pyarrow filesystem through registered pyarrow datasets.
 
-Read-only, in two layers: the connection may touch no file outside the catalogue folder
-(``enable_external_access`` off, the folder allowed, configuration locked), and
-``check_read_only`` admits only statements that read (SELECT, and the DESCRIBE / SHOW /
-SUMMARIZE / FROM forms DuckDB parses as SELECT; EXPLAIN without ANALYZE).
+Read-only, in two layers: the connection may touch no file but those its views read
+(``enable_external_access`` off, configuration locked): each compacted file a marker vouches
+for, by its exact path (``allowed_paths``: checked by sha256 above, so a damaged or unvouched
+file under ``catalog/`` is refused to DuckDB's file functions — ``read_parquet``, ``glob``,
+``read_text`` … — in a user's SQL as it is to the named tables), and the ``manifest`` and
+``_parts`` folders, which the ``windows`` table and the provisional views read as listed
+(``allowed_directories``); nothing else under ``--out`` (``job.json``, ``_replaced/``) or outside it.
+``file_refused`` says which rule refused a file. ``check_read_only`` admits only statements
+that read (SELECT, and the DESCRIBE / SHOW / SUMMARIZE / FROM forms DuckDB parses as SELECT;
+EXPLAIN without ANALYZE).
 
 DuckDB allows its temporary (spill) folder as well, by default ``<cwd>/.tmp``: the
 connection spills into a private folder of its own instead (made by ``mkdtemp``, mode
@@ -35,18 +41,20 @@ connection spills into a private folder of its own instead (made by ``mkdtemp``,
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
 import tempfile
 import weakref
+from dataclasses import dataclass
 from pathlib import Path
 
 import duckdb
 import pyarrow as pa
 import pyarrow.dataset as ds
 
-from mining.catalog.integrity import Damage, unreadable_parquet, vouched_files
-from mining.catalog.layout import PART_SUFFIX, PARTS, TABLE_DIRS
+from mining.catalog.integrity import Damage, check_versions, unreadable_parquet, vouched_files
+from mining.catalog.layout import MANIFEST, PART_SUFFIX, PARTS, TABLE_DIRS
 from mining.catalog.schema import PARTITION, SCHEMAS, file_schema, part_schema
 from mining.catalog.store import Store
 from mining.errors import InputError
@@ -150,6 +158,46 @@ def _part_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, native:
                  _with_partition(part_schema(table)), "*", native)
 
 
+@dataclass(frozen=True)
+class _Readable:
+    """What a connection's SQL may read (``connect``), to say why a file was refused."""
+
+    store: Store
+    vouched: frozenset[str]  # compacted files that checked out (relative paths)
+    damage: dict[str, Damage]  # compacted files that did not, by relative path
+    folders: tuple[str, ...]  # folders read as listed (relative)
+
+
+_READABLE: weakref.WeakKeyDictionary[duckdb.DuckDBPyConnection, _Readable] = weakref.WeakKeyDictionary()
+_REFUSED = re.compile(r'Cannot access (?:file|directory) "(.*)"')
+
+
+def file_refused(con: duckdb.DuckDBPyConnection, err: duckdb.PermissionException) -> InputError:
+    """The error for a file DuckDB refused to ``con``'s SQL: damaged, not vouched for, or
+    outside the catalogue, naming the file."""
+    m, r = _REFUSED.search(str(err)), _READABLE.get(con)
+    if m is None or r is None:
+        return InputError(str(err))
+    path = m.group(1)
+    full = os.path.realpath(os.path.join(os.getcwd(), path))  # relative: to the caller's folder, as DuckDB reads it
+    root = r.store.root  # resolved (Store)
+    if full != root and not full.startswith(root + "/"):
+        return InputError(f"outside the catalogue {root}: access to any other file is disabled", path)
+    rel = os.path.relpath(full, root)
+    if rel in r.vouched:  # a vouched file by another spelling (a link on the way): DuckDB matches exact paths
+        return InputError(f"the catalogue's files are read by their own paths: read {r.store.full(rel)}", path)
+    if rel in r.damage:
+        return InputError(f"a damaged catalogue file ({r.damage[rel].reason}) may not be read: a query reads a "
+                          "compacted file only when its size and sha256 check out against its sequence's marker. "
+                          f"`mine status --out {r.store.uri}` lists the damage; resubmitting the job recomputes it",
+                          path)
+    return InputError(
+        "not a file this catalogue vouches for: a query's file functions (read_parquet, glob, read_text, …) read "
+        "only the compacted files the sequence markers vouch for (each checked by sha256, named by its exact path: "
+        f"no folder, no pattern) and the {' and '.join(f + '/' for f in r.folders)} folders; access to any other "
+        "file is disabled. Query the tables (tubes, tube_frames, frames, windows) instead", path)
+
+
 def connect(out: str | Path, native: bool | None = None, memory_limit: str | None = None,
             threads: int | None = None, verify: bool = True) -> duckdb.DuckDBPyConnection:
     """An in-memory DuckDB with the catalogue's tables and views (see module docstring).
@@ -159,7 +207,9 @@ def connect(out: str | Path, native: bool | None = None, memory_limit: str | Non
     ``threads`` limit queries (default: DuckDB's). ``verify`` (default) checks the sha256 of
     every compacted file against its marker, once per process per file (``integrity.
     vouched_files``; False: sizes only, for measuring its cost). Raises InputError when
-    ``out`` is not a catalogue folder, or for a limit DuckDB does not accept.
+    ``out`` is not a catalogue folder, or for a limit DuckDB does not accept, and
+    ``versions.SchemaVersionError`` for a catalogue of a schema version this code does not
+    read (``integrity.check_versions``).
     """
     store = Store(out)
     if not store.root_exists():
@@ -181,16 +231,26 @@ def connect(out: str | Path, native: bool | None = None, memory_limit: str | Non
     except duckdb.Error as e:
         con.close()
         raise InputError(f"DuckDB refuses the query limits (memory {memory_limit!r}, threads {threads!r}): {e}") from None
-    vouched = vouched_files(store, verify=verify)
+    try:
+        check_versions(store)  # a catalogue of a schema this code does not read is refused whole
+        vouched = vouched_files(store, verify=verify)
+    except InputError:
+        con.close()
+        raise
     for table in SCHEMAS:  # windows: the manifest's rows (the live status), as listed
         _base_view(con, store, table, native, vouched.damage.get(table),
                    None if table == "windows" else vouched.files[table])
     for table in PROVISIONAL:
         _part_view(con, store, table, native)
     con.execute(VIEWS_SQL.read_text())
-    # From here on: no file access outside the catalogue, and no way to turn that back on.
-    allowed = [store.root + "/"] if native else []
-    con.execute(f"SET allowed_directories = [{', '.join(sql_string(a) for a in allowed)}]")
+    # From here on: no file access but what the views read, and no way to turn that back on.
+    folders = (MANIFEST, PARTS)
+    paths = sorted({store.full(f) for t in SCHEMAS for f in vouched.files[t]}) if native else []
+    dirs = [store.full(f) + "/" for f in folders] if native else []
+    con.execute(f"SET allowed_paths = [{', '.join(map(sql_string, paths))}]")
+    con.execute(f"SET allowed_directories = [{', '.join(map(sql_string, dirs))}]")
+    _READABLE[con] = _Readable(store, frozenset(f for t in SCHEMAS for f in vouched.files[t]),
+                               {d.path: d for ds_ in vouched.damage.values() for d in ds_}, folders)
     con.execute("SET enable_external_access = false")
     con.execute("SET autoinstall_known_extensions = false")
     con.execute("SET autoload_known_extensions = false")

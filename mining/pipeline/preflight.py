@@ -27,6 +27,7 @@ import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from mining.catalog.integrity import check_versions
 from mining.catalog.layout import JobRecord
 from mining.catalog.store import Store
 from mining.config import JobConfig, validate
@@ -57,10 +58,12 @@ def check_frames(frames: tuple[int, int | None]) -> None:
 
 def check_output(out: str) -> None:
     """InputError unless ``out`` is (or can be made) a folder this process can write, and
-    a job.json in it can be read."""
+    a job.json in it can be read; ``versions.SchemaVersionError`` for a catalogue of a newer
+    schema version than this code reads, before anything is written."""
     store = Store(out)
     if store.local and Path(store.root).exists() and not Path(store.root).is_dir():
         raise InputError("--out is not a folder", store.root)
+    check_versions(store, oldest=False)  # older rows: resumed as before, or set aside by --new-run
     probe = f".preflight-{uuid.uuid4().hex[:12]}"
     try:
         store.write_bytes(probe, b"")

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from mining.catalog.integrity import Damage, sequence_damage, unreadable_damage, window_damage
+from mining.catalog.integrity import Damage, check_versions, sequence_damage, unreadable_damage, window_damage
 from mining.catalog.layout import JOB, STITCH_ROW, JobRecord, UnreadableRecord, manifest_path
 from mining.catalog.records import ManifestRow, SequenceMarker, Unreadable
 from mining.catalog.lock import current_writer, describe
@@ -154,6 +154,7 @@ def _first_line(text: str) -> str:
 def print_status(out: str, verify: bool = False) -> int:
     """Print the windows' and sequences' states and every damaged or missing file; exit 1
     when any window or stitch failed or any file is damaged, 0 otherwise."""
+    check_versions(Store(out))  # a newer catalogue schema: one line, before anything is reported
     rows = job_status(out)
     seqs = sequence_status(out, rows)
     counts = {s: sum(r.status == s for r in rows) for s in ("done", "failed", "pending", "running")}
