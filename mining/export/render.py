@@ -24,6 +24,7 @@ another size than its frame stops the render naming the tube.
 from __future__ import annotations
 
 import contextlib
+import math
 import sys
 import time
 from dataclasses import dataclass
@@ -45,6 +46,7 @@ from mining.names import check_name
 from mining.progress import Ticker
 
 DEFAULT_FPS = 10.0  # ours: frame rate when the plan's timestamps give none (KITTI records at 10 Hz)
+MAX_FPS = 1000.0  # ours: `mine render --fps` at most (video containers store a rational rate)
 DEPTH_NEAR_M = 2.0  # ours: the depth colour map's near end (red); KITTI's 128 px search reaches ≈ 3 m
 DEPTH_TICKS_M = (2, 5, 10, 20, 50, 90)  # ours: legend ticks (the far end is the job's geometry.stereo.max_depth_m)
 
@@ -131,6 +133,8 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
     ``overwrite`` (module docstring)."""
     t0 = time.perf_counter()
     dest = Path(dest)
+    if fps is not None and not (math.isfinite(fps) and 0 < fps <= MAX_FPS):
+        raise InputError(f"--fps must be > 0 and ≤ {MAX_FPS:g}, got {fps}")  # never "0 means the default"
     check_dest(dest, overwrite)
     check_name(sequence, "sequence", "--sequence")
     job = read_job(out)
@@ -174,7 +178,7 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
     if stop <= start:
         raise InputError(f"--frames {start}:{stop} holds no frame of {sequence!r} (the plan has {len(plan)})")
     plan = source.plan(sequence, start, stop)  # refuses a frame in the range the source cannot read
-    fps = fps or _fps(plan.t_ns[start:stop])
+    fps = _fps(plan.t_ns[start:stop]) if fps is None else fps
 
     colours = tube_colours(list(keep))
     info = {t["tube_id"]: (f"{short_id(t['tube_id'])} {category_label(t)}", colours[t["tube_id"]]) for t in tube_rows}
