@@ -16,20 +16,35 @@ work starts, instead of as a traceback in every window.
 Numbers are always finite (TOML can spell ``nan`` and ``inf``). A number without a
 ``Range`` must be ≥ 0 — nearly every setting is a count, a length, a threshold, a
 variance or a weight — unless its annotation says ``SIGNED``.
+
+The command-line options keep rules too, checked by argparse when it parses them (so before
+any work): ``count``, ``real``, ``positive_float``, ``finite_float`` take ASCII decimal
+numbers, finite, within a ``Range`` (``float()`` alone takes ``nan``, ``inf``, ``1e308`` and
+other scripts' digits); ``input_file``, ``input_folder``, ``output_file``, ``output_folder``,
+``path_text`` take a path the system can hold that prints on one line
+(``names.path_problem``), an input that exists. ``pipeline/arguments.check_paths`` checks
+the outputs once more after parsing (their folder, ``--overwrite``).
 """
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import math
+import re
 import types
 import typing
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import PurePath
+from pathlib import Path, PurePath
 from typing import Annotated, Any
 
 from mining.errors import ConfigError
+from mining.names import path_problem, shown
+
+MAX_FRAMES = 10_000_000  # ours: the most frames (or the last position) an option may name: 11 days at 10 fps
+MAX_WORKERS = 1024  # ours: processes or CPUs an option may ask for
+MAX_SECONDS = 7 * 86400.0  # ours: the longest wait or time limit an option may set (a week)
 
 
 class Rule:
@@ -241,3 +256,137 @@ def coerce(hint: Any, value: Any, key: str, rules: tuple[Rule, ...] = ()) -> Any
         if not r.numeric and (why := r.broken(value)) is not None:
             raise ConfigError(f"{key} = {value!r}: {why}")
     return value
+
+
+# -- command-line options: the same rules for a flag ------------------------------------------
+
+_NUMBER = re.compile(r"[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?")
+_INTEGER = re.compile(r"[+-]?\d+")
+_SIZE = re.compile(r"(\d+(\.\d+)?)\s*[KMGT]i?B", re.IGNORECASE)
+
+
+@dataclass(frozen=True)
+class Number:
+    """An argparse type: a decimal number in ASCII (``float()`` alone takes ``nan``, ``inf``
+    and other scripts' digits), finite, within ``rule`` (a ``Range``, as a config field's)."""
+
+    integer: bool
+    rule: Range
+    kind = "number"  # tests/test_cli_hostile.py tries hostile numbers on every option of this kind
+
+    @property
+    def __name__(self) -> str:  # argparse names the type in its own messages
+        return "int" if self.integer else "float"
+
+    def __call__(self, text: str) -> int | float:
+        if not text.isascii() or not (_INTEGER if self.integer else _NUMBER).fullmatch(text.strip()):
+            raise argparse.ArgumentTypeError(f"expects {'an integer' if self.integer else 'a number'}, "
+                                             f"got {shown(text)!r}")
+        value = int(text) if self.integer else float(text)
+        if not math.isfinite(value):  # 1e999
+            raise argparse.ArgumentTypeError(f"expects a finite number, got {text!r}")
+        broken = self.rule.broken(value)
+        if broken:
+            raise argparse.ArgumentTypeError(f"{broken}, got {text.strip()}")
+        return value
+
+
+def count(lo: int = 1, hi: int = MAX_FRAMES, why: str = "") -> Number:
+    """An integer in [lo, hi] (by default at least one: frames, seeds, repeats)."""
+    return Number(True, Range(lo, hi, why=why))
+
+
+def real(lo: float, hi: float, lo_open: bool = False, why: str = "") -> Number:
+    """A finite number in [lo, hi] (``lo_open``: > lo)."""
+    return Number(False, Range(lo, hi, lo_open=lo_open, why=why))
+
+
+def positive_float(hi: float, why: str = "") -> Number:
+    """A finite number in (0, hi]."""
+    return real(0.0, hi, lo_open=True, why=why)
+
+
+def finite_float(bound: float, why: str = "") -> Number:
+    """A finite number in [-bound, bound] (a signed weight or price)."""
+    return real(-bound, bound, why=why)
+
+
+worker_count = count(1, MAX_WORKERS)  # processes or CPUs
+seconds = real(0.0, MAX_SECONDS)  # a wait: 0 = none
+time_limit = positive_float(MAX_SECONDS)  # a time limit: > 0
+
+
+@dataclass(frozen=True)
+class MemorySize:
+    """An argparse type: a memory size with its unit (``4GB``, ``512MiB``), more than zero."""
+
+    kind = "number"
+
+    @property
+    def __name__(self) -> str:
+        return "size"
+
+    def __call__(self, text: str) -> str:
+        m = _SIZE.fullmatch(text.strip()) if text.isascii() else None
+        if m is None or not float(m.group(1)) > 0:
+            raise argparse.ArgumentTypeError(f"expects a size such as 512MB or 4GB, got {shown(text)!r}")
+        return text.strip()
+
+
+memory_size = MemorySize()
+
+
+class LocalInput(str):
+    """An input that must exist where the command reads it: checked by ``check_paths`` after
+    parsing, not on a machine that hands the job to a cluster (``mine submit --root``)."""
+
+
+class OutputFile(str):
+    """A file an option names for the command to write (``check_paths`` checks it after parsing)."""
+
+
+class OutputFolder(str):
+    """A folder an option names for the command to write in, made when absent (``check_paths`` too)."""
+
+
+@dataclass(frozen=True)
+class PathType:
+    """An argparse type for a path: one the system can hold that prints on one line
+    (``names.path_problem``); by ``role``, an ``input-file``, ``input-folder`` or ``input``
+    (either) must exist; an ``output-file``, ``output-folder`` or ``local-input`` is marked for
+    ``check_paths``; ``text`` (a catalogue folder or an object-store URI) needs no more."""
+
+    role: str
+    kind = "path"  # tests/test_cli_hostile.py tries hostile paths on every option of this kind
+
+    @property
+    def __name__(self) -> str:
+        return "path"
+
+    def __call__(self, text: str) -> str:
+        problem = path_problem(text)
+        if problem is not None:
+            raise argparse.ArgumentTypeError(f"{shown(text)}: {problem}")
+        p = Path(text)
+        if self.role == "input-file" and not p.is_file():
+            raise argparse.ArgumentTypeError(f"{text}: {'is a folder, not a file' if p.is_dir() else 'no such file'}")
+        if self.role == "input-folder" and not p.is_dir():
+            raise argparse.ArgumentTypeError(f"{text}: {'is a file, not a folder' if p.exists() else 'no such folder'}")
+        if self.role == "input" and not p.exists():
+            raise argparse.ArgumentTypeError(f"{text}: no such file or folder")
+        if self.role == "output-file":
+            return OutputFile(text)
+        if self.role == "local-input":
+            return LocalInput(text)
+        if self.role == "output-folder" and "://" not in text:  # an object store (s3://…) is checked by its writer
+            return OutputFolder(text)
+        return text
+
+
+input_file = PathType("input-file")
+input_folder = PathType("input-folder")
+input_path = PathType("input")
+local_input = PathType("local-input")
+output_file = PathType("output-file")
+output_folder = PathType("output-folder")
+path_text = PathType("text")

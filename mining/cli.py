@@ -10,10 +10,12 @@ import os
 import sys
 from typing import Any, NamedTuple
 
+from mining.checks import (MAX_WORKERS, count, memory_size, output_file, output_folder, path_text, positive_float, real,
+                           seconds, time_limit, worker_count)
 from mining.errors import ConfigError, MiningError, NothingMatched
 from mining.export.registry import FORMATS as EXPORT_FORMATS
 from mining.names import check_name
-from mining.pipeline.arguments import add_job_options, frame_range, job_config
+from mining.pipeline.arguments import add_job_options, add_overwrite_option, check_paths, frame_range, job_config
 
 
 INTERRUPTED = 130  # the shell's exit status for a process ended by SIGINT (128 + 2)
@@ -82,7 +84,15 @@ COMMANDS = (  # in the order --help lists them
 )
 
 
-class CommandParser(argparse.ArgumentParser):
+class Parser(argparse.ArgumentParser):
+    """A parser whose errors are one line (``mine query: error: argument --threads: …``) with
+    where the usage is, instead of the usage text and then the error."""
+
+    def error(self, message: str) -> Any:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+class CommandParser(Parser):
     """The parser of one of COMMANDS. Its module is imported, and adds its options, only when
     the command is parsed (its ``--help`` included): the bench modules pull in OpenCV, SciPy
     and ONNX Runtime, a second and more that ``mine status`` should not wait for."""
@@ -152,7 +162,7 @@ def cmd_query(args: argparse.Namespace) -> int:
 
     limits = {k: v for k, v in (("memory_limit", args.memory_limit), ("threads", args.threads),
                                 ("timeout_s", args.timeout), ("limit", args.limit)) if v is not None}  # unset: query.py's defaults
-    return run_query(args.sql, args.out, args.format, args.output, **limits)
+    return run_query(args.sql, args.out, args.format, args.output, overwrite=args.overwrite, **limits)
 
 
 def cmd_export(args: argparse.Namespace) -> int:
@@ -183,23 +193,23 @@ def cmd_view(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="mine", description="Tube Miner: mine generic object tubes from stereo video.")
+    parser = Parser(prog="mine", description="Tube Miner: mine generic object tubes from stereo video.")
     parser.add_argument("--version", action="version", version=_version_text())
-    sub = parser.add_subparsers(dest="command", required=True)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
 
     smt = sub.add_parser("submit", help="plan windows and mine them on Ray (local, or a cluster with --address)")
-    add_job_options(smt)
+    add_job_options(smt, root_here=False)
     smt.add_argument("--sequences", nargs="+", help="default: the config's, else every sequence the source finds")
     smt.add_argument("--frames", type=frame_range, default=(0, None), metavar="A:B",
                      help="plan positions [A, B) of every sequence (default: all)")
-    smt.add_argument("--out", default="out/catalog", help="catalogue folder or pyarrow filesystem URI")
+    smt.add_argument("--out", type=output_folder, default="out/catalog", help="catalogue folder or pyarrow filesystem URI")
     smt.add_argument("--address", help="http://HEAD:8265: hand the job to that cluster through Ray Jobs (--config, "
                                        "--root and --out are made absolute here and read on the cluster); "
                                        "HOST:PORT or auto: run the scheduler here, the work on that cluster; "
                                        "default: start a local Ray on this machine")
     smt.add_argument("--no-wait", action="store_true", help="with --address http://…: print the submission id and "
                                                             "return instead of following the job's logs")
-    smt.add_argument("--workers", type=int, help="local Ray only: CPUs to use (default: all)")
+    smt.add_argument("--workers", type=worker_count, help=f"local Ray only: CPUs to use, 1 to {MAX_WORKERS} (default: all)")
     smt.add_argument("--host", metavar="IP", help="local Ray only: the interface every Ray port listens on (default: "
                                                   "the config's run.bind_host, 127.0.0.1). Ray's ports run code "
                                                   "unauthenticated: another interface only on a network you trust")
@@ -213,12 +223,12 @@ def build_parser() -> argparse.ArgumentParser:
     smt.add_argument("--verify", action="store_true",
                      help="check every recorded checksum before resuming (default: sizes only); damaged files are "
                           "recomputed")
-    smt.add_argument("--lock-wait", type=float, default=0.0, metavar="SECONDS",
+    smt.add_argument("--lock-wait", type=seconds, default=0.0, metavar="SECONDS",
                      help="another submit is writing --out: wait up to this long for it (default: refuse at once)")
     smt.set_defaults(func=cmd_submit)
 
     sts = sub.add_parser("status", help="windows done, failed (with the error) and pending")
-    sts.add_argument("--out", default="out/catalog", help="catalogue folder or URI")
+    sts.add_argument("--out", type=path_text, default="out/catalog", help="catalogue folder or URI")
     sts.add_argument("--verify", action="store_true",
                      help="also check every file's sha256 against the manifest (reads the whole catalogue)")
     sts.add_argument("--address", help="http://HEAD:8265: the cluster's Tube Miner jobs through Ray Jobs instead")
@@ -227,40 +237,42 @@ def build_parser() -> argparse.ArgumentParser:
 
     qry = sub.add_parser("query", help="read-only SQL (DuckDB) over the catalogue's tables and views")
     qry.add_argument("sql")
-    qry.add_argument("--out", default="out/catalog", help="catalogue folder or URI")
+    qry.add_argument("--out", type=path_text, default="out/catalog", help="catalogue folder or URI")
     qry.add_argument("--format", choices=["table", "csv", "json", "parquet"], default="table")
-    qry.add_argument("--output", help="write here instead of standard output (required for parquet)")
-    qry.add_argument("--memory-limit", help="most memory the query may use, e.g. 4GB; beyond it DuckDB spills to "
+    qry.add_argument("--output", type=output_file, help="write here instead of standard output (required for parquet)")
+    add_overwrite_option(qry, "--output")
+    qry.add_argument("--memory-limit", type=memory_size, help="most memory the query may use, e.g. 4GB; beyond it DuckDB spills to "
                                             "a private temporary folder (default: query.MEMORY_LIMIT, 2GB)")
-    qry.add_argument("--threads", type=int, help="threads the query may use (default: query.THREADS, 2)")
-    qry.add_argument("--timeout", type=float, metavar="SECONDS",
+    qry.add_argument("--threads", type=count(1, 1024), help="threads the query may use (default: query.THREADS, 2)")
+    qry.add_argument("--timeout", type=time_limit, metavar="SECONDS",
                      help="stop the query after this many seconds (default: query.TIMEOUT_S, 60)")
-    qry.add_argument("--limit", type=int, metavar="N",
+    qry.add_argument("--limit", type=count(0, 10**12), metavar="N",
                      help="table output shows at most N rows and the total count (default: query.LIMIT, 50; 0 = all)")
     qry.set_defaults(func=cmd_query)
 
     exp = sub.add_parser("export", help="tubes matching a SQL predicate, for other tools")
-    exp.add_argument("dest", help="output folder")
+    exp.add_argument("dest", type=output_folder, help="output folder")
     exp.add_argument("--where", default="selected", help="SQL predicate over the tubes table (default: selected)")
     exp.add_argument("--format", choices=list(EXPORT_FORMATS), required=True)
-    exp.add_argument("--out", default="out/catalog", help="catalogue folder or URI")
+    exp.add_argument("--out", type=path_text, default="out/catalog", help="catalogue folder or URI")
     exp.add_argument("--overwrite", action="store_true",
                      help="DEST holds an earlier export: remove what that export recorded (DEST/.mine-export.json) "
                           "and write this one; other files in DEST are kept")
-    exp.add_argument("--margin", type=float, default=None,
+    exp.add_argument("--margin", type=real(0.0, 10.0), default=None,
                      help="crops: context on each side, as a fraction of the box (default 0.15, at least 8 px)")
     exp.add_argument("--images", action="store_true",
                      help="youtube-vis, tao: also write the video frames (rectified left images, JPEG) the JSON names")
     exp.set_defaults(func=cmd_export)
 
     rnd = sub.add_parser("render", help="a sequence with its selected tubes drawn (mask, id, category), as a video")
-    rnd.add_argument("dest", help="DEST.mp4 (H.264 with PyAV, the `video` extra; without it MPEG-4 Part 2, which "
+    rnd.add_argument("dest", type=output_file, help="DEST.mp4 (H.264 with PyAV, the `video` extra; without it MPEG-4 Part 2, which "
                                   "browsers do not play) or DEST.webm (VP8); H.264 and VP8 play in browsers")
-    rnd.add_argument("--out", default="out/catalog", help="catalogue folder")
+    rnd.add_argument("--out", type=path_text, default="out/catalog", help="catalogue folder")
     rnd.add_argument("--sequence", required=True)
     rnd.add_argument("--where", help="SQL predicate over the tubes table: draw only the selected tubes it matches")
     rnd.add_argument("--depth", action="store_true", help="add a stereo depth panel beside each frame")
-    rnd.add_argument("--fps", type=float, help="frame rate (default: the sequence's, from its timestamps)")
+    rnd.add_argument("--fps", type=positive_float(1000.0),  # render.MAX_FPS (not imported here: OpenCV is slow to load)
+                     help="frame rate, > 0 and ≤ 1000 (default: the sequence's, from its timestamps)")
     rnd.add_argument("--frames", type=frame_range, default=None, metavar="A:B",
                      help="plan positions [A, B) (default: the frames the catalogue mined)")
     rnd.add_argument("--overwrite", action="store_true",
@@ -268,11 +280,11 @@ def build_parser() -> argparse.ArgumentParser:
     rnd.set_defaults(func=cmd_render)
 
     viw = sub.add_parser("view", help="browse the catalogue in a web browser: a gallery of tubes, a page per tube")
-    viw.add_argument("--out", default="out/catalog", help="catalogue folder")
-    viw.add_argument("--port", type=int, default=8765, help="port to listen on (default 8765; 0 picks a free one)")
+    viw.add_argument("--out", type=path_text, default="out/catalog", help="catalogue folder")
+    viw.add_argument("--port", type=count(0, 65535), default=8765, help="port to listen on (default 8765; 0 picks a free one)")
     viw.add_argument("--host", default="127.0.0.1",
                      help="address to listen on (default 127.0.0.1: this machine only; there is no login)")
-    viw.add_argument("--cache", help="folder for rendered pictures (default: tube-miner/view in $XDG_CACHE_HOME or "
+    viw.add_argument("--cache", type=output_folder, help="folder for rendered pictures (default: tube-miner/view in $XDG_CACHE_HOME or "
                                      "~/.cache, made 0700; refused when not yours alone; not inside the catalogue)")
     viw.add_argument("--log", action="store_true", help="log one line per request on standard error")
     viw.set_defaults(func=cmd_view)
@@ -296,6 +308,7 @@ def main(argv: list[str] | None = None) -> int:
     args.argv = argv
     try:
         _check_names(args)
+        check_paths(args)  # before any work: an output that cannot be written is said now, not at the end
         return args.func(args)
     except NothingMatched as e:
         print(f"mine {args.command}: {e}", file=sys.stderr)

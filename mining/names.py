@@ -16,15 +16,25 @@ The rule (no encoding, so every name reads the same in a path, a query and a log
 
 ``inside`` is the last line of defence where a path is built under a folder: the
 resolved path (symbolic links followed) must lie inside the resolved folder.
+
+A **path** a user names (an option's file or folder) is checked too, before any work
+(``path_problem``): the system must be able to hold it (no name over ``NAME_MAX`` bytes, the
+whole under ``PATH_MAX``: else a traceback ``File name too long`` far into a run), and it
+must print as one line (no control or text-direction character, no bytes that are not
+UTF-8, which the catalogue's records and every message would carry on).
 """
 
 from __future__ import annotations
 
+import os
+import unicodedata
 from pathlib import Path
 
 from mining.errors import InputError
 
 MAX_NAME_LENGTH = 128  # ours: a window file name (name + 16 + suffix + temp mark) stays far below 255 bytes
+NAME_MAX = 255  # bytes in one name of a path (Linux and macOS filesystems)
+PATH_MAX = 4096  # bytes in a path, its terminating NUL included (Linux)
 NAME_RULE = f"1-{MAX_NAME_LENGTH} characters of A-Z a-z 0-9 . _ -, not starting with '.' or '-', no '..'"
 
 
@@ -81,3 +91,34 @@ def inside(folder: str | Path, path: str | Path) -> Path:
     if not full.resolve().is_relative_to(folder.resolve()):
         raise InputError(f"refusing to write outside {folder}", full)
     return full
+
+
+_BIDI = {chr(c) for c in (*range(0x202A, 0x202F), *range(0x2066, 0x206A))}  # text-direction overrides
+
+
+def shown(path: str | os.PathLike) -> str:
+    """``path`` as it can be printed on one line: control characters and undecodable bytes escaped."""
+    text = os.fspath(path)
+    if text.isprintable() and not (_BIDI & set(text)):
+        return text
+    return ascii(text)[1:-1]
+
+
+def path_problem(path: str | os.PathLike) -> str | None:
+    """Why ``path`` cannot name a file (or folder) here, or None: empty, bytes that are not
+    UTF-8 text, a control or text-direction character, a name longer than NAME_MAX bytes or a
+    path of PATH_MAX bytes or more (the system's ENAMETOOLONG, said before any work)."""
+    text = os.fspath(path)
+    if not text:
+        return "is empty"
+    if any(0xD800 <= ord(c) <= 0xDFFF for c in text):  # undecodable bytes, as os.fsdecode keeps them
+        return "holds bytes that are not UTF-8 text"
+    if any(unicodedata.category(c) == "Cc" or c in _BIDI for c in text):
+        return "holds a control or text-direction character"
+    raw = os.fsencode(text)
+    if len(raw) >= PATH_MAX:
+        return f"is {len(raw)} bytes long; a path holds at most {PATH_MAX - 1}"
+    longest = max(raw.split(b"/"), key=len)
+    if len(longest) > NAME_MAX:
+        return f"has a name of {len(longest)} bytes; a name holds at most {NAME_MAX}"
+    return None

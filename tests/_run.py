@@ -54,6 +54,37 @@ def cli(capsys, *args: str) -> tuple[int, str, str]:
     return rc, out, err
 
 
+def command_parsers(parser=None) -> list[tuple[str, object]]:
+    """(``"bench calibrate"``, its parser) of every ``mine`` command, found by walking
+    ``cli.build_parser()`` (or ``parser``) with every group's commands loaded: a new command
+    is covered by the tests that use this without a line of theirs."""
+    import argparse
+
+    from mining.cli import build_parser
+
+    found = []
+
+    def walk(p: argparse.ArgumentParser, words: tuple[str, ...]) -> None:
+        subs = [a for a in p._actions if isinstance(a, argparse._SubParsersAction)]
+        if not subs:
+            found.append((" ".join(words), p))
+        for a in subs:
+            for name, sub in a.choices.items():
+                if hasattr(sub, "load_command"):
+                    sub.load_command()
+                walk(sub, (*words, name))
+
+    walk(parser if parser is not None else build_parser(), ())
+    return found
+
+
+def valued_options(parser) -> list:
+    """The actions of ``parser`` that take a value (not --help, flags or --version)."""
+    import argparse
+
+    return [a for a in parser._actions if a.nargs != 0 and not isinstance(a, argparse._SubParsersAction)]
+
+
 def cli_status(capsys, out: Path | str, *extra: str) -> tuple[int, str]:
     """(exit status, what it printed) of ``mine status --out OUT`` in this process."""
     rc, o, e = cli(capsys, "status", "--out", str(out), *extra)

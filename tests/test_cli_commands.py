@@ -9,6 +9,7 @@ import sys
 
 import pytest
 
+from conftest import REPO
 from mining.cli import COMMANDS, GROUPS, build_parser
 
 
@@ -23,10 +24,11 @@ def test_every_command_module_offers_add_arguments_and_run():
 @pytest.mark.parametrize("argv, module", [
     (["bench", "scenarios", "--half"], "mining.bench.scenarios"),
     (["eval", "synthetic"], "mining.bench.synthetic"),
-    (["eval", "kitti-mot", "--gt", "g", "--results", "r", "--sequences", "0000"], "mining.eval.kitti_mot"),
+    (["eval", "kitti-mot", "--gt", "tests", "--results", "tests", "--sequences", "0000"], "mining.eval.kitti_mot"),
     (["track", "images", "--sequence", "0000", "--out", "o", "--frames", "2:5"], "mining.pipeline.track_images"),
 ])
-def test_a_parsed_command_runs_its_module(argv, module):
+def test_a_parsed_command_runs_its_module(argv, module, monkeypatch):
+    monkeypatch.chdir(REPO)  # the input folders the command lines name (--gt, --results) exist there
     args = build_parser().parse_args(argv)
     assert args.func is importlib.import_module(module).run
 

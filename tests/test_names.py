@@ -24,6 +24,7 @@ real KITTI 0005 one of ``tests/_catalog_data.py``, one tube renamed."""
 from __future__ import annotations
 
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -31,6 +32,8 @@ import pyarrow as pa
 import pytest
 
 from _catalog_data import DATASET, SEQUENCE
+from _jobs import SYNTHETIC
+from _run import cli, clean_error
 from conftest import kitti_0005_stereo
 from mining.export.dest import RECORD
 from mining.export.run import run_export
@@ -40,7 +43,7 @@ from mining.catalog.views import connect
 from mining.cli import main
 from mining.config import load_config
 from mining.errors import InputError
-from mining.names import MAX_NAME_LENGTH, check_name, check_tube_id, inside, tube_folder
+from mining.names import MAX_NAME_LENGTH, check_name, check_tube_id, inside, path_problem, shown, tube_folder
 from mining.pipeline.executors import LocalExecutor
 from mining.pipeline.submit import mine_job
 from mining.sources import open_source
@@ -51,6 +54,47 @@ N_FRAMES = 6
 ESCAPE = "../../../../elsewhere/victim"
 GOOD = "2014-12-09-13-21-02"
 BAD = ("2014-12-09-13-21-02 (copy)", ".2014-12-10-18-10-13")
+
+
+# -- paths a user names ---------------------------------------------------------------------
+#
+# The adversarial run (issue 28, case 8): a 300-character --out component ended `mine submit`
+# with a traceback, ``OSError: [Errno 36] File name too long``. Now any path option with a
+# name the system cannot hold (over NAME_MAX bytes), a path over PATH_MAX, or one that does
+# not print as one line is refused before any work: one line naming the option, exit 2.
+
+LONG = "x" * 300
+
+
+@pytest.mark.parametrize("args", [
+    ["submit", *SYNTHETIC, "--workers", "1", "--out", "{tmp}/" + LONG + "/catalog"],
+    ["submit", *SYNTHETIC, "--workers", "1", "--out", "{tmp}/" + "d/" * 2100],
+    ["status", "--out", "{tmp}/" + LONG],
+    ["query", "SELECT 1", "--out", "{tmp}", "--format", "csv", "--output", "{tmp}/" + LONG + ".csv"],
+    ["export", "--format", "crops", "--out", "{tmp}", "{tmp}/" + LONG],
+    ["render", "--sequence", "0000", "--out", "{tmp}", "{tmp}/" + LONG + ".mp4"],
+    ["inspect", "geometry", *SYNTHETIC[:2], "--sequence", "0000", "--out", "{tmp}/" + LONG],
+    ["eval", "synthetic", "--n-frames", "2", "--json", "{tmp}/" + LONG + ".json"],
+], ids=["submit --out name", "submit --out path", "status --out", "query --output", "export DEST", "render DEST",
+        "inspect --out", "eval synthetic --json"])
+def test_a_path_the_system_cannot_hold_is_one_line_before_any_work(args, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    rc, out, err = cli(capsys, *[a.replace("{tmp}", str(tmp_path)) for a in args])
+    line = clean_error(err)
+    assert rc == 2 and not out and len(err.strip().splitlines()) == 1, (rc, out, err)
+    assert re.search(r"a name of 30[0-9] bytes; a name holds at most 255|bytes long; a path holds at most", line), line
+    assert os.listdir(tmp_path) == [], "nothing written"
+
+
+@pytest.mark.parametrize("path, problem", [
+    ("x" * 255, None), ("ü" * 127, None), ("a/" + "x" * 256, "a name of 256 bytes"), ("ü" * 128, "a name of 256 bytes"),
+    ("/" + "d/" * 2048, "bytes long"), ("", "empty"), ("a\nb", "control"), ("a\x1b[31m", "control"),
+    ("x\u202etxt.exe", "text-direction"), ("caf\udce9", "not UTF-8"), ("s3://bucket/key", None),
+])
+def test_the_path_rule(path, problem):
+    found = path_problem(path)
+    assert (found is None) if problem is None else (problem in found), (path, found)
+    assert "\n" not in shown(path) and shown("plain/ünï") == "plain/ünï"
 
 
 # -- the rule ----------------------------------------------------------------------------

@@ -48,22 +48,25 @@ import subprocess
 from pathlib import Path
 
 import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 
 from _catalog_data import SEQUENCE
 from mining.catalog import safe_files
 from mining.catalog.layout import part_path
 from mining.catalog.lock import OutputLock
+from mining.catalog import query as query_mod
 from mining.catalog.safe_files import LinkError, WriteError
 from mining.catalog.schema import SCHEMAS
 from mining.catalog.store import Store, write_sequence
 from mining.cli import main
+from mining.errors import InputError
 from mining.export import render as render_mod
 from mining.export.dest import RECORD, STAGING_PREFIX
 from mining.export import registry
 from mining.names import tube_folder
 from _jobs import CLI_SMALL, SYNTHETIC, catalogue_files, copy_of, mine, tables
-from _run import env, mine_cmd
+from _run import cli, clean_error, command_parsers, env, mine_cmd, valued_options
 from conftest import REPO
 
 SECRET = "line one\nline two\n"  # the outside file a planted link points at: it must keep these bytes
@@ -419,6 +422,168 @@ def test_render_refuses_a_link_at_dest_even_with_overwrite(catalogue, tmp_path, 
     assert "is a link" in capsys.readouterr().err
     assert secret.read_text() == SECRET and dest.is_symlink()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["elsewhere", "v.mp4"]
+
+
+# -- one file where the user named it: --output, every --json, a bench's pictures -----------------
+#
+# The adversarial run (issue 28, case 1): `mine query … --output F` and `mine eval recall …
+# --json F` wrote through a link planted at F (the file it pointed to was overwritten with
+# Parquet / JSON), and `--output` replaced an existing file without --overwrite, where export
+# and render refuse. Now every single file a command writes keeps one rule
+# (safe_files.write_file, checked up front by check_output_file): a temporary name in the
+# same folder and a rename, a link at the name refused, an existing file replaced only with
+# --overwrite and only when it is a plain file.
+
+
+def _output_file_options() -> list[tuple[str, str]]:
+    """(command, option) of every option naming a file a command writes (walked from the parser)."""
+    from mining.checks import PathType
+
+    return [(command, a.option_strings[-1] if a.option_strings else "DEST")
+            for command, parser in command_parsers() for a in valued_options(parser)
+            if isinstance(a.type, PathType) and a.type.role == "output-file"]
+
+
+OUTPUT_FILE_OPTIONS = _output_file_options()
+
+
+def _with_output(command: str, option: str, path: Path) -> list[str]:
+    """A command line of ``command`` writing its ``option`` file at ``path`` (required options filled)."""
+    required = {"query": ["SELECT 1 AS x"], "render": ["--sequence", SEQUENCE]}.get(command, [])
+    return [*command.split(), *required, *([option] if option != "DEST" else []), str(path)]
+
+
+def test_the_output_file_options_include_query_output_and_every_json():
+    found = set(OUTPUT_FILE_OPTIONS)
+    assert {("query", "--output"), ("eval recall", "--json"), ("eval synthetic", "--json"), ("render", "DEST"),
+            ("bench calibrate", "--json"), ("bench pipeline", "--json")} <= found
+    for command, parser in command_parsers():  # every command that writes a file offers --overwrite
+        if any(c == command for c, _ in found):
+            assert any("--overwrite" in a.option_strings for a in parser._actions), command
+
+
+@pytest.mark.parametrize("command, option", OUTPUT_FILE_OPTIONS, ids=[f"{c} {o}" for c, o in OUTPUT_FILE_OPTIONS])
+def test_every_output_file_refuses_a_link_at_its_name_before_any_work(command, option, tmp_path, capsys,
+                                                                       monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    secret = _outside(tmp_path)
+    dest = tmp_path / "result.mp4"
+    dest.symlink_to(secret)
+    for extra in ([], ["--overwrite"]):  # a link is refused whatever the flag
+        rc, out, err = cli(capsys, *_with_output(command, option, dest), *extra)
+        assert rc == 2 and "is a link" in clean_error(err) and not out, (rc, out, err)
+        assert secret.read_text() == SECRET and dest.is_symlink()
+
+
+@pytest.mark.parametrize("command, option", OUTPUT_FILE_OPTIONS, ids=[f"{c} {o}" for c, o in OUTPUT_FILE_OPTIONS])
+def test_every_output_file_refuses_an_existing_file_without_overwrite_before_any_work(command, option, tmp_path,
+                                                                                      capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    dest = tmp_path / "result.mp4"
+    dest.write_text("an earlier result\n")
+    rc, out, err = cli(capsys, *_with_output(command, option, dest))
+    assert rc == 2 and "--overwrite" in clean_error(err) and not out, (rc, out, err)
+    assert dest.read_text() == "an earlier result\n"
+
+
+def _query(out: Path, dest: Path, fmt: str, *extra: str) -> int:
+    return main(["query", "SELECT 1 AS x, 'a' AS y", "--out", str(out), "--format", fmt, "--output", str(dest), *extra])
+
+
+@pytest.mark.parametrize("fmt", ["parquet", "csv", "json", "table"])
+def test_query_output_never_writes_through_a_link_planted_while_it_runs(catalogue, tmp_path, monkeypatch, capsys,
+                                                                        fmt):
+    """A link that appears at --output after the check (while the query runs) is refused at the write too."""
+    out, _ = catalogue
+    secret, dest = _outside(tmp_path), tmp_path / "result"
+    real = query_mod.query_table
+
+    def plant(*args, **kwargs):
+        t = real(*args, **kwargs)
+        dest.symlink_to(secret)
+        return t
+
+    monkeypatch.setattr(query_mod, "query_table", plant)
+    assert _query(out, dest, fmt, "--overwrite") == 2
+    assert "is a link" in clean_error(capsys.readouterr().err)
+    assert secret.read_text() == SECRET and dest.is_symlink()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["elsewhere", "result"], "no temporary file left"
+
+
+def test_query_output_replaces_an_existing_file_only_with_overwrite(catalogue, tmp_path, capsys):
+    out, _ = catalogue
+    dest = tmp_path / "r.csv"
+    dest.write_text("earlier\n")
+    assert _query(out, dest, "csv") == 2
+    assert "--overwrite" in clean_error(capsys.readouterr().err) and dest.read_text() == "earlier\n"
+    assert _query(out, dest, "csv", "--overwrite") == 0
+    assert dest.read_text() == "\"x\",\"y\"\n1,\"a\"\n"
+    assert _query(out, tmp_path / "new.parquet", "parquet") == 0  # a new name needs no flag
+    assert pq.read_table(tmp_path / "new.parquet").to_pylist() == [{"x": 1, "y": "a"}]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["new.parquet", "r.csv"], "no temporary file left"
+
+
+def test_query_output_refuses_a_folder_at_its_name_even_with_overwrite(catalogue, tmp_path, capsys):
+    out, _ = catalogue
+    (tmp_path / "r.json").mkdir()
+    assert _query(out, tmp_path / "r.json", "json", "--overwrite") == 2
+    assert "not a file" in clean_error(capsys.readouterr().err) and (tmp_path / "r.json").is_dir()
+
+
+def test_a_failed_write_leaves_the_earlier_file_and_no_temporary_file(tmp_path):
+    dest = tmp_path / "r.json"
+    dest.write_text("earlier")
+
+    def fail(f):
+        f.write(b"half a fi")
+        raise OSError(28, "No space left on device")
+
+    with pytest.raises(WriteError, match="no space left on device"):
+        safe_files.write_file(dest, fail, overwrite=True)
+    assert dest.read_text() == "earlier" and sorted(os.listdir(tmp_path)) == ["r.json"]
+
+
+def test_write_file_claims_a_new_name_atomically_and_replaces_only_a_plain_file(tmp_path):
+    dest = tmp_path / "sub" / "r.json"
+    safe_files.write_file(dest, b"one")  # its folder is made
+    with pytest.raises(InputError, match="--overwrite"):
+        safe_files.write_file(dest, b"two")
+    safe_files.write_file(dest, b"three", overwrite=True)
+    assert dest.read_bytes() == b"three" and sorted(os.listdir(dest.parent)) == ["r.json"]
+    secret = _outside(tmp_path)
+    link = tmp_path / "sub" / "l.json"
+    link.symlink_to(secret)
+    for overwrite in (False, True):
+        with pytest.raises(LinkError):
+            safe_files.write_file(link, b"x", overwrite)
+    assert secret.read_text() == SECRET and sorted(os.listdir(dest.parent)) == ["l.json", "r.json"]
+
+
+def test_no_bench_or_eval_module_writes_a_file_by_itself():
+    """Every file a bench or an evaluation writes for the user goes through the destination rule
+    (safe_files.write_file): no ``write_text``, ``write_bytes``, ``open(…, "w")``, ``imwrite``
+    or ``savefig`` of their own, except into a private temporary folder (named here)."""
+    import ast
+
+    private = {("mining/eval/kitti_mot.py", "evaluate_first_frames"),  # a TemporaryDirectory for TrackEval
+               ("mining/bench/pipeline.py", "measure_run"), ("mining/bench/pipeline.py", "_main"),  # its tmp folder
+               ("mining/bench/iou_tracker.py", "write_iou_tracks")}  # into the benches' TemporaryDirectory
+    found = []
+    for path in sorted([*(REPO / "mining" / "bench").rglob("*.py"), *(REPO / "mining" / "eval").rglob("*.py"),
+                        REPO / "mining" / "catalog" / "query.py"]):
+        rel = str(path.relative_to(REPO))
+        tree = ast.parse(path.read_text())
+        for fn in [n for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))]:
+            for node in ast.walk(fn):
+                if not isinstance(node, ast.Call):
+                    continue
+                name = node.func.attr if isinstance(node.func, ast.Attribute) else getattr(node.func, "id", "")
+                mode = [a.value for a in node.args[1:2] if isinstance(a, ast.Constant)]
+                writes = name in ("write_text", "write_bytes", "imwrite", "savefig", "write_kitti_tracking") or (
+                    name == "open" and any("w" in str(m) or "a" in str(m) for m in mode))
+                if writes and (rel, fn.name) not in private:
+                    found.append(f"{rel}:{node.lineno} {fn.name}: {name}")
+    assert not found, found
 
 
 # -- a full disk -------------------------------------------------------------------------

@@ -43,17 +43,19 @@ import json
 import time
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
-from pathlib import Path
 
 import numpy as np
 from scipy.optimize import minimize
 from scipy.stats import rankdata
 
 from mining.bench.synthetic import run_synthetic
+from mining.catalog import safe_files
+from mining.checks import count, finite_float, output_file, positive_float, real, worker_count
 from mining.config import JobConfig, validate
+from mining.errors import ConfigError, MiningError
 from mining.eval.synthetic import evaluate_synthetic
 from mining.eval.tube_labels import label_tubes
-from mining.pipeline.arguments import add_job_options, job_config
+from mining.pipeline.arguments import add_job_options, add_overwrite_option, job_config
 from mining.pipeline.mine import judge, unary
 from mining.score.calibrated import TERMS, tube_evidence
 from mining.types import Tube
@@ -136,9 +138,31 @@ def calibrated_config(cfg: JobConfig, weights: dict[str, float], epsilon1: float
     return out
 
 
+def check_seeds(seeds: Sequence[str]) -> None:
+    """ConfigError unless ``seeds`` holds at least two distinct seeds: one is held out in
+    each fold, and the others are the fold's training data."""
+    if len(set(seeds)) < 2:
+        raise ConfigError(f"--seeds {' '.join(seeds)}: leave-one-seed-out needs at least two distinct seeds")
+
+
+def check_fit_data(data: dict[str, dict], train: Sequence[str], n_frames: int, held_out: str | None = None) -> None:
+    """MiningError naming what is missing when the tubes of the seeds ``train`` cannot be fit:
+    a logistic fit needs object tubes and part or clutter tubes (few frames give neither)."""
+    n_object = sum(int(data[s]["y"].sum()) for s in train)
+    n_other = sum(int((~data[s]["y"]).sum()) for s in train)
+    if n_object and n_other:
+        return
+    missing = " and no ".join(k for k, n in (("object tube", n_object), ("part or clutter tube", n_other)) if not n)
+    fold = f" (the fold holding out {held_out})" if held_out is not None else ""
+    raise MiningError(f"too few frames to fit: seeds {', '.join(train)}{fold} gave no {missing} in {n_frames} "
+                      f"frames each ({n_object} object, {n_other} part or clutter tubes); the fit needs both: raise "
+                      "--frames or add --seeds")
+
+
 def run_calibrate_bench(cfg: JobConfig, seeds: Sequence[str], n_frames: int, workers: int = 1,
                         l2: float = L2, epsilon1: float = EPSILON1, epsilon2: float = EPSILON2, balance: bool = True,
-                        json_out: str | None = None) -> int:
+                        json_out: str | None = None, overwrite: bool = False) -> int:
+    check_seeds(seeds)
     t0 = time.perf_counter()
     print(f"calibrate: mining {len(seeds)} seed(s) × {n_frames} frames, proposer {cfg.proposals.proposer}, "
           f"{workers} worker(s)")
@@ -163,6 +187,8 @@ def run_calibrate_bench(cfg: JobConfig, seeds: Sequence[str], n_frames: int, wor
         counts = {k: sum(1 for v in labels.values() if v.label == k) for k in ("object", "part", "clutter", "ignored")}
         print(f"  seed {seed}: {len(tubes)} candidate tubes ({counts}), mined in {secs:.0f} s")
 
+    for held in seeds:  # before any fit: every fold, and the final fit on all seeds, has both kinds of tube
+        check_fit_data(data, [s for s in seeds if s != held], n_frames, held)
     own = unary(cfg)
     rows = []
     for held in seeds:
@@ -190,7 +216,7 @@ def run_calibrate_bench(cfg: JobConfig, seeds: Sequence[str], n_frames: int, wor
         doc = {"proposer": cfg.proposals.proposer, "seeds": list(seeds), "n_frames": n_frames, "l2": l2,
                "epsilon1": epsilon1, "epsilon2": epsilon2, "balance": balance, "folds": rows, "weights": final,
                "tubes": {"object": int(y.sum()), "part_or_clutter": int((~y).sum())}}
-        Path(json_out).write_text(json.dumps(doc, indent=1))
+        safe_files.write_file(json_out, json.dumps(doc, indent=1).encode(), overwrite)
     return 0
 
 
@@ -225,20 +251,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_job_options(p)
     p.add_argument("--seeds", nargs="+", default=["0000", "0001", "0002", "0003", "0004", "0005", "0006"],
                    help="synthetic training seeds, one fold each (default 0000–0006; 0007–0009 are held out)")
-    p.add_argument("--frames", type=int, default=100, help="frames per seed (default 100)")
-    p.add_argument("--workers", type=int, default=1, help="seeds mined in parallel processes (default 1)")
-    p.add_argument("--l2", type=float, default=1.0, help="L2 penalty on the standardised evidence (default 1)")
-    p.add_argument("--epsilon1", type=float, default=0.0,
+    p.add_argument("--frames", type=count(), default=100, help="frames per seed (default 100)")
+    p.add_argument("--workers", type=worker_count, default=1, help="seeds mined in parallel processes (default 1)")
+    p.add_argument("--l2", type=positive_float(1e6), default=L2,
+                   help="L2 penalty on the standardised evidence, > 0 (default 1)")
+    p.add_argument("--epsilon1", type=finite_float(1e3), default=EPSILON1,
                    help="co-selection price for the calibrated unary in the folds (default 0: log-odds 0)")
-    p.add_argument("--epsilon2", type=float, default=3.0,
+    p.add_argument("--epsilon2", type=real(0.0, 1e3), default=EPSILON2,
                    help="overlap weight for the calibrated unary in the folds (default 3)")
     p.add_argument("--no-balance", action="store_true",
                    help="do not weigh unknown objects' tubes up to the known ones' total")
-    p.add_argument("--json", help="also write the results as JSON here")
+    p.add_argument("--json", type=output_file, help="also write the results as JSON here")
+    add_overwrite_option(p, "the --json file")
 
 
 def run(args: argparse.Namespace) -> int:
     """``mine bench calibrate``."""
     return run_calibrate_bench(job_config(args), args.seeds, args.frames, workers=args.workers, l2=args.l2,
                                epsilon1=args.epsilon1, epsilon2=args.epsilon2, balance=not args.no_balance,
-                               json_out=args.json)
+                               json_out=args.json, overwrite=args.overwrite)

@@ -33,10 +33,12 @@ from scipy.optimize import minimize
 
 from mining.bench.synthetic import run_synthetic
 from mining.boxes import box_iou
+from mining.catalog import safe_files
+from mining.checks import count, output_file
 from mining.config import JobConfig
 from mining.eval.synthetic import SyntheticEvalProtocol, gt_frame
 from mining.formats.kitti_tracking import read_kitti_tracking
-from mining.pipeline.arguments import add_data_option, add_job_options, job_config
+from mining.pipeline.arguments import add_data_option, add_job_options, add_overwrite_option, job_config
 from mining.pipeline.frames import frame_records
 from mining.pipeline.mine import mine_tubes
 from mining.proposals.onnx_yolo import OnnxProposer
@@ -215,7 +217,7 @@ def mask_choice(seeds: Sequence[str], n_frames: int, cfg: JobConfig, step: int =
 
 def run_classify_bench(data: Path, cfg: JobConfig, train_seeds: Sequence[str] = ("0000", "0001", "0002"),
                        test_seed: str = "0007", n_frames: int = 200, train_frames: int = 100,
-                       json_out: str | None = None) -> int:
+                       json_out: str | None = None, overwrite: bool = False) -> int:
     t0 = time.perf_counter()
     root = data / "kitti_tracking"
     doc: dict = {"proposer": cfg.proposals.proposer, "train_seeds": list(train_seeds), "test_seed": test_seed}
@@ -276,7 +278,8 @@ def run_classify_bench(data: Path, cfg: JobConfig, train_seeds: Sequence[str] = 
     doc["held_out"] = {"synthetic": {k: v for k, v in res.items() if k not in ("truths", "tube_split")}, "kitti": kitti}
     print(f"  ({time.perf_counter() - t0:.0f} s)")
     if json_out:
-        Path(json_out).write_text(json.dumps(doc, indent=1, default=lambda x: x.item() if isinstance(x, np.generic) else str(x)))
+        text = json.dumps(doc, indent=1, default=lambda x: x.item() if isinstance(x, np.generic) else str(x))
+        safe_files.write_file(json_out, text.encode(), overwrite)
     return 0
 
 
@@ -285,14 +288,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_job_options(p)
     add_data_option(p)
     p.add_argument("--train-seeds", nargs="+", default=["0000", "0001", "0002"], help="synthetic training seeds")
-    p.add_argument("--train-frames", type=int, default=100, help="frames per training seed")
+    p.add_argument("--train-frames", type=count(), default=100, help="frames per training seed")
     p.add_argument("--test-seed", default="0007", help="the held-out synthetic seed")
-    p.add_argument("--frames", type=int, default=200, help="frames of the held-out seed")
-    p.add_argument("--json", help="also write the results as JSON here")
+    p.add_argument("--frames", type=count(), default=200, help="frames of the held-out seed")
+    p.add_argument("--json", type=output_file, help="also write the results as JSON here")
+    add_overwrite_option(p, "the --json file")
 
 
 def run(args: argparse.Namespace) -> int:
     """``mine bench classify``."""
     return run_classify_bench(Path(args.data), job_config(args), train_seeds=args.train_seeds,
                               test_seed=args.test_seed, n_frames=args.frames, train_frames=args.train_frames,
-                              json_out=args.json)
+                              json_out=args.json, overwrite=args.overwrite)

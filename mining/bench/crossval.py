@@ -37,11 +37,13 @@ from pathlib import Path
 from typing import Any
 
 from mining.bench.iou_tracker import iou_track, write_iou_tracks
+from mining.catalog import safe_files
+from mining.checks import count, input_file, output_file
 from mining.config import JobConfig, load_config, parse_override
 from mining.eval.kitti_mot import combine_kitti_mot, evaluate_kitti_mot
 from mining.formats.kitti_tracking import read_seqmap
 from mining.formats.poses import read_poses
-from mining.pipeline.arguments import add_data_option
+from mining.pipeline.arguments import REPO, add_data_option, add_overwrite_option
 from mining.pipeline.detections import DETECTIONS, FRAME_INTERVAL_NS, detection_frames, write_detection_tubes
 from mining.pipeline.mine import judge, tube_generator
 from mining.proposals.precomputed import KittiDetections
@@ -324,7 +326,7 @@ def _metrics_json(m: Mapping[str, Mapping[str, float]]) -> dict[str, dict[str, f
 
 def run_crossval_bench(data: Path, config: str | Path | None, overrides: Sequence[str] = (), k: int = 4,
                        grid: Mapping[str, Sequence[str]] | None = None, sequences: Sequence[str] | None = None,
-                       json_out: str | Path | None = None) -> int:
+                       json_out: str | Path | None = None, overwrite: bool = False) -> int:
     """Run the cross-validation and print every fold; 0 when every held-out fold meets the target."""
     seqmap = data / "kitti_tracking" / "training" / "seqmaps" / "train.seqmap"
     frames = read_seqmap(seqmap)
@@ -356,25 +358,27 @@ def run_crossval_bench(data: Path, config: str | Path | None, overrides: Sequenc
             "pooled_held_out": _metrics_json(result.pooled_held_out),
             "cv_score": {" ".join(s.overrides): v for s, v in result.cv_score.items()},
         }
-        Path(json_out).write_text(json.dumps(doc, indent=1))
+        safe_files.write_file(json_out, json.dumps(doc, indent=1).encode(), overwrite)
     return 0 if not misses else 1
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """``mine bench crossval``'s options (a config and overrides of its own: the grid overrides them)."""
-    p.add_argument("--config", default="jobs/kitti-detections.toml", help="job config TOML the grid overrides")
+    p.add_argument("--config", type=input_file, default=str(REPO / "jobs" / "kitti-detections.toml"),
+                   help="job config TOML the grid overrides (default: jobs/kitti-detections.toml)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config value")
     add_data_option(p)
-    p.add_argument("--folds", type=int, default=4, help="number of folds (default 4)")
+    p.add_argument("--folds", type=count(2, 100), default=4, help="number of folds (default 4)")
     p.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2,...",
                    help="a grid axis, REFERENCE value first; repeat for more (default: mining/bench/crossval.py "
                         "DEFAULT_GRID)")
     p.add_argument("--sequences", nargs="+", default=None, help="default: the twelve training sequences")
-    p.add_argument("--json", help="also write the results as JSON here")
+    p.add_argument("--json", type=output_file, help="also write the results as JSON here")
+    add_overwrite_option(p, "the --json file")
 
 
 def run(args: argparse.Namespace) -> int:
     """``mine bench crossval``."""
     return run_crossval_bench(Path(args.data), args.config, args.set, k=args.folds,
                               grid=parse_grid(args.grid) if args.grid else None, sequences=args.sequences,
-                              json_out=args.json)
+                              json_out=args.json, overwrite=args.overwrite)

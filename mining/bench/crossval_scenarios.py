@@ -31,8 +31,10 @@ import numpy as np
 
 from mining.bench.crossval import Setting, grid_settings, parse_grid
 from mining.bench.scenarios import MODES, run_scenario
+from mining.catalog import safe_files
+from mining.checks import count, input_file, output_file
 from mining.config import load_config
-from mining.pipeline.arguments import SYNTHETIC_JOB
+from mining.pipeline.arguments import SYNTHETIC_JOB, add_overwrite_option
 from mining.sources.synthetic.scenarios import SCENARIOS
 
 DEFAULT_GRID = {
@@ -90,7 +92,7 @@ def cross_validate_seeds(scores: Scores, seeds: Sequence[str]) -> dict:
 def run_crossval_scenarios(config: str | Path | None, overrides: Sequence[str] = (),
                            grid: Mapping[str, Sequence[str]] | None = None, seeds: Sequence[str] = DEFAULT_SEEDS,
                            names: Sequence[str] | None = None, n_frames: int | None = 60, half: bool = True,
-                           json_out: str | Path | None = None) -> int:
+                           json_out: str | Path | None = None, overwrite: bool = False) -> int:
     """Score every (setting, seed), cross-validate over the seeds and print every fold."""
     settings = grid_settings(grid or DEFAULT_GRID)
     names = list(names or SCENARIOS)
@@ -122,21 +124,23 @@ def run_crossval_scenarios(config: str | Path | None, overrides: Sequence[str] =
                "folds": [f | {"setting": list(f["setting"].overrides)} for f in res["folds"]],
                "final": list(res["final"].overrides), "rule": res["rule"],
                "cv": {" ".join(st.overrides): v for st, v in res["cv"].items()}}
-        Path(json_out).write_text(json.dumps(doc, indent=1))
+        safe_files.write_file(json_out, json.dumps(doc, indent=1).encode(), overwrite)
     return 0
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """``mine bench crossval-scenarios``'s options (a config and overrides of its own: the grid overrides them)."""
-    p.add_argument("--config", default=None, help="job config TOML the grid overrides (default: jobs/synthetic.toml)")
+    p.add_argument("--config", type=input_file, default=None,
+                   help="job config TOML the grid overrides (default: jobs/synthetic.toml)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config value")
     p.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2,...",
                    help="a grid axis, REFERENCE value first (default: mining/bench/crossval_scenarios.py DEFAULT_GRID)")
     p.add_argument("--seeds", nargs="+", default=["0000", "0001", "0002", "0003"], help="synthetic seeds, one fold each")
     p.add_argument("--scenarios", nargs="+", default=None, help="default: all")
-    p.add_argument("--frames", type=int, default=60, help="frames per scenario (default 60)")
+    p.add_argument("--frames", type=count(), default=60, help="frames per scenario (default 60)")
     p.add_argument("--full", action="store_true", help="render at 1242x375 instead of half size")
-    p.add_argument("--json", help="also write the results as JSON here")
+    p.add_argument("--json", type=output_file, help="also write the results as JSON here")
+    add_overwrite_option(p, "the --json file")
     if SYNTHETIC_JOB.is_file():
         p.set_defaults(config=str(SYNTHETIC_JOB))
 
@@ -145,4 +149,4 @@ def run(args: argparse.Namespace) -> int:
     """``mine bench crossval-scenarios``."""
     return run_crossval_scenarios(args.config, args.set, grid=parse_grid(args.grid) if args.grid else None,
                                   seeds=args.seeds, names=args.scenarios, n_frames=args.frames, half=not args.full,
-                                  json_out=args.json)
+                                  json_out=args.json, overwrite=args.overwrite)

@@ -24,6 +24,8 @@ from typing import Any
 import cv2
 import numpy as np
 
+from mining.catalog import safe_files
+from mining.checks import count, output_file
 from mining.eval.depth import depth_errors
 from mining.eval.odometry import odometry_errors
 from mining.eval.stereo import bad_n, d1_all, density
@@ -33,7 +35,7 @@ from mining.geometry.config import GeometryConfig
 from mining.geometry.disparity import compute_disparity
 from mining.geometry.poses import chain_egomotion
 from mining.geometry.stage import GeometryStage
-from mining.pipeline.arguments import add_data_option, add_job_options, job_config
+from mining.pipeline.arguments import add_data_option, add_job_options, add_overwrite_option, job_config
 from mining.sources import open_source
 
 RAW_DRIVE = "2011_09_26_drive_0001_sync"
@@ -126,7 +128,8 @@ def _fmt(x: float, pct: bool = False) -> str:
     return f"{100 * x:.2f} %" if pct else f"{x:.4f}"
 
 
-def run_geometry_bench(data: Path, cfg: GeometryConfig, synthetic_frames: int = 200, json_out: str | None = None) -> int:
+def run_geometry_bench(data: Path, cfg: GeometryConfig, synthetic_frames: int = 200, json_out: str | None = None,
+                       overwrite: bool = False) -> int:
     """Print the geometry table; returns 0 when every target holds, 1 otherwise."""
     if not data.is_dir():
         print(f"mine bench geometry: real data folder {data} not found (pass --data)")
@@ -197,7 +200,7 @@ def run_geometry_bench(data: Path, cfg: GeometryConfig, synthetic_frames: int = 
     results["checks"] = {name: ok for name, ok in checks}
     print(f"\n(bench took {time.perf_counter() - t0:.0f} s)")
     if json_out:
-        Path(json_out).write_text(json.dumps(results, indent=1, default=float))
+        safe_files.write_file(json_out, json.dumps(results, indent=1, default=float).encode(), overwrite)
     return 0 if all(ok for _, ok in checks) else 1
 
 
@@ -205,12 +208,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """``mine bench geometry``'s options."""
     add_job_options(p)
     add_data_option(p)
-    p.add_argument("--synthetic-frames", type=int, default=200, help="length of the synthetic egomotion runs")
-    p.add_argument("--json", help="also write the results as JSON here")
+    p.add_argument("--synthetic-frames", type=count(2), default=200, help="length of the synthetic egomotion runs")
+    p.add_argument("--json", type=output_file, help="also write the results as JSON here")
+    add_overwrite_option(p, "the --json file")
 
 
 def run(args: argparse.Namespace) -> int:
     """``mine bench geometry``: 0 when every check passes."""
     cfg = job_config(args)
     return run_geometry_bench(Path(args.data), cfg.geometry, synthetic_frames=args.synthetic_frames,
-                              json_out=args.json)
+                              json_out=args.json, overwrite=args.overwrite)

@@ -36,10 +36,13 @@ import cv2
 import numpy as np
 
 from mining.boxes import box_iou
+from mining.catalog import safe_files
+from mining.checks import count, input_file, output_file, output_folder
 from mining.config import JobConfig
+from mining.errors import MiningError
 from mining.formats.coco import COCO_CLASSES
 from mining.formats.kitti_tracking import read_kitti_tracking
-from mining.pipeline.arguments import add_data_option, add_job_options, default_data, job_config
+from mining.pipeline.arguments import add_data_option, add_job_options, add_overwrite_option, default_data, job_config
 from mining.proposals.onnx_yolo import N_COCO, OnnxProposer
 from mining.sources import open_source
 
@@ -99,8 +102,10 @@ def _score_frame(props, boxes: np.ndarray, rows: list[list[tuple[str, tuple[str,
     return [(det_boxes[k], det_cls[k], float(props.objectness[order[k]])) for k in range(len(order))]
 
 
-def _draw(image: np.ndarray, gts: list[tuple], dets: list[tuple], path: Path) -> None:
-    """Ground truth (thin white, eligible: thick yellow) and the top-20 detections with class and score."""
+def _draw(image: np.ndarray, gts: list[tuple], dets: list[tuple], path: Path, overwrite: bool = False) -> None:
+    """Ground truth (thin white, eligible: thick yellow) and the top-20 detections with class and score, as a
+    PNG at ``path`` (``safe_files.write_file``: never through a link; an existing one replaced only with
+    ``overwrite``)."""
     img = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
     for box, eligible in gts:
         x0, y0, x1, y1 = (round(v) for v in box)
@@ -111,10 +116,14 @@ def _draw(image: np.ndarray, gts: list[tuple], dets: list[tuple], path: Path) ->
                   "truck": (200, 0, 200)}.get(cls, (180, 180, 180))
         cv2.rectangle(img, (x0, y0), (x1, y1), colour, 1)
         cv2.putText(img, f"{cls} {score:.2f}", (x0, max(9, y0 - 2)), cv2.FONT_HERSHEY_PLAIN, 0.8, colour, 1)
-    cv2.imwrite(str(path), img)
+    ok, png = cv2.imencode(".png", img)
+    if not ok:
+        raise MiningError(f"could not encode the picture {path}")
+    safe_files.write_file(path, png.tobytes(), overwrite)
 
 
-def kitti_recall(data: Path, proposer: OnnxProposer, png_dir: Path | None = None) -> dict[str, ClassTally]:
+def kitti_recall(data: Path, proposer: OnnxProposer, png_dir: Path | None = None,
+                 overwrite: bool = False) -> dict[str, ClassTally]:
     """The figure on the real KITTI 0005 frames (labels: label_02, Car/Van/Pedestrian/Cyclist)."""
     root = data / "kitti_tracking"
     labels = read_kitti_tracking(root / "training" / "label_02" / f"{KITTI_SEQUENCE}.txt")
@@ -133,7 +142,8 @@ def kitti_recall(data: Path, proposer: OnnxProposer, png_dir: Path | None = None
         rows = [[r for r in rr if not r[0].startswith("car:")] for rr in rows]  # KITTI gives no body types
         dets = _score_frame(props, box[ok], rows, tallies)
         if png_dir is not None and pos in (0, 15):
-            _draw(fr.left, [(b, e) for b, e in zip(box, ok)], dets, png_dir / f"looks_kitti_{fr.index:06d}.png")
+            _draw(fr.left, [(b, e) for b, e in zip(box, ok)], dets, png_dir / f"looks_kitti_{fr.index:06d}.png",
+                  overwrite)
     return tallies
 
 
@@ -156,7 +166,8 @@ def synthetic_eligible(truth, unoccluded: dict, width: int, height: int) -> list
 
 
 def synthetic_recall(proposer: OnnxProposer, seeds: list[str], frames: int, step: int, n_frames: int,
-                     png_dir: Path | None = None, **options) -> tuple[dict[str, ClassTally], list[float]]:
+                     png_dir: Path | None = None, overwrite: bool = False,
+                     **options) -> tuple[dict[str, ClassTally], list[float]]:
     """The figure on synthetic frames: ``frames`` positions ``step`` apart (from ``step``) of each seed;
     also the read_frame milliseconds of every frame."""
     src = open_source("synthetic", None, n_frames=n_frames, **options)
@@ -183,7 +194,7 @@ def synthetic_recall(proposer: OnnxProposer, seeds: list[str], frames: int, step
             dets = _score_frame(props, np.array(boxes, np.float64).reshape(-1, 4), rows, tallies)
             if png_dir is not None and k in (1, frames // 2):
                 _draw(fr.left, [(o.box, ok) for o, ok in objs if o.known], dets,
-                      png_dir / f"looks_synthetic_{seq}_{fr.index:06d}.png")
+                      png_dir / f"looks_synthetic_{seq}_{fr.index:06d}.png", overwrite)
     return tallies, ms
 
 
@@ -199,6 +210,7 @@ def format_tallies(title: str, tallies: dict[str, ClassTally]) -> str:
 
 def run_looks_bench(data: Path, cfg: JobConfig, model: str | None, seeds: list[str], frames: int = 34, step: int = 5,
                     n_frames: int = 200, png_dir: str | None = None, json_out: str | None = None,
+                    overwrite: bool = False,
                     kitti: bool = True) -> int:
     cv2.setNumThreads(1)
     onnx = cfg.proposals.onnx
@@ -206,25 +218,23 @@ def run_looks_bench(data: Path, cfg: JobConfig, model: str | None, seeds: list[s
         onnx.model_path = model
     proposer = OnnxProposer(onnx, (375, 1242))
     out = Path(png_dir) if png_dir else None
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
     results = {}
     print(f"recall@{TOP_K} with the right class ({Path(onnx.model_path).name}, box IoU ≥ {MATCH_IOU}; objects with "
           f"box height ≥ {MIN_BOX_H_PX:.0f} px, ≥ {MIN_VISIBLE_SHARE:.0%} visible, ≤ {MAX_TRUNCATION:.0%} truncated)")
     print(f"    {'class':<14} {'objects':>6}   {'recall':>6}   {'any cls':>6}   argmax of the best match")
     if kitti:
-        tk = kitti_recall(data, proposer, out)
+        tk = kitti_recall(data, proposer, out, overwrite)
         results["kitti"] = {k: v.row() for k, v in tk.items()}
         print(format_tallies(f"KITTI {KITTI_SEQUENCE} frames {KITTI_FRAMES[0]}–{KITTI_FRAMES[1] - 1}", tk))
     options = {k: v for k, v in cfg.source.options.items() if k != "n_frames"} if cfg.source.dataset == "synthetic" else {}
-    ts, ms = synthetic_recall(proposer, seeds, frames, step, n_frames, out, **options)
+    ts, ms = synthetic_recall(proposer, seeds, frames, step, n_frames, out, overwrite, **options)
     results["synthetic"] = {k: v.row() for k, v in ts.items()}
     results["render_ms"] = {"min": min(ms), "median": statistics.median(ms), "frames": len(ms)}
     print(format_tallies(f"synthetic {' '.join(seeds)}: {len(ms)} frames (positions {step}, {2 * step}, …)", ts))
     print(f"  render: {min(ms):.0f} ms min, {statistics.median(ms):.0f} ms median per frame (left + right + truth); "
           f"run under `taskset -c 0` with OMP_NUM_THREADS=1 for the one-core figure")
     if json_out:
-        Path(json_out).write_text(json.dumps(results, indent=2, default=float))
+        safe_files.write_file(json_out, json.dumps(results, indent=2, default=float).encode(), overwrite)
     return 0
 
 
@@ -232,19 +242,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """``mine bench looks``'s options."""
     add_job_options(p)
     add_data_option(p)
-    p.add_argument("--model", default=str(Path(default_data()).parent / "models" / "yolov8n-seg_int8.onnx"),
+    p.add_argument("--model", type=input_file, default=Path(default_data()).parent / "models" / "yolov8n-seg_int8.onnx",
                    help="YOLO-seg ONNX model (default: ../shared/models/yolov8n-seg_int8.onnx)")
     p.add_argument("--seeds", nargs="+", default=["0000", "0001", "0002"], help="synthetic sequences")
-    p.add_argument("--frames", type=int, default=34, help="frames per seed")
-    p.add_argument("--step", type=int, default=5, help="plan positions between frames (the first is STEP)")
-    p.add_argument("--n-frames", type=int, default=200, help="length of the synthetic world")
-    p.add_argument("--png", help="write a few frames with the detections drawn to this folder")
+    p.add_argument("--frames", type=count(), default=34, help="frames per seed")
+    p.add_argument("--step", type=count(), default=5, help="plan positions between frames (the first is STEP)")
+    p.add_argument("--n-frames", type=count(), default=200, help="length of the synthetic world")
+    p.add_argument("--png", type=output_folder, help="write a few frames with the detections drawn to this folder "
+                                                    "(made when absent)")
     p.add_argument("--no-kitti", action="store_true", help="skip the KITTI reference")
-    p.add_argument("--json", help="also write the results as JSON here")
+    p.add_argument("--json", type=output_file, help="also write the results as JSON here")
+    add_overwrite_option(p, "the --json file and the --png pictures")
 
 
 def run(args: argparse.Namespace) -> int:
     """``mine bench looks``."""
     return run_looks_bench(Path(args.data), job_config(args), args.model, args.seeds, frames=args.frames,
                            step=args.step, n_frames=args.n_frames, png_dir=args.png, json_out=args.json,
+                           overwrite=args.overwrite,
                            kitti=not args.no_kitti)

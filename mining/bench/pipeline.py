@@ -38,8 +38,10 @@ from typing import Any
 
 import numpy as np
 
+from mining.catalog import safe_files
+from mining.checks import count, output_file, output_folder
 from mining.config import JobConfig
-from mining.pipeline.arguments import add_job_options, job_config
+from mining.pipeline.arguments import add_job_options, add_overwrite_option, job_config
 from mining.pipeline.failures import exit_reason
 
 WORKER_TITLE = "ray::Worker"  # process title of the pipeline's actors (mining.pipeline.executors.Worker)
@@ -255,7 +257,7 @@ def _mb(x: float) -> str:
 
 def run_pipeline_bench(cfg: JobConfig, frames: int = 200, sequences: list[str] | None = None,
                        long: bool = False, long_frames: int = 2000, catalog_rows: int = 1_000_000,
-                       workdir: str | None = None, json_out: str | None = None) -> int:
+                       workdir: str | None = None, json_out: str | None = None, overwrite: bool = False) -> int:
     """Print the pipeline table; returns 0 when every target holds, 1 otherwise."""
     from mining.bench.catalog import bench_catalog
 
@@ -329,7 +331,7 @@ def run_pipeline_bench(cfg: JobConfig, frames: int = 200, sequences: list[str] |
     print(f"\n(bench took {time.perf_counter() - t_start:.0f} s; load average {results['load_avg_start'][0]:.2f} at start, "
           f"{results['load_avg_end'][0]:.2f} at end, {results['cpus']} CPUs)")
     if json_out:
-        Path(json_out).write_text(json.dumps(results, indent=1, default=float))
+        safe_files.write_file(json_out, json.dumps(results, indent=1, default=float).encode(), overwrite)
     return 0 if all(ok for _, ok in checks) else 1
 
 
@@ -348,20 +350,23 @@ def _main(argv: list[str]) -> int:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """``mine bench pipeline``'s options."""
     add_job_options(p)
-    p.add_argument("--frames", type=int, default=200, help="frames per sequence of the scaling job")
+    p.add_argument("--frames", type=count(), default=200, help="frames per sequence of the scaling job")
     p.add_argument("--sequences", nargs="+", default=["0000", "0001"], help="synthetic sequences of the scaling job")
     p.add_argument("--long", action="store_true", help="also a long run (memory vs sequence length; ~10 min on 2 cores)")
-    p.add_argument("--long-frames", type=int, default=2000, help="frames of the long run")
-    p.add_argument("--catalog-rows", type=int, default=1_000_000, help="tube-frame rows of the catalogue bench")
-    p.add_argument("--dir", help="where the bench catalogues go (default: the system temporary folder)")
-    p.add_argument("--json", help="also write the results as JSON here")
+    p.add_argument("--long-frames", type=count(), default=2000, help="frames of the long run")
+    p.add_argument("--catalog-rows", type=count(1, 10**8), default=1_000_000,
+                   help="tube-frame rows of the catalogue bench")
+    p.add_argument("--dir", type=output_folder,
+                   help="where the bench catalogues go (default: the system temporary folder)")
+    p.add_argument("--json", type=output_file, help="also write the results as JSON here")
+    add_overwrite_option(p, "the --json file")
 
 
 def run(args: argparse.Namespace) -> int:
     """``mine bench pipeline``."""
     return run_pipeline_bench(job_config(args), frames=args.frames, sequences=args.sequences, long=args.long,
                               long_frames=args.long_frames, catalog_rows=args.catalog_rows, workdir=args.dir,
-                              json_out=args.json)
+                              json_out=args.json, overwrite=args.overwrite)
 
 
 if __name__ == "__main__":

@@ -24,8 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
+from mining.catalog import safe_files
+from mining.checks import output_file
 from mining.config import JobConfig
-from mining.pipeline.arguments import add_data_option, add_job_options, frame_range, job_config
+from mining.pipeline.arguments import add_data_option, add_job_options, add_overwrite_option, frame_range, job_config
 from mining.pipeline.frames import plan_frames, plan_geometry
 from mining.proposals.make import make_proposer
 from mining.sources import open_source
@@ -91,7 +93,7 @@ def bench_torch_batched(cfg: JobConfig, items: list) -> dict:
 
 
 def run_proposals_bench(data: Path, cfg: JobConfig, frames: tuple[int, int | None] = (0, 9),
-                        random_weights: bool = False, json_path: str | None = None) -> int:
+                        random_weights: bool = False, json_path: str | None = None, overwrite: bool = False) -> int:
     cfg = copy.deepcopy(cfg)
     names = [n.strip() for n in cfg.proposals.proposer.split("+") if n.strip()]
     source = open_source("kitti", str(data / "kitti_tracking"))
@@ -125,8 +127,9 @@ def run_proposals_bench(data: Path, cfg: JobConfig, frames: tuple[int, int | Non
         print(f"  {r['mode']:<10} {r['frames']:>6} {r['fps']:>9.3f} {r['wall_s'] / r['frames']:>8.2f} "
               f"{r['cpu_s'] / r['frames']:>11.2f} {r['proposals_per_frame']:>9.1f}  {extra}")
     if json_path:
-        Path(json_path).write_text(json.dumps({"proposer": cfg.proposals.proposer, "frames": [a, b],
-                                               "random_weights": random_weights, "rows": rows}, indent=2))
+        safe_files.write_file(json_path, json.dumps({"proposer": cfg.proposals.proposer, "frames": [a, b],
+                                                     "random_weights": random_weights, "rows": rows}, indent=2).encode(),
+                              overwrite)
     return 0
 
 
@@ -138,10 +141,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="KITTI 0005 frames [A, B), the first warms up")
     p.add_argument("--random-weights", action="store_true",
                    help="torch without proposals.torch.model_path: random initial weights (speed only)")
-    p.add_argument("--json", help="also write the results as JSON here")
+    p.add_argument("--json", type=output_file, help="also write the results as JSON here")
+    add_overwrite_option(p, "the --json file")
 
 
 def run(args: argparse.Namespace) -> int:
     """``mine bench proposals``."""
     return run_proposals_bench(Path(args.data), job_config(args), frames=args.frames,
-                               random_weights=args.random_weights, json_path=args.json)
+                               random_weights=args.random_weights, json_path=args.json, overwrite=args.overwrite)

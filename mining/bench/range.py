@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from mining.boxes import box_iou
+from mining.checks import count
 from mining.config import JobConfig
 from mining.formats.kitti_tracking import read_kitti_tracking
 from mining.localise.localise import (
@@ -399,7 +400,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    default=["kitti", "synthetic", "kitti-raw"])
     p.add_argument("--kitti-frames", type=frame_range, default=(0, 16), metavar="A:B", help="KITTI 0005 frames [A, B)")
     p.add_argument("--synthetic-sequence", default="0000")
-    p.add_argument("--synthetic-n-frames", type=int, default=200, help="length of the synthetic world")
+    p.add_argument("--synthetic-n-frames", type=count(), default=200, help="length of the synthetic world")
     p.add_argument("--synthetic-frames", type=frame_range, default=(0, 100), metavar="A:B",
                    help="synthetic frames [A, B)")
     p.add_argument("--verbose", action="store_true", help="also list every dropped object")

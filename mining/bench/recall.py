@@ -10,12 +10,14 @@ import json
 from pathlib import Path
 
 from mining.bench.funnel import run_kitti_funnel
+from mining.catalog import safe_files
+from mining.checks import input_file, input_folder, output_file
 from mining.config import JobConfig
 from mining.eval.funnel import format_funnel
 from mining.eval.recall import format_recall, kitti_ground_truth, recall_at_n
 from mining.formats.kitti_tracking import KittiTrackingRows, read_kitti_tracking
 from mining.formats.oxford_labels import read_oxford_labels
-from mining.pipeline.arguments import add_job_options, frame_range, job_config
+from mining.pipeline.arguments import add_job_options, add_overwrite_option, frame_range, job_config
 from mining.pipeline.frames import frame_records
 from mining.pipeline.preflight import checked_plan
 from mining.proposals.precomputed import read_proposal_json
@@ -57,14 +59,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_job_options(p)
     p.add_argument("--sequence", help="KITTI: run the configured proposer on this sequence")
     p.add_argument("--frames", type=frame_range, default=(0, None), metavar="A:B")
-    p.add_argument("--labels", help="KITTI label_02 file (default: <root>/training/label_02/<sequence>.txt)")
-    p.add_argument("--oxford-labels", help="RobotCar: the 4D-GVT labels_4dgvt folder")
-    p.add_argument("--proposals-json", help="RobotCar: proposal JSON files laid out like the label files")
+    p.add_argument("--labels", type=input_file,
+                   help="KITTI label_02 file (default: <root>/training/label_02/<sequence>.txt)")
+    p.add_argument("--oxford-labels", type=input_folder, help="RobotCar: the 4D-GVT labels_4dgvt folder")
+    p.add_argument("--proposals-json", type=input_folder,
+                   help="RobotCar: proposal JSON files laid out like the label files")
     p.add_argument("--funnel", action="store_true", help="KITTI: also mine tubes and print the recall funnel "
                                                           "(proposed → observed → candidate → selected, box IoU "
                                                           "≥ 0.5, per distance and height bin)")
-    p.add_argument("--json", default=None, metavar="PATH", help="KITTI: also write recall@N (and the funnel) "
-                                                                "as JSON here")
+    p.add_argument("--json", type=output_file, default=None, metavar="PATH",
+                   help="KITTI: also write recall@N (and the funnel) as JSON here")
+    add_overwrite_option(p, "the --json file")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -89,5 +94,5 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         doc = {"sequence": args.sequence, "frames": [start, stop], "proposer": cfg.proposals.proposer,
                "recall_at_n": recall} | ({"funnel": funnel} if funnel is not None else {})
-        Path(args.json).write_text(json.dumps(doc, indent=1))
+        safe_files.write_file(args.json, json.dumps(doc, indent=1).encode(), args.overwrite)
     return 0

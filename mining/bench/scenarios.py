@@ -33,10 +33,11 @@ import argparse
 import dataclasses
 import json
 import time
-from pathlib import Path
 
 import numpy as np
 
+from mining.catalog import safe_files
+from mining.checks import count, output_file
 from mining.config import JobConfig
 from mining.eval.synthetic import (
     GtFrame,
@@ -46,7 +47,7 @@ from mining.eval.synthetic import (
 )
 from mining.localise.localise import geometric_filter
 from mining.masks import mask_iou, mask_pixels
-from mining.pipeline.arguments import SYNTHETIC_JOB, add_job_options, job_config
+from mining.pipeline.arguments import SYNTHETIC_JOB, add_job_options, add_overwrite_option, job_config
 from mining.pipeline.frames import FrameLoop, FrameRecord, plan_frames
 from mining.pipeline.mine import judge, tube_generator
 from mining.sources import open_source
@@ -308,7 +309,8 @@ def _table(rows: list[list[str]]) -> str:
 
 
 def run_scenarios_bench(cfg: JobConfig, names: list[str] | None = None, n_frames: int | None = None,
-                        sequence: str = "0000", half: bool = False, json_out: str | None = None) -> int:
+                        sequence: str = "0000", half: bool = False, json_out: str | None = None,
+                        overwrite: bool = False) -> int:
     """`mine bench scenarios`: every (or the named) scenario, flow on and off; prints the tables."""
     names = list(names or SCENARIOS)
     for name in names:
@@ -326,7 +328,7 @@ def run_scenarios_bench(cfg: JobConfig, names: list[str] | None = None, n_frames
           f"{time.perf_counter() - t0:.0f} s in all\n")
     print(format_scenarios(results))
     if json_out:
-        Path(json_out).write_text(json.dumps(results, indent=1, default=_json_default))
+        safe_files.write_file(json_out, json.dumps(results, indent=1, default=_json_default).encode(), overwrite)
     return 0
 
 
@@ -342,12 +344,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     if SYNTHETIC_JOB.is_file():
         p.set_defaults(config=str(SYNTHETIC_JOB))
     p.add_argument("--scenarios", nargs="+", default=None, help="default: all (mining/sources/synthetic/scenarios.py)")
-    p.add_argument("--frames", type=int, default=None, help="frames per scenario (default: the scenario's, 80)")
+    p.add_argument("--frames", type=count(), default=None, help="frames per scenario (default: the scenario's, 80)")
     p.add_argument("--sequence", default="0000", help="seeds the world around the staged objects")
     p.add_argument("--half", action="store_true", help="render at 621x188 (fx 360.77) instead of 1242x375")
-    p.add_argument("--json", help="also write the results as JSON here")
+    p.add_argument("--json", type=output_file, help="also write the results as JSON here")
+    add_overwrite_option(p, "the --json file")
 
 
 def run(args: argparse.Namespace) -> int:
     """``mine bench scenarios``."""
-    return run_scenarios_bench(job_config(args), args.scenarios, args.frames, args.sequence, args.half, args.json)
+    return run_scenarios_bench(job_config(args), args.scenarios, args.frames, args.sequence, args.half, args.json,
+                               overwrite=args.overwrite)

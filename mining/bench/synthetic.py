@@ -13,14 +13,16 @@ import argparse
 import json
 import time
 from collections.abc import Iterator
-from pathlib import Path
 
 import numpy as np
 
+from mining.catalog import safe_files
+from mining.checks import count, input_file, output_file, positive_float
 from mining.config import JobConfig, load_config
 from mining.errors import InputError
 from mining.eval.funnel import StageFrame, evaluate_funnel, format_funnel, stage_frame
 from mining.eval.synthetic import GtFrame, evaluate_synthetic, format_synthetic, gt_frame
+from mining.pipeline.arguments import add_overwrite_option
 from mining.pipeline.frames import frame_records
 from mining.pipeline.mine import mine_tubes
 from mining.progress import Ticker
@@ -76,7 +78,8 @@ def run_synthetic(sequence: str, n_frames: int, cfg: JobConfig, start: int = 0, 
     return mined, results
 
 
-def run_synthetic_eval(sequence: str, n_frames: int, cfg: JobConfig, json_out: str | None = None, **protocol) -> int:
+def run_synthetic_eval(sequence: str, n_frames: int, cfg: JobConfig, json_out: str | None = None,
+                       overwrite: bool = False, **protocol) -> int:
     """`mine eval synthetic`: run, print the table, optionally write the results as JSON to ``json_out``."""
     mined, results = run_synthetic(sequence, n_frames, cfg, **protocol)
     print(f"synthetic {sequence}, {n_frames} frames, proposer {cfg.proposals.proposer}: "
@@ -88,7 +91,7 @@ def run_synthetic_eval(sequence: str, n_frames: int, cfg: JobConfig, json_out: s
     if json_out:
         doc = {k: v for k, v in results.items() if k != "truths"}
         doc |= {"proposer": cfg.proposals.proposer, "n_frames": n_frames}
-        Path(json_out).write_text(json.dumps(doc, indent=1, default=_plain))
+        safe_files.write_file(json_out, json.dumps(doc, indent=1, default=_plain).encode(), overwrite)
     return 0
 
 
@@ -103,14 +106,16 @@ def _plain(x):
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """``mine eval synthetic``'s options (a config and overrides, no source: the sequence is synthetic)."""
     p.add_argument("--sequence", default="0000")
-    p.add_argument("--n-frames", type=int, default=100)
-    p.add_argument("--config", default=None, help="job TOML (default: built-in defaults)")
+    p.add_argument("--n-frames", type=count(), default=100, help="frames of the sequence (default 100)")
+    p.add_argument("--config", type=input_file, default=None, help="job TOML (default: built-in defaults)")
     p.add_argument("--set", action="append", default=[], help="config override KEY=VALUE")
-    p.add_argument("--min-visible-px", type=int, default=None,
+    p.add_argument("--min-visible-px", type=count(0, 10**8), default=None,
                    help="ignore objects with fewer visible pixels (default: the protocol's)")
-    p.add_argument("--max-depth-m", type=float, default=None)
-    p.add_argument("--json", default=None, metavar="PATH", help="also write the results (metrics, tube counts, "
-                                                                "known/unknown calls) as JSON here")
+    p.add_argument("--max-depth-m", type=positive_float(1e4), default=None,
+                   help="ignore objects farther than this (default: the protocol's)")
+    p.add_argument("--json", type=output_file, default=None, metavar="PATH",
+                   help="also write the results (metrics, tube counts, known/unknown calls) as JSON here")
+    add_overwrite_option(p, "the --json file")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -119,4 +124,4 @@ def run(args: argparse.Namespace) -> int:
     if args.min_visible_px is not None:
         protocol["min_visible_px"] = args.min_visible_px
     return run_synthetic_eval(args.sequence, args.n_frames, load_config(args.config, args.set), json_out=args.json,
-                              **protocol)
+                              overwrite=args.overwrite, **protocol)

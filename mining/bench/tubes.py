@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from mining.bench.geometry import pin_one_core
+from mining.checks import count
 from mining.config import JobConfig
 from mining.pipeline.arguments import add_data_option, add_job_options, job_config
 from mining.pipeline.frames import FrameLoop, plan_geometry
@@ -96,7 +97,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """``mine bench tubes``'s options."""
     add_job_options(p)
     add_data_option(p)
-    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--repeats", type=count(1, 1000), default=3, help="timed runs of each size (default 3)")
 
 
 def run(args: argparse.Namespace) -> int:

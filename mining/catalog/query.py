@@ -20,6 +20,7 @@ import pyarrow as pa
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
+from mining.catalog import safe_files
 from mining.catalog.views import connect, execute_read_only, file_refused
 from mining.errors import MiningError
 
@@ -120,23 +121,26 @@ def format_csv(t: pa.Table) -> str:
     return buf.getvalue().decode()
 
 
-def write_result(t: pa.Table, fmt: str, output: str | Path | None, limit: int = 0) -> None:
-    """Write ``t``; ``limit`` cuts table output only (csv, json and parquet are for programs: every row)."""
+def write_result(t: pa.Table, fmt: str, output: str | Path | None, limit: int = 0, overwrite: bool = False) -> None:
+    """Write ``t``; ``limit`` cuts table output only (csv, json and parquet are for programs:
+    every row). A file ``output`` keeps the destination rule (``safe_files.write_file``:
+    atomic, never through a link, an existing file replaced only with ``overwrite``)."""
     if fmt == "parquet":
-        pq.write_table(t, str(output), compression="zstd")
+        safe_files.write_file(output, lambda f: pq.write_table(t, f, compression="zstd"), overwrite)
         return
     text = format_table(t, limit) if fmt == "table" else {"csv": format_csv, "json": format_json}[fmt](t)
     if output is None:
         sys.stdout.write(text)
     else:
-        Path(output).write_text(text)
+        safe_files.write_file(output, text.encode(), overwrite)
 
 
 def run_query(sql: str, out: str | Path, fmt: str = "table", output: str | Path | None = None,
               memory_limit: str = MEMORY_LIMIT, threads: int = THREADS, timeout_s: float = TIMEOUT_S,
-              limit: int = LIMIT) -> int:
+              limit: int = LIMIT, overwrite: bool = False) -> int:
     """`mine query`: 0 on success; 2 with a message on standard error for bad SQL, a
-    missing catalogue, a statement that would write or a query past its limits."""
+    missing catalogue, a statement that would write, a query past its limits or an
+    ``output`` that may not be written (checked before the query runs)."""
     if limit < 0:
         print(f"mine query: --limit must be ≥ 0 (0 = all rows), got {limit}", file=sys.stderr)
         return 2
@@ -150,8 +154,10 @@ def run_query(sql: str, out: str | Path, fmt: str = "table", output: str | Path 
         print("mine query: --format parquet needs --output FILE", file=sys.stderr)
         return 2
     try:
+        if output is not None:
+            safe_files.check_output_file(output, overwrite, "--output")
         t = query_table(sql, out, memory_limit, threads, timeout_s)
-        write_result(t, fmt, output, limit)
+        write_result(t, fmt, output, limit, overwrite)
     except (MiningError, duckdb.Error) as e:
         print(f"mine query: {e}", file=sys.stderr)
         return 2

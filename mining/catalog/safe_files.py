@@ -22,6 +22,16 @@ Writers that open files by path themselves (OpenCV, PyAV, Parquet by path) write
 ``private_dir``: a folder made with ``mkdir`` under an unpredictable name, which holds
 nothing they did not write; what they made is then renamed into place (``move_in``,
 ``publish_file``).
+
+One file a command writes where the user named it (``mine query --output``, every
+``--json``, a bench's PNGs, ``mine render``'s video) keeps one destination rule
+(``write_file``, checked up front by ``check_output_file``): written under a temporary name
+in the same folder and renamed onto the name; a link at the name is refused (never written
+through, never replaced); an existing file is replaced only with ``--overwrite`` and only
+when it is a plain file; without it the name is claimed atomically (a hard link), so a file
+made meanwhile is not replaced either. A path the system cannot hold (a name over
+``NAME_MAX`` bytes, a path over ``PATH_MAX``) or that would not print as one line (control
+characters, bytes that are not UTF-8) is refused before any work (``names.path_problem``).
 """
 
 from __future__ import annotations
@@ -39,6 +49,7 @@ from pathlib import Path
 from typing import BinaryIO
 
 from mining.errors import InputError, MiningError
+from mining.names import path_problem, shown
 
 TMP_MARK = ".tmp-"  # part of every temporary name (store.is_temporary: readers skip such files)
 _DIR = os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | os.O_CLOEXEC
@@ -317,3 +328,86 @@ def publish_file(src: Path, dest: Path, replace: bool) -> None:
         raise
     except OSError as e:
         raise write_error(e, dest) from None
+
+
+# -- one file where the user named it --------------------------------------------------------
+
+def refusal(path: str | os.PathLike, reason: str, what: str = "", kind: type[InputError] = InputError) -> InputError:
+    """The error refusing ``path``: ``--json PATH: reason`` when the option ``what`` is known,
+    else ``file PATH: reason``; the path shown on one line."""
+    if what:
+        e = kind(f"{what} {shown(path)}: {reason}")
+        e.path = os.fspath(path)
+        return e
+    return kind(reason, shown(path))
+
+
+def check_path(path: str | os.PathLike, what: str = "") -> None:
+    """InputError naming ``path`` (and the option ``what``) when ``path_problem`` finds one."""
+    problem = path_problem(path)
+    if problem is not None:
+        raise refusal(path, problem, what)
+
+
+def _nearest_folder(path: Path) -> Path:
+    """``path`` when it exists, else its nearest existing ancestor (the folder that would be made in)."""
+    here = path if str(path) else Path(".")
+    while not os.path.lexists(here) and here != here.parent:
+        here = here.parent
+    return here
+
+
+def check_writable_folder(path: str | os.PathLike, what: str = "") -> None:
+    """InputError unless a file can be created in the folder ``path``, or (when absent) in the
+    folder it would be made in: a probe file is created there (``O_EXCL``, never through a
+    link) and removed."""
+    path = Path(path)
+    where = _nearest_folder(path)
+    if not where.is_dir():
+        raise refusal(path, f"cannot be written: {'it' if where == path else shown(where)} is not a folder", what)
+    try:
+        with folder(where, create=False) as dir_fd:
+            tmp, fd = _new_temporary(dir_fd, "probe")
+            os.close(fd)
+            os.unlink(tmp, dir_fd=dir_fd)
+    except OSError as e:
+        reason = (e.strerror or str(e)).lower()
+        raise refusal(path, f"cannot be written: nothing can be made in {shown(where)} ({reason})", what) from None
+
+
+def check_output_file(dest: str | os.PathLike, overwrite: bool, what: str = "") -> None:
+    """Refuse, before any work, a file ``dest`` that ``write_file`` would refuse at the end: a
+    path the system cannot hold, a link or a non-file at ``dest``, an existing file without
+    ``overwrite``, a folder where nothing can be written. ``what`` names the option."""
+    dest = Path(dest)
+    check_path(dest, what)
+    if dest.is_symlink():
+        raise refusal(dest, f"is a link (to {shown(os.readlink(dest))}): a file is never written through a link (it "
+                            "could land elsewhere) nor over one; remove the link or name another file", what, LinkError)
+    if os.path.lexists(dest) and not dest.is_file():
+        raise refusal(dest, "exists and is not a file; nothing is written over it", what)
+    if dest.exists() and not overwrite:
+        raise refusal(dest, "exists; pass --overwrite to replace it, or choose another name", what)
+    check_writable_folder(dest.parent, what)
+
+
+def write_file(dest: str | os.PathLike, fill: Fill, overwrite: bool = False) -> None:
+    """Write one file where the user named it, by the destination rule (module docstring):
+    ``fill`` (bytes, or a function writing to a binary file) goes to a temporary name beside
+    ``dest`` (its folder made when absent), then onto ``dest`` (``publish_file``: a link there
+    is refused; an existing file replaced only with ``overwrite``). A failed write leaves
+    ``dest`` as it was and no temporary file."""
+    dest = Path(dest)
+    check_path(dest)
+    parent = dest.parent
+    try:
+        os.makedirs(parent, exist_ok=True)  # the folder the user named: links in its path are theirs
+    except OSError as e:
+        raise write_error(e, parent) from None
+    if dest.is_symlink():  # before any bytes are written: the rule refuses it whatever the flag
+        raise link_error(dest)
+    tmp = stage(parent, dest.name, fill)
+    try:
+        publish_file(parent / tmp, dest, overwrite)
+    finally:
+        discard(parent, tmp)  # gone after a publish; after a refusal, the bytes never reach dest

@@ -42,6 +42,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from mining.boxes import box_ioa, box_iou
+from mining.checks import count, input_file, input_folder
 from mining.errors import InputError
 from mining.eval.clear import clear_metrics, clear_sums, combine_clear_sums
 from mining.eval.hota import combine_hota_sums, hota_metrics, hota_sums
@@ -297,12 +298,12 @@ def evaluate_first_frames(gt_dir: str | Path, result_dir: str | Path, sequences:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """``mine eval kitti-mot``'s options."""
-    p.add_argument("--gt", required=True, help="label_02 folder")
-    p.add_argument("--results", required=True, help="folder of <seq>.txt results")
+    p.add_argument("--gt", type=input_folder, required=True, help="label_02 folder")
+    p.add_argument("--results", type=input_folder, required=True, help="folder of <seq>.txt results")
     p.add_argument("--sequences", nargs="+", required=True)
-    p.add_argument("--seqmap", help="seqmap with frame counts (else the largest frame seen)")
+    p.add_argument("--seqmap", type=input_file, help="seqmap with frame counts (else the largest frame seen)")
     p.add_argument("--classes", nargs="+", default=["Car", "Pedestrian"])
-    p.add_argument("--frames", type=int, help="evaluate only the first N frames of each sequence")
+    p.add_argument("--frames", type=count(), help="evaluate only the first N frames of each sequence")
     p.add_argument("--per-sequence", action="store_true")
 
 

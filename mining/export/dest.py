@@ -18,8 +18,10 @@ a full disk) leaves the earlier one as it was. The record is written first listi
 entries, the new ones and the private folder, so even an export killed half-way leaves a
 record that a later ``--overwrite`` cleans up (``publish_folder``).
 
-A file (render): an existing DEST is replaced only with ``--overwrite``, and only when it is
-a plain file (a link or a folder there is refused, whatever the flag). The file is written
+A file (render): the destination rule of every single file a command writes
+(``safe_files.check_output_file`` and ``publish_file``): an existing DEST is replaced only
+with ``--overwrite``, and only when it is a plain file (a link or a folder there is refused,
+whatever the flag). The file is written
 in a private folder beside DEST (``.<DEST name>.partial-<random>``, made by ``mkdir`` under
 an unpredictable name, so no link can be planted where the writer writes), then moved onto
 DEST (``safe_files.publish_file``: without ``--overwrite`` the name is claimed atomically,
@@ -125,13 +127,9 @@ def publish_folder(dest: Path, replaced: list[str], write: Callable[[Path], int]
 
 def check_file(dest: Path, overwrite: bool) -> None:
     """Refuse a file DEST that may not be written: an existing entry without ``overwrite``,
-    a link or a folder at DEST."""
-    if dest.is_symlink():
-        raise safe_files.link_error(dest)
-    if dest.exists() and not dest.is_file():
-        raise InputError("DEST exists and is not a file", dest)
-    if dest.exists() and not overwrite:
-        raise InputError("DEST exists; pass --overwrite to replace it, or choose another name", dest)
+    a link or a folder at DEST, a folder where nothing can be written (the destination rule
+    of every single file a command writes: ``safe_files.check_output_file``)."""
+    safe_files.check_output_file(dest, overwrite, "DEST")
 
 
 def publish_file(dest: Path, overwrite: bool, write: Callable[[Path], T]) -> T:

@@ -26,6 +26,7 @@ sequence's frames (its calibration), is not drawn, and is named with the table i
 from __future__ import annotations
 
 import contextlib
+import math
 import sys
 import time
 from dataclasses import dataclass
@@ -48,6 +49,7 @@ from mining.names import check_name
 from mining.progress import Ticker
 
 DEFAULT_FPS = 10.0  # ours: frame rate when the plan's timestamps give none (KITTI records at 10 Hz)
+MAX_FPS = 1000.0  # ours: `mine render --fps` at most (video containers store a rational rate)
 DEPTH_NEAR_M = 2.0  # ours: the depth colour map's near end (red); KITTI's 128 px search reaches ≈ 3 m
 DEPTH_TICKS_M = (2, 5, 10, 20, 50, 90)  # ours: legend ticks (the far end is the job's geometry.stereo.max_depth_m)
 
@@ -135,6 +137,8 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
     ``overwrite`` (module docstring)."""
     t0 = time.perf_counter()
     dest = Path(dest)
+    if fps is not None and not (math.isfinite(fps) and 0 < fps <= MAX_FPS):
+        raise InputError(f"--fps must be > 0 and ≤ {MAX_FPS:g}, got {fps}")  # never "0 means the default"
     check_dest(dest, overwrite)
     check_name(sequence, "sequence", "--sequence")
     job = read_job(out)
@@ -178,7 +182,7 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
     if stop <= start:
         raise InputError(f"--frames {start}:{stop} holds no frame of {sequence!r} (the plan has {len(plan)})")
     plan = source.plan(sequence, start, stop)  # refuses a frame in the range the source cannot read
-    fps = fps or _fps(plan.t_ns[start:stop])
+    fps = _fps(plan.t_ns[start:stop]) if fps is None else fps
     h, w = plan.calib.height, plan.calib.width
     tubes, tube_frames, left_out = without_bad_masks(tubes, tube_frames, lambda d, s: (h, w))
     tube_rows = [t for t in tube_rows if t["tube_id"] not in left_out]

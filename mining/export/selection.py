@@ -43,8 +43,11 @@ PREDICATE_ERRORS = (duckdb.ParserException, duckdb.BinderException, duckdb.Catal
 
 def read_job(out: str | Path) -> JobConfig | None:
     """The typed config of the job recorded in ``OUT/job.json``, or None when the catalogue
-    has none; ``UnreadableRecord`` (an InputError naming the file) when it does not read."""
+    has none; ``UnreadableRecord`` (an InputError naming the file) when it does not read, and
+    an InputError when ``out`` is no folder at all (as ``views.connect`` says)."""
     store = Store(out)
+    if not store.root_exists():
+        raise InputError("catalogue folder not found", out)
     record = JobRecord.load(store)
     return None if record is None else record.job_config(store.full(JOB))
 

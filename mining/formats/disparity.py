@@ -10,15 +10,22 @@ import numpy as np
 from mining.errors import InputError
 
 
-def write_disparity_png(path: str | Path, disparity: np.ndarray) -> None:
-    """KITTI 16-bit disparity PNG: value = round(disparity × 256), 0 = invalid."""
+def disparity_png(disparity: np.ndarray) -> bytes:
+    """The bytes of a KITTI 16-bit disparity PNG: value = round(disparity × 256), 0 = invalid."""
     d = np.asarray(disparity, np.float64)
     valid = np.isfinite(d) & (d > 0)
     out = np.zeros(d.shape, np.uint16)
     # 1/256 px is the format's resolution; clip keeps large disparities from wrapping.
     out[valid] = np.clip(np.round(d[valid] * 256.0), 1, 65535).astype(np.uint16)
-    if not cv2.imwrite(str(path), out):
-        raise InputError("could not write disparity PNG", path)
+    ok, png = cv2.imencode(".png", out)
+    if not ok:
+        raise InputError(f"could not encode a disparity PNG of shape {d.shape}")
+    return png.tobytes()
+
+
+def write_disparity_png(path: str | Path, disparity: np.ndarray) -> None:
+    """``disparity_png`` to ``path`` (in a folder the caller owns: this opens ``path`` as given)."""
+    Path(path).write_bytes(disparity_png(disparity))
 
 
 def read_disparity_png(path: str | Path) -> np.ndarray:

@@ -176,8 +176,8 @@ def read_seqmap(path: str | Path) -> dict[str, int]:
     return frames
 
 
-def write_kitti_tracking(path: str | Path, rows: KittiTrackingRows, with_score: bool = True) -> None:
-    """Write rows in the KITTI tracking format; 18 columns with ``with_score`` (NaN scores → 1)."""
+def kitti_tracking_text(rows: KittiTrackingRows, with_score: bool = True) -> str:
+    """Rows in the KITTI tracking format; 18 columns with ``with_score`` (NaN scores → 1)."""
     out = []
     for i in range(len(rows)):
         values = [rows.alpha[i], *rows.box[i], *rows.dimensions[i], *rows.location[i], rows.rotation_y[i]]
@@ -188,7 +188,13 @@ def write_kitti_tracking(path: str | Path, rows: KittiTrackingRows, with_score: 
             score = 1.0 if np.isnan(rows.score[i]) else rows.score[i]
             text += f" {score:.6f}"
         out.append(text)
-    Path(path).write_text("\n".join(out) + ("\n" if out else ""))
+    return "\n".join(out) + ("\n" if out else "")
+
+
+def write_kitti_tracking(path: str | Path, rows: KittiTrackingRows, with_score: bool = True) -> None:
+    """Write rows in the KITTI tracking format (``kitti_tracking_text``) to ``path``, a file in a
+    folder the caller owns (a private or temporary one: this opens ``path`` as given)."""
+    Path(path).write_text(kitti_tracking_text(rows, with_score))
 
 
 # -- mined tubes as tracking results ----------------------------------------------------

@@ -9,12 +9,15 @@ import numpy as np
 from mining.errors import InputError
 
 
-def write_poses(path: str | Path, poses: np.ndarray) -> None:
+def poses_text(poses: np.ndarray) -> str:
     """KITTI odometry poses: one row-major 3×4 camera-to-world matrix per line (NaN rows allowed)."""
     poses = np.asarray(poses, np.float64).reshape(-1, 4, 4)
-    with open(path, "w") as f:
-        for T in poses:
-            f.write(" ".join(f"{v:.9e}" for v in T[:3].ravel()) + "\n")
+    return "".join(" ".join(f"{v:.9e}" for v in T[:3].ravel()) + "\n" for T in poses)
+
+
+def write_poses(path: str | Path, poses: np.ndarray) -> None:
+    """``poses_text`` to ``path`` (in a folder the caller owns: this opens ``path`` as given)."""
+    Path(path).write_text(poses_text(poses))
 
 
 def read_poses(path: str | Path) -> np.ndarray:

@@ -13,11 +13,13 @@ from pathlib import Path
 
 import numpy as np
 
+from mining.catalog import safe_files
+from mining.checks import input_folder, output_folder
 from mining.config import JobConfig
 from mining.errors import InputError
 from mining.formats.poses import read_poses
 from mining.localise.localise import geometric_filter, localise_detections
-from mining.pipeline.arguments import add_job_options, job_config
+from mining.pipeline.arguments import add_job_options, add_overwrite_option, job_config
 from mining.pipeline.kitti_export import write_tubes_kitti
 from mining.pipeline.mine import mine_tubes
 from mining.proposals.precomputed import KittiDetections
@@ -50,28 +52,32 @@ def detection_frames(kitti_root: str | Path, sequence: str, detections: str | Pa
 
 
 def track_detections(kitti_root: str | Path, sequence: str, detections: str | Path, poses_path: str | Path,
-                     cfg: JobConfig, out_txt: str | Path | None = None) -> list[MinedTube]:
+                     cfg: JobConfig, out_txt: str | Path | None = None, overwrite: bool = False) -> list[MinedTube]:
     mined = mine_tubes(detection_frames(kitti_root, sequence, detections, poses_path, cfg), cfg, proposer=DETECTIONS)
     if out_txt is not None:
-        write_detection_tubes(kitti_root, sequence, mined, cfg, out_txt)
+        write_detection_tubes(kitti_root, sequence, mined, cfg, out_txt, overwrite)
     return mined
 
 
 def write_detection_tubes(kitti_root: str | Path, sequence: str, mined: list[MinedTube], cfg: JobConfig,
-                          out_txt: str | Path) -> None:
-    """A sequence's mined tubes as KITTI tracking txt (3D fields in rectified camera 0)."""
+                          out_txt: str | Path, overwrite: bool = False) -> None:
+    """A sequence's mined tubes as KITTI tracking txt (3D fields in rectified camera 0); an
+    existing file is replaced only with ``overwrite``."""
     kcalib = KittiTrackingSource(str(kitti_root)).kitti_calib(sequence)
-    write_tubes_kitti(out_txt, mined, rect0_from_cam2=kcalib.cam2_to_rect0, observed_only=cfg.export.observed_only)
+    write_tubes_kitti(out_txt, mined, rect0_from_cam2=kcalib.cam2_to_rect0, observed_only=cfg.export.observed_only,
+                      overwrite=overwrite)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """``mine track detections``' options."""
     add_job_options(p)
     p.add_argument("--sequences", nargs="+", required=True)
-    p.add_argument("--detections", help="PointRCNN folder (<Class>/<seq>.txt) or result-format folder; "
-                                        "default <root>/training/det_pointrcnn")
-    p.add_argument("--poses", help="folder of <seq>.txt camera-to-world poses; default <root>/training/egoposes_orbslam3")
-    p.add_argument("--out", required=True)
+    p.add_argument("--detections", type=input_folder, help="PointRCNN folder (<Class>/<seq>.txt) or result-format "
+                                                            "folder; default <root>/training/det_pointrcnn")
+    p.add_argument("--poses", type=input_folder,
+                   help="folder of <seq>.txt camera-to-world poses; default <root>/training/egoposes_orbslam3")
+    p.add_argument("--out", type=output_folder, required=True, help="folder of the <sequence>.txt results")
+    add_overwrite_option(p, "OUT/<sequence>.txt")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -82,8 +88,10 @@ def run(args: argparse.Namespace) -> int:
     detections = Path(args.detections) if args.detections else split / "det_pointrcnn"
     poses = Path(args.poses) if args.poses else split / "egoposes_orbslam3"
     out = Path(args.out)
+    for seq in args.sequences:  # before any work: every result file may be written
+        safe_files.check_output_file(out / f"{seq}.txt", args.overwrite, "--out")
     for seq in args.sequences:
-        mined = track_detections(root, seq, detections, poses / f"{seq}.txt", cfg, out / f"{seq}.txt")
+        mined = track_detections(root, seq, detections, poses / f"{seq}.txt", cfg, out / f"{seq}.txt", args.overwrite)
         sel = [m for m in mined if m.selected]
         print(f"{seq}: {len(mined)} tubes, {len(sel)} selected → {out / f'{seq}.txt'}")
     return 0

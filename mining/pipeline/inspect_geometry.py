@@ -18,28 +18,22 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from mining.catalog import safe_files
+from mining.checks import output_folder
 from mining.errors import MiningError
-from mining.formats.disparity import write_disparity_png
-from mining.formats.poses import write_poses
+from mining.formats.disparity import disparity_png
+from mining.formats.poses import poses_text
 from mining.geometry.config import GeometryConfig
 from mining.geometry.poses import chain_egomotion
 from mining.pipeline.arguments import add_job_options, frame_range, job_config
 from mining.pipeline.frames import plan_geometry
 from mining.sources.base import Source
 from mining.types import FrameGeometry
-
-
-def _atomic(path: Path, write) -> None:
-    # The temporary name keeps the suffix: OpenCV picks the codec from it.
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    write(tmp)
-    os.replace(tmp, path)
 
 
 def frame_quality(g: FrameGeometry) -> dict[str, Any]:
@@ -74,8 +68,8 @@ def inspect_geometry(
     source: Source, sequence: str, start: int, stop: int | None, cfg: GeometryConfig, out_dir: str | Path
 ) -> dict[str, Any]:
     """Run geometry on plan positions [start, stop) of ``sequence``; returns the summary written."""
-    out = Path(out_dir)
-    (out / "disparity").mkdir(parents=True, exist_ok=True)
+    out = Path(out_dir)  # its files are replaced, never written through a link (safe_files.write_atomic)
+    safe_files.make_folder(out, "disparity")
     plan = source.plan(sequence)
     stop = len(plan) if stop is None else min(stop, len(plan))
     frames: list[dict[str, Any]] = []
@@ -83,7 +77,7 @@ def inspect_geometry(
     error = None
     try:
         for _, _, g, _ in plan_geometry(source, plan, start, stop, cfg):  # a recording gap breaks the chain
-            _atomic(out / "disparity" / f"{g.index:06d}.png", lambda p: write_disparity_png(p, g.disparity))
+            safe_files.write_atomic(out, f"disparity/{g.index:06d}.png", disparity_png(g.disparity))
             frames.append(frame_quality(g))
             transforms.append(None if g.egomotion is None or not g.egomotion.ok else g.egomotion.T_cur_prev)
     except MiningError as e:
@@ -99,8 +93,8 @@ def inspect_geometry(
             "error": error,
         }
         if transforms:
-            _atomic(out / "poses.txt", lambda p: write_poses(p, chain_egomotion(transforms)))
-        _atomic(out / "quality.json", lambda p: p.write_text(json.dumps(summary, indent=1)))
+            safe_files.write_atomic(out, "poses.txt", poses_text(chain_egomotion(transforms)).encode())
+        safe_files.write_atomic(out, "quality.json", json.dumps(summary, indent=1).encode())
     return summary
 
 
@@ -109,7 +103,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_job_options(p)
     p.add_argument("--sequence", required=True)
     p.add_argument("--frames", type=frame_range, default=(0, None), metavar="A:B", help="plan positions [A, B)")
-    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--out", type=output_folder, required=True, help="output folder")
 
 
 def run(args: argparse.Namespace) -> int:

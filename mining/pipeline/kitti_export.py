@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mining.formats.kitti_tracking import ResultFrame, ResultTrack, kitti_type, write_tracking_results
+from mining.catalog import safe_files
+from mining.formats.kitti_tracking import ResultFrame, ResultTrack, kitti_tracking_text, kitti_type, tracking_result_rows
 from mining.types import MinedTube
 
 
@@ -28,11 +29,15 @@ def result_tracks(mined: Iterable[MinedTube], unclassified_as: str = "Misc") -> 
 
 def write_tubes_kitti(path: str | Path, mined: Iterable[MinedTube],
                       rect0_from_cam2: Callable[[np.ndarray], np.ndarray] | None = None,
-                      observed_only: bool = True, unclassified_as: str = "Misc") -> int:
-    """Write the selected tubes as a KITTI tracking result file; returns the rows written.
+                      observed_only: bool = True, unclassified_as: str = "Misc", overwrite: bool = False) -> int:
+    """Write the selected tubes as a KITTI tracking result file; returns the rows written. The
+    file keeps the destination rule (``safe_files.write_file``: never through a link, an
+    existing file replaced only with ``overwrite``).
 
     ``rect0_from_cam2`` maps image_02 camera points to KITTI's rectified camera 0 (the
     frame of KITTI's 3D fields, ``KittiCalib.cam2_to_rect0``); without it the 3D fields
     are placeholders.
     """
-    return write_tracking_results(path, result_tracks(mined, unclassified_as), rect0_from_cam2, observed_only)
+    rows = tracking_result_rows(result_tracks(mined, unclassified_as), rect0_from_cam2, observed_only, path)
+    safe_files.write_file(path, kitti_tracking_text(rows).encode(), overwrite)
+    return len(rows)
