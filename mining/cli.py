@@ -198,7 +198,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
 
     smt = sub.add_parser("submit", help="plan windows and mine them on Ray (local, or a cluster with --address)")
-    add_job_options(smt, root_here=False)
+    add_job_options(smt, paths_here=False)
     smt.add_argument("--sequences", nargs="+", help="default: the config's, else every sequence the source finds")
     smt.add_argument("--frames", type=frame_range, default=(0, None), metavar="A:B",
                      help="plan positions [A, B) of every sequence (default: all)")

@@ -13,6 +13,7 @@ from pycocotools import mask as mask_utils
 from conftest import REPO
 
 from _catalog_data import N_FRAMES, SEQUENCE
+from _run import cli, clean_error
 from mining.export.render import run_render
 
 W, H = 1242, 375
@@ -161,6 +162,20 @@ def test_unknown_sequence_and_container_are_refused(catalogue, tmp_path, capsys)
     assert "'9999'" in capsys.readouterr().err
     assert run_render(str(out), SEQUENCE, str(tmp_path / "a.avi")) == 2
     assert ".webm" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("fps", ["nan", "0", "-5", "inf", "1e308", "0.0"])
+def test_fps_must_be_a_positive_finite_rate(catalogue, tmp_path, capsys, fps):
+    """Issue 28, case 10: ``--fps nan`` ended in a traceback and ``--fps 0`` silently became 10 fps."""
+    out, _ = catalogue
+    dest = tmp_path / "v.webm"
+    rc, o, e = cli(capsys, "render", "--out", str(out), "--sequence", SEQUENCE, "--frames", "0:2", "--fps", fps, str(dest))
+    assert rc == 2 and "--fps" in clean_error(e) and len(e.strip().splitlines()) == 1 and not o, (rc, o, e)
+    assert not list(tmp_path.iterdir())
+    for value in (float(fps), float("nan")):  # the function refuses them too (never "0 means the default")
+        assert run_render(str(out), SEQUENCE, str(dest), fps=value, frames=(0, 2)) == 2
+        assert "--fps" in capsys.readouterr().err
     assert not list(tmp_path.iterdir())
 
 

@@ -11,7 +11,7 @@ path. An option with a bare ``type=int`` or ``float`` (which take ``nan``, ``inf
 fails ``test_every_option_is_checked_by_its_type``.
 
 Each case runs ``mine`` in this process (``_run.cli``): the refusal must come from the parser
-or the preflight (``cli.main``'s ``check_outputs``), within milliseconds; an alarm fails a
+or the preflight (``cli.main``'s ``check_paths``), within milliseconds; an alarm fails a
 case that starts real work instead. A value an option legitimately takes (``--port 0``,
 frame 0) is listed in ALLOWED with the reason, and not run.
 """

@@ -332,6 +332,7 @@ def publish_file(src: Path, dest: Path, replace: bool) -> None:
 
 # -- one file where the user named it --------------------------------------------------------
 
+
 def refusal(path: str | os.PathLike, reason: str, what: str = "", kind: type[InputError] = InputError) -> InputError:
     """The error refusing ``path``: ``--json PATH: reason`` when the option ``what`` is known,
     else ``file PATH: reason``; the path shown on one line."""

@@ -92,12 +92,15 @@ def frame_range(text: str) -> tuple[int, int | None]:
 frame_range.kind = "number"  # type: ignore[attr-defined]  # tests/test_cli_hostile.py tries hostile numbers on it
 
 
-def add_job_options(p: argparse.ArgumentParser, root_here: bool = True) -> None:
-    """The job options; ``root_here=False`` where ``--root`` may be read on a cluster (``mine
-    submit --address http://…``): then it is checked after parsing, unless the job is handed on."""
+def add_job_options(p: argparse.ArgumentParser, paths_here: bool = True) -> None:
+    """The job options; ``paths_here=False`` where ``--root`` and ``--config`` may name files
+    of the machine the job runs on (``mine submit`` in a container's entrypoint, or handed on
+    with ``--address http://…``): then they are checked after parsing (``check_paths``), where
+    the command runs, not by the parser."""
     p.add_argument("--dataset", help="kitti, kitti-raw, oxford, mcap or synthetic (default: the config's)")
-    p.add_argument("--root", type=input_path if root_here else local_input, help="dataset root folder")
-    p.add_argument("--config", type=input_file, help="job config TOML (e.g. jobs/kitti.toml)")
+    p.add_argument("--root", type=input_path if paths_here else local_input, help="dataset root folder")
+    p.add_argument("--config", type=input_file if paths_here else local_input,
+                   help="job config TOML (e.g. jobs/kitti.toml)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config value, e.g. geometry.stereo.num_disparities=96")
     p.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
