@@ -114,14 +114,13 @@ def test_infra_names_no_open_interface_without_saying_what_protects_it():
 
 def _refused_submit(capsys, tmp_path: Path, *args: str) -> str:
     """Standard error of a real ``mine submit`` (in this process) whose preflight refuses the
-    job (its --out is a plain file), so that no Ray starts."""
+    job (a frame range past the 8-frame sequence's end), so that no Ray starts."""
     from _jobs import SYNTHETIC
     from _run import cli
 
-    out = tmp_path / "not-a-folder"
-    out.write_text("a file, not a catalogue\n")
-    rc, stdout, stderr = cli(capsys, "submit", *SYNTHETIC, *args, "--out", str(out), "--workers", "1",
-                             "--no-progress")
+    out = tmp_path / "out"
+    rc, stdout, stderr = cli(capsys, "submit", *SYNTHETIC, *args, "--frames", "50:60", "--out", str(out),
+                             "--workers", "1", "--no-progress")
     assert rc == 2 and "windows:" not in stdout, (rc, stdout, stderr)
     assert "Traceback" not in stderr, stderr
     return stderr
