@@ -181,3 +181,16 @@ def test_the_seed_cache_reads_back_what_it_wrote(tmp_path):
     (tmp_path / "bad.npz").write_bytes(b"not an npz")
     with pytest.raises(InputError, match="bad.npz"):
         load_seed(tmp_path / "bad.npz")
+
+
+def test_the_calibrated_rows_apply_to_the_jobs_whose_classifier_they_were_fit_on():
+    # a far small pedestrian at 0.25 in every frame: by the paper's rule (margin −1) unknown
+    tube = Tube(1, 0, [frame(k, rect(0, 0, 6, 14), person_row(0.25), depth=45.0) for k in range(6)])
+    calls = {}
+    for proposer in ("onnx", "stereo"):
+        cfg = load_config(None, [f"proposals.proposer={proposer}", "select.epsilon1_calibrated=-100",
+                                 "select.epsilon1=-100"])
+        calls[proposer] = judge([tube], cfg)[0].category.known
+    assert calls == {"onnx": True, "stereo": False}
+    ref = load_config(None, ["proposals.proposer=onnx", "score.class_confidence=reference"])
+    assert judge([tube], ref)[0].category.known is False

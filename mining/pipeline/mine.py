@@ -39,7 +39,7 @@ def judge(tubes: list[Tube], cfg: JobConfig, proposer: str | None = None) -> lis
     select = cfg.select
     if weights is not None:
         select = dataclasses.replace(select, epsilon1=select.epsilon1_calibrated, epsilon2=select.epsilon2_calibrated)
-    cats = categories(tubes, cfg)
+    cats = categories(tubes, cfg, proposer or cfg.proposals.proposer)
     offered = np.ones(len(tubes), bool)
     gate = object_gate(cfg, proposer or cfg.proposals.proposer)
     if gate is not None:
@@ -56,10 +56,11 @@ def judge(tubes: list[Tube], cfg: JobConfig, proposer: str | None = None) -> lis
     return [MinedTube(t, s, c, bool(m)) for t, s, c, m in zip(tubes, scores, cats, selected)]
 
 
-def categories(tubes: list[Tube], cfg: JobConfig) -> list[TubeCategory]:
-    """Each tube's known / unknown / unclassified call (``score.class_confidence``)."""
+def categories(tubes: list[Tube], cfg: JobConfig, proposer: str) -> list[TubeCategory]:
+    """Each tube's known / unknown / unclassified call (``score.class_confidence``, for the
+    proposers ``score.row_proposers`` whose rows it was fit on)."""
     s = cfg.score
-    if s.class_confidence == "calibrated":
+    if s.class_confidence == "calibrated" and proposer in s.row_proposers:
         conf, margin = RowConfidence(s.row_on_object, s.row_known), s.known_log_margin_calibrated
     else:
         conf, margin = None, s.known_log_margin

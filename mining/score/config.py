@@ -76,6 +76,7 @@ class ScoreConfig:
     class_confidence: Annotated[str, OneOf(("reference", "calibrated"))] = "calibrated"
     row_on_object: dict[str, Signed] = field(default_factory=lambda: dict(ROW_ON_OBJECT))  # weights of P(row on an object), by mining.tubes.category.ROW_FEATURES
     row_known: dict[str, Signed] = field(default_factory=lambda: dict(ROW_KNOWN))  # weights of P(known | on an object), likewise
+    row_proposers: tuple[str, ...] = ("onnx", "onnx+stereo")  # ours: the jobs whose classifier rows these weights were fit on (the ONNX YOLO-seg decoder's); other classifiers (torch, detections) keep their rows as given
     known_log_margin_calibrated: Signed = -1.0  # ours: the margin with calibrated rows, best balanced accuracy of tubes on objects (0.915) on seeds 0000–0006 (`mine bench calibrate --calling`; −0.5…−1 in every fold)
     # Object or clutter before the unknown set (issue 29; mining/score/clutter.py): a tube called unknown whose object
     # evidence gives P(object) < unknown_min_object is "unclassified" = ours, the default: it stays selected but is not
