@@ -16,6 +16,14 @@ tube's posterior is the weighted mean
 
 over the frames with w_f > 0 (``classified_frames``; Σ w_f is the ``evidence``).
 
+Calibrated rows (issue 29, ``score.class_confidence = "calibrated"``). A classifier's own row
+says "unknown" with mass 1 − max p, so a far small pedestrian found at 0.25 in every frame
+accumulates into an unknown tube. With a ``RowConfidence`` the row is read instead through two
+logistics of its max class score, box height and depth, fitted on labelled rows of synthetic
+training seeds (``mine bench calibrate --calling``): the known classes share P(known | on an
+object) in the ratios of the row's scores, "unknown" the rest, and the row weighs P(on an
+object) (a row on background says little either way). Class-agnostic rows keep their own.
+
 Decision. A tube with evidence below ``min_class_evidence`` (one frame-equivalent of a
 classifier's own rows by default) is unclassified: known = None, category None. Otherwise,
 with k* the most probable of the 80 classes, the tube is known as k* when
