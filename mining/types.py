@@ -240,6 +240,16 @@ N_CLASSES = 81  # the 80 COCO classes + "unknown" (the paper's category vector c
 UNKNOWN_CLASS = 80  # index of "unknown" in a class posterior
 
 
+def max_class_score(posterior: np.ndarray) -> float:
+    """The classifier's max class score p* recovered from its row's posterior: the row is
+    [p_1..p_80, 1 − p*] / Z (``mining.proposals.onnx_yolo.class_posterior``), so
+    P[k*] / P[unknown] = p* / (1 − p*). 0 for a class-agnostic row (all "unknown")."""
+    pk, pu = float(np.max(posterior[:UNKNOWN_CLASS])), float(posterior[UNKNOWN_CLASS])
+    if pk <= 0:
+        return 0.0
+    return 1.0 if pu <= 0 else pk / (pk + pu)
+
+
 @dataclass
 class Proposals:
     """One frame's image-level mask proposals, as a struct of arrays (N proposals).

@@ -187,6 +187,27 @@ def test_format_shows_every_split_and_the_carried_list():
     assert "… and 25 more" in text
 
 
+def test_known_objects_called_unknown_by_bin_and_clutter_called_unknown_by_term():
+    far = rect(0, 0, 20, 30)  # 30 px tall
+    truths = {t: gt((1, "person", True, far, 45.0), (2, "car", True, CONE, 12.0)) for t in range(3)}
+    mined = [tube(1, [(t, far) for t in range(3)], known=False),  # a far pedestrian called unknown
+             tube(2, [(t, CONE) for t in range(3)], known=True),
+             tube(3, [(t, EMPTY) for t in range(3)], score=(0.0, 8.0, 1.0), known=False),  # clutter called unknown
+             tube(4, [(t, EMPTY) for t in range(3)], score=(9.0, 0.0, 1.0), known=None, selected=False)]
+    f = funnel(truths, mined, tube_split={1: "known", 2: "known"})
+    c = f["calls"]
+    assert c["total"] == {"tubes": 2, "known": 1, "unknown": 1, "unclassified": 0}
+    assert c["distance"]["40–60 m"] == {"tubes": 1, "known": 0, "unknown": 1, "unclassified": 0}
+    assert c["distance"]["0–20 m"]["known"] == 1 and c["distance"]["20–40 m"]["tubes"] == 0
+    assert c["height"]["25–50 px"]["unknown"] == 1 and c["height"]["0–25 px"]["known"] == 1  # CONE is 20 px tall
+    cu = f["carried"]["called_unknown_by"]
+    assert cu["clutter"]["mask"] == 1 and sum(cu["clutter"].values()) == 1 and sum(cu["part"].values()) == 0
+    text = format_funnel(f)
+    assert "called unknown, by the term that carried them: part 0; clutter 1 (mask 1)" in text
+    assert "40–60 m" in text and "50 %" in text
+    assert "calls" not in funnel(truths, mined)  # without the split there is nothing to call it against
+
+
 @pytest.mark.slow  # mines 16 rendered frames (10–30 s)
 def test_funnel_of_the_real_pipeline_is_monotone_and_counts_the_evaluated_truth():
     cv2.setNumThreads(1)

@@ -77,6 +77,13 @@ def test_perfect_tubes_score_one():
     assert (calls["known_called_known"], calls["unknown_called_unclassified"], calls["clutter"]) == (1, 1, 1)
     assert calls["clutter_called"] == {"known": 0, "unknown": 1, "unclassified": 0}
     assert calls["clutter_share"] == pytest.approx(1 / 3)
+    # the unknown set: the clutter tube alone is called unknown
+    assert (calls["called_unknown"], calls["called_unknown_on"]) == (1, {"unknown": 0, "known": 0, "clutter": 1})
+    assert calls["unknown_set_precision"] == 0
+    # r: the car and the cone called unknown, one of two on an unknown object
+    assert r["tubes"]["called_unknown_on"] == {"unknown": 1, "known": 1, "clutter": 0}
+    assert r["tubes"]["unknown_set_precision"] == 0.5
+    assert "the unknown set: 2 tubes called unknown, 1 on unknown objects (precision 50 %)" in format_synthetic(r)
     text = format_synthetic(r)
     assert "unknown" in text and "1.000" in text
     # unselected tubes are not tracker output unless asked for

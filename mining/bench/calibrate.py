@@ -261,12 +261,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="overlap weight for the calibrated unary in the folds (default 3)")
     p.add_argument("--no-balance", action="store_true",
                    help="do not weigh unknown objects' tubes up to the known ones' total")
+    p.add_argument("--calling", action="store_true",
+                   help="fit what calls a tube unknown instead (issue 29: the classifier rows' calibrated confidence "
+                        "and the object evidence, mining/bench/calling.py), leave-one-seed-out")
+    p.add_argument("--cache", metavar="DIR", default=None,
+                   help="with --calling: keep each mined seed here as NPZ and read it back on the next run with the "
+                        "same proposer, seed and frames (delete it after changing the pipeline)")
     p.add_argument("--json", type=output_file, help="also write the results as JSON here")
     add_overwrite_option(p, "the --json file")
 
 
 def run(args: argparse.Namespace) -> int:
     """``mine bench calibrate``."""
+    if args.calling:
+        from mining.bench.calling import run_calling_bench
+
+        check_seeds(args.seeds)
+        return run_calling_bench(job_config(args), args.seeds, args.frames, cache=args.cache, l2=args.l2,
+                                 json_out=args.json, overwrite=args.overwrite)
     return run_calibrate_bench(job_config(args), args.seeds, args.frames, workers=args.workers, l2=args.l2,
                                epsilon1=args.epsilon1, epsilon2=args.epsilon2, balance=not args.no_balance,
                                json_out=args.json, overwrite=args.overwrite)

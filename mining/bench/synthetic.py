@@ -71,6 +71,7 @@ def run_synthetic(sequence: str, n_frames: int, cfg: JobConfig, start: int = 0, 
     shared = ("iou_threshold", "similarity", "min_visible_px", "max_depth_m", "track_cover")
     results["funnel"] = evaluate_funnel(truths, mined, stages, alpha=cfg.score.alpha, beta=cfg.score.beta,
                              weights=unary_weights(cfg.score, cfg.proposals.proposer), floor=cfg.score.floor,
+                                        tube_split=results["tube_split"],
                                         **{k: v for k, v in protocol.items() if k in shared})
     results["seconds"] = {"mine": t1 - t0, "eval": time.perf_counter() - t1}
     results["sequence"] = sequence

@@ -40,6 +40,12 @@ clutter tube the report gives its unary score's three terms as weighted into the
 and β) and the term that contributed most (*carried by*): the evidence co-selection
 believed.
 
+**Calls** (with the synthetic protocol's tube split). Each selected tube on a known object is
+placed in the distance and height bins of the evaluated known objects it covers (the median
+over its frames) and counted by the miner's call: known, unknown (a *known object called
+unknown*) or unclassified. Of the part and clutter tubes above, those called unknown are
+counted by the term that carried them: the evidence that put them into the unknown set.
+
 Run it: ``mine eval synthetic …`` prints it after the synthetic metrics (masks; driver
 ``mining/bench/synthetic.py``); ``mine eval recall --sequence S --funnel`` on KITTI labels
 (boxes, a label's depth the z of its 3D location; driver ``mining/bench/funnel.py``).
@@ -152,7 +158,8 @@ def evaluate_funnel(truths: Mapping[int, GtFrame], mined: Sequence[MinedTube],
                     min_visible_px: int = FunnelProtocol.min_visible_px,
                     max_depth_m: float | None = FunnelProtocol.max_depth_m,
                     track_cover: float = FunnelProtocol.track_cover,
-                    part_ioa: float = FunnelProtocol.part_ioa) -> dict:
+                    part_ioa: float = FunnelProtocol.part_ioa,
+                    tube_split: Mapping[int, str] | None = None) -> dict:
     """The funnel over the frames in ``truths`` (frame index → GtFrame).
 
     ``stages`` maps a proposal stage's name to its masks per frame (a frame it lacks has no
@@ -162,7 +169,11 @@ def evaluate_funnel(truths: Mapping[int, GtFrame], mined: Sequence[MinedTube],
     plain-JSON dict: ``stages``, ``bins``, ``protocol``, ``frames`` (per split: ``total``,
     ``distance``, ``height`` and ``cells`` ``"<distance> | <height>"``, each ``{"gt": n,
     <stage>: covered, "recall": {<stage>: share}}``), ``tracks`` (per split, the same shape)
-    and ``carried`` (``summary`` and ``tubes``, the part and clutter tubes, highest score first).
+    and ``carried`` (``summary`` and ``tubes``, the part and clutter tubes, highest score first;
+    ``called_unknown_by``: the part and clutter tubes called unknown, per kind and carrying term).
+    With ``tube_split`` (tube id → "known" / "unknown", the synthetic protocol's
+    ``results["tube_split"]``; others are clutter), also ``calls``: the selected tubes on known
+    objects per distance and height bin and what the miner called them (see "Calls" above).
     """
     if similarity not in ("mask", "box"):
         raise InputError(f"similarity must be 'mask' or 'box', got {similarity!r}")
@@ -190,6 +201,7 @@ def evaluate_funnel(truths: Mapping[int, GtFrame], mined: Sequence[MinedTube],
     stage_hits: dict[tuple[int, str], int] = {}  # (gt track, proposal stage) → frames covered
     tube_hits: dict[tuple[int, int], int] = {}  # (gt track, tube id) → frames covered
     explain: dict[int, list] = {}  # selected tube id → per-frame explanation
+    where: dict[int, list] = {}  # tube id → (known, depth m, box height px) of the evaluated objects it covers
     covers_object: set[int] = set()  # selected tubes that cover an evaluated object somewhere
 
     for t in sorted(truths):
@@ -229,6 +241,7 @@ def evaluate_funnel(truths: Mapping[int, GtFrame], mined: Sequence[MinedTube],
             for j in np.flatnonzero(ok[g]):
                 key = (tid, dets[j][0].tube.tube_id)
                 tube_hits[key] = tube_hits.get(key, 0) + 1
+                where.setdefault(dets[j][0].tube.tube_id, []).append((bool(gt.known[g]), gt.depth[g], heights[g]))
         _explain_frame(p, gt, evaluated, dets, iou, sel, explain, covers_object)
 
     dist_names, height_names = bin_names(p.distance_edges_m, "m"), bin_names(p.height_edges_px, "px")
@@ -251,7 +264,38 @@ def evaluate_funnel(truths: Mapping[int, GtFrame], mined: Sequence[MinedTube],
         "frames": frames,
         "tracks": _tracks(p, names, stages, visible, track_known, stage_hits, tube_hits, mined),
         "carried": _carried(mined, explain, covers_object, alpha, beta, weights, floor),
-    }
+    } | ({} if tube_split is None else {"calls": _calls(p, mined, tube_split, where)})
+
+
+CALLS = ("known", "unknown", "unclassified")  # the miner's call: TubeCategory.known True / False / None
+
+
+def _call(m: MinedTube) -> str:
+    return {True: "known", False: "unknown", None: "unclassified"}[m.category.known]
+
+
+def _calls(p: FunnelProtocol, mined: Sequence[MinedTube], tube_split: Mapping[int, str],
+           where: dict[int, list]) -> dict:
+    """The selected tubes on known objects per bin of the objects they cover, by the miner's call."""
+    dist_names, height_names = bin_names(p.distance_edges_m, "m"), bin_names(p.height_edges_px, "px")
+    out = {"distance": {n: dict.fromkeys(("tubes", *CALLS), 0) for n in dist_names},
+           "height": {n: dict.fromkeys(("tubes", *CALLS), 0) for n in height_names},
+           "total": dict.fromkeys(("tubes", *CALLS), 0)}
+    for m in mined:
+        tid = m.tube.tube_id
+        on = [(z, h) for known, z, h in where.get(tid, []) if known]
+        if not m.selected or tube_split.get(tid) != "known" or not on:
+            continue
+        z, h = np.median(np.array(on, np.float64), axis=0)
+        call = _call(m)
+        for axis, names, edges, v in (("distance", dist_names, p.distance_edges_m, z),
+                                      ("height", height_names, p.height_edges_px, h)):
+            cell = out[axis][names[int(_bin(np.array([v]), edges)[0])]]
+            cell["tubes"] += 1
+            cell[call] += 1
+        out["total"]["tubes"] += 1
+        out["total"][call] += 1
+    return out
 
 
 def _explain_frame(p: FunnelProtocol, gt: GtFrame, evaluated: np.ndarray, dets: list, iou: np.ndarray,
@@ -318,6 +362,7 @@ def _carried(mined: Sequence[MinedTube], explain: dict[int, list], covers_object
     summary = {"selected": 0, "on objects": 0, "on ignored objects": 0, "part": 0, "clutter": 0,
                "outside the evaluated frames": 0}
     by_term = {k: 0 for k in (*(TERMS if weights is None else GROUPS), "none")}
+    called_unknown = {kind: dict.fromkeys(by_term, 0) for kind in ("part", "clutter")}
     tubes = []
     for m in mined:
         if not m.selected:
@@ -341,6 +386,8 @@ def _carried(mined: Sequence[MinedTube], explain: dict[int, list], covers_object
         terms = weighted_terms(m, alpha, beta, weights, floor)
         by = carried_by(terms)
         by_term[by] += 1
+        if m.category.known is False:
+            called_unknown[kind][by] += 1
         tubes.append({
             "tube_id": int(tid), "frames": len(why), "observed_frames": m.tube.n_inliers, "kind": kind, "of": of,
             "label": _label(kind, of), "share": sum(1 for w in why if _key(w) == key) / len(why),
@@ -349,7 +396,7 @@ def _carried(mined: Sequence[MinedTube], explain: dict[int, list], covers_object
             "known_call": None if m.category.known is None else bool(m.category.known),
         })
     tubes.sort(key=lambda x: (-x["total"], x["tube_id"]))
-    return {"summary": summary, "carried_by": by_term, "tubes": tubes}
+    return {"summary": summary, "carried_by": by_term, "called_unknown_by": called_unknown, "tubes": tubes}
 
 
 def _key(why: tuple) -> tuple:
@@ -406,6 +453,19 @@ def format_funnel(funnel: dict, max_tubes: int = 20) -> str:
                  f"objects, {s['part']} on parts, {s['clutter']} clutter, {s['outside the evaluated frames']} outside "
                  f"the evaluated frames; parts and clutter carried by "
                  + ", ".join(f"{k} {v}" for k, v in c["carried_by"].items() if v))
+    cu = c.get("called_unknown_by")
+    if cu:
+        lines.append("parts and clutter called unknown, by the term that carried them: " + "; ".join(
+            f"{kind} {sum(v.values())}" + (" (" + ", ".join(f"{k} {n}" for k, n in v.items() if n) + ")"
+                                            if sum(v.values()) else "") for kind, v in cu.items()))
+    if "calls" in funnel:
+        lines.append("selected tubes on known objects by the miner's call (known / unknown / unclassified):")
+        cells = [("", "all", funnel["calls"]["total"])]
+        cells += [(axis, name, r) for axis in ("distance", "height") for name, r in funnel["calls"][axis].items()]
+        rows = [[axis, name, str(r["tubes"]), str(r["known"]), str(r["unknown"]), str(r["unclassified"]),
+                 _pct(r["unknown"] / r["tubes"] if r["tubes"] else float("nan"))] for axis, name, r in cells]
+        lines += ["  " + x for x in _table(["by", "bin", "tubes", "known", "unknown", "unclassified",
+                                            "called unknown"], rows)]
     if c["tubes"]:
         names = list(c["tubes"][0]["terms"])  # the REFERENCE's three terms, or the calibrated model's groups
         head = ["tube", "kind", "frames", *names, "total", "carried by", "call"]

@@ -307,7 +307,23 @@ def evaluate_synthetic(mined: Sequence[MinedTube], truths: Mapping[int, FrameTru
     t["clutter_share"] = t["clutter"] / len(tubes) if tubes else float("nan")
     t["clutter_called"] = {call: sum(1 for m in tubes if m.tube.tube_id not in tube_split and m.category.known is value)
                            for call, value in calls.items()}
+    # the unknown set (issue 29): what a researcher who exports the tubes called unknown finds in them
+    t |= unknown_set(tubes, tube_split)
     return results
+
+
+def unknown_set(tubes: Sequence[MinedTube], tube_split: Mapping[int, str]) -> dict:
+    """The selected tubes called unknown by what they are: ``called_unknown`` (n),
+    ``called_unknown_on`` ({"unknown", "known", "clutter"}: n; clutter = not matched to an
+    evaluated object) and ``unknown_set_precision`` (the share on unknown objects; NaN when
+    none is called unknown)."""
+    on = {"unknown": 0, "known": 0, "clutter": 0}
+    for m in tubes:
+        if m.category.known is False:
+            on[tube_split.get(m.tube.tube_id, "clutter")] += 1
+    n = sum(on.values())
+    return {"called_unknown": n, "called_unknown_on": on,
+            "unknown_set_precision": on["unknown"] / n if n else float("nan")}
 
 
 def format_synthetic(results: dict) -> str:
@@ -325,9 +341,10 @@ def format_synthetic(results: dict) -> str:
                  f"({t.get('known_called_known')} called known), {t.get('unknown')} on unknown objects "
                  f"({t.get('unknown_called_unknown')} called unknown), {t.get('clutter')} clutter; "
                  f"{t.get('ignored_dets')} detections on ignored objects")
+
+    def pct(x):
+        return "—" if x != x else f"{100 * x:.0f} %"
     if "known_called_unclassified" in t:
-        def pct(x):
-            return "—" if x != x else f"{100 * x:.0f} %"
         lines.append("the miner's call per object kind (known / unknown / unclassified):")
         for kind, n in (("known", t["known"]), ("unknown", t["unknown"]), ("clutter", t["clutter"])):
             c = t["clutter_called"] if kind == "clutter" else {k: t[f"{kind}_called_{k}"] for k in ("known", "unknown", "unclassified")}
@@ -335,4 +352,9 @@ def format_synthetic(results: dict) -> str:
             what = "of the evaluated tubes" if kind == "clutter" else f"called {kind}"
             lines.append(f"  on {kind + ' objects' if kind != 'clutter' else 'nothing (clutter)'}: {n} tubes → "
                          f"{c['known']} / {c['unknown']} / {c['unclassified']}; {pct(share)} {what}")
+    if "called_unknown_on" in t:
+        on = t["called_unknown_on"]
+        lines.append(f"the unknown set: {t['called_unknown']} tubes called unknown, {on['unknown']} on unknown objects "
+                     f"(precision {pct(t['unknown_set_precision'])}), {on['known']} on known objects, "
+                     f"{on['clutter']} clutter")
     return "\n".join(lines)

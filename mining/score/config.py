@@ -24,6 +24,31 @@ CALIBRATED: dict[str, dict[str, float]] = {
 }
 
 
+# The calibrated confidence of the classifier's own rows (mining/tubes/category.py, RowConfidence): two logistics in
+# (1, logit s, ln h, ln z, logit s·ln h, logit s·ln z) of a row's max class score s, box height h (px) and depth z (m),
+# fit by `mine bench calibrate --calling` on the observed tube frames of synthetic seeds 0000–0006 (100 frames each,
+# onnx+stereo with the COCO YOLOv8n-seg int8 model) labelled by the truth they overlap (mask IoU ≥ 0.5).
+# 23,233 rows (15,308 on known objects, 734 on unknown ones, 7,191 on nothing); leave-one-seed-out AUC 0.75–0.88 (on
+# an object), 0.90–0.98 for known | object (the max score alone: 0.75–0.94).
+ROW_ON_OBJECT: dict[str, float] = {  # P(the row lies on an object, known or not)
+    "bias": 0.432838, "logit_score": -0.557604, "ln_height": 0.324196, "ln_depth": 0.113974,
+    "logit_x_ln_height": 0.1911, "logit_x_ln_depth": 0.179667}
+ROW_KNOWN: dict[str, float] = {  # P(known | on an object) at equal priors (unknown objects' rows weighted up)
+    "bias": -43.4245, "logit_score": -5.87129, "ln_height": 6.89734, "ln_depth": 6.64271,
+    "logit_x_ln_height": 1.05994, "logit_x_ln_depth": 0.946199}
+# The object evidence of a tube called unknown (mining/score/clutter.py), per proposer: logistic in OBJECT_FEATURES
+# on the candidate tubes of the same seeds, object against part or clutter (unknown objects weighted up);
+# leave-one-seed-out AUC 0.89–0.95.
+OBJECT_EVIDENCE: dict[str, dict[str, float]] = {
+    "onnx+stereo": {"bias": -2.6737, "ln_observed": 0.758389, "observed_share": 2.14493, "sd_ln_area_3d": 0.852245,
+                    "sd_ln_aspect": -1.6077, "mean_fill": 3.51717, "classifier_share": 2.71205,
+                    "mean_class_score": 4.25931, "mean_detectability": 2.05366, "ln_speed": -0.00206229,
+                    "ln_depth": 0.0995409, "ln_height_px": -0.926086, "border_share": -1.39624,
+                    "mean_ln_mask_iou": 2.25626, "ln_width": 1.18779, "ln_height": -0.650861, "ln_length": -0.442476,
+                    "sd_ln_size": -0.703684, "sd_footpoint": -0.131171, "bottom_gap": -7.24124},
+}
+
+
 @dataclass
 class ScoreConfig:
     objectness_k: Positive = 10.0  # REFERENCE: objectness LLR ln(x) − ln(1/K), K = 10 (paper's β)
@@ -44,7 +69,29 @@ class ScoreConfig:
     # Known / unknown / unclassified (mining/tubes/category.py).
     known_log_margin: Signed = -1.0  # paper: argmax over the 81 entries is 0; ours: −1, calibrated by `mine bench classify` on synthetic training seeds 0000–0002 (docs/RESULTS.md)
     min_class_evidence: float = 1.0  # ours: classified only with ≥ one frame-equivalent of classifier evidence
+    # "calibrated" = ours (issue 29): a classifier's own row is read through ROW_ON_OBJECT / ROW_KNOWN before the
+    # posterior accumulates (a far small pedestrian at 0.25 is a known object the detector is unsure of, not unknown),
+    # decided at known_log_margin_calibrated; "reference" = the paper's row as the classifier gives it (unknown mass
+    # 1 − max p), decided at known_log_margin
+    class_confidence: Annotated[str, OneOf(("reference", "calibrated"))] = "calibrated"
+    row_on_object: dict[str, Signed] = field(default_factory=lambda: dict(ROW_ON_OBJECT))  # weights of P(row on an object), by mining.tubes.category.ROW_FEATURES
+    row_known: dict[str, Signed] = field(default_factory=lambda: dict(ROW_KNOWN))  # weights of P(known | on an object), likewise
+    row_proposers: tuple[str, ...] = ("onnx", "onnx+stereo")  # ours: the jobs whose classifier rows these weights were fit on (the ONNX YOLO-seg decoder's); other classifiers (torch, detections) keep their rows as given
+    known_log_margin_calibrated: Signed = -1.0  # ours: the margin with calibrated rows, best balanced accuracy of tubes on objects (0.915) on seeds 0000–0006 (`mine bench calibrate --calling`; −0.5…−1 in every fold)
+    # Object or clutter before the unknown set (issue 29; mining/score/clutter.py): a tube called unknown whose object
+    # evidence gives P(object) < unknown_min_object is "unclassified" = ours, the default: it stays selected but is not
+    # called unknown (selection is the unary's judgement; the unknown set is what researchers export, and dropping
+    # cost unknown objects: docs/RESULTS.md); "drop" = not offered to co-selection (a candidate in the catalogue,
+    # unselected); "off" = no gate (before issue 29). A proposer without OBJECT_EVIDENCE weights has no gate.
+    unknown_gate: Annotated[str, OneOf(("off", "drop", "unclassified"))] = "unclassified"
+    unknown_min_object: Fraction = 0.5  # ours: more likely an object than not; best mean F1 of the unknown set of 0.5–0.9, leave-one-seed-out on seeds 0000–0006 (`mine bench calibrate --calling`)
+    # proposer → term → weight of the object evidence (mining.score.clutter.OBJECT_TERMS); a job table changes the terms
+    # it names and keeps OBJECT_EVIDENCE's others
+    object_evidence: dict[str, dict[str, Signed]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         given = self.calibrated or {}
         self.calibrated = {p: {**CALIBRATED.get(p, {}), **given.get(p, {})} for p in {**CALIBRATED, **given}}
+        given = self.object_evidence or {}
+        self.object_evidence = {p: {**OBJECT_EVIDENCE.get(p, {}), **given.get(p, {})}
+                                for p in {**OBJECT_EVIDENCE, **given}}

@@ -1,0 +1,353 @@
+"""``mine bench calibrate --calling``: fit what calls a tube unknown, leave one seed out (issue 29).
+
+Two fits on the synthetic training seeds (mined with the job's config, every candidate tube
+kept with its frames' truth):
+
+1. **The classifier's rows** (``mining.tubes.category.RowConfidence``). Each observed tube
+   frame whose posterior is a classifier's own row (max class score s > 0) is labelled by the
+   truth its mask overlaps with IoU ≥ 0.5: a known object, an unknown object, or nothing. Two
+   logistics in ``row_features(s, box height px, depth m)``: P(on an object) on all rows, and
+   P(known | on an object) on the rows on objects with the unknown objects' rows weighted up
+   to the known ones' total (equal priors: the seeds' objects are mostly COCO classes, and a
+   fit on them as they come calls every unsure row known).
+2. **The object evidence** of a tube (``mining.score.clutter``): a logistic on the candidate
+   tubes labelled object against part or clutter (``mining.eval.tube_labels``), unknown
+   objects weighted up likewise (``calibrate.balance_weights``).
+
+The known margin with calibrated rows is the one of ``MARGIN_GRID`` with the best balanced
+accuracy (mean of known-called-known and unknown-called-unknown) over the training tubes on
+objects; the gate's threshold ``score.unknown_min_object`` is not fitted: 0.5, a tube enters
+the unknown set when it is more likely an object than not.
+
+**Leave one seed out.** For each seed, both fits and the margin come from the others, and the
+held-out seed's tubes are judged three ways: as the job's config says with REFERENCE's rows
+and no gate ("reference"), with the calibrated rows ("rows"), and with the gate too ("rows +
+gate"); the synthetic protocol scores each (precision of the unknown set, known called known,
+clutter share, known and unknown frame recall, HOTA). The weights fit on all seeds are
+printed as the config defaults (``mining/score/config.py``).
+
+``--cache DIR`` keeps each mined seed as an NPZ (arrays only, no pickle) and reads it back on
+the next run with the same seeds and frames, so a refit costs seconds, not a mining.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from mining.bench.calibrate import balance_weights, fit_log_odds, roc_auc
+from mining.bench.synthetic import run_synthetic
+from mining.catalog import safe_files
+from mining.config import JobConfig
+from mining.errors import InputError
+from mining.eval.synthetic import GtFrame, evaluate_synthetic
+from mining.eval.tube_labels import label_tubes
+from mining.masks import mask_iou
+from mining.pipeline.mine import judge
+from mining.score.clutter import OBJECT_TERMS, object_evidence
+from mining.tubes.category import ROW_FEATURES, RowConfidence, accumulate_posterior, decide, row_features
+from mining.types import Tube, TubeFrame, max_class_score
+
+MARGIN_GRID = tuple(np.round(np.arange(-3.0, 3.01, 0.5), 2))  # ln-ratio margins tried with calibrated rows
+ROW_IOU = 0.5  # issue 29: a row lies on the object its mask overlaps with IoU ≥ 0.5
+KNOWN, UNKNOWN, NOTHING = 0, 1, 2  # a row's truth label
+CACHE_VERSION = 1
+GATE_GRID = (0.5, 0.6, 0.7, 0.8, 0.9)  # score.unknown_min_object tried in the folds (P(object) a tube needs)
+
+
+# --- labelled data --------------------------------------------------------------------------
+
+def classifier_rows(tubes: Sequence[Tube], truths: dict[int, GtFrame]) -> np.ndarray:
+    """(N, 4) score, box height px, depth m, label (KNOWN / UNKNOWN / NOTHING) of every observed
+    tube frame inside the truth whose posterior is a classifier's own row."""
+    by_frame: dict[int, list[TubeFrame]] = {}
+    for t in tubes:
+        for f in t.frames:
+            if f.observed and f.frame in truths and f.posterior is not None and f.class_weight > 0 \
+                    and np.isfinite(f.posterior).all() and max_class_score(f.posterior) > 0:
+                by_frame.setdefault(f.frame, []).append(f)
+    out = []
+    for frame, fs in sorted(by_frame.items()):
+        gt = truths[frame]
+        iou = mask_iou([f.rle for f in fs], gt.rles) if len(gt.rles) else np.zeros((len(fs), 0))
+        for j, f in enumerate(fs):
+            label = NOTHING
+            if iou.shape[1] and iou[j].max() >= ROW_IOU - 1e-12:
+                label = KNOWN if gt.known[int(np.argmax(iou[j]))] else UNKNOWN
+            out.append((max_class_score(f.posterior), f.box[3] - f.box[1], f.position_cam[2], label))
+    return np.array(out, np.float64).reshape(-1, 4)
+
+
+def fit_rows(rows: np.ndarray, l2: float = 1.0) -> RowConfidence:
+    """The two logistics of the module docstring, on ``classifier_rows`` output."""
+    x = row_features(rows[:, 0], rows[:, 1], rows[:, 2])
+    label = rows[:, 3].astype(int)
+    on = label != NOTHING
+    if on.all() or not on.any():
+        raise InputError(f"the classifier's rows are all {'on objects' if on.all() else 'on nothing'}: "
+                         "nothing to fit (raise --frames or add --seeds)")
+    known = label[on] == KNOWN
+    if known.all() or not known.any():
+        raise InputError("the classifier's rows on objects are all of one kind (known or unknown): nothing to fit")
+    sw = np.where(known, 1.0, known.sum() / (~known).sum())
+    return RowConfidence(dict(zip(ROW_FEATURES, map(float, fit_log_odds(x, on, l2)))),
+                         dict(zip(ROW_FEATURES, map(float, fit_log_odds(x[on], known, l2, sw)))))
+
+
+def best_margin(posteriors: Sequence[np.ndarray | None], known: np.ndarray) -> tuple[float, float]:
+    """(margin, balanced accuracy) of MARGIN_GRID best for tubes on objects (``known``: their
+    truth); an unclassified tube (None) is a miss either way. Ties go to the margin nearest 0."""
+    known = np.asarray(known, bool)
+    best = (-1.0, 0.0)
+    for m in MARGIN_GRID:
+        calls = np.array([None if p is None else decide(p, m)[0] for p in posteriors], object)
+        hit_k = [c is True for c, k in zip(calls, known) if k]
+        hit_u = [c is False for c, k in zip(calls, known) if not k]
+        acc = float(np.nanmean([np.mean(hit_k) if hit_k else np.nan, np.mean(hit_u) if hit_u else np.nan]))
+        if acc > best[0] + 1e-12 or (abs(acc - best[0]) <= 1e-12 and abs(m) < abs(best[1])):
+            best = (acc, float(m))
+    return best[1], best[0]
+
+
+def seed_data(tubes: list[Tube], truths: dict[int, GtFrame]) -> dict:
+    """Everything the fits need from one mined seed."""
+    labels = label_tubes(tubes, truths)
+    keep = [t for t in tubes if labels[t.tube_id].label in ("object", "part", "clutter")]
+    return {"tubes": tubes, "truths": truths, "rows": classifier_rows(tubes, truths),
+            "keep": keep, "x": np.array([np.concatenate([[1.0], object_evidence(t)]) for t in keep]).reshape(
+                -1, len(OBJECT_TERMS)),
+            "y": np.array([labels[t.tube_id].label == "object" for t in keep], bool),
+            "unknown": np.array([labels[t.tube_id].object_known is False for t in keep], bool)}
+
+
+def fit_all(data: Sequence[dict], cfg: JobConfig, l2: float = 1.0) -> dict:
+    """Row confidence, margin and object evidence from the seeds ``data``."""
+    conf = fit_rows(np.concatenate([d["rows"] for d in data]), l2)
+    s = cfg.score
+    posts, known = [], []
+    for d in data:
+        for t, y, u in zip(d["keep"], d["y"], d["unknown"]):
+            if y:
+                mean, _, ev = accumulate_posterior(t, conf)
+                posts.append(mean if mean is not None and ev >= s.min_class_evidence else None)
+                known.append(not u)
+    margin, acc = best_margin(posts, np.array(known, bool))
+    # on all candidate tubes: fit on the tubes called unknown alone (a tenth of them objects), the gate dropped
+    # most unknown objects in the folds (unknown frame recall 0.26 → 0.12 on seeds 0000–0003)
+    x = np.concatenate([d["x"] for d in data])
+    y = np.concatenate([d["y"] for d in data])
+    w = fit_log_odds(x, y, l2, balance_weights(y, np.concatenate([d["unknown"] for d in data])))
+    return {"row_on_object": dict(conf.on_object), "row_known": dict(conf.known), "margin": margin,
+            "balanced_accuracy": acc, "object_evidence": dict(zip(OBJECT_TERMS, map(float, w)))}
+
+
+def calling_config(cfg: JobConfig, fit: dict | None, gate: float | None) -> JobConfig:
+    """``cfg`` with REFERENCE's rows and no gate (``fit`` None), or with the fitted rows and margin, and with
+    ``gate`` the object evidence at that ``unknown_min_object`` (the job's gate action; "unclassified" if off)."""
+    out = copy.deepcopy(cfg)
+    if fit is None:
+        out.score.class_confidence, out.score.unknown_gate = "reference", "off"
+        return out
+    out.score.class_confidence = "calibrated"
+    out.score.row_on_object, out.score.row_known = dict(fit["row_on_object"]), dict(fit["row_known"])
+    out.score.known_log_margin_calibrated = fit["margin"]
+    out.score.object_evidence = {**out.score.object_evidence, cfg.proposals.proposer: dict(fit["object_evidence"])}
+    action = cfg.score.unknown_gate if cfg.score.unknown_gate != "off" else "unclassified"
+    out.score.unknown_gate = "off" if gate is None else action
+    if gate is not None:
+        out.score.unknown_min_object = float(gate)
+    return out
+
+
+def f1(precision: float, recall: float) -> float:
+    """The harmonic mean (0 when either is 0 or NaN: no unknown set, or nothing of it right)."""
+    if not (precision > 0 and recall > 0):
+        return 0.0
+    return 2 * precision * recall / (precision + recall)
+
+
+def summary(res: dict) -> dict:
+    a, k, u, t = res["all"], res["known"], res["unknown"], res["tubes"]
+    return {"unknown_set_f1": f1(t["unknown_set_precision"], t["unknown_called_unknown_share"]),
+            "unknown_set_precision": t["unknown_set_precision"], "called_unknown": t["called_unknown"],
+            "on_unknown": t["called_unknown_on"]["unknown"], "on_known": t["called_unknown_on"]["known"],
+            "on_clutter": t["called_unknown_on"]["clutter"], "known_called_known": t["known_called_known_share"],
+            "unknown_called_unknown": t["unknown_called_unknown_share"], "clutter_share": t["clutter_share"],
+            "selected": t["evaluated"], "known_frame_recall": k["frame_recall"],
+            "unknown_frame_recall": u["frame_recall"], "unknown_tube_recall": u["tube_recall"], "HOTA": a["HOTA"]}
+
+
+# --- the cache ------------------------------------------------------------------------------
+
+_FRAME_VECTORS = ("box", "footpoint_world", "velocity_world", "size", "position_cam")
+_FRAME_SCALARS = ("objectness", "mask_iou", "motion_density", "class_weight")
+
+
+def _blob(items: Sequence[bytes]) -> tuple[np.ndarray, np.ndarray]:
+    return np.frombuffer(b"".join(items), np.uint8).copy(), np.array([len(b) for b in items], np.int64)
+
+
+def _unblob(data: np.ndarray, lens: np.ndarray) -> list[bytes]:
+    ends = np.cumsum(lens)
+    return [data[e - n:e].tobytes() for e, n in zip(ends, lens)]
+
+
+def _counts(rle: dict) -> bytes:
+    c = rle["counts"]
+    return c if isinstance(c, bytes) else c.encode("ascii")
+
+
+def save_seed(path: Path, tubes: Sequence[Tube], truths: dict[int, GtFrame]) -> None:
+    """Candidate tubes and compact truths of one seed as an NPZ of plain arrays."""
+    frames = [(t.tube_id, f) for t in tubes for f in t.frames]
+    a: dict[str, np.ndarray] = {"version": np.array(CACHE_VERSION)}
+    a["t_id"] = np.array([t.tube_id for t in tubes], np.int64)
+    a["t_segment"] = np.array([t.segment for t in tubes], np.int64)
+    a["t_end"] = np.array([t.end_reason for t in tubes], str)
+    a["f_tube"] = np.array([tid for tid, _ in frames], np.int64)
+    a["f_int"] = np.array([(f.frame, f.t_ns, f.observed, f.obs_index, *f.rle["size"]) for _, f in frames],
+                          np.int64).reshape(-1, 6)
+    for k in _FRAME_VECTORS:
+        a["f_" + k] = np.array([np.asarray(getattr(f, k), np.float64) for _, f in frames]).reshape(len(frames), -1)
+    a["f_scalars"] = np.array([[getattr(f, k) for k in _FRAME_SCALARS] for _, f in frames], np.float64).reshape(-1, 4)
+    a["f_posterior"] = np.array([np.full(81, np.nan) if f.posterior is None else f.posterior for _, f in frames],
+                                np.float64).reshape(-1, 81)
+    a["f_rle"], a["f_rle_len"] = _blob([_counts(f.rle) for _, f in frames])
+    keys = sorted(truths)
+    objs = [(t, i) for t in keys for i in range(len(truths[t].track_ids))]
+    a["g_frames"] = np.array(keys, np.int64)
+    a["g_size"] = np.array(truths[keys[0]].size if keys else (0, 0), np.int64)
+    a["g_frame"] = np.array([t for t, _ in objs], np.int64)
+    a["g_track"] = np.array([truths[t].track_ids[i] for t, i in objs], np.int64)
+    a["g_known"] = np.array([truths[t].known[i] for t, i in objs], bool)
+    a["g_category"] = np.array([truths[t].categories[i] for t, i in objs], str)
+    a["g_area"] = np.array([truths[t].areas[i] for t, i in objs], np.int64)
+    a["g_box"] = np.array([truths[t].boxes[i] for t, i in objs], np.float64).reshape(-1, 4)
+    a["g_depth"] = np.array([truths[t].depth[i] for t, i in objs], np.float64)
+    a["g_rle"], a["g_rle_len"] = _blob([_counts(truths[t].rles[i]) for t, i in objs])
+    safe_files.write_file(path, lambda fh: np.savez_compressed(fh, **a), overwrite=True)
+
+
+def load_seed(path: Path) -> tuple[list[Tube], dict[int, GtFrame]]:
+    """``save_seed``'s tubes and truths back (InputError naming the file when it does not read)."""
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            a = {k: f[k] for k in f.files}
+        if int(a["version"]) != CACHE_VERSION:
+            raise InputError(f"cache version {int(a['version'])}, expected {CACHE_VERSION}", path)
+        tubes = {int(t): Tube(int(t), int(s), [], str(e)) for t, s, e in zip(a["t_id"], a["t_segment"], a["t_end"])}
+        counts = _unblob(a["f_rle"], a["f_rle_len"])
+        for i, tid in enumerate(a["f_tube"]):
+            frame, t_ns, observed, obs_index, h, w = (int(v) for v in a["f_int"][i])
+            post = a["f_posterior"][i]
+            s = a["f_scalars"][i]
+            tubes[int(tid)].frames.append(TubeFrame(
+                frame, t_ns, bool(observed), obs_index, {"size": [h, w], "counts": counts[i]},
+                *(a["f_" + k][i] for k in _FRAME_VECTORS), float(s[0]), float(s[1]), float(s[2]),
+                None if not np.isfinite(post).all() else post, float(s[3])))
+        size = tuple(int(x) for x in a["g_size"])
+        gcounts = _unblob(a["g_rle"], a["g_rle_len"])
+        truths = {}
+        for t in a["g_frames"]:
+            idx = np.flatnonzero(a["g_frame"] == t)
+            truths[int(t)] = GtFrame(a["g_track"][idx], a["g_known"][idx], [str(c) for c in a["g_category"][idx]],
+                                     [{"size": list(size), "counts": gcounts[i]} for i in idx], a["g_area"][idx],
+                                     a["g_box"][idx].reshape(-1, 4), a["g_depth"][idx], size)
+    except (OSError, KeyError, ValueError) as e:
+        raise InputError(f"cannot read the mined-seed cache: {e}", path) from e
+    return [tubes[int(t)] for t in a["t_id"]], truths
+
+
+# --- the bench ------------------------------------------------------------------------------
+
+def mined_seed(seed: str, n_frames: int, cfg: JobConfig, cache: Path | None) -> tuple[list[Tube], dict, str]:
+    path = None if cache is None else cache / f"calling-{cfg.proposals.proposer}-{seed}-{n_frames}.npz"
+    if path is not None and path.is_file():
+        tubes, truths = load_seed(path)
+        return tubes, truths, f"read from {path}"
+    mined, res = run_synthetic(seed, n_frames, cfg)
+    tubes = [m.tube for m in mined]
+    if path is not None:
+        save_seed(path, tubes, res["truths"])
+    return tubes, res["truths"], f"mined in {res['seconds']['mine']:.0f} s"
+
+
+def run_calling_bench(cfg: JobConfig, seeds: Sequence[str], n_frames: int, cache: str | None = None,
+                      l2: float = 1.0, json_out: str | None = None, overwrite: bool = False) -> int:
+    t0 = time.perf_counter()
+    print(f"calibrate --calling: {len(seeds)} seed(s) × {n_frames} frames, proposer {cfg.proposals.proposer}")
+    data = {}
+    for seed in seeds:
+        tubes, truths, how = mined_seed(seed, n_frames, cfg, None if cache is None else Path(cache))
+        data[seed] = seed_data(tubes, truths)
+        r = data[seed]["rows"][:, 3]
+        print(f"  seed {seed}: {len(tubes)} candidate tubes ({int(data[seed]['y'].sum())} on objects), classifier rows "
+              f"on known / unknown / nothing {int((r == KNOWN).sum())} / {int((r == UNKNOWN).sum())} / "
+              f"{int((r == NOTHING).sum())}; {how}", flush=True)
+    folds = []
+    for held in seeds:
+        train = [data[s] for s in seeds if s != held]
+        fit = fit_all(train, cfg, l2)
+        d = data[held]
+        conf = RowConfidence(fit["row_on_object"], fit["row_known"])
+        x = row_features(d["rows"][:, 0], d["rows"][:, 1], d["rows"][:, 2])
+        on = d["rows"][:, 3] != NOTHING
+        auc = {"row_on_object": roc_auc(x @ np.array([conf.on_object.get(k, 0.0) for k in ROW_FEATURES]), on),
+               "row_known": roc_auc(x[on] @ np.array([conf.known.get(k, 0.0) for k in ROW_FEATURES]),
+                                    d["rows"][on, 3] == KNOWN),
+               "row_known_score_alone": roc_auc(d["rows"][on, 0], d["rows"][on, 3] == KNOWN),
+               "object_evidence": roc_auc(d["x"] @ np.array([fit["object_evidence"][k] for k in OBJECT_TERMS]),
+                                          d["y"])}
+        cases = [("reference", None, None), ("rows", fit, None)] + [(f"gate {g:g}", fit, g) for g in GATE_GRID]
+        runs = {name: summary(evaluate_synthetic(judge(d["tubes"], calling_config(cfg, f, g)), d["truths"]))
+                for name, f, g in cases}
+        folds.append({"held_out": held, "margin": fit["margin"], "auc": auc, "runs": runs})
+        print(f"  held out {held}: margin {fit['margin']:+.1f}; AUC rows on object {auc['row_on_object']:.3f}, "
+              f"known {auc['row_known']:.3f} (score alone {auc['row_known_score_alone']:.3f}), object evidence "
+              f"{auc['object_evidence']:.3f} ({time.perf_counter() - t0:.0f} s)", flush=True)
+    final = fit_all(list(data.values()), cfg, l2)
+    # the gate's threshold: the best mean F1 of the unknown set over the held-out seeds (ties: the lower)
+    f1s = {g: float(np.mean([f["runs"][f"gate {g:g}"]["unknown_set_f1"] for f in folds])) for g in GATE_GRID}
+    final["unknown_min_object"] = max(GATE_GRID, key=lambda g: (f1s[g], -g))
+    final["gate_f1"] = f1s
+    _print(folds, final, seeds, n_frames)
+    print(f"calibrate --calling: {time.perf_counter() - t0:.0f} s")
+    if json_out:
+        doc = {"proposer": cfg.proposals.proposer, "seeds": list(seeds), "n_frames": n_frames, "l2": l2,
+               "folds": folds, "fit": final}
+        safe_files.write_file(json_out, json.dumps(doc, indent=1, default=float).encode(), overwrite)
+    return 0
+
+
+def _print(folds: list[dict], final: dict, seeds: Sequence[str], n_frames: int) -> None:
+    keys = ("unknown_set_f1", "unknown_set_precision", "called_unknown", "on_unknown", "on_known", "on_clutter", "known_called_known",
+            "unknown_called_unknown", "clutter_share", "selected", "known_frame_recall", "unknown_frame_recall", "HOTA")
+    short = ("F1", "precision", "called U", "on U", "on K", "on clut", "K→K", "U→U", "clutter", "selected", "known fR",
+             "unknown fR", "HOTA")
+
+    def fmt(v):
+        return f"{v:10.3f}" if isinstance(v, float) else f"{v!s:>10}"
+
+    print("\nLeave one seed out (the held-out seed judged with REFERENCE's rows, the calibrated rows, and the gate too at "
+          "each threshold; per seed for the chosen one):")
+    print(f"  {'held out':8} {'calls':12} " + " ".join(f"{h:>10}" for h in short))
+    chosen = f"gate {final['unknown_min_object']:g}"
+    for name in folds[0]["runs"]:
+        for f in folds if name in ("reference", "rows", chosen) else ():
+            print(f"  {f['held_out']:8} {name:12} " + " ".join(fmt(f["runs"][name][k]) for k in keys))
+        tot = {k: sum(f["runs"][name][k] for f in folds) for k in ("called_unknown", "on_unknown")}
+        mean = [float(np.nanmean([np.nan if f["runs"][name][k] is None else f["runs"][name][k] for f in folds]))
+                for k in keys]
+        print(f"  {'mean':8} {name:12} " + " ".join(fmt(v) for v in mean)
+              + f"   (pooled precision {tot['on_unknown']}/{tot['called_unknown']})")
+    print(f"\nFit on all {len(seeds)} seeds ({n_frames} frames each; mine bench calibrate --calling --seeds "
+          f"{' '.join(seeds)}): margin {final['margin']:+.1f} (balanced accuracy {final['balanced_accuracy']:.3f}); "
+          f"unknown_min_object {final['unknown_min_object']:g} (mean F1 of the unknown set by threshold: "
+          + ", ".join(f"{g:g}: {v:.3f}" for g, v in final["gate_f1"].items()) + ")")
+    for name in ("row_on_object", "row_known", "object_evidence"):
+        print(f"{name} = {{" + ", ".join(f'"{k}": {v:.6g}' for k, v in final[name].items()) + "}")
