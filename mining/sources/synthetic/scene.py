@@ -15,8 +15,11 @@ crawling low-poly ellipsoid the size of a large dog but with no legs, head or ta
 COCO animal class describes it), tyre (a loose car tyre, lying or standing), barrier (a
 striped board on trestles or a concrete kerb barrier), box (cardboard), branch (a fallen
 branch with leaves), cart (a two-wheeled hand cart) and tortoise (a giant tortoise crossing:
-an animal, but none of COCO's ten). The meshes are in ``meshes.py``. Objects beyond the
-curb stand on the sidewalk (a curb height up).
+an animal, but none of COCO's ten). Only in staged scenarios (issue 29; the random worlds
+are drawn as before): deer (a roe deer) and boar (a wild boar), walking quadrupeds COCO's ten
+animals do not include; trolley (a wire shopping trolley, mostly see-through); pallet (a Euro
+pallet) and sack (a filled sack), a fallen load. The meshes are in ``meshes.py``. Objects
+beyond the curb stand on the sidewalk (a curb height up).
 """
 
 from __future__ import annotations
@@ -31,7 +34,8 @@ from mining.sources.synthetic.faces import (  # noqa: F401  (the row layout is r
     DOWN, MAXV, R_N, R_NV, R_O, R_OBJ, R_PART, R_SKEY, R_TILE, R_TINT, R_U, R_V, FaceList, rot_x, rot_y, rot_z,
 )
 from mining.sources.synthetic.meshes import (
-    CAR_COLOURS, CAR_SHAPES, CAR_WEIGHTS, CLOTHES, TROUSERS, build_mesh, part_poses, rider_height,
+    ANIMATED, CAR_COLOURS, CAR_SHAPES, CAR_WEIGHTS, CLOTHES, EURO_PALLET_M, QUADRUPEDS, TROUSERS, build_mesh,
+    part_poses, rider_height,
 )
 from mining.sources.synthetic.textures import LANE_M, PARKING_M, Atlas
 
@@ -48,7 +52,10 @@ VIEW_BEHIND_M = 25.0  # ours: ... nor further behind the camera
 VIEW_SLACK_M = 0.5  # ours: an object's bounding sphere grows by this much in the view test (swinging limbs, mirrors)
 KNOWN = {"car": True, "truck": True, "bus": True, "person": True, "bicycle": True,
          "cone": False, "bin": False, "crate": False, "debris": False, "blob": False, "tyre": False,
-         "barrier": False, "box": False, "branch": False, "cart": False, "tortoise": False}
+         "barrier": False, "box": False, "branch": False, "cart": False, "tortoise": False,
+         # issue 29, in staged scenarios only (the random worlds stay as they were): COCO has no deer or
+         # boar, no trolley, pallet or sack
+         "deer": False, "boar": False, "trolley": False, "pallet": False, "sack": False}
 
 
 # --------------------------------------------------------------------------- road and ego
@@ -446,6 +453,14 @@ class Scene:
                     "branch": lambda: (rng.uniform(0.8, 1.6), rng.uniform(0.3, 0.6), rng.uniform(1.5, 3.0)),
                     "cart": lambda: (0.8, 1.0, rng.uniform(1.3, 1.6)),
                     "tortoise": lambda: (rng.uniform(0.6, 0.8), rng.uniform(0.4, 0.5), rng.uniform(0.8, 1.1)),
+                    # a deer 0.9–1.05 of its nominal build, a boar 0.8–1.1 (meshes.QUADRUPEDS)
+                    "deer": lambda: tuple(np.array(QUADRUPEDS["deer"].size) * rng.uniform(0.9, 1.05)),
+                    "boar": lambda: tuple(np.array(QUADRUPEDS["boar"].size) * rng.uniform(0.8, 1.1)),
+                    # ours: a shopping trolley ~0.58 × 1.0 × 0.95 m (100 l) down to ~0.85 of it (60–80 l)
+                    "trolley": lambda: tuple(np.array([0.58, 1.0, 0.95]) * rng.uniform(0.85, 1.0)),
+                    "pallet": lambda: EURO_PALLET_M,
+                    # ours: a filled 25–50 kg sack lying flat, ~0.4–0.55 × 0.1–0.16 × 0.6–0.9 m
+                    "sack": lambda: (rng.uniform(0.4, 0.55), rng.uniform(0.1, 0.16), rng.uniform(0.6, 0.9)),
                 }[category]()
         palette = [(0.9, 0.9, 0.9), (0.15, 0.15, 0.17), (0.6, 0.62, 0.65), (0.7, 0.1, 0.1), (0.15, 0.25, 0.6),
                    (0.85, 0.85, 0.8), (0.3, 0.35, 0.3), (0.8, 0.6, 0.2)]
@@ -463,6 +478,15 @@ class Scene:
             tint = [(0.2, 0.4, 0.2), (0.3, 0.3, 0.32), (0.15, 0.25, 0.55), (0.45, 0.3, 0.15)][rng.integers(4)]
         elif category in ("blob", "tortoise"):
             tint = tuple(rng.uniform([0.4, 0.3, 0.2], [0.8, 0.6, 0.45]))
+        elif category in QUADRUPEDS:
+            coats = QUADRUPEDS[category].coats
+            tint = tuple(np.clip(np.array(coats[int(rng.integers(len(coats)))]) * rng.uniform(0.9, 1.1, 3), 0, 1))
+        elif category == "trolley":  # the handle's plastic: red, blue, green, grey
+            tint = [(0.75, 0.1, 0.1), (0.1, 0.25, 0.65), (0.15, 0.5, 0.2), (0.35, 0.35, 0.37)][rng.integers(4)]
+        elif category == "pallet":  # pale new spruce to weathered grey
+            tint = tuple(np.array([1.0, 0.9, 0.72]) * rng.uniform(0.7, 1.0))
+        elif category == "sack":  # white woven polypropylene, brown paper, green feed, jute
+            tint = [(0.92, 0.92, 0.9), (0.7, 0.55, 0.38), (0.35, 0.5, 0.3), (0.62, 0.52, 0.36)][rng.integers(4)]
         else:
             tint = tuple(rng.uniform(0.2, 0.95, 3))
         o = Obj(len(self.objects) + 1, category, np.array(size, float), tint, motion, int(rng.integers(1 << 30)),
@@ -697,7 +721,7 @@ def frame_faces(scene: Scene, t: float, view: tuple[float, float, float] | None 
             continue
         Ro = rot_y(yaw)
         lv, lr = o.faces
-        if o.category == "person":
+        if o.category in ANIMATED:
             Rp, tp = part_poses(o, walked)
             Rs.append(Ro @ Rp)
             ts.append(tp @ Ro.T + pos)
