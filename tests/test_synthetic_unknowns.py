@@ -1,6 +1,6 @@
 """Issue 29's unknown kinds (scope item 4): a roe deer and a wild boar that walk, a see-through
 shopping trolley, a fallen load (a Euro pallet, sacks), staged in scenarios ``animal``,
-``trolley``, ``spill`` and ``farbarriers``; the random worlds render as before.
+``trolley``, ``spill`` and ``farbarrier``; the random worlds render as before.
 
 Rendered frames at the scenario targets' size (621 × 188 at the full focal length: the KITTI
 image's centre, objects at full resolution) and the world's exact state. The mining targets
@@ -24,7 +24,7 @@ from mining.sources.synthetic.scene import KNOWN
 CROP = {"width": 621, "height": 188}  # the scenario targets' frames (fx stays 721.5: the image's centre)
 NEW_KINDS = {"deer", "boar", "trolley", "pallet", "sack"}
 STAGED = {"animal": {"deer", "boar"}, "trolley": {"trolley"}, "spill": {"pallet", "sack", "crate"},
-          "farbarriers": {"barrier"}}
+          "farbarrier": {"barrier"}}
 
 
 @cache
@@ -49,7 +49,7 @@ def test_new_kinds_are_unknown_and_only_staged():
     assert not random & NEW_KINDS  # the random worlds never draw them
 
 
-@pytest.mark.parametrize("name, index", [("animal", 24), ("trolley", 24), ("spill", 24), ("farbarriers", 0)])
+@pytest.mark.parametrize("name, index", [("animal", 24), ("trolley", 24), ("spill", 24), ("farbarrier", 0)])
 def test_each_new_kind_renders_with_truth(name, index):
     """Every staged unknown kind shows with a truth mask of ≥ 100 px (the evaluation's floor),
     marked unknown, its mask on pixels whose depth is its own distance."""
@@ -62,17 +62,17 @@ def test_each_new_kind_renders_with_truth(name, index):
             assert abs(z - o.center_cam[2]) < 0.6 * max(o.size[0], o.size[2]) + 0.3, (o.category, z, o.center_cam)
             seen[o.category] = seen.get(o.category, 0) + 1
     want = {"animal": {"deer", "boar"}, "trolley": {"trolley"}, "spill": {"pallet", "sack"},
-            "farbarriers": {"barrier"}}[name]
+            "farbarrier": {"barrier"}}[name]
     assert want <= set(seen), (name, seen)
 
 
 def test_far_barrier_rows_are_seen_at_30_to_40_m():
-    spec = SCENARIOS["farbarriers"]
+    spec = SCENARIOS["farbarrier"]
     assert spec.band_m == (30.0, 40.0)
-    far = [o for o in frame("farbarriers", 0).truth.objects
+    far = [o for o in frame("farbarrier", 0).truth.objects
            if o.category == "barrier" and 30 <= o.center_cam[2] <= 40 and o.mask.sum() >= 100]
     assert len(far) >= 3  # a row's first barriers in the band from the first frame on
-    beyond = [o for o in frame("farbarriers", 0).truth.objects if o.category == "barrier" and o.center_cam[2] > 40]
+    beyond = [o for o in frame("farbarrier", 0).truth.objects if o.category == "barrier" and o.center_cam[2] > 40]
     assert beyond  # ... and the row runs on past 40 m
 
 

@@ -9,7 +9,8 @@ length works: the builders repeat their event over the whole duration.
 
 Every staged object has a ``Role``: ``moving`` (a target: what the scenario is about) or
 ``parked`` (a static reference seen at similar range, so moving and parked recall can be
-compared in one scene). In the scenarios of static things (parkedpair, barriers, verge, debris)
+compared in one scene). In the scenarios of static things (parkedpair, barriers, verge, debris,
+farbarrier, spill)
 every staged object is ``parked``; the note says which are the targets, and the known/unknown
 split tells the barriers and debris from the cars. Staged background (``verge``'s hedge, fence
 and grass, ``roadside.py``) is no object at all: static faces with no truth.
@@ -43,6 +44,19 @@ verge      roadside clutter as background (no truth): a grass verge with tufts, 
 debris     small unknown debris (a box, a rock, a tyre and a branch, the last two just beyond a
            parked car) on the left of the road, each in view (≥ 100 px at full resolution)
            only 5–8 frames as the ego passes at 14 m/s, between ~25 and ~13 m
+farbarrier pairs of rows of 6–8 construction barriers (unknown), concrete kerb barriers joined
+           in the right strip and boards on trestles 0.8–1.5 m apart in the left one (2 lanes),
+           a pair every 60 m, the first at ~31 m; scored at 30–40 m, the rows run on past 40 m
+           (ego 4 m/s); issue 29
+spill      a fallen load (unknown): a Euro pallet, three sacks and a crate strewn over ~6 m of
+           the right lane, one every 55 m, the first ~36 m ahead; the ego passes in the left
+           lane at 8 m/s; parked cars on the left; issue 29
+animal     roe deer and wild boar (unknown: no COCO class) walking across the road, one every
+           3 s at 1.0–1.6 m/s, 13–19 m ahead of the ego while in its lane (ego 5 m/s), the
+           first already on the road; a deer standing at the right roadside; issue 29
+trolley    wire shopping trolleys (unknown, see-through): two left standing (right strip, left
+           sidewalk), one rolling slowly across the right strip, one pushed by a person along
+           the right sidewalk towards the ego (ego 5 m/s); issue 29
 ========== ==================================================================================
 """
 
@@ -330,7 +344,7 @@ FAR_BARRIERS_PER_ROW = (6, 8)  # ours: longer rows than ``barriers``', so a row 
 BOARD_GAP_M = (0.8, 1.5)  # ours: boards on trestles stand apart (concrete kerb barriers join: BARRIER_GAP_M)
 
 
-def _farbarriers(scene: Scene, rng: np.random.Generator) -> dict[int, Role]:
+def _farbarrier(scene: Scene, rng: np.random.Generator) -> dict[int, Role]:
     st = _Stage(scene, rng)
     s_row, k = 31.0 + rng.uniform(0, 1), 0  # ours: the first rows start at the band's near end
     while s_row < st.end_s + 80.0:
@@ -446,8 +460,8 @@ SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
              ((0.0,), (8.0,)), _verge, right_setback_m=BACK_M),
     Scenario("debris", "small debris (unknown) on the road, each in view 5–8 frames as the ego passes", 2, 1,
              ((0.0,), (14.0,)), _debris, band_m=(10.0, 30.0)),
-    Scenario("farbarriers", "rows of 6–8 construction barriers (unknown) on both sides, scored at 30–40 m", 2, 0,
-             ((0.0,), (4.0,)), _farbarriers, band_m=(30.0, 40.0)),
+    Scenario("farbarrier", "rows of 6–8 construction barriers (unknown) on both sides, scored at 30–40 m", 2, 0,
+             ((0.0,), (4.0,)), _farbarrier, band_m=(30.0, 40.0)),
     Scenario("spill", "a fallen load (unknown: a pallet, sacks, a crate) lying in the lane beside the ego", 2, 0,
              ((0.0,), (8.0,)), _spill),
     Scenario("animal", "deer and wild boar (unknown: no COCO class) walking across the road ahead", 1, 0,
