@@ -39,6 +39,7 @@ def frame(name: str, index: int):
     return src.read_frame(src.plan("0000"), index)
 
 
+@pytest.mark.slow  # ~5 s: builds the four scenarios' worlds (the tests below then share them)
 def test_new_kinds_are_unknown_and_only_staged():
     assert NEW_KINDS <= set(KNOWN) and not any(KNOWN[c] for c in NEW_KINDS)
     assert set(STAGED) <= set(SCENARIOS)
