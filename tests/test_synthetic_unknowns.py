@@ -143,3 +143,22 @@ def test_random_world_renders_as_before_the_new_kinds():
         assert abs(f.left.mean() - left) < 0.05 and abs(f.right.mean() - right) < 0.05
         assert abs(np.nanmean(d) - depth) < 1e-3 and int(np.isfinite(d).sum()) == n_depth
     assert h.hexdigest() == BEFORE_0003[0]
+
+
+@pytest.mark.slow  # ~3 s: two 100-frame worlds and a few frames
+def test_more_unknowns_adds_the_new_kinds_and_keeps_the_world():
+    """The opt-in source option adds the new kinds to a random world after its own objects,
+    which stay exactly the same (ids, kinds, sizes, motions, mesh seeds)."""
+    plain = SyntheticSource(n_frames=100, **CROP)
+    more = SyntheticSource(n_frames=100, more_unknowns=True, **CROP)
+    a, b = plain.scene("0002").objects, more.scene("0002").objects
+    assert len(b) > len(a)
+    for x, y in zip(a, b):
+        assert (x.track_id, x.category, x.seed, x.motion.kind, x.motion.s0, x.motion.d) == \
+               (y.track_id, y.category, y.seed, y.motion.kind, y.motion.s0, y.motion.d) and np.array_equal(x.size, y.size)
+    added = {o.category for o in b[len(a):]}
+    assert {"trolley", "deer", "boar"} <= added <= NEW_KINDS
+    plan = more.plan("0002")
+    shown = {o.category for i in range(0, 100, 20) for o in more.read_frame(plan, i).truth.objects
+             if o.category in NEW_KINDS and o.mask.sum() >= 100}
+    assert shown and not any(KNOWN[c] for c in shown)
