@@ -13,6 +13,15 @@ so its marker must then come off.
   clutter at most 25 % of the selected tubes (the issue's stereo-only target).
 * ``parkedpair`` — pairs of parked cars nose to tail at 35–55 m: every car whole.
 * ``debris`` — small unknown pieces in view for 5–8 frames: mined although short.
+
+Issue 29 (scope item 4: kinds the random worlds lack, so a gain cannot come from fitting the
+few there are), each over 25 frames: most of the staged unknown objects mined as unknown
+tubes (tube recall ≥ 0.5) and called unknown by the miner (≥ 0.5 of the tubes on them):
+
+* ``farbarrier`` — rows of barriers scored at 30–40 m only (nearer frames ignored);
+* ``spill`` — a fallen load (a pallet, sacks, a crate) lying in the lane beside the ego;
+* ``animal`` — a roe deer and a wild boar walking across the road (no COCO class);
+* ``trolley`` — wire shopping trolleys, standing, rolling and pushed (see-through).
 """
 
 from __future__ import annotations
@@ -24,8 +33,13 @@ from typing import Any
 import pytest
 
 from conftest import MODEL
+from dataclasses import replace
+
+import numpy as np
+
 from mining.bench.synthetic import run_synthetic
 from mining.config import load_config
+from mining.eval.synthetic import evaluate_synthetic
 
 pytestmark = pytest.mark.slow  # the whole pipeline over 30–40 rendered frames each
 
@@ -33,13 +47,16 @@ HALF = {"width": 621, "height": 188}  # half KITTI size: the scenario's objects 
 
 
 def _mine(scenario: str, n_frames: int, size: dict[str, int] | None = None) -> dict:
+    return _mined(scenario, n_frames, size)[1]
+
+
+def _mined(scenario: str, n_frames: int, size: dict[str, int] | None = None) -> tuple[list, dict]:
     if not MODEL.exists():
         pytest.skip(f"no ONNX model at {MODEL}")
     options = {"scenario": scenario, **(size or {})}
     cfg = load_config(None, [f"source.options={_toml(options)}", 'proposals.proposer="onnx+stereo"',
                              f'proposals.onnx.model_path="{MODEL}"'])
-    _, results = run_synthetic("0000", n_frames, cfg)
-    return results
+    return run_synthetic("0000", n_frames, cfg)
 
 
 def _toml(options: dict) -> str:
@@ -76,3 +93,42 @@ def test_scenario_meets_its_target(scenario: str, size: dict[str, int] | None, g
     r = _mine(scenario, 40, size)[group]
     for key, meets, bound in checks:
         assert meets(r[key], bound), f"{group} {key} = {r[key]}, target {meets.__name__} {bound}: {r}"
+
+
+def _in_band(mined: list, results: dict, band_m: tuple[float, float]) -> dict:
+    """The synthetic evaluation over the objects centred within ``band_m`` only: the others are
+    ignored (as under the evaluation's pixel floor: a tube frame on them is neither TP nor FP)."""
+    lo, hi = band_m
+    truths = {t: replace(g, areas=np.where((g.depth >= lo) & (g.depth <= hi), g.areas, 0))
+              for t, g in results["truths"].items()}
+    return evaluate_synthetic(mined, truths)
+
+
+# issue 29: (scenario, distance band or None, floor on the unknown tracks evaluated); the targets are
+# unknown tube recall ≥ 0.5 and ≥ 0.5 of the tubes on unknown objects called unknown
+UNKNOWN_TARGETS = [
+    pytest.param("farbarrier", (30.0, 40.0), 6, id="farbarrier-rows-at-30-40-m-mined-as-unknown",
+                 marks=pytest.mark.xfail(strict=True, reason="issue 29: measured unknown tube recall 0.00 at 30–40 m "
+                                         "(0 of 12 barriers; proposed 16 % of the barrier detections at 20–40 m, "
+                                         "selected 2 %; 2026-12-03)")),
+    pytest.param("spill", None, 3, id="spill-fallen-load-mined-as-unknown",
+                 marks=pytest.mark.xfail(strict=True, reason="issue 29: measured unknown tube recall 0.00 (0 of 4: "
+                                         "pallet, sacks and crate; none proposed, 0 of 48 detections; 2026-12-03)")),
+    # mined, but the COCO model calls the deer and the boar one of its animals: 3 of the 4 tubes called known
+    pytest.param("animal", None, 2, id="animal-deer-and-boar-crossing-mined-as-unknown",
+                 marks=pytest.mark.xfail(strict=True, reason="issue 29: measured unknown tube recall 1.00 (4 of 4, "
+                                         "frame recall 0.77) but 1 of the 4 tubes on them called unknown (0.25), 3 "
+                                         "called known; 2026-12-03")),
+    # met at the bound when written: 2 of 4 trolleys (frame recall 0.44), all 3 tubes on them called unknown
+    pytest.param("trolley", None, 3, id="trolley-see-through-mined-as-unknown"),
+]
+
+
+@pytest.mark.parametrize("scenario, band, floor", UNKNOWN_TARGETS)
+def test_unknown_kind_is_mined_and_called_unknown(scenario: str, band: tuple[float, float] | None, floor: int) -> None:
+    mined, results = _mined(scenario, 25, HALF)
+    r = _in_band(mined, results, band) if band else results
+    u, t = r["unknown"], r["tubes"]
+    assert u["tracks"] >= floor, f"unknown tracks evaluated {u['tracks']} < {floor}: {u}"
+    assert u["tube_recall"] >= 0.5, f"unknown tube recall {u['tube_recall']:.2f} < 0.5: {u} {t}"
+    assert t["unknown_called_unknown_share"] >= 0.5, f"unknown tubes called unknown {t['unknown_called_unknown_share']}: {t}"

@@ -40,11 +40,13 @@ class SyntheticSource(Source):
     def __init__(self, root: str | None = None, n_frames: int = 500, width: int = 1242, height: int = 375,
                  fx: float = 721.5377, baseline_m: float = 0.5327, hz: float = 10.0, seed_base: int = 0,
                  sequences: list[str] | None = None, drop_frames: list[list[int]] | None = None,
-                 scenario: str | None = None):
+                 scenario: str | None = None, more_unknowns: bool = False):
         """``drop_frames``: ranges [a, b) of frames left out of every plan, as if never recorded
         (each is a recording gap, ``SequencePlan.gaps``); the world goes on moving through them.
         ``scenario``: stage one of ``scenarios.SCENARIOS`` in every sequence instead of the random
-        traffic (the sequence name still seeds the rest of the world)."""
+        traffic (the sequence name still seeds the rest of the world). ``more_unknowns`` (issue 29,
+        default off: the random worlds as before): add deer, boar, trolleys, pallets and sacks to
+        a random world, the seed's other objects unchanged (ignored with a scenario)."""
         if n_frames <= 0 or width < 16 or height < 16 or hz <= 0:
             raise InputError(f"bad synthetic options n_frames={n_frames} size={width}x{height} hz={hz}")
         self.dropped: set[int] = set()
@@ -54,6 +56,7 @@ class SyntheticSource(Source):
             self.dropped.update(range(int(r[0]), int(r[1])))
         self.n_frames, self.hz, self.seed_base = int(n_frames), float(hz), int(seed_base)
         self.scenario = get_scenario(scenario) if scenario else None
+        self.more_unknowns = bool(more_unknowns)
         self.calib = StereoCalib(fx, fx, width * CX_FRAC, height * CY_FRAC, baseline_m, width, height)
         self._names = list(sequences) if sequences else [f"{i:04d}" for i in range(4)]
         self._atlas = None
@@ -82,7 +85,8 @@ class SyntheticSource(Source):
             self._atlas = build_atlas(self.seed_base)
         if sequence not in self._scenes:
             seed = self.seed_base * 1_000_003 + self._seed(sequence)
-            self._scenes[sequence] = Scene(seed, self.n_frames / self.hz + 1.0, self._atlas, self.scenario)
+            self._scenes[sequence] = Scene(seed, self.n_frames / self.hz + 1.0, self._atlas, self.scenario,
+                                           self.more_unknowns)
             while len(self._scenes) > SCENES_CACHED:
                 self._scenes.popitem(last=False)
         return self._scenes[sequence]

@@ -717,7 +717,10 @@ def _two_link(hip: np.ndarray, target: np.ndarray, l1: float, l2: float, bend: i
 def part_poses(o: Obj, walked: float) -> tuple[np.ndarray, np.ndarray]:
     """Rigid motion (R (9,3,3), t (9,3)) of each body part (row R_PART, see ``N_PARTS``) in the
     object's frame: a walking cycle by the distance travelled (standing people keep the rest
-    pose, arms a little bent), or pedalling on a bicycle's saddle."""
+    pose, arms a little bent), or pedalling on a bicycle's saddle; a quadruped's walk
+    (``quadruped_poses``)."""
+    if o.category in QUADRUPEDS:
+        return quadruped_poses(o, walked)
     R = np.repeat(np.eye(3)[None], N_PARTS, 0)
     t = np.zeros((N_PARTS, 3))
     if o.category != "person":
@@ -963,6 +966,250 @@ def tortoise_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
     _shadow(fl, w / 2 + 0.05, l / 2)
 
 
+# ---- issue 29: more unknown kinds (an animal no COCO class names, a trolley, a fallen load)
+
+
+@dataclass(frozen=True)
+class Quadruped:
+    """A four-legged animal's build at its nominal size: metres, heights above the ground, z
+    forward from the truth box's centre. Legs are two segments (upper, lower) that swing."""
+
+    name: str
+    size: tuple[float, float, float]  # nominal truth box w, h, l (head and ears included)
+    back: tuple[float, float]  # back line height at the rump and at the withers
+    belly: float  # underside of the trunk
+    trunk: tuple[float, float]  # trunk z from the rump to the chest
+    trunk_w: float  # trunk width
+    legs_z: tuple[float, float]  # hind and fore leg joints' z (hip, shoulder)
+    legs_x: float  # the legs' lateral offset
+    joint_h: float  # the legs' top joint height (hip and shoulder)
+    knee_h: float  # the middle joint's height (stifle/hock, elbow/carpus: one joint here)
+    leg_w: tuple[float, float]  # half widths of the upper and lower leg
+    neck: tuple[tuple[float, float], tuple[float, float], float]  # (z, h) at the base and the top, half width
+    head: tuple[tuple[float, float], tuple[float, float, float], float]  # centre (z, h), half sizes, pitch down (rad)
+    stride: float  # metres travelled per gait cycle (four steps)
+    swing: float  # upper-leg swing amplitude, rad
+    coats: tuple[tuple[float, float, float], ...]  # coat colours, one drawn per animal
+
+
+# Two animals COCO's ten (bird, cat, dog, horse, sheep, cow, elephant, bear, zebra, giraffe) do not
+# name, so the truth calls them unknown although a detector may mistake them for a dog or a horse.
+QUADRUPEDS = {
+    # ours, after roe deer (Capreolus capreolus): 0.65–0.75 m at the shoulder, head and body 0.95–1.35 m,
+    # 15–30 kg, slender legs; summer coat red-brown, winter grey-brown; a walk of ~0.9 m a cycle
+    "deer": Quadruped("deer", (0.34, 1.1, 1.25), (0.7, 0.74), 0.44, (-0.58, 0.3), 0.26, (-0.4, 0.18), 0.085,
+                      0.6, 0.31, (0.035, 0.017), ((0.22, 0.66), (0.4, 0.93), 0.05),
+                      ((0.5, 0.97), (0.055, 0.06, 0.11), 0.5), 0.9, 0.35,
+                      ((0.55, 0.36, 0.22), (0.5, 0.33, 0.2), (0.42, 0.36, 0.3))),
+    # ours, after wild boar (Sus scrofa): 0.55–1.1 m at the shoulder, head and body 0.9–1.8 m, 50–150 kg,
+    # a deep trunk high at the withers, short legs, a long wedge head; dark grey-brown bristles
+    "boar": Quadruped("boar", (0.5, 0.82, 1.45), (0.66, 0.8), 0.33, (-0.64, 0.34), 0.44, (-0.44, 0.2), 0.13,
+                      0.44, 0.22, (0.05, 0.03), ((0.26, 0.56), (0.4, 0.56), 0.16),
+                      ((0.5, 0.48), (0.11, 0.13, 0.2), 0.35), 0.8, 0.3,
+                      ((0.28, 0.24, 0.2), (0.22, 0.19, 0.16), (0.35, 0.29, 0.22))),
+}
+HOOF = (0.22, 0.2, 0.18)  # ours: hooves, dark horn
+RUMP_PATCH = (0.92, 0.9, 0.84)  # ours: a roe deer's white rump patch
+ANIMATED = ("person", *QUADRUPEDS)  # categories whose parts move (``part_poses``)
+
+
+def quadruped_scale(o: Obj) -> np.ndarray:
+    """The animal's size relative to its species' nominal build, per axis (x, y, z)."""
+    return np.asarray(o.size, float) / np.asarray(QUADRUPEDS[o.category].size, float)
+
+
+def quadruped_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
+    """A quadruped: a trunk (the hull of elliptic rings along it), neck and head, ears, a tail,
+    and four two-segment legs (parts 1–4 upper, 5–8 lower, as a person's) that walk."""
+    q = QUADRUPEDS[o.category]
+    sx, sy, sz = quadruped_scale(o)
+    k = o.track_id
+    coat = o.tint
+
+    def Q(x: float, h: float, z: float) -> np.ndarray:
+        return P(x * sx, h * sy, z * sz)
+
+    # trunk: rings from rump to chest, their height following the back line, ends rounded
+    zs = np.linspace(q.trunk[0], q.trunk[1], 7)
+    ang = np.arange(8) * np.pi / 4 + np.pi / 8
+    pts = []
+    for z in zs:
+        f = (z - q.trunk[0]) / (q.trunk[1] - q.trunk[0])
+        top = q.back[0] + f * (q.back[1] - q.back[0])
+        end = max(0.55, np.sqrt(max(0.0, 1 - (2 * f - 1) ** 8)))  # blunt ends
+        mid, half = (top + q.belly) / 2, (top - q.belly) / 2 * end
+        for a in ang:
+            pts.append(Q(np.cos(a) * q.trunk_w / 2 * end, mid + np.sin(a) * half, z))
+    fl.convex(np.array(pts) * rng.uniform(0.985, 1.015, (len(pts), 3)), "hair", coat, k)
+    (nz0, nh0), (nz1, nh1), nw = q.neck
+    fl.tube(Q(0, nh0, nz0), Q(0, nh1, nz1), nw * sx, "hair", coat, k, half_d=nw * 1.2 * sz)
+    (hz, hh), (hx, hy, hl), pitch = q.head
+    d = rng.normal(size=(16, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    head = d * [hx, hy, hl]
+    head[:, 0] *= np.where(head[:, 2] > 0, 0.7, 1.0)  # the muzzle narrows
+    c, s = np.cos(pitch), np.sin(pitch)
+    head = head @ np.array([[1, 0, 0], [0, c, -s], [0, s, c]]).T  # nose down
+    fl.convex(head * [sx, sy, sz] + Q(0, hh, hz), "hair", coat, k)
+    for side in (-1, 1):  # ears
+        base = Q(side * hx * 0.6, hh + hy * 0.7, hz - hl * 0.55)
+        fl.tube(base, base + np.array([side * 0.05 * sx, -0.075 * sy, -0.03 * sz]), 0.025 * sx, "hair", coat, k,
+                half_d=0.008)
+    if o.category == "deer":  # the white rump patch, a stub of a tail
+        fl.box(Q(0, (q.back[0] + q.belly) / 2 + 0.05, q.trunk[0] + 0.015), (0.08 * sx, 0.08 * sy, 0.02 * sz),
+               np.eye(3), {"all": "fabric"}, RUMP_PATCH, k, skip=())
+    else:  # a thin tail hanging from the rump
+        fl.tube(Q(0, q.back[0] - 0.03, q.trunk[0] + 0.02), Q(0, q.back[0] - 0.3, q.trunk[0] - 0.02), 0.012 * sx,
+                "hair", coat, k)
+    # legs: hind (−z) and fore (+z), left and right; upper legs are parts 1–4, lower legs 5–8
+    for i, (z, side) in enumerate(((q.legs_z[0], -1), (q.legs_z[0], 1), (q.legs_z[1], -1), (q.legs_z[1], 1))):
+        x = side * q.legs_x
+        uw, lw = q.leg_w
+        fl.frustum(Q(x, q.knee_h, z), Q(x, q.joint_h + 0.06, z), (uw * 0.7 * sx, uw * 0.8 * sz),
+                   (uw * sx, uw * 1.4 * sz), np.eye(3), "hair", coat, k, 1 + i, caps=(False, False))
+        fl.frustum(Q(x, 0.05, z), Q(x, q.knee_h + 0.02, z), (lw * sx, lw * sz), (lw * 1.2 * sx, lw * 1.3 * sz),
+                   np.eye(3), "hair", coat, k, 5 + i, caps=(False, False))
+        fl.box(Q(x, 0.025, z + 0.01), (lw * 1.1 * sx, 0.025 * sy, lw * 1.5 * sz), np.eye(3), {"all": "rubber"},
+               HOOF, k, part=5 + i, skip=("bottom",))
+    _shadow(fl, o.size[0] / 2 + 0.05, 0.45 * o.size[2])
+
+
+def quadruped_poses(o: Obj, walked: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rigid motion (R (9,3,3), t (9,3)) of a quadruped's parts: a lateral-sequence walk (hind
+    left, fore left, hind right, fore right, a quarter cycle apart) by the distance travelled,
+    the middle joint flexing in the swing, the body bobbing so the lowest hoof is on the ground;
+    a static animal stands in the rest pose."""
+    R = np.repeat(np.eye(3)[None], N_PARTS, 0)
+    t = np.zeros((N_PARTS, 3))
+    if o.motion.kind == "static":
+        return R, t
+    q = QUADRUPEDS[o.category]
+    sx, sy, sz = quadruped_scale(o)
+    phase = 2 * np.pi * walked / (q.stride * sz)
+    low = []
+    for i, (z, side, off) in enumerate(((q.legs_z[0], -1, 0.0), (q.legs_z[1], -1, 0.25), (q.legs_z[0], 1, 0.5),
+                                        (q.legs_z[1], 1, 0.75))):
+        upper, lower = (1, 5) if i == 0 else (3, 7) if i == 1 else (2, 6) if i == 2 else (4, 8)
+        x, p = side * q.legs_x * sx, phase + 2 * np.pi * off
+        hip, knee = np.array([x, -q.joint_h * sy, z * sz]), np.array([x, -q.knee_h * sy, z * sz])
+        Ru = rot_x(q.swing * np.sin(p))
+        R[upper], t[upper] = Ru, hip - Ru @ hip
+        Rl = rot_x(-(0.05 + 0.8 * max(0.0, np.cos(p + 0.25)) ** 2))  # flexes while the leg swings forward
+        R[lower], t[lower] = Ru @ Rl, Ru @ (knee - Rl @ knee) + t[upper]
+        for dz in (-0.03, 0.03):  # heel and toe of the hoof
+            low.append(-(R[lower] @ np.array([x, 0.0, z * sz + dz]) + t[lower])[1])
+    t[:, 1] += min(low)  # the lowest hoof on the ground: the body bobs
+    return R, t
+
+
+def trolley_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
+    """A shopping trolley: a wire basket tapering to the front over a wire floor, a plastic handle
+    behind, a U-shaped chassis on four castors with a wire tray. Nearly all of it is wire, so the
+    trolley is see-through: most of its box shows what lies behind it."""
+    w, h, l = o.size
+    sx, sy, sz = w / 0.58, h / 1.0, l / 0.95  # ours: a 100–125 l supermarket trolley, ~0.58 × 1.0 × 0.95 m
+    k = o.track_id
+    chrome = (0.92, 0.92, 0.95)
+
+    def Q(x, hh, z):
+        return P(x * sx, hh * sy, z * sz)
+
+    def wire(a, b, r=0.0045):  # ours: 4–6 mm steel wire (drawn ~9 mm: a pixel where it matters)
+        fl.tube(a, b, r, "metal", chrome, k, half_d=r)
+
+    # the basket's corners: rear top, front top, front bottom, rear bottom (x at +: mirrored)
+    rt, ft, fb, rb = (0.28, 0.93, -0.41), (0.24, 0.93, 0.46), (0.2, 0.53, 0.4), (0.24, 0.56, -0.33)
+    for side in (-1, 1):
+        c = [Q(side * x, hh, z) for x, hh, z in (rt, ft, fb, rb)]
+        for f in np.linspace(0, 1, 4):  # rails, the top one the rim
+            wire(c[3] + f * (c[0] - c[3]), c[2] + f * (c[1] - c[2]), 0.007 if f == 1 else 0.0045)
+        for f in np.linspace(0, 1, 9):  # uprights ~10 cm apart (ours: real ones ~4–5 cm; sparser, as a camera
+            # beyond 10 m blurs them into one: each wire here is drawn at least a pixel wide)
+            wire(c[3] + f * (c[2] - c[3]), c[0] + f * (c[1] - c[0]))
+    for (xa, ha, za), (xb, hb, zb), n in ((fb, ft, 5), (rb, rt, 6)):  # front panel, rear gate
+        for f in np.linspace(-1, 1, n):
+            wire(Q(f * xa, ha, za), Q(f * xb, hb, zb))
+        for g in np.linspace(0, 1, 3):
+            a = np.array([xa + g * (xb - xa), ha + g * (hb - ha), za + g * (zb - za)])
+            wire(Q(-a[0], a[1], a[2]), Q(a[0], a[1], a[2]), 0.007 if g == 1 else 0.0045)
+    for f in np.linspace(-1, 1, 5):  # the floor: wires along, and across
+        wire(Q(f * rb[0], rb[1], rb[2]), Q(f * fb[0], fb[1], fb[2]))
+    for g in np.linspace(0.25, 0.75, 2):
+        a = np.array(rb) + g * (np.array(fb) - np.array(rb))
+        wire(Q(-a[0], a[1], a[2]), Q(a[0], a[1], a[2]))
+    # handle: a plastic bar behind the rim on two arms
+    hx, hh, hz = 0.27, 1.0, -0.47
+    fl.tube(Q(-hx, hh, hz), Q(hx, hh, hz), 0.016, "trim", o.tint, k, across=(0, 0, 1))
+    # chassis: a U of tube near the ground, uprights to the basket's rear, struts to its floor, a wire tray
+    base_h, (bx_r, bz_r), (bx_f, bz_f) = 0.13, (0.25, -0.4), (0.17, 0.42)
+    for side in (-1, 1):
+        wire(Q(side * hx, hh, hz), Q(side * rt[0], rt[1], rt[2]), 0.01)
+        wire(Q(side * bx_r, base_h, bz_r), Q(side * bx_f, base_h, bz_f), 0.011)
+        wire(Q(side * bx_r, base_h, bz_r), Q(side * hx, hh, hz), 0.011)
+        wire(Q(side * bx_f, base_h, bz_f), Q(side * fb[0], fb[1], fb[2]), 0.008)
+    wire(Q(-bx_f, base_h, bz_f), Q(bx_f, base_h, bz_f), 0.011)
+    for g in np.linspace(0.2, 0.8, 4):  # the lower tray
+        x, z = bx_r + g * (bx_f - bx_r), bz_r + g * (bz_f - bz_r)
+        wire(Q(-x, base_h + 0.04, z), Q(x, base_h + 0.04, z))
+    r = 0.0625 * sy  # ours: 125 mm castors
+    for x, z in ((bx_r, bz_r + 0.04), (bx_f, bz_f - 0.04)):
+        for side in (-1, 1):
+            wheel(fl, side, x * sx + 0.015, z * sz, r, 0.03, (0.5, 0.5, 0.52), k, n=8, tread="full")
+            fl.tube(Q(side * x, base_h, z), P(side * x * sx, r, z * sz), 0.008, "metal", chrome, k)
+    _shadow(fl, 0.2 * sx, 0.4 * sz)
+
+
+EURO_PALLET_M = (0.8, 0.144, 1.2)  # EPAL / EN 13698-1: 800 × 1200 mm, 144 mm high
+
+
+def pallet_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
+    """A Euro pallet lying flat: five deck boards (lengthwise, with gaps), three cross boards
+    under them on nine blocks, three bottom boards (EN 13698-1's layout, 22 + 22 + 78 + 22 mm)."""
+    w, h, l = o.size
+    k = o.track_id
+    wood = tuple(np.array(o.tint))
+    I = np.eye(3)
+    sx, sy, sz = w / EURO_PALLET_M[0], h / EURO_PALLET_M[1], l / EURO_PALLET_M[2]
+    wood_mats = {"all": "timber"}
+
+    def board(x, y0, z, hx, hy, hz):  # a box of half sizes (hx, hy, hz), bottom at height y0
+        fl.box([x * sx, -(y0 + hy) * sy, z * sz], (hx * sx, hy * sy, hz * sz), I, wood_mats,
+               tuple(np.clip(np.array(wood) * rng.uniform(0.85, 1.1), 0, 1)), k, skip=("bottom",))
+
+    widths = (0.145, 0.1, 0.145, 0.1, 0.145)  # deck boards, mm / 1000
+    gap = (0.8 - sum(widths)) / 4
+    x = -0.4
+    for bw in widths:
+        board(x + bw / 2, 0.122, 0.0, bw / 2, 0.011, 0.6)
+        x += bw + gap
+    for z in (-0.5275, 0.0, 0.5275):
+        board(0.0, 0.1, z, 0.4, 0.011, 0.0725)
+        for xb in (-0.3275, 0.0, 0.3275):
+            board(xb, 0.022, z, 0.0725 if xb == 0.0 else 0.05, 0.039, 0.0725)
+    for xb in (-0.3275, 0.0, 0.3275):
+        board(xb, 0.0, 0.0, 0.0725 if xb == 0.0 else 0.05, 0.011, 0.6)
+    _shadow(fl, w / 2 + 0.04, l / 2 + 0.04)
+
+
+def sack_faces(fl: FaceList, o: Obj, rng: np.random.Generator) -> None:
+    """A filled sack lying flat (cement, feed, grain: 25–50 kg): a pillow, the hull of a rounded
+    slab, its ends pinched."""
+    w, h, l = o.size
+    u = np.linspace(-1, 1, 7)
+    pts = []
+    for a in u:
+        for b in u:
+            edge = max(abs(a), abs(b))
+            if edge < 0.99 and abs(a) > 1e-9 and abs(b) > 1e-9 and rng.random() < 0.6:
+                continue  # the inside of the grid adds nothing to the hull but its top
+            pinch = 1 - 0.25 * abs(b) ** 3  # the ends are pinched (sewn or folded)
+            top = h * (1 - a * a) ** 0.5 * (1 - b ** 4) ** 0.5 * rng.uniform(0.93, 1.0)
+            pts.append([a * w / 2 * pinch, -max(top, 0.02 * h), b * l / 2])
+            pts.append([a * w / 2 * pinch * 1.02, 0.0, b * l / 2])
+    fl.convex(np.array(pts), "fabric", o.tint, o.track_id)
+    _shadow(fl, w / 2 + 0.03, l / 2 + 0.03)
+
+
 def build_mesh(o: Obj, atlas: Atlas) -> tuple[np.ndarray, np.ndarray]:
     """The object's faces in its own frame (built once; pure function of the object)."""
     fl = FaceList(atlas, o.material)
@@ -1015,6 +1262,14 @@ def build_mesh(o: Obj, atlas: Atlas) -> tuple[np.ndarray, np.ndarray]:
         cart_faces(fl, o, rng)
     elif cat == "tortoise":
         tortoise_faces(fl, o, rng)
+    elif cat in QUADRUPEDS:
+        quadruped_faces(fl, o, rng)
+    elif cat == "trolley":
+        trolley_faces(fl, o, rng)
+    elif cat == "pallet":
+        pallet_faces(fl, o, rng)
+    elif cat == "sack":
+        sack_faces(fl, o, rng)
     else:
         raise KeyError(f"no mesh for category {cat!r}")
     V, R = fl.arrays()

@@ -9,7 +9,8 @@ length works: the builders repeat their event over the whole duration.
 
 Every staged object has a ``Role``: ``moving`` (a target: what the scenario is about) or
 ``parked`` (a static reference seen at similar range, so moving and parked recall can be
-compared in one scene). In the scenarios of static things (parkedpair, barriers, verge, debris)
+compared in one scene). In the scenarios of static things (parkedpair, barriers, verge, debris,
+farbarrier, spill)
 every staged object is ``parked``; the note says which are the targets, and the known/unknown
 split tells the barriers and debris from the cars. Staged background (``verge``'s hedge, fence
 and grass, ``roadside.py``) is no object at all: static faces with no truth.
@@ -43,6 +44,19 @@ verge      roadside clutter as background (no truth): a grass verge with tufts, 
 debris     small unknown debris (a box, a rock, a tyre and a branch, the last two just beyond a
            parked car) on the left of the road, each in view (≥ 100 px at full resolution)
            only 5–8 frames as the ego passes at 14 m/s, between ~25 and ~13 m
+farbarrier pairs of rows of 6–8 construction barriers (unknown), concrete kerb barriers joined
+           in the right strip and boards on trestles 0.8–1.5 m apart in the left one (2 lanes),
+           a pair every 60 m, the first at ~31 m; scored at 30–40 m, the rows run on past 40 m
+           (ego 4 m/s); issue 29
+spill      a fallen load (unknown): a Euro pallet, three sacks and a crate strewn over ~6 m of
+           the right lane, one every 55 m, the first ~36 m ahead; the ego passes in the left
+           lane at 8 m/s; parked cars on the left; issue 29
+animal     roe deer and wild boar (unknown: no COCO class) walking across the road, one every
+           3 s at 1.0–1.6 m/s, 13–19 m ahead of the ego while in its lane (ego 5 m/s), the
+           first already on the road; a deer standing at the right roadside; issue 29
+trolley    wire shopping trolleys (unknown, see-through): two left standing (right strip, left
+           sidewalk), one rolling slowly across the right strip, one pushed by a person along
+           the right sidewalk towards the ego (ego 5 m/s); issue 29
 ========== ==================================================================================
 """
 
@@ -55,7 +69,7 @@ import numpy as np
 
 from mining.errors import InputError
 from mining.sources.synthetic.roadside import BACK_M, build_roadside
-from mining.sources.synthetic.scene import VIEW_AHEAD_M, VIEW_BEHIND_M, Motion, Obj, Scene
+from mining.sources.synthetic.scene import SIDEWALK_M, VIEW_AHEAD_M, VIEW_BEHIND_M, Motion, Obj, Scene
 from mining.sources.synthetic.textures import LANE_M, PARKING_M
 
 
@@ -323,6 +337,110 @@ def _verge(scene: Scene, rng: np.random.Generator) -> dict[int, Role]:
     return st.roles
 
 
+# ---- issue 29: unknown kinds the random worlds lack, each staged on its own
+
+FAR_BARRIER_PITCH_M = 60.0  # ours: a pair of rows every 60 m (a row of 6–8 is 10–25 m long): rows in 30–40 m most of the time
+FAR_BARRIERS_PER_ROW = (6, 8)  # ours: longer rows than ``barriers``', so a row reaches out past 40 m
+BOARD_GAP_M = (0.8, 1.5)  # ours: boards on trestles stand apart (concrete kerb barriers join: BARRIER_GAP_M)
+
+
+def _farbarrier(scene: Scene, rng: np.random.Generator) -> dict[int, Role]:
+    st = _Stage(scene, rng)
+    s_row, k = 31.0 + rng.uniform(0, 1), 0  # ours: the first rows start at the band's near end
+    while s_row < st.end_s + 80.0:
+        # a pair of rows: concrete kerb barriers in the right strip, boards on trestles in the left one
+        # (seen across the oncoming lanes, at a wider angle: less hidden by each other)
+        for side, shape, gap, start in ((1, "jersey", BARRIER_GAP_M, s_row), (-1, "board", BOARD_GAP_M,
+                                                                          s_row + rng.uniform(0, 4))):
+            n = int(rng.integers(FAR_BARRIERS_PER_ROW[0], FAR_BARRIERS_PER_ROW[1] + 1))
+            d = strip_d(scene, side) + side * 0.4  # ours: near the curb
+            s = start
+            for j in range(n):
+                o = st.add("barrier", Motion("static", d=d + rng.normal(0, 0.04), yaw=rng.normal(0, 0.03)), "parked",
+                           f"construction barrier row {k} ({shape}), {j + 1} of {n}, "
+                           f"{'right' if side > 0 else 'left'} strip, seen out to 40 m and beyond", shape=shape)
+                o.motion.s0 = s + o.size[2] / 2
+                s += o.size[2] + rng.uniform(*gap)
+            k += 1
+        s_row += FAR_BARRIER_PITCH_M + rng.uniform(-2, 2)
+    return st.roles
+
+
+SPILL_PITCH_M = 55.0  # ours: a spilled load every 55 m (at 8 m/s one in 15–40 m most of the time)
+
+
+def _spill(scene: Scene, rng: np.random.Generator) -> dict[int, Role]:
+    st = _Stage(scene, rng)
+    s, k = 36.0 + rng.uniform(0, 1), 0  # ours: the first load ~36 m ahead at the start
+    d0 = lane_d(1)  # the right lane: the ego passes it one lane to the left
+    while s < st.end_s + 60.0:
+        st.add("pallet", Motion("static", s0=s, d=d0 + rng.uniform(-0.4, 0.4), yaw=rng.uniform(-0.6, 0.6)),
+               "parked", f"load {k}: a Euro pallet lying flat in the right lane")
+        for j in range(3):  # sacks burst off it, strewn behind and beside (ours: within 3 m)
+            st.add("sack", Motion("static", s0=s + rng.uniform(-3.0, -0.9) if j else s + rng.uniform(0.9, 2.5),
+                                  d=d0 + rng.uniform(-1.2, 1.2), yaw=rng.uniform(0, np.pi)),
+                   "parked", f"load {k}: a sack spilled in the right lane, {j + 1} of 3")
+        st.add("crate", Motion("static", s0=s + rng.uniform(2.6, 3.6), d=d0 + rng.uniform(-0.8, 0.8),
+                               yaw=rng.uniform(0, np.pi)), "parked", f"load {k}: a crate fallen with it",
+               size=(0.5, 0.35, 0.6))
+        s += SPILL_PITCH_M + rng.uniform(-2, 2)
+        k += 1
+    st.parked_row(-1, 15.0, st.end_s + 60.0, (14.0, 24.0))
+    return st.roles
+
+
+ANIMAL_SPEED_MS = {"deer": (1.2, 1.6), "boar": (1.0, 1.4)}  # ours: a walk (roe deer ~1.4 m/s, wild boar ~1.2 m/s)
+ANIMAL_EVERY_S = 3.0  # ours: one animal starts to cross every 3 s
+ANIMAL_AHEAD_M = (13.0, 19.0)  # ours: how far ahead of the ego an animal is while in the ego's lane
+
+
+def _animal(scene: Scene, rng: np.random.Generator) -> dict[int, Role]:
+    st = _Stage(scene, rng)
+    T, h = scene.duration, scene.half
+    t, k = -4.0, 0  # ours: the first animal is on the road at the start, in the ego's lane ~2 s in
+    while t < T:
+        kind = "deer" if k % 2 == 0 else "boar"
+        direction = 1 if k % 4 < 2 else -1
+        speed = rng.uniform(*ANIMAL_SPEED_MS[kind])
+        d0, d1 = -direction * (h + 2.0), direction * (h + 2.0)
+        t_lane = t + abs(scene.ego_d - d0) / speed
+        s_c = scene.ego_arc(max(t_lane, 0.0)) + rng.uniform(*ANIMAL_AHEAD_M)
+        drift = rng.uniform(-2.0, 2.0)  # ours: not quite straight across
+        t_cross = abs(d1 - d0) / speed
+        st.add(kind, Motion("path", times=np.array([t, t + t_cross]), ss=np.array([s_c - drift, s_c + drift]),
+                            dd=np.array([d0, d1])), "moving",
+               f"a {'roe deer' if kind == 'deer' else 'wild boar'} walking across the road "
+               f"{'left to right' if direction > 0 else 'right to left'} at {speed:.1f} m/s")
+        t += ANIMAL_EVERY_S
+        k += 1
+    st.add("deer", Motion("static", s0=30.0 + rng.uniform(0, 2), d=h + SIDEWALK_M - 1.0, yaw=rng.uniform(2.0, 2.6)),
+           "parked", "a roe deer standing at the right roadside, looking across")
+    st.parked_row(-1, 25.0, st.end_s + 60.0, (16.0, 26.0))
+    return st.roles
+
+
+def _trolley(scene: Scene, rng: np.random.Generator) -> dict[int, Role]:
+    st = _Stage(scene, rng)
+    T, h = scene.duration, scene.half
+    st.add("trolley", Motion("static", s0=22.0 + rng.uniform(0, 1), d=strip_d(scene, 1), yaw=rng.uniform(0.3, 1.2)),
+           "parked", "a shopping trolley left in the right parking strip")
+    st.add("trolley", Motion("static", s0=38.0 + rng.uniform(0, 1), d=-(h + 1.2), yaw=rng.uniform(-0.5, 0.5)),
+           "parked", "a shopping trolley left on the left sidewalk")
+    # ours: one rolling slowly across the right parking strip towards the lane (a camber), at most 2 m
+    s_r = 30.0 + rng.uniform(0, 1)
+    st.add("trolley", Motion("path", times=np.array([0.0, T]), ss=np.array([s_r - 0.3, s_r + 0.3]),
+                             dd=np.array([h - 0.3, h - 0.3 - min(0.25 * T, 2.0)])), "moving",
+           "a shopping trolley rolling slowly across the right parking strip (≤ 0.25 m/s)")
+    # ours: one pushed along the right sidewalk towards the ego at 1.1 m/s, its pusher behind it
+    s_p = 34.0 + rng.uniform(0, 1)
+    cart = st.add("trolley", Motion("lane", s0=s_p, d=h + 2.0, v=-1.1, yaw=np.pi), "moving",
+                  "a shopping trolley pushed along the right sidewalk towards the ego (1.1 m/s)")
+    st.add("person", Motion("lane", s0=s_p + cart.size[2] / 2 + 0.45, d=h + 2.0, v=-1.1, yaw=np.pi), "moving",
+           "pushing the trolley (a person: known, the reference beside the unknown)")
+    st.parked_row(-1, 20.0, st.end_s + 60.0, (16.0, 26.0))
+    return st.roles
+
+
 SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
     Scenario("alongside", "a vehicle driving alongside at ego speed (adjacent lane)", 2, 0, ((0.0,), (10.0,)),
              _alongside),
@@ -342,6 +460,14 @@ SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
              ((0.0,), (8.0,)), _verge, right_setback_m=BACK_M),
     Scenario("debris", "small debris (unknown) on the road, each in view 5–8 frames as the ego passes", 2, 1,
              ((0.0,), (14.0,)), _debris, band_m=(10.0, 30.0)),
+    Scenario("farbarrier", "rows of 6–8 construction barriers (unknown) on both sides, scored at 30–40 m", 2, 0,
+             ((0.0,), (4.0,)), _farbarrier, band_m=(30.0, 40.0)),
+    Scenario("spill", "a fallen load (unknown: a pallet, sacks, a crate) lying in the lane beside the ego", 2, 0,
+             ((0.0,), (8.0,)), _spill),
+    Scenario("animal", "deer and wild boar (unknown: no COCO class) walking across the road ahead", 1, 0,
+             ((0.0,), (5.0,)), _animal),
+    Scenario("trolley", "shopping trolleys (unknown, see-through): standing, rolling, and pushed", 1, 0,
+             ((0.0,), (5.0,)), _trolley),
 )}
 
 

@@ -15,8 +15,11 @@ crawling low-poly ellipsoid the size of a large dog but with no legs, head or ta
 COCO animal class describes it), tyre (a loose car tyre, lying or standing), barrier (a
 striped board on trestles or a concrete kerb barrier), box (cardboard), branch (a fallen
 branch with leaves), cart (a two-wheeled hand cart) and tortoise (a giant tortoise crossing:
-an animal, but none of COCO's ten). The meshes are in ``meshes.py``. Objects beyond the
-curb stand on the sidewalk (a curb height up).
+an animal, but none of COCO's ten). Only in staged scenarios or behind the source option
+``more_unknowns`` (issue 29; by default the random worlds are drawn as before): deer (a roe deer) and boar (a wild boar), walking quadrupeds COCO's ten
+animals do not include; trolley (a wire shopping trolley, mostly see-through); pallet (a Euro
+pallet) and sack (a filled sack), a fallen load. The meshes are in ``meshes.py``. Objects
+beyond the curb stand on the sidewalk (a curb height up).
 """
 
 from __future__ import annotations
@@ -31,7 +34,8 @@ from mining.sources.synthetic.faces import (  # noqa: F401  (the row layout is r
     DOWN, MAXV, R_N, R_NV, R_O, R_OBJ, R_PART, R_SKEY, R_TILE, R_TINT, R_U, R_V, FaceList, rot_x, rot_y, rot_z,
 )
 from mining.sources.synthetic.meshes import (
-    CAR_COLOURS, CAR_SHAPES, CAR_WEIGHTS, CLOTHES, TROUSERS, build_mesh, part_poses, rider_height,
+    ANIMATED, CAR_COLOURS, CAR_SHAPES, CAR_WEIGHTS, CLOTHES, EURO_PALLET_M, QUADRUPEDS, TROUSERS, build_mesh,
+    part_poses, rider_height,
 )
 from mining.sources.synthetic.textures import LANE_M, PARKING_M, Atlas
 
@@ -48,7 +52,10 @@ VIEW_BEHIND_M = 25.0  # ours: ... nor further behind the camera
 VIEW_SLACK_M = 0.5  # ours: an object's bounding sphere grows by this much in the view test (swinging limbs, mirrors)
 KNOWN = {"car": True, "truck": True, "bus": True, "person": True, "bicycle": True,
          "cone": False, "bin": False, "crate": False, "debris": False, "blob": False, "tyre": False,
-         "barrier": False, "box": False, "branch": False, "cart": False, "tortoise": False}
+         "barrier": False, "box": False, "branch": False, "cart": False, "tortoise": False,
+         # issue 29, in staged scenarios only (the random worlds stay as they were): COCO has no deer or
+         # boar, no trolley, pallet or sack
+         "deer": False, "boar": False, "trolley": False, "pallet": False, "sack": False}
 
 
 # --------------------------------------------------------------------------- road and ego
@@ -217,9 +224,13 @@ class Obj:
 class Scene:
     """The whole world of one sequence."""
 
-    def __init__(self, seed: int, duration_s: float, atlas: Atlas, scenario: Scenario | None = None):
+    def __init__(self, seed: int, duration_s: float, atlas: Atlas, scenario: Scenario | None = None,
+                 more_unknowns: bool = False):
         """``scenario`` (``scenarios.py``) stages its objects and the ego's speed instead of the
-        random traffic and drive; without one, the world is exactly the seed's random one."""
+        random traffic and drive; without one, the world is exactly the seed's random one.
+        ``more_unknowns`` (random worlds only) adds issue 29's kinds to it (``_more_unknowns``)
+        after everything else, from a random stream of their own: the seed's other objects stay
+        exactly as they are."""
         self.seed = seed
         self.atlas = atlas
         self.scenario = scenario
@@ -249,6 +260,8 @@ class Scene:
         self._build_static(np.random.default_rng([seed, 3]))
         if scenario is None:
             self._build_objects(np.random.default_rng([seed, 4]))
+            if more_unknowns:
+                self._more_unknowns(np.random.default_rng([seed, 6]))
         else:
             self.roles = scenario.build(self, np.random.default_rng([seed, 4]))
         self.M0_inv = np.linalg.inv(self.camera_map(0.0))
@@ -446,6 +459,14 @@ class Scene:
                     "branch": lambda: (rng.uniform(0.8, 1.6), rng.uniform(0.3, 0.6), rng.uniform(1.5, 3.0)),
                     "cart": lambda: (0.8, 1.0, rng.uniform(1.3, 1.6)),
                     "tortoise": lambda: (rng.uniform(0.6, 0.8), rng.uniform(0.4, 0.5), rng.uniform(0.8, 1.1)),
+                    # a deer 0.9–1.05 of its nominal build, a boar 0.8–1.1 (meshes.QUADRUPEDS)
+                    "deer": lambda: tuple(np.array(QUADRUPEDS["deer"].size) * rng.uniform(0.9, 1.05)),
+                    "boar": lambda: tuple(np.array(QUADRUPEDS["boar"].size) * rng.uniform(0.8, 1.1)),
+                    # ours: a shopping trolley ~0.58 × 1.0 × 0.95 m (100 l) down to ~0.85 of it (60–80 l)
+                    "trolley": lambda: tuple(np.array([0.58, 1.0, 0.95]) * rng.uniform(0.85, 1.0)),
+                    "pallet": lambda: EURO_PALLET_M,
+                    # ours: a filled 25–50 kg sack lying flat, ~0.4–0.55 × 0.1–0.16 × 0.6–0.9 m
+                    "sack": lambda: (rng.uniform(0.4, 0.55), rng.uniform(0.1, 0.16), rng.uniform(0.6, 0.9)),
                 }[category]()
         palette = [(0.9, 0.9, 0.9), (0.15, 0.15, 0.17), (0.6, 0.62, 0.65), (0.7, 0.1, 0.1), (0.15, 0.25, 0.6),
                    (0.85, 0.85, 0.8), (0.3, 0.35, 0.3), (0.8, 0.6, 0.2)]
@@ -463,6 +484,15 @@ class Scene:
             tint = [(0.2, 0.4, 0.2), (0.3, 0.3, 0.32), (0.15, 0.25, 0.55), (0.45, 0.3, 0.15)][rng.integers(4)]
         elif category in ("blob", "tortoise"):
             tint = tuple(rng.uniform([0.4, 0.3, 0.2], [0.8, 0.6, 0.45]))
+        elif category in QUADRUPEDS:
+            coats = QUADRUPEDS[category].coats
+            tint = tuple(np.clip(np.array(coats[int(rng.integers(len(coats)))]) * rng.uniform(0.9, 1.1, 3), 0, 1))
+        elif category == "trolley":  # the handle's plastic: red, blue, green, grey
+            tint = [(0.75, 0.1, 0.1), (0.1, 0.25, 0.65), (0.15, 0.5, 0.2), (0.35, 0.35, 0.37)][rng.integers(4)]
+        elif category == "pallet":  # pale new spruce to weathered grey
+            tint = tuple(np.array([1.0, 0.9, 0.72]) * rng.uniform(0.7, 1.0))
+        elif category == "sack":  # white woven polypropylene, brown paper, green feed, jute
+            tint = [(0.92, 0.92, 0.9), (0.7, 0.55, 0.38), (0.35, 0.5, 0.3), (0.62, 0.52, 0.36)][rng.integers(4)]
         else:
             tint = tuple(rng.uniform(0.2, 0.95, 3))
         o = Obj(len(self.objects) + 1, category, np.array(size, float), tint, motion, int(rng.integers(1 << 30)),
@@ -551,15 +581,54 @@ class Scene:
                 s += rng.uniform(150, 400)
         self._crossings(rng)
 
-    def _crossings(self, rng) -> None:
-        """Pedestrians, blobs and tortoises crossing the road ahead of the ego, timed to clear its lane."""
+    def _more_unknowns(self, rng: np.random.Generator) -> None:
+        """Issue 29's kinds in a random world (opt-in): trolleys, pallets and sacks left in the
+        parking strips where no parked object stands, trolleys on the sidewalks, deer and boar
+        walking or standing at the sidewalks' outer edge and crossing the road like the
+        pedestrians (``_crossings``)."""
+        s_end = self.ego_s[-1]
+        lo, hi = self.road.s[0] + 20, self.road.s[-1] - 20
+        strip = [(o.motion.s0, np.sign(o.motion.d)) for o in self.objects
+                 if o.motion.kind == "static" and abs(o.motion.d) < self.half]
+        for side in (-1, 1):
+            s = lo + rng.uniform(0, 40)
+            while s < min(hi, s_end + 250):  # ours: one every 25–80 m a side, none within 4 m of a parked object
+                cat = str(rng.choice(["trolley", "pallet", "sack"], p=[0.4, 0.3, 0.3]))
+                d = side * (self.lanes * LANE_M + PARKING_M / 2 + rng.uniform(-0.3, 0.3))
+                yaw = rng.uniform(0, 2 * np.pi)
+                if all(abs(s - s0) > 4.0 or sd != side for s0, sd in strip):
+                    self._new(rng, cat, Motion("static", s0=s, d=d, yaw=yaw))
+                s += rng.uniform(25, 80)
+            s = lo + rng.uniform(0, 80)
+            while s < min(hi, s_end + 250):  # ours: a trolley left on the sidewalk every 60–150 m
+                self._new(rng, "trolley", Motion("static", s0=s, d=side * (self.half + SIDEWALK_M - 1.0),
+                                                 yaw=rng.uniform(0, 2 * np.pi)))
+                s += rng.uniform(60, 150)
+            s = lo + rng.uniform(0, 100)
+            while s < min(hi, s_end + 250):  # ours: a deer or boar every 80–200 m walking along the sidewalk's
+                # outer edge (a walk: scenarios.ANIMAL_SPEED_MS) or standing there
+                cat = str(rng.choice(["deer", "boar"]))
+                v = rng.uniform(1.0, 1.5) * rng.choice([-1, 1]) if rng.random() < 0.7 else 0.0
+                d = side * (self.half + SIDEWALK_M - 0.8)
+                self._new(rng, cat, Motion("lane", s0=s, d=d, v=v, yaw=0 if v >= 0 else np.pi) if v else
+                          Motion("static", s0=s, d=d, yaw=rng.uniform(0, 2 * np.pi)))
+                s += rng.uniform(80, 200)
+        # ours: an animal starts across every 6–15 s (speeds: scenarios.ANIMAL_SPEED_MS's walk), when the
+        # road is clear (as for the pedestrians, seldom)
+        self._crossings(rng, (("deer", 0.5), ("boar", 0.5)), {"deer": (1.2, 1.6), "boar": (1.0, 1.4)}, (6.0, 15.0))
+
+    def _crossings(self, rng, kinds=(("person", 0.7), ("blob", 0.15), ("tortoise", 0.15)),
+                   speeds=None, every_s: tuple[float, float] = (3.0, 9.0)) -> None:
+        """Pedestrians, blobs and tortoises (or ``kinds``: (category, share)) crossing the road
+        ahead of the ego, one every ``every_s`` seconds, timed to clear its lane."""
+        # ours (a tortoise: faster than life, to cross in time; seldom does)
+        speeds = speeds or {"person": (1.0, 1.6), "blob": (0.6, 1.4), "tortoise": (0.5, 0.8)}
         t = rng.uniform(0, 4)
         t_axis = np.arange(len(self.ego_s)) * self.dt
         h = self.half
         while t < self.duration:
-            cat = str(rng.choice(["person", "blob", "tortoise"], p=[0.7, 0.15, 0.15]))
-            speed = {"person": (1.0, 1.6), "blob": (0.6, 1.4), "tortoise": (0.5, 0.8)}[cat]  # ours (a tortoise: faster than life, to cross in time; seldom does)
-            speed = rng.uniform(*speed)
+            cat = str(rng.choice([k for k, _ in kinds], p=[p for _, p in kinds]))
+            speed = rng.uniform(*speeds[cat])
             ahead = rng.uniform(20, 60)
             s_c = self.ego_arc(t) + ahead
             direction = rng.choice([-1, 1])
@@ -577,7 +646,7 @@ class Scene:
                 ss = np.array([s_c - sign * walk_in, s_c, s_c, s_c + sign * walk_in])
                 dd = np.array([d0, d0, d1, d1])
                 self._new(rng, cat, Motion("path", times=times, ss=ss, dd=dd))
-            t += rng.uniform(3, 9)
+            t += rng.uniform(*every_s)
 
     def _lanes_clear(self, s_c, t0, dur, d0, d1) -> bool:
         for o in self.objects:
@@ -697,7 +766,7 @@ def frame_faces(scene: Scene, t: float, view: tuple[float, float, float] | None 
             continue
         Ro = rot_y(yaw)
         lv, lr = o.faces
-        if o.category == "person":
+        if o.category in ANIMATED:
             Rp, tp = part_poses(o, walked)
             Rs.append(Ro @ Rp)
             ts.append(tp @ Ro.T + pos)
