@@ -276,8 +276,10 @@ class SamProposer:
     def _select(self, frame: int, rles: list[dict], boxes: np.ndarray, scores: np.ndarray,
                 frame_hw: tuple[int, int]) -> Proposals:
         cfg = self.cfg
-        limit = len(rles) if cfg.min_region_area > 0 else cfg.max_proposals
-        keep = nms_keep(boxes, scores, cfg.box_nms_thresh, limit) if len(rles) else np.zeros(0, np.int64)
+        # nms_keep's top_k cuts before suppressing (OpenCV): every mask takes part, the cut comes after.
+        keep = nms_keep(boxes, scores, cfg.box_nms_thresh, len(rles)) if len(rles) else np.zeros(0, np.int64)
+        if cfg.min_region_area <= 0:
+            keep = keep[:cfg.max_proposals]
         rles, boxes, scores = [rles[i] for i in keep], boxes[keep], scores[keep]
         if cfg.min_region_area > 0:
             from pycocotools import mask as mask_utils
@@ -291,7 +293,7 @@ class SamProposer:
             rles = [c[0] for c in cleaned]
             boxes = np.asarray([c[1] for c in cleaned], np.float64).reshape(-1, 4)
             scores = np.asarray([c[2] for c in cleaned])
-            keep = nms_keep(boxes, scores, cfg.box_nms_thresh, cfg.max_proposals) if len(rles) else keep[:0]
+            keep = nms_keep(boxes, scores, cfg.box_nms_thresh, len(rles))[:cfg.max_proposals] if len(rles) else keep[:0]
             rles, boxes, scores = [rles[i] for i in keep], boxes[keep], scores[keep]
         return Proposals(frame=frame, rles=rles, boxes=boxes.astype(np.float32).reshape(-1, 4),
                          objectness=np.clip(scores, 0.0, 1.0).astype(np.float32), posterior=None,
