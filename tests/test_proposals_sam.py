@@ -162,3 +162,22 @@ def test_bad_files_and_settings_name_the_file_and_the_reason(sam_models, tmp_pat
         with pytest.raises(ConfigError, match="onnxruntime-gpu"):
             SamProposer(_cfg(sam_models, device="cuda"))
         assert SamProposer(_cfg(sam_models, device="auto")).providers == ["CPUExecutionProvider"]
+
+
+def test_bench_proposals_times_sams_stages(sam_models, shared_data, tmp_path, capsys):
+    """`mine bench proposals` with the sam proposer: per-frame time and its stages for the grid asked."""
+    import json
+
+    from mining.cli import main
+
+    settings = ['proposals.proposer="sam"', f'proposals.sam.encoder_path="{sam_models["encoder"].as_posix()}"',
+                f'proposals.sam.decoder_path="{sam_models["decoder"].as_posix()}"',
+                f"proposals.sam.input_size={TINY_SAM_SIZE}", "proposals.sam.points_per_side=4", 'proposals.sam.device="cpu"']
+    args = ["bench", "proposals", "--data", str(shared_data), "--frames", "0:2", "--json", str(tmp_path / "b.json")]
+    for s in settings:
+        args += ["--set", s]
+    assert main(args) == 0
+    assert "4×4 grid (16 prompts)" in capsys.readouterr().out
+    rows = json.loads((tmp_path / "b.json").read_text())["rows"]
+    assert [r["mode"] for r in rows] == ["per frame", "grid 4²"]
+    assert set(rows[1]["ms_per_frame"]) == {"encoder", "decoder", "masks", "nms"} and rows[1]["fps"] > 0
