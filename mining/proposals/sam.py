@@ -11,7 +11,7 @@ The user brings two ONNX files (none are bundled or downloaded):
   long side is S (``input_size``, 1024 for SAM and MobileSAM), normalised with ImageNet's mean
   (123.675, 116.28, 103.53) and std (58.395, 57.12, 57.375) on 0–255 RGB and zero-padded at the
   bottom and right (SAM's ``Sam.preprocess``); one output, the image embeddings (1, C, S/16, S/16).
-  ``sam.image_encoder`` exported as it is (MobileSAM's TinyViT encoder likewise).
+  ``sam.image_encoder`` exported as it is (for MobileSAM, its TinyViT encoder the same way).
 * **mask decoder**, in the layout of SAM's own ONNX export (``scripts/export_onnx_model.py``):
 
   ================  ==================  =====================================================
