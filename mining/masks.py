@@ -151,6 +151,8 @@ def crop_rle(crop: np.ndarray, x0: int, y0: int, height: int, width: int) -> dic
     bounds[0], bounds[-1] = 0, height * width
     bounds[1:-1:2], bounds[2:-1:2] = starts, ends
     counts = np.diff(bounds).tolist()
+    if len(counts) > 1 and counts[-1] == 0:  # the mask holds the last pixel: COCO writes no trailing empty run
+        counts.pop()
     return mask_utils.frPyObjects({"size": [height, width], "counts": counts}, height, width)
 
 

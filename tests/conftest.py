@@ -224,3 +224,46 @@ def _ray_stays_out_of_the_pytest_process():
     yield
     if not in_child() and not before and ray_was_started_here():
         pytest.fail(RAY_IN_PYTEST, pytrace=False)
+
+
+# Tiny random-weight models in the real layouts of the class-agnostic proposers (tests/_tiny_models.py).
+TINY_SAM_SIZE = 128  # the tiny SAM encoder's input side (SAM's is 1024): embeddings 8×8, low-res masks 32×32
+
+
+@pytest.fixture(scope="session")
+def fastsam_model(tmp_path_factory) -> Path:
+    """A FastSAM-layout ONNX model (one class, 32 coefficients, fixed 64×64 input) with random weights."""
+    pytest.importorskip("onnx")
+    from _tiny_models import fastsam_onnx
+
+    return fastsam_onnx(tmp_path_factory.mktemp("fastsam") / "fastsam_tiny.onnx")
+
+
+@pytest.fixture(scope="session")
+def sam_models(tmp_path_factory) -> dict[str, Path]:
+    """SAM-layout ONNX files with random weights: the encoder and the batched and official (B = 1) decoders."""
+    pytest.importorskip("onnx")
+    from _tiny_models import sam_decoder_onnx, sam_encoder_onnx
+
+    d = tmp_path_factory.mktemp("sam")
+    return {"encoder": sam_encoder_onnx(d / "encoder.onnx", TINY_SAM_SIZE),
+            "decoder": sam_decoder_onnx(d / "decoder.onnx", TINY_SAM_SIZE),
+            "decoder_b1": sam_decoder_onnx(d / "decoder_b1.onnx", TINY_SAM_SIZE, batch=1)}
+
+
+@pytest.fixture(scope="session")
+def torch_agnostic_checkpoint(torch_checkpoint, tmp_path_factory) -> Path:
+    """A class-agnostic Mask R-CNN (torchvision layout, num_classes=2: background, object), random weights."""
+    torch = pytest.importorskip("torch")
+    state = torch.load(torch_checkpoint, map_location="cpu", weights_only=True)
+    pre, mk = "roi_heads.box_predictor.", "roi_heads.mask_predictor.mask_fcn_logits."
+    torch.manual_seed(1)
+    for part, shape in (("cls_score", (2, 1024)), ("bbox_pred", (8, 1024))):
+        state[pre + part + ".weight"] = torch.randn(shape) * 0.01
+        state[pre + part + ".bias"] = torch.zeros(shape[0])
+    state[pre + "cls_score.bias"] = torch.tensor([0.0, 1.0])  # leans to "object": rows pass the score cut
+    state[mk + "weight"] = state[mk + "weight"][:2].clone()
+    state[mk + "bias"] = state[mk + "bias"][:2].clone()
+    path = tmp_path_factory.mktemp("torch_agnostic") / "maskrcnn_agnostic_random.pt"
+    torch.save(state, path)
+    return path

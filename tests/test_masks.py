@@ -80,3 +80,15 @@ def test_batch_decoding_matches_per_mask():
         np.testing.assert_array_equal(rows[seg == i], r)
         np.testing.assert_array_equal(cols[seg == i], c)
     assert batch_mask_pixels([])[0].size == 0
+
+
+def test_crop_rle_is_canonical_when_the_mask_holds_the_last_pixel():
+    """A mask reaching the frame's bottom-right pixel ends on a run of ones: COCO's encoding writes
+    no empty run after it (a FastSAM mask over the frame's corner found this)."""
+    from mining.masks import crop_rle
+
+    for crop, x0, y0 in ((np.ones((3, 4), bool), 6, 7), (np.ones((10, 10), bool), 0, 0),
+                         (np.eye(3, dtype=bool)[::-1], 7, 7)):
+        full = np.zeros((10, 10), np.uint8)
+        full[y0:y0 + crop.shape[0], x0:x0 + crop.shape[1]] = crop
+        assert crop_rle(crop, x0, y0, 10, 10)["counts"] == mask_utils.encode(np.asfortranarray(full))["counts"]

@@ -10,7 +10,9 @@ position and size rows finite where the proposer measures 3D and NaN where it do
 named by its proposer; evidence weights in [0, 1], 0 where no classifier looked.
 
 The ONNX model is the shared one (tests/conftest.py ``MODEL``); the torch proposer has random
-weights (conftest's ``torch_checkpoint``): the contract, not accuracy, is under test.
+weights (conftest's ``torch_checkpoint``), and so do the class-agnostic ``fastsam`` and ``sam``
+(conftest's tiny models in their real layouts, tests/_tiny_models.py; SAM on an 8×8 grid): the
+contract, not accuracy, is under test.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import numpy as np
 import pytest
 from pycocotools import mask as mask_utils
 
-from conftest import MODEL, TORCH_SMALL
+from conftest import MODEL, TINY_SAM_SIZE, TORCH_SMALL
 from mining.config import load_config
 from mining.geometry.stage import GeometryStage
 from mining.proposals.make import make_proposer
@@ -31,7 +33,8 @@ from mining.types import N_CLASSES, Proposals
 N_FRAMES = 2  # KITTI 0005 frames 0 and 1
 CLASSIFYING = {"onnx", "torch", "json", "kitti_detections"}  # proposers whose rows carry an 81-way posterior
 IN_3D = {"stereo", "kitti_detections"}  # proposers whose rows carry a position and a size
-PROPOSERS = ["stereo", "onnx", "torch", "json", "kitti_detections", "onnx+stereo"]
+PROPOSERS = ["stereo", "onnx", "torch", "json", "kitti_detections", "onnx+stereo", "fastsam", "sam", "onnx+fastsam",
+             "onnx+fastsam+stereo"]
 
 
 @pytest.fixture(scope="module")
@@ -56,6 +59,17 @@ def _settings(name: str, request, tmp_path_factory) -> list[str]:
         checkpoint = request.getfixturevalue("torch_checkpoint")
         settings += [f'proposals.torch.model_path="{checkpoint.as_posix()}"']
         settings += [f"proposals.torch.{k}={v!r}".replace("'", '"') for k, v in TORCH_SMALL.items()]
+    if "fastsam" in parts:
+        model = request.getfixturevalue("fastsam_model")
+        cache = tmp_path_factory.mktemp("fastsam_cache")
+        settings += [f'proposals.fastsam.model_path="{model.as_posix()}"',
+                     f'proposals.fastsam.cache_dir="{cache.as_posix()}"', "proposals.fastsam.auto_max_side=256"]
+    if "sam" in parts:
+        models = request.getfixturevalue("sam_models")
+        settings += [f'proposals.sam.encoder_path="{models["encoder"].as_posix()}"',
+                     f'proposals.sam.decoder_path="{models["decoder"].as_posix()}"',
+                     f"proposals.sam.input_size={TINY_SAM_SIZE}", "proposals.sam.points_per_side=8",
+                     'proposals.sam.device="cpu"']
     if "json" in parts:
         folder = request.getfixturevalue("shared_data") / "proposals_4dgvt_format" / "kitti_tracking_0005" / "top20"
         settings += [f'proposals.json.folder="{folder.as_posix()}"']

@@ -195,13 +195,49 @@ def test_bad_checkpoints_are_config_errors_naming_the_file(torch_checkpoint, tmp
     two_class = {**state, pre + "cls_score.weight": state[pre + "cls_score.weight"][:2],
                  pre + "cls_score.bias": state[pre + "cls_score.bias"][:2]}
     torch.save(two_class, tmp_path / "two_class.pt")
-    fails(tmp_path / "two_class.pt", r"expected \(91, 1024\)")
+    fails(tmp_path / "two_class.pt", r"bbox_pred 91")  # a 2-class classifier with 91-class boxes: neither layout
+    three_class = {**state, pre + "cls_score.weight": state[pre + "cls_score.weight"][:3],
+                   pre + "cls_score.bias": state[pre + "cls_score.bias"][:3]}
+    torch.save(three_class, tmp_path / "three_class.pt")
+    fails(tmp_path / "three_class.pt", r"expected \(91, 1024\)")
     wrong_shape = {**state, "backbone.body.conv1.weight": torch.zeros(64, 3, 3, 3)}
     torch.save(wrong_shape, tmp_path / "wrong_shape.pt")
     fails(tmp_path / "wrong_shape.pt", "does not fit maskrcnn_resnet50_fpn")
     missing = {k: v for k, v in state.items() if not k.startswith("backbone.fpn.")}
     torch.save(missing, tmp_path / "missing.pt")
     fails(tmp_path / "missing.pt", "missing keys")
+
+
+def test_class_agnostic_checkpoint_gives_objectness_and_no_posterior(torch_agnostic_checkpoint, frames):
+    """A Mask R-CNN trained class-agnostically (torchvision layout, num_classes=2) is a proposer
+    without classes: objectness = p(object), posterior None (a union's classifier gives the class)."""
+    cfg = _cfg(torch_agnostic_checkpoint)
+    p = TorchProposer(cfg)(3, frames[0])
+    n = len(p)
+    assert 0 < n <= cfg.max_proposals and p.frame == 3 and p.proposer == ["torch"] * n
+    assert p.posterior is None and p.class_weight is None
+    assert p.objectness.dtype == np.float32 and (np.diff(p.objectness) <= 0).all()
+    assert ((p.objectness >= cfg.score_threshold) & (p.objectness <= 1)).all()
+    assert p.boxes.shape == (n, 4) and all(mask_utils.area(r) > 0 for r in p.rles)
+
+
+@pytest.mark.slow  # over ~2.5 s: two model loads
+def test_class_agnostic_objectness_is_the_object_heads(torch_agnostic_checkpoint, frames, tmp_path):
+    """The same weights in the two-head layout with a class head added: identical rows, and the
+    class head then gives a posterior; so the agnostic model's objectness is its object head's."""
+    state = read_checkpoint(torch_agnostic_checkpoint)
+    pre = "roi_heads.box_predictor."
+    two = {k: v for k, v in state.items() if not k.startswith(pre + "cls_score.")}
+    two.update({pre + "objectness.weight": state[pre + "cls_score.weight"],
+                pre + "objectness.bias": state[pre + "cls_score.bias"],
+                pre + "cls_score.weight": torch.zeros(81, 1024), pre + "cls_score.bias": torch.zeros(81)})
+    torch.save(two, tmp_path / "with_class_head.pt")
+    agnostic = TorchProposer(_cfg(torch_agnostic_checkpoint))(0, frames[1])
+    classed = TorchProposer(_cfg(tmp_path / "with_class_head.pt"))(0, frames[1])
+    assert agnostic.posterior is None and classed.posterior.shape == (len(classed), 81)
+    np.testing.assert_array_equal(agnostic.objectness, classed.objectness)
+    np.testing.assert_array_equal(agnostic.boxes, classed.boxes)
+    assert agnostic.rles == classed.rles
 
 
 def test_bad_settings_are_config_errors(torch_checkpoint):

@@ -6,6 +6,10 @@ Loading the model is timed on its own. The torch proposer is also timed through
 ``propose_batch`` (``proposals.torch.batch_size`` frames per forward pass), with the time
 split into its stages.
 
+The class-agnostic ``fastsam`` and ``sam`` proposers are also timed stage by stage (``fastsam``:
+network, decode; ``sam``: encoder, decoder runs, mask upsampling and filters, NMS), so the cost
+of SAM's point grid (``--set proposals.sam.points_per_side=N``) shows apart from the encoder's.
+
 ``--random-weights`` lets the torch proposer be timed without a weights file: the real
 maskrcnn_resnet50_fpn with random initial weights (seed 0) is saved to a temporary folder and
 loaded through the proposer's own code. Weights do not change the network's cost; they only
@@ -92,6 +96,35 @@ def bench_torch_batched(cfg: JobConfig, items: list) -> dict:
             "ms_per_frame": {k: v / n for k, v in stages.items()}, "device": str(model.device)}
 
 
+def bench_stages(cfg: JobConfig, items: list, name: str) -> dict:
+    """Per-frame time of the ``fastsam`` or ``sam`` proposer split into its stages (``last_timings_ms``)."""
+    frame0 = items[0][0]
+    if name == "fastsam":
+        from mining.proposals.fastsam import FastSamProposer
+
+        model = FastSamProposer(cfg.proposals.fastsam, frame_size=(frame0.calib.height, frame0.calib.width))
+        mode = "stages"
+    else:
+        from mining.proposals.sam import SamProposer
+
+        model = SamProposer(cfg.proposals.sam)
+        mode = f"grid {cfg.proposals.sam.points_per_side}²"
+    model(frame0.index, frame0.left)  # warm-up
+    stages: dict[str, float] = {}
+    wall = cpu = 0.0
+    counts = []
+    for frame, _ in items[1:]:
+        out, w, c = _timed(model, frame.index, frame.left)
+        wall += w
+        cpu += c
+        counts.append(len(out))
+        for k, v in model.last_timings_ms.items():
+            stages[k] = stages.get(k, 0.0) + v
+    n = len(items) - 1
+    return {"mode": mode, "frames": n, "wall_s": wall, "cpu_s": cpu, "fps": n / wall,
+            "proposals_per_frame": float(np.mean(counts)), "ms_per_frame": {k: v / n for k, v in stages.items()}}
+
+
 def run_proposals_bench(data: Path, cfg: JobConfig, frames: tuple[int, int | None] = (0, 9),
                         random_weights: bool = False, json_path: str | None = None, overwrite: bool = False) -> int:
     cfg = copy.deepcopy(cfg)
@@ -112,6 +145,8 @@ def run_proposals_bench(data: Path, cfg: JobConfig, frames: tuple[int, int | Non
         rows = [bench_proposer(cfg, items)]
         if names == ["torch"]:
             rows.append(bench_torch_batched(cfg, items))
+        if names in (["fastsam"], ["sam"]):
+            rows.append(bench_stages(cfg, items, names[0]))
     h, w = items[0][0].left.shape[:2]
     title = f"proposer {cfg.proposals.proposer} on KITTI {SEQUENCE} frames {a}:{b} ({w}×{h}; first frame warms up)"
     if "torch" in names:
@@ -119,6 +154,11 @@ def run_proposals_bench(data: Path, cfg: JobConfig, frames: tuple[int, int | Non
         title += (f"\n  torch: device {t.device}, {t.num_threads or 'default'} thread(s), input {t.min_size}/"
                   f"{t.max_size}, {t.rpn_post_nms_top_n} RoIs, ≤ {t.max_proposals} proposals"
                   f"{', random weights' if random_weights else ''}")
+    if "sam" in names:
+        s = cfg.proposals.sam
+        title += (f"\n  sam: {s.points_per_side}×{s.points_per_side} grid ({s.points_per_side ** 2} prompts), "
+                  f"input {s.input_size}, {s.points_per_batch} prompts a decoder run where the export takes a batch, "
+                  f"device {s.device}")
     print(title)
     print(f"  {'mode':<10} {'frames':>6} {'frames/s':>9} {'s/frame':>8} {'CPU s/frame':>11} {'proposals':>9}  load / stages")
     for r in rows:

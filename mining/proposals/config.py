@@ -44,6 +44,56 @@ class OnnxConfig:
 
 
 @dataclass
+class FastSamConfig:
+    """FastSAM-s/x ("everything" mode, class-agnostic) as a YOLOv8-seg ONNX export (``fastsam`` proposer).
+
+    The layout of mining/proposals/fastsam.py: output0 (1, 4 + K + 32, N) with K class rows (one
+    for FastSAM), output1 (1, 32, h/4, w/4) prototypes. Sizes as ``[proposals.onnx]``: both
+    ``"auto"`` (the frame's aspect, long side at most ``auto_max_side``) or both multiples of 32;
+    a fixed-size export at another size is rebuilt for it once (onnx_convert), a dynamic one runs as is.
+    """
+
+    model_path: str = ""  # ours: user-given FastSAM ONNX export (weights are not bundled)
+    cache_dir: str = ""  # ours: where resized models are kept; "" = ~/.cache/tube_miner/onnx
+    input_height: Annotated[int | str, Satisfies(_input_side)] = "auto"  # ours: "auto" = the frame's aspect (KITTI → 320×1024 at auto_max_side 1024)
+    input_width: Annotated[int | str, Satisfies(_input_side)] = "auto"  # ours: see input_height
+    auto_max_side: Annotated[int, Range(32)] = 1024  # FastSAM README: imgsz=1024 (the size it was trained and is run at)
+    score_threshold: Fraction = 0.05  # ours: low for recall (FastSAM README's everything mode: conf=0.4; Ultralytics' default 0.25)
+    nms_iou: Fraction = 0.9  # FastSAM README: iou=0.9 (masks of parts and wholes overlap on purpose; Ultralytics' default 0.7)
+    max_proposals: Count = 300  # REFERENCE: sorted by score, at most 300 kept (as onnx)
+    mask_threshold: Fraction = 0.5  # Ultralytics: sigmoid mask probability cut (as onnx)
+    intra_op_num_threads: int = 1  # ours: one thread per proposer; Ray parallelises over actors (as onnx)
+    pad_value: Annotated[int, Range(0, 255)] = 114  # Ultralytics: letterbox grey of the YOLOv8 family FastSAM is trained in
+
+
+@dataclass
+class SamConfig:
+    """SAM-family automatic masks (SAM ViT-B/L/H, MobileSAM) through onnxruntime: the GPU worker's proposer.
+
+    Two user files (mining/proposals/sam.py): the image encoder (input (1, 3, S, S), normalised and
+    padded; output the image embeddings), run once a frame, and the mask decoder in the official SAM
+    ONNX export layout, run for a grid of ``points_per_side``² points, ``points_per_batch`` at a
+    time where the export takes a batch (one point per run where it does not). The cost grows with
+    the grid: on a CPU 25–50 s a frame with SAM ViT-B/H at 32×32, so run it where a GPU is
+    (``device``) or on a coarser grid. Filters and their defaults are SAM's automatic mask generator's.
+    """
+
+    encoder_path: str = ""  # ours: user-given image encoder ONNX file (weights are not bundled)
+    decoder_path: str = ""  # ours: user-given mask decoder ONNX file (SAM's scripts/export_onnx_model.py layout)
+    input_size: Annotated[int, Range(16)] = 1024  # SAM / MobileSAM: long side resized to 1024 (ResizeLongestSide), padded square
+    points_per_side: Annotated[int, Range(1, 256)] = 32  # SAM automatic mask generator default: a 32×32 grid (1024 prompts a frame)
+    points_per_batch: Count = 64  # SAM automatic mask generator default: prompts per decoder run (when the export takes a batch)
+    pred_iou_thresh: Fraction = 0.88  # SAM automatic mask generator default: the decoder's predicted IoU cut
+    stability_score_thresh: Fraction = 0.95  # SAM automatic mask generator default: IoU of the mask at logit cuts ±offset
+    stability_score_offset: Positive = 1.0  # SAM automatic mask generator default: logit offset of the stability score
+    box_nms_thresh: Fraction = 0.7  # SAM automatic mask generator default: box NMS over all masks by predicted IoU
+    min_region_area: int = 0  # SAM automatic mask generator default (min_mask_region_area 0 = off): holes and islands below this many pixels removed
+    max_proposals: Count = 300  # REFERENCE: sorted by score, at most 300 kept (as onnx)
+    device: Annotated[str, OneOf(("auto", "cpu", "cuda"))] = "auto"  # ours: "auto" = onnxruntime's CUDA provider when installed (onnxruntime-gpu), else the CPU
+    intra_op_num_threads: int = 1  # ours: CPU threads per proposer, as onnx; 0 = onnxruntime's default (all cores)
+
+
+@dataclass
 class TorchConfig:
     """MP R-CNN (the paper's proposer) on torchvision's Mask R-CNN ResNet-50 FPN (extra ``torch``).
 
@@ -120,8 +170,10 @@ class UnionConfig:
 
 @dataclass
 class ProposalConfig:
-    proposer: Annotated[str, Satisfies(_proposer_names)] = "stereo"  # ours: "stereo" (weight-free default), "onnx", "torch", "json", or a union: "onnx+stereo"
+    proposer: Annotated[str, Satisfies(_proposer_names)] = "stereo"  # ours: "stereo" (weight-free default), "onnx", "torch", "json", "fastsam", "sam", or a union: "onnx+stereo"
     onnx: OnnxConfig = field(default_factory=OnnxConfig)
+    fastsam: FastSamConfig = field(default_factory=FastSamConfig)
+    sam: SamConfig = field(default_factory=SamConfig)
     torch: TorchConfig = field(default_factory=TorchConfig)
     json: JsonProposalsConfig = field(default_factory=JsonProposalsConfig)
     kitti_detections: KittiDetectionsConfig = field(default_factory=KittiDetectionsConfig)

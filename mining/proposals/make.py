@@ -14,9 +14,11 @@ from mining.proposals.union import union
 from mining.types import FrameGeometry, Proposals, StereoFrame
 
 Proposer = Callable[[StereoFrame, FrameGeometry], Proposals]
-NAMES = ("stereo", "onnx", "torch", "json")
+NAMES = ("stereo", "onnx", "torch", "json", "fastsam", "sam")
 # Proposers that give each proposal an 81-way class posterior (a classifier looked); "json"
-# does when its files carry ``second_posterior`` or COCO category ids.
+# does when its files carry ``second_posterior`` or COCO category ids, "torch" unless its
+# checkpoint is class-agnostic. "fastsam" and "sam" are class-agnostic: objectness from their
+# own scores, no posterior (in a union the classifier's rows give the class, union.py).
 CLASSIFYING = ("onnx", "torch", "json")
 
 
@@ -49,7 +51,7 @@ def classifiers_line(proposer: str) -> str:
 
 
 def make_one(name: str, cfg: ProposalConfig, frame_size: tuple[int, int]) -> Proposer:
-    """One named proposer of a union (``stereo``, ``onnx``, ``torch``, ``json``, ``kitti_detections``)."""
+    """One named proposer of a union (``stereo``, ``onnx``, ``torch``, ``json``, ``fastsam``, ``sam``)."""
     if name == "stereo":
         from mining.proposals.stereo import StereoProposer
 
@@ -65,6 +67,16 @@ def make_one(name: str, cfg: ProposalConfig, frame_size: tuple[int, int]) -> Pro
 
         mprcnn = TorchProposer(cfg.torch)
         return lambda frame, geometry: mprcnn(frame.index, frame.left)
+    if name == "fastsam":
+        from mining.proposals.fastsam import FastSamProposer
+
+        fastsam = FastSamProposer(cfg.fastsam, frame_size=frame_size)
+        return lambda frame, geometry: fastsam(frame.index, frame.left)
+    if name == "sam":
+        from mining.proposals.sam import SamProposer
+
+        sam = SamProposer(cfg.sam)
+        return lambda frame, geometry: sam(frame.index, frame.left)
     if name == "json":
         from mining.proposals.precomputed import JsonProposals
 

@@ -27,7 +27,7 @@ says "background", the object is of none of the 80 classes. ``unknown_mass = "no
 instead renormalises the 80 class probabilities (unknown 0).
 
 Weights (never bundled or downloaded; ``torch.load(weights_only=True)``, nothing is
-unpickled) come in either of two layouts, told apart by their keys:
+unpickled) come in one of three layouts, told apart by their keys and shapes:
 
 * **torchvision**: the state dict of ``maskrcnn_resnet50_fpn`` with its 91-way COCO head
   (``roi_heads.box_predictor.cls_score`` (91, 1024): background + COCO category ids 1..90, of
@@ -52,6 +52,14 @@ unpickled) come in either of two layouts, told apart by their keys:
                                                                        (per class, class-head order)
   roi_heads.mask_predictor.mask_fcn_logits.weight/.bias (C, 256, 1, 1) mask logits, same C as bbox_pred
   ====================================================  =============  =====================================
+
+* **class-agnostic**: a Mask R-CNN trained with two classes, background and "object" — the
+  torchvision layout with ``num_classes=2`` (``cls_score`` (2, 1024), ``bbox_pred`` (8, 1024),
+  ``mask_fcn_logits`` (2, 256, 1, 1)), or the two-head layout without ``cls_score`` (its
+  objectness head (2, 1024) and C = 2). Objectness = p(object) of that head; no class head, so
+  **posterior None**: in a union with a classifier ("onnx+torch") the class comes from the
+  classifier's rows (mining/proposals/union.py), and ``unknown_mass`` does not apply. A research
+  group's class-agnostic Mask R-CNN (as the paper trains MP R-CNN's first head) plugs in so.
 
 ``torchvision_to_two_head`` maps the 91-way head onto that layout exactly: the objectness
 head is the whole 91-way classifier (p(object) = the mass of all 90 foreground outputs), the
@@ -107,21 +115,37 @@ CLASS_ROWS = (0, *COCO_CATEGORY_IDS)
 
 class TwoHeadPredictor(nn.Module):
     """MP R-CNN's box predictor: a category-agnostic objectness head, an 81-way class head
-    (background + 80 COCO classes) and box deltas for C = 2 (agnostic) or 81 classes."""
+    (background + 80 COCO classes; absent in a class-agnostic model) and box deltas for C = 2
+    (agnostic) or 81 classes."""
 
-    def __init__(self, in_channels: int, n_objectness: int, n_box_classes: int):
+    def __init__(self, in_channels: int, n_objectness: int, n_box_classes: int, class_head: bool = True):
         super().__init__()
         self.objectness = nn.Linear(in_channels, n_objectness)
-        self.cls_score = nn.Linear(in_channels, N_CLASS_HEAD)
+        self.cls_score = nn.Linear(in_channels, N_CLASS_HEAD) if class_head else None
         self.bbox_pred = nn.Linear(in_channels, 4 * n_box_classes)
 
-    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]:
         x = x.flatten(start_dim=1)
-        return self.objectness(x), self.cls_score(x), self.bbox_pred(x)
+        return self.objectness(x), None if self.cls_score is None else self.cls_score(x), self.bbox_pred(x)
 
 
 def is_two_head(state: Mapping[str, torch.Tensor]) -> bool:
     return PREDICTOR + "objectness.weight" in state
+
+
+def is_class_agnostic_torchvision(state: Mapping[str, torch.Tensor]) -> bool:
+    """torchvision's layout trained with num_classes=2 (background, object)."""
+    w = state.get(PREDICTOR + "cls_score.weight")
+    return not is_two_head(state) and w is not None and w.ndim == 2 and w.shape[0] == 2
+
+
+def agnostic_to_two_head(state: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """A num_classes=2 torchvision state dict → the two-head layout without class head: its
+    (background, object) classifier is the objectness head; box deltas and masks stay."""
+    out = {k: v for k, v in state.items() if not k.startswith(PREDICTOR + "cls_score.")}
+    for part in ("weight", "bias"):
+        out[PREDICTOR + f"objectness.{part}"] = state[PREDICTOR + f"cls_score.{part}"]
+    return out
 
 
 def torchvision_to_two_head(state: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -164,7 +188,13 @@ def read_checkpoint(path: str | Path) -> dict[str, torch.Tensor]:
 def build_model(state: Mapping[str, torch.Tensor], cfg: TorchConfig, path: str | Path) -> nn.Module:
     """maskrcnn_resnet50_fpn with MP R-CNN's heads, sized by and loaded from a state dict in either layout."""
     try:
-        two = dict(state) if is_two_head(state) else torchvision_to_two_head(state)
+        if is_two_head(state):
+            two = dict(state)
+        elif is_class_agnostic_torchvision(state):
+            two = agnostic_to_two_head(state)
+        else:
+            two = torchvision_to_two_head(state)
+        class_head = PREDICTOR + "cls_score.weight" in two
         n_obj = two[PREDICTOR + "objectness.weight"].shape[0]
         n_box = two[PREDICTOR + "bbox_pred.weight"].shape[0] // 4
         n_mask = two[MASK_LOGITS + "weight"].shape[0]
@@ -175,10 +205,14 @@ def build_model(state: Mapping[str, torch.Tensor], cfg: TorchConfig, path: str |
         raise ConfigError(f"file {path}: two-head layout needs objectness rows ≥ 2 and bbox_pred / mask_fcn_logits "
                           f"for the same C ∈ {{2, 81}} classes; got objectness {n_obj}, bbox_pred {n_box}, "
                           f"mask {n_mask}")
+    if not class_head and (n_obj != 2 or n_box != 2):
+        raise ConfigError(f"file {path}: a class-agnostic Mask R-CNN (no 81-way class head) needs 2 classes "
+                          f"(background, object) in its classifier, bbox_pred and mask_fcn_logits; got "
+                          f"classifier {n_obj}, bbox_pred {n_box}, mask {n_mask}")
     model = maskrcnn_resnet50_fpn(
         weights=None, weights_backbone=None, num_classes=n_box, min_size=cfg.min_size, max_size=cfg.max_size,
         rpn_pre_nms_top_n_test=cfg.rpn_pre_nms_top_n, rpn_post_nms_top_n_test=cfg.rpn_post_nms_top_n)
-    model.roi_heads.box_predictor = TwoHeadPredictor(BOX_HEAD_DIM, n_obj, n_box)
+    model.roi_heads.box_predictor = TwoHeadPredictor(BOX_HEAD_DIM, n_obj, n_box, class_head)
     model.roi_heads.mask_predictor = MaskRCNNPredictor(MASK_HEAD_DIM, MASK_HEAD_DIM, n_mask)
     try:
         missing, unexpected = model.load_state_dict(two, strict=False)
@@ -297,13 +331,13 @@ class TorchProposer:
         # log p(object) − log p(background): ranks like objectness but does not saturate at 1 in float32.
         log_odds = torch.logsumexp(obj_logits[:, 1:], dim=1) - obj_logits[:, 0]
         objectness = torch.sigmoid(log_odds)  # = 1 − p(background)
-        cls_prob = torch.softmax(cls_logits, dim=1)
+        cls_prob = None if cls_logits is None else torch.softmax(cls_logits, dim=1)  # None: class-agnostic
         n_box = deltas.shape[1] // 4
         # The class whose regression (and mask) a RoI uses: its most probable of the 80, or "object".
-        if n_box == N_CLASS_HEAD:
+        if n_box == N_CLASS_HEAD and cls_prob is not None:
             channel = 1 + cls_prob[:, 1:].argmax(dim=1)
         else:
-            channel = torch.ones(len(cls_prob), dtype=torch.long, device=dev)
+            channel = torch.ones(len(obj_logits), dtype=torch.long, device=dev)
         decoded = rh.box_coder.decode(deltas, rois)  # (R, C, 4) in resized-image pixels
         boxes_in = decoded[torch.arange(len(channel), device=dev), channel]
         # Clip in the resized image, then work in frame pixels (NMS there, so the stored boxes keep the IoU bound).
@@ -329,7 +363,7 @@ class TorchProposer:
             masks = logits[torch.arange(len(sel), device=dev), mch].sigmoid()
         t3 = time.perf_counter()
         out, start = [], 0
-        cls_np = cls_prob[sel].double().cpu().numpy()
+        cls_np = None if cls_prob is None else cls_prob[sel].double().cpu().numpy()
         obj_np = objectness[sel].cpu().numpy().astype(np.float32)
         for i, (frame, image, k) in enumerate(zip(frames, images, kept)):
             n = len(k)
@@ -340,7 +374,7 @@ class TorchProposer:
                 rles=rles,
                 boxes=frame_boxes[k][torch.as_tensor(ok, device=dev)].cpu().numpy().astype(np.float32).reshape(-1, 4),
                 objectness=obj_np[rows],
-                posterior=(class_posterior(cls_np[rows], cfg.unknown_mass) if len(rows)
+                posterior=(None if cls_np is None else class_posterior(cls_np[rows], cfg.unknown_mass) if len(rows)
                            else np.zeros((0, N_CLASSES), np.float32)),
                 proposer=[PROPOSER_NAME] * len(rows),
             ))

@@ -152,10 +152,16 @@ class OnnxProposer:
 
 
 def decode_predictions(frame: int, pred: np.ndarray, protos: np.ndarray, lb: Letterbox,
-                       frame_hw: tuple[int, int], cfg: OnnxConfig) -> Proposals:
-    """Network outputs → Proposals in frame pixels: threshold, class-agnostic NMS, masks, posterior."""
+                       frame_hw: tuple[int, int], cfg: OnnxConfig, n_classes: int = N_COCO,
+                       name: str = PROPOSER_NAME) -> Proposals:
+    """Network outputs → Proposals in frame pixels: threshold, class-agnostic NMS, masks, posterior.
+
+    ``pred`` has 4 box rows, ``n_classes`` class-score rows and 32 coefficient rows. The 81-way
+    posterior needs the 80 COCO classes; with any other class count (FastSAM's one "object" class)
+    the rows are class-agnostic: objectness the best class score, posterior None.
+    """
     H, W = frame_hw
-    probs = pred[4:4 + N_COCO].T  # (N, 80)
+    probs = pred[4:4 + n_classes].T  # (N, n_classes)
     score = probs.max(axis=1)
     cand = np.nonzero(score >= cfg.score_threshold)[0]
     cxcywh = pred[:4, cand].T.astype(np.float64)
@@ -166,7 +172,7 @@ def decode_predictions(frame: int, pred: np.ndarray, protos: np.ndarray, lb: Let
     # NMS on the clipped frame boxes, so the kept set satisfies the IoU bound as stored.
     keep = nms_keep(boxes, score[cand], cfg.nms_iou, cfg.max_proposals)
     idx, boxes = cand[keep], boxes[keep]
-    coeffs = pred[4 + N_COCO:4 + N_COCO + N_COEFFS, idx].T
+    coeffs = pred[4 + n_classes:4 + n_classes + N_COEFFS, idx].T
     rles, kept = _masks(coeffs, protos, boxes, lb, frame_hw, cfg.mask_threshold)
     idx, boxes = idx[kept], boxes[kept]
     return Proposals(
@@ -174,8 +180,9 @@ def decode_predictions(frame: int, pred: np.ndarray, protos: np.ndarray, lb: Let
         rles=rles,
         boxes=boxes.astype(np.float32).reshape(-1, 4),
         objectness=score[idx].astype(np.float32),
-        posterior=class_posterior(probs[idx]) if len(idx) else np.zeros((0, N_CLASSES), np.float32),
-        proposer=[PROPOSER_NAME] * len(idx),
+        posterior=None if n_classes != N_COCO else
+        class_posterior(probs[idx]) if len(idx) else np.zeros((0, N_CLASSES), np.float32),
+        proposer=[name] * len(idx),
     )
 
 
