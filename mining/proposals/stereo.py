@@ -146,11 +146,13 @@ class SamplePoints:
     low: np.ndarray  # (hs, ws) bool: ground, or no depth
     growable: np.ndarray  # (hs, ws) bool: masks may grow over these (an object's feet)
     keep: np.ndarray  # (hs, ws) bool: object-height points
+    keep_low: np.ndarray  # (hs, ws) bool: object-height points and low standing surfaces (``low_min_height_m``)
     pv: np.ndarray  # (P,) sample rows of the kept points
     pu: np.ndarray  # (P,) sample columns
     pz: np.ndarray  # (P,) depth
     ph: np.ndarray  # (P,) height above the ground
     px: np.ndarray  # (P,) camera x
+    high: np.ndarray  # (P,) bool: object-height points (the rest are low standing surfaces, image regions only)
 
 
 def points_above_ground(depth: np.ndarray, ground: GroundPlane, calib: StereoCalib,
@@ -174,9 +176,26 @@ def points_above_ground(depth: np.ndarray, ground: GroundPlane, calib: StereoCal
     # Masks may grow over points down to a lower cut: the feet of an object lie below ground_cut.
     growable = (h >= cfg.grow_min_height_m + np.abs(h - d0) / z * sigma_z) & (h < cfg.max_height_m)
     keep = valid & ~low & (h < cfg.max_height_m) & (z < cfg.max_depth_m)
-    pv, pu = np.nonzero(keep)
+    keep_low = keep | low_standing(z, h, sigma_z, d0, bf, s, calib, cfg) if cfg.low_min_height_m > 0 else keep
+    pv, pu = np.nonzero(keep_low)
     pz, ph, px = z[pv, pu], h[pv, pu], x[pv, pu]
-    return SamplePoints(s, z, x, y, low, growable, keep, pv, pu, pz, ph, px)
+    return SamplePoints(s, z, x, y, low, growable, keep, keep_low, pv, pu, pz, ph, px, keep[pv, pu])
+
+
+def low_standing(z: np.ndarray, h: np.ndarray, sigma_z: np.ndarray, d0: float, bf: float, s: int,
+                 calib: StereoCalib, cfg: StereoProposerConfig) -> np.ndarray:
+    """Low points (under the ground cut, above ``low_min_height_m`` + 1 height std) on a surface
+    that stands up from the ground: down the image, the ground's disparity grows by
+    bf·|n_y|/(−d0)·step/fy per sample row (a plane's disparity is linear in the pixel), a
+    standing face's stays nearly constant. A point is standing where the disparity grows by
+    less than ``low_standing_ratio`` of the ground's rate over the rows above and below it
+    (a tyre, a kerb-side box, a fallen load; a plate lying flat is ground to stereo)."""
+    disparity = bf / z
+    ground_rate = bf * s / (calib.fy * abs(d0)) if d0 else np.inf  # disparity per sample row on the ground (n ≈ −y)
+    grad = np.full(z.shape, np.nan, np.float32)
+    grad[1:-1] = 0.5 * (disparity[2:] - disparity[:-2])
+    band = (h >= cfg.low_min_height_m + np.abs(h - d0) / z * sigma_z) & (h < cfg.max_height_m) & (z < cfg.max_depth_m)
+    return band & (np.abs(grad) < cfg.low_standing_ratio * ground_rate)
 
 
 @dataclass
@@ -194,7 +213,8 @@ def polar_grid(pts: SamplePoints, calib: StereoCalib, cfg: StereoProposerConfig)
     n_rows = int(range_index(np.array([cfg.max_depth_m]), bf, cfg)[0]) + 1
     rng = np.minimum(range_index(pts.pz, bf, cfg).astype(np.int64), n_rows - 1)
     cell = rng * n_cols + (pts.pu * s) // cfg.column_px
-    surface = np.bincount(cell, weights=s * s * pts.pz / (calib.fy * cfg.column_px), minlength=n_rows * n_cols)
+    surface = np.bincount(cell, weights=pts.high * s * s * pts.pz / (calib.fy * cfg.column_px),
+                          minlength=n_rows * n_cols)
     return PolarGrid(cell, surface.reshape(n_rows, n_cols))
 
 
@@ -203,21 +223,21 @@ def cluster_points(pts: SamplePoints, grid: PolarGrid, bf: float, cfg: StereoPro
     each distinct set once, in the order the groupings find them."""
     clusters: list[np.ndarray] = []
     seen: set[bytes] = set()
-    _grid_components(grid, cfg, seen, clusters)
+    _grid_components(pts, grid, cfg, seen, clusters)
     if cfg.height_band_m > 0:
         _height_band_components(pts, grid, cfg, seen, clusters)
     _image_regions(pts, bf, cfg, seen, clusters)
     return clusters
 
 
-def _grid_components(grid: PolarGrid, cfg: StereoProposerConfig, seen: set[bytes], clusters: list[np.ndarray]) -> None:
+def _grid_components(pts: SamplePoints, grid: PolarGrid, cfg: StereoProposerConfig, seen: set[bytes], clusters: list[np.ndarray]) -> None:
     """Connected components of occupied cells per ``scales`` entry (dilation only links cells)."""
     for mult, dr, dc in cfg.scales:
         occupied = (grid.surface >= cfg.min_density_m * mult).astype(np.uint8)
         links = cv2.dilate(occupied, np.ones((2 * dr + 1, 2 * dc + 1), np.uint8)) if dr or dc else occupied
         _, labels = cv2.connectedComponents(links, connectivity=8)
         labels[occupied == 0] = 0
-        _collect(labels.ravel()[grid.cell], labels.max(), cfg.min_points, seen, clusters)
+        _collect(labels.ravel()[grid.cell] * pts.high, labels.max(), cfg.min_points, seen, clusters)
 
 
 def _height_band_components(pts: SamplePoints, grid: PolarGrid, cfg: StereoProposerConfig, seen: set[bytes],
@@ -226,7 +246,7 @@ def _height_band_components(pts: SamplePoints, grid: PolarGrid, cfg: StereoPropo
     before a taller bush) part."""
     n_rows, n_cols = grid.surface.shape
     top = np.zeros(n_rows * n_cols)
-    np.maximum.at(top, grid.cell, pts.ph)
+    np.maximum.at(top, grid.cell, np.where(pts.high, pts.ph, 0.0))
     top = top.reshape(n_rows, n_cols)
     occupied = grid.surface >= cfg.min_density_m
     for offset in (0.0, 0.5 * cfg.height_band_m):
@@ -237,7 +257,7 @@ def _height_band_components(pts: SamplePoints, grid: PolarGrid, cfg: StereoPropo
             n_b, lab_b = cv2.connectedComponents((occupied & (band == b)).astype(np.uint8), connectivity=8)
             labels[lab_b > 0] = lab_b[lab_b > 0] + n_labels
             n_labels += n_b - 1
-        _collect(labels.ravel()[grid.cell], n_labels, cfg.min_points, seen, clusters)
+        _collect(labels.ravel()[grid.cell] * pts.high, n_labels, cfg.min_points, seen, clusters)
 
 
 def _image_regions(pts: SamplePoints, bf: float, cfg: StereoProposerConfig, seen: set[bytes],
@@ -246,14 +266,17 @@ def _image_regions(pts: SamplePoints, bf: float, cfg: StereoProposerConfig, seen
     hs, ws = pts.z.shape
     disparity = bf / pts.z
     for jump_px in cfg.image_jumps_px:
-        cut = np.zeros((hs, ws), bool)
-        gap = np.maximum(jump_px, cfg.border_gap_m * disparity * disparity / bf)
-        dx = np.abs(np.diff(disparity, axis=1)) > gap[:, 1:]
-        dy = np.abs(np.diff(disparity, axis=0)) > gap[1:, :]
-        cut[:, 1:] |= dx
-        cut[1:, :] |= dy
-        _, labels = cv2.connectedComponents((pts.keep & ~cut).astype(np.uint8), connectivity=4)
-        _collect(labels[pts.pv, pts.pu], labels.max(), cfg.min_points, seen, clusters)
+        for span in range(1, cfg.jump_span + 1):
+            cut = np.zeros((hs, ws), bool)
+            gap = np.maximum(jump_px, cfg.border_gap_m * disparity * disparity / bf)
+            # a jump over ``span`` samples: SGBM smears a depth edge over a few pixels
+            dx = np.abs(disparity[:, span:] - disparity[:, :-span]) > gap[:, span:]
+            dy = np.abs(disparity[span:, :] - disparity[:-span, :]) > gap[span:, :]
+            cut[:, span:] |= dx
+            cut[span:, :] |= dy
+            for keep in (pts.keep, pts.keep_low) if cfg.low_min_height_m > 0 else (pts.keep,):
+                _, labels = cv2.connectedComponents((keep & ~cut).astype(np.uint8), connectivity=4)
+                _collect(labels[pts.pv, pts.pu], labels.max(), cfg.min_points, seen, clusters)
 
 
 class ClusterStats(NamedTuple):
@@ -333,9 +356,10 @@ class Candidate(NamedTuple):
 
 
 def build_mask(st: ClusterStats, pts: SamplePoints, kernels: MaskKernels, calib: StereoCalib, d0: float,
-               cfg: StereoProposerConfig) -> Candidate:
-    """Step 4c: a cluster's mask (grown over its feet, closed, left-trimmed) and its
-    remaining cues (border contrast, fill)."""
+               cfg: StereoProposerConfig, image: np.ndarray | None = None) -> Candidate:
+    """Step 4c: a cluster's mask (grown over its feet, closed, left-trimmed, and with
+    ``image`` given and ``refine`` on, moved to the object's outline in the image:
+    :func:`refine_with_image`) and its remaining cues (border contrast, fill)."""
     s, bf, H, W = pts.step, calib.bf, calib.height, calib.width
     hs, ws = pts.z.shape
     pad, trim = kernels.pad, kernels.trim
@@ -387,9 +411,90 @@ def build_mask(st: ClusterStats, pts: SamplePoints, kernels: MaskKernels, calib:
     # Full-resolution crop: each sample stands for an s × s block.
     y0, x0 = (r0 + int(rows[0])) * s, (c0 + int(cols[0])) * s
     crop = np.repeat(np.repeat(mask.astype(bool), s, axis=0), s, axis=1)[: H - y0, : W - x0]
+    if image is not None and cfg.refine != "none" and 0 < crop.sum() <= cfg.refine_max_area_px:
+        refine = refine_by_colour if cfg.refine == "colour" else refine_with_image
+        crop, x0, y0 = refine(crop, x0, y0, image, cfg)
     return Candidate(crop, x0, y0, (x0, y0, x0 + crop.shape[1], y0 + crop.shape[0]),
                      (contrast, fill, max(width, length), top, idx.size),
                      (xq[1], float(np.sort(pts.y[pts.pv[sub], pts.pu[sub]])[q[1]]), zq[1]), (width, top, length))
+
+
+def refine_with_image(crop: np.ndarray, x0: int, y0: int, image: np.ndarray,
+                      cfg: StereoProposerConfig) -> tuple[np.ndarray, int, int]:
+    """A stereo mask moved to the object's outline in the image: OpenCV's GrabCut (colour
+    GMMs of object and background, a graph cut along image edges) initialised from the
+    mask. The mask is *probable* object, a band of ``refine_band_px`` around it *probable*
+    background (what stereo bleeding may have missed or added lies in mask and band), the
+    rest of the crop certain background. Returns the refined (crop, x0, y0); the stereo
+    mask itself where the cut keeps less than ``refine_min_keep`` of it or adds more than
+    its own area (a colour model that failed, not an outline)."""
+    H, W = image.shape[:2]
+    b = cfg.refine_band_px
+    h, w = crop.shape
+    X0, Y0 = max(0, x0 - 2 * b), max(0, y0 - 2 * b)
+    X1, Y1 = min(W, x0 + w + 2 * b), min(H, y0 + h + 2 * b)
+    m = np.zeros((Y1 - Y0, X1 - X0), np.uint8)
+    m[y0 - Y0: y0 - Y0 + h, x0 - X0: x0 - X0 + w] = crop
+    band = cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * b + 1, 2 * b + 1))) > 0
+    gc = np.full(m.shape, cv2.GC_BGD, np.uint8)
+    gc[band] = cv2.GC_PR_BGD
+    gc[m > 0] = cv2.GC_PR_FGD
+    bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
+    try:
+        cv2.grabCut(np.ascontiguousarray(image[Y0:Y1, X0:X1]), gc, None, bgd, fgd, cfg.refine_iterations,
+                    cv2.GC_INIT_WITH_MASK)
+    except cv2.error:  # a colour model that cannot be fit (too few pixels of one side)
+        return crop, x0, y0
+    out = (gc == cv2.GC_FGD) | (gc == cv2.GC_PR_FGD)
+    n_in, n_out = int(m.sum()), int(out.sum())
+    kept = int((out & (m > 0)).sum())
+    if kept < cfg.refine_min_keep * n_in or n_out > 2 * n_in:
+        return crop, x0, y0
+    rows, cols = np.nonzero(out.any(axis=1))[0], np.nonzero(out.any(axis=0))[0]
+    out = out[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]
+    return out, X0 + int(cols[0]), Y0 + int(rows[0])
+
+
+def colour_bins(image: np.ndarray, bits: int) -> np.ndarray:
+    """(H, W) int32 colour bin of each pixel: the top ``bits`` bits of each RGB channel."""
+    q = (image >> (8 - bits)).astype(np.int32)
+    return (q[..., 0] << (2 * bits)) | (q[..., 1] << bits) | q[..., 2]
+
+
+def refine_by_colour(crop: np.ndarray, x0: int, y0: int, bins: np.ndarray,
+                     cfg: StereoProposerConfig) -> tuple[np.ndarray, int, int]:
+    """A stereo mask moved to the object's outline by a colour model seeded by the mask:
+    colour histograms of the mask and of a ring around it (``refine_band_px`` to twice that
+    outside), and each pixel of the mask and its band goes to the side whose histogram
+    holds its colour more often (Bayes with equal priors, add-one smoothing). ``bins`` is
+    :func:`colour_bins` of the frame. The stereo mask stays where the colours do not tell
+    object from background (less than ``refine_min_keep`` of it kept, or more than twice its
+    area), cheap enough (a bincount per mask) to run on every small mask."""
+    H, W = bins.shape
+    b = cfg.refine_band_px
+    h, w = crop.shape
+    X0, Y0 = max(0, x0 - 2 * b), max(0, y0 - 2 * b)
+    X1, Y1 = min(W, x0 + w + 2 * b), min(H, y0 + h + 2 * b)
+    m = np.zeros((Y1 - Y0, X1 - X0), np.uint8)
+    m[y0 - Y0: y0 - Y0 + h, x0 - X0: x0 - X0 + w] = crop
+    near = cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * b + 1, 2 * b + 1))) > 0
+    far = cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (4 * b + 1, 4 * b + 1))) > 0
+    c = bins[Y0:Y1, X0:X1]
+    n_bins = 1 << (3 * cfg.refine_colour_bits)
+    inside = m > 0
+    ring = far & ~near
+    if not ring.any():
+        return crop, x0, y0
+    hf = np.bincount(c[inside], minlength=n_bins) + 1.0
+    hb = np.bincount(c[ring], minlength=n_bins) + 1.0
+    fg = (hf / hf.sum() > hb / hb.sum())[c] & near
+    fg = cv2.medianBlur(fg.astype(np.uint8), 3) > 0  # single pixels of a shared colour are noise
+    n_in, n_out = int(inside.sum()), int(fg.sum())
+    if (fg & inside).sum() < cfg.refine_min_keep * n_in or n_out > 2 * n_in or n_out == 0:
+        return crop, x0, y0
+    rows, cols = np.nonzero(fg.any(axis=1))[0], np.nonzero(fg.any(axis=0))[0]
+    fg = fg[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]
+    return fg, X0 + int(cols[0]), Y0 + int(rows[0])
 
 
 def cues_from_raw(raw: np.ndarray, cfg: StereoProposerConfig) -> np.ndarray:
@@ -462,7 +567,8 @@ class StereoProposer:
         chosen = first_masks(stats, cfg)
         t3 = time.perf_counter()
         kernels = mask_kernels(cfg)
-        candidates = [build_mask(stats[i], pts, kernels, calib, geometry.ground.d, cfg) for i in chosen]
+        image = colour_bins(frame.left, cfg.refine_colour_bits) if cfg.refine == "colour" else frame.left
+        candidates = [build_mask(stats[i], pts, kernels, calib, geometry.ground.d, cfg, image) for i in chosen]
         t4 = time.perf_counter()
         proposals, cues = score_and_encode(frame.index, candidates, calib, cfg)
         timings = {"points": 1e3 * (t1 - t0), "cluster": 1e3 * (t2 - t1), "stats": 1e3 * (t3 - t2),
