@@ -291,6 +291,7 @@ class ClusterStats(NamedTuple):
     width: float  # across x, metres
     length: float  # along z less the spread stereo noise alone makes, metres
     box: tuple  # sample-grid box of the points (x2, y2 exclusive)
+    support: float  # the support cue's raw value: points, or their visible surface in points at ``support_ref_depth_m``
 
 
 def cluster_stats(clusters: list[np.ndarray], pts: SamplePoints, bf: float,
@@ -309,7 +310,11 @@ def cluster_stats(clusters: list[np.ndarray], pts: SamplePoints, bf: float,
             continue
         cv_, cu_ = pts.pv[idx], pts.pu[idx]
         box = (cu_.min(), cv_.min(), cu_.max() + 1, cv_.max() + 1)
-        stats.append(ClusterStats(idx, sub, q, zq, xq, float(hs_[q[2]]), width, length, box))
+        # A far object has fewer points for the same surface: with a reference depth, support
+        # counts its visible surface (each point stands for (step·z/f)² m²) in points at that depth.
+        support = float(idx.size) if cfg.support_ref_depth_m <= 0 else \
+            float(np.sum(np.maximum(pts.pz[idx], cfg.support_ref_depth_m) ** 2)) / cfg.support_ref_depth_m ** 2
+        stats.append(ClusterStats(idx, sub, q, zq, xq, float(hs_[q[2]]), width, length, box, support))
     return stats
 
 
@@ -318,7 +323,7 @@ def first_masks(stats: list[ClusterStats], cfg: StereoProposerConfig) -> np.ndar
     masks are built: NMS on the point boxes, ranked by the cues known so far (border
     contrast taken as 1/2 for all); at most ``mask_budget·max_proposals``."""
     pre = np.array([(0.5, st.idx.size / ((st.box[2] - st.box[0]) * (st.box[3] - st.box[1])),
-                     max(st.width, st.length), st.top, st.idx.size) for st in stats])
+                     max(st.width, st.length), st.top, st.support) for st in stats])
     return nms_keep(np.array([st.box for st in stats], np.float64), objectness_from_cues(cues_from_raw(pre, cfg), cfg),
                     cfg.nms_iou, int(cfg.mask_budget * cfg.max_proposals))
 
@@ -356,14 +361,13 @@ class Candidate(NamedTuple):
 
 
 def build_mask(st: ClusterStats, pts: SamplePoints, kernels: MaskKernels, calib: StereoCalib, d0: float,
-               cfg: StereoProposerConfig, image: np.ndarray | None = None) -> Candidate:
-    """Step 4c: a cluster's mask (grown over its feet, closed, left-trimmed, and with
-    ``image`` given and ``refine`` on, moved to the object's outline in the image:
-    :func:`refine_with_image`) and its remaining cues (border contrast, fill)."""
+               cfg: StereoProposerConfig) -> Candidate:
+    """Step 4c: a cluster's mask (grown over its feet, closed, left-trimmed) and its
+    remaining cues (border contrast, fill)."""
     s, bf, H, W = pts.step, calib.bf, calib.height, calib.width
     hs, ws = pts.z.shape
     pad, trim = kernels.pad, kernels.trim
-    idx, sub, q, zq, xq, top, width, length, _ = st
+    idx, sub, q, zq, xq, top, width, length, _, support = st
     cv_, cu_, cz = pts.pv[idx], pts.pu[idx], pts.pz[idx]
     r0, c0 = max(0, cv_.min() - pad), max(0, cu_.min() - pad)
     r1, c1 = min(hs, cv_.max() + pad + 1), min(ws, cu_.max() + pad + 1)
@@ -411,11 +415,8 @@ def build_mask(st: ClusterStats, pts: SamplePoints, kernels: MaskKernels, calib:
     # Full-resolution crop: each sample stands for an s × s block.
     y0, x0 = (r0 + int(rows[0])) * s, (c0 + int(cols[0])) * s
     crop = np.repeat(np.repeat(mask.astype(bool), s, axis=0), s, axis=1)[: H - y0, : W - x0]
-    if image is not None and cfg.refine != "none" and 0 < crop.sum() <= cfg.refine_max_area_px:
-        refine = refine_by_colour if cfg.refine == "colour" else refine_with_image
-        crop, x0, y0 = refine(crop, x0, y0, image, cfg)
     return Candidate(crop, x0, y0, (x0, y0, x0 + crop.shape[1], y0 + crop.shape[0]),
-                     (contrast, fill, max(width, length), top, idx.size),
+                     (contrast, fill, max(width, length), top, support),
                      (xq[1], float(np.sort(pts.y[pts.pv[sub], pts.pu[sub]])[q[1]]), zq[1]), (width, top, length))
 
 
@@ -453,6 +454,28 @@ def refine_with_image(crop: np.ndarray, x0: int, y0: int, image: np.ndarray,
     rows, cols = np.nonzero(out.any(axis=1))[0], np.nonzero(out.any(axis=0))[0]
     out = out[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]
     return out, X0 + int(cols[0]), Y0 + int(rows[0])
+
+
+def refine_candidates(candidates: list[Candidate], image: np.ndarray, cfg: StereoProposerConfig) -> list[Candidate]:
+    """Step 4d: small masks (≤ ``refine_max_area_px``) moved to the object's outline in the
+    image (``refine``: :func:`refine_by_colour` or :func:`refine_with_image`), in place of the
+    stereo mask or, with ``refine_keep_stereo``, beside it (both hypotheses proposed). The
+    cues and 3D rows stay the stereo cluster's."""
+    if cfg.refine == "none":
+        return candidates
+    bins = colour_bins(image, cfg.refine_colour_bits) if cfg.refine == "colour" else image
+    refine = refine_by_colour if cfg.refine == "colour" else refine_with_image
+    out = []
+    for c in candidates:
+        area = int(c.crop.sum())
+        if 0 < area <= cfg.refine_max_area_px:
+            crop, x0, y0 = refine(c.crop, c.x0, c.y0, bins, cfg)
+            if crop is not c.crop:
+                if cfg.refine_keep_stereo:
+                    out.append(c)
+                c = c._replace(crop=crop, x0=x0, y0=y0, box=(x0, y0, x0 + crop.shape[1], y0 + crop.shape[0]))
+        out.append(c)
+    return out
 
 
 def colour_bins(image: np.ndarray, bits: int) -> np.ndarray:
@@ -567,8 +590,8 @@ class StereoProposer:
         chosen = first_masks(stats, cfg)
         t3 = time.perf_counter()
         kernels = mask_kernels(cfg)
-        image = colour_bins(frame.left, cfg.refine_colour_bits) if cfg.refine == "colour" else frame.left
-        candidates = [build_mask(stats[i], pts, kernels, calib, geometry.ground.d, cfg, image) for i in chosen]
+        candidates = [build_mask(stats[i], pts, kernels, calib, geometry.ground.d, cfg) for i in chosen]
+        candidates = refine_candidates(candidates, frame.left, cfg)
         t4 = time.perf_counter()
         proposals, cues = score_and_encode(frame.index, candidates, calib, cfg)
         timings = {"points": 1e3 * (t1 - t0), "cluster": 1e3 * (t2 - t1), "stats": 1e3 * (t3 - t2),

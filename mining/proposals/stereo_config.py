@@ -59,12 +59,14 @@ class StereoProposerConfig:
     refine_max_area_px: Count = 4000  # ours: only masks up to this area are refined (larger ones lose little IoU to a border pixel; GrabCut's cost grows with the area)
     refine_band_px: Count = 4  # ours: the band around the mask GrabCut may give to the object (≈ the bleeding of left-reference stereo at half resolution)
     refine_iterations: Count = 2  # ours: GrabCut iterations
+    refine_keep_stereo: bool = False  # ours: also keep the stereo mask beside its refined one (both proposed)
     refine_min_keep: Fraction = 0.3  # ours: a cut keeping less of the stereo mask is a failed colour model: the stereo mask stays
     # Objectness = sigmoid(bias + Σ weight·cue); every cue lies in [0, 1], higher = more object-like,
     # and every weight is ≥ 0, so objectness never decreases when a cue increases.
     plausible_extent_m: Positive = 5.0  # ours: footprints up to this long are fully plausible (cars, people, bins)
     plausible_top_m: tuple[float, float] = (0.4, 2.5)  # ours: object tops in this height range are fully plausible
     support_points: Count = 400  # ours: clusters with this many sample points are fully supported
+    support_ref_depth_m: float = 0.0  # ours: > 0: support counts a cluster's visible surface, in sample points at this depth (nearer points count as at it), so a far object is not ranked out for having fewer points; 0 = points (before issue 29)
     border_gap_m: float = 0.5  # ours: a border pixel this much farther than the object (or more than the noise) is background
     # Weights chosen on KITTI 0005 frames 0–15 (cars only: support, fill and top separate them from
     # clutter best; the border contrast less, as parked cars touch bushes) and checked on synthetic
