@@ -188,12 +188,14 @@ def low_standing(z: np.ndarray, h: np.ndarray, sigma_z: np.ndarray, d0: float, b
     that stands up from the ground: down the image, the ground's disparity grows by
     bf·|n_y|/(−d0)·step/fy per sample row (a plane's disparity is linear in the pixel), a
     standing face's stays nearly constant. A point is standing where the disparity grows by
-    less than ``low_standing_ratio`` of the ground's rate over the rows above and below it
+    less than ``low_standing_ratio`` of the ground's rate to the row above or below it
     (a tyre, a kerb-side box, a fallen load; a plate lying flat is ground to stereo)."""
     disparity = bf / z
     ground_rate = bf * s / (calib.fy * abs(d0)) if d0 else np.inf  # disparity per sample row on the ground (n ≈ −y)
+    # the smaller one-sided step: a face two sample rows tall already has one neighbour on it
+    step = np.abs(np.diff(disparity, axis=0))
     grad = np.full(z.shape, np.nan, np.float32)
-    grad[1:-1] = 0.5 * (disparity[2:] - disparity[:-2])
+    grad[1:-1] = np.fmin(step[1:], step[:-1])
     band = (h >= cfg.low_min_height_m + np.abs(h - d0) / z * sigma_z) & (h < cfg.max_height_m) & (z < cfg.max_depth_m)
     return band & (np.abs(grad) < cfg.low_standing_ratio * ground_rate)
 
