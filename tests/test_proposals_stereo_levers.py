@@ -103,7 +103,7 @@ def test_low_standing_object_is_proposed_only_with_the_low_lever():
     depth = ground_depth()
     truth = standing_box(depth, 6.0, (-0.6, 0.6), 0.2)
     frame, geom = frame_and_geometry(depth)
-    off = StereoProposer(StereoProposerConfig())(frame, geom)
+    off = StereoProposer(StereoProposerConfig(low_min_height_m=0.0))(frame, geom)
     on = StereoProposer(StereoProposerConfig(low_min_height_m=0.04))(frame, geom)
     assert best_iou(off, truth) < 0.5
     assert best_iou(on, truth) >= 0.5
@@ -117,7 +117,7 @@ def test_far_object_outranks_a_near_small_one_when_support_counts_surface():
     far = standing_box(depth, 40.0, (-4.0, -2.4), 1.2)
     near = standing_box(depth, 8.0, (1.0, 1.5), 0.5)
     frame, geom = frame_and_geometry(depth)
-    base = StereoProposerConfig(max_proposals=1, mask_budget=1.0, min_points=8)
+    base = StereoProposerConfig(max_proposals=1, mask_budget=1.0, support_ref_depth_m=0.0)
     by_points = StereoProposer(base)(frame, geom)
     by_surface = StereoProposer(dataclasses.replace(base, support_ref_depth_m=10.0))(frame, geom)
     assert len(by_points) == 1 and best_iou(by_points, near) >= 0.5

@@ -37,6 +37,12 @@ Per frame:
    foreground disparity over the background it occludes, to its left), and run-length encoded from its crop (``mining.masks.crop_rle``). ``position`` is the
    median of the cluster's points (camera metres), ``size`` = (width across x, top height
    above the ground, length along z less the spread stereo noise alone makes).
+   Small masks (≤ ``refine_max_area_px``) are then moved to the object's outline in the image
+   (``refine``, issue 29): a colour model seeded by the mask (histograms of the mask vs a ring
+   around it, :func:`refine_by_colour`) or OpenCV's GrabCut (:func:`refine_with_image`), in
+   :func:`refine_candidates`. With ``low_min_height_m`` > 0, low points whose surface stands up
+   from the ground (:func:`low_standing`) join the image-region grouping; with
+   ``support_ref_depth_m`` > 0 the support cue counts visible surface instead of points.
 5. **Objectness** = sigmoid(bias + Σ wₖ·cueₖ), every cue in [0, 1] with higher meaning
    more object-like and every weight ≥ 0, so objectness is monotone non-decreasing in
    each cue (:func:`objectness_from_cues`). Cues, in ``CUES`` order: border contrast (the
@@ -45,8 +51,8 @@ Per frame:
    plausible top height, point support.
 
 Each step is a function below: :func:`points_above_ground` (1), :func:`polar_grid` (2),
-:func:`cluster_points` (3), :func:`cluster_stats`, :func:`first_masks` and :func:`build_mask`
-(4), :func:`score_and_encode` (5). ``StereoProposer.propose`` runs them and returns the
+:func:`cluster_points` (3), :func:`cluster_stats`, :func:`first_masks`, :func:`build_mask` and
+:func:`refine_candidates` (4), :func:`score_and_encode` (5). ``StereoProposer.propose`` runs them and returns the
 proposals with their cues and step timings (:class:`StereoResult`); calling the proposer
 returns the proposals alone, the shape every proposer has.
 

@@ -44,7 +44,7 @@ class StereoProposerConfig:
     height_band_m: float = 1.0  # ours: extra clusters within bands of cell top height (two offsets); 0 = off (KITTI 0005 car R@all 0.77 → 0.33)
     image_jumps_px: tuple[float, ...] = (1.0,)  # ours: image regions are cut where neighbouring disparities differ by more (≈ 2 noise stds, or border_gap_m); () = off
     jump_span: Count = 1  # ours: image regions are also cut at jumps over 2 … jump_span samples (SGBM smears a depth edge over a few pixels); 1 = neighbours only (before issue 29)
-    min_points: Count = 12  # ours: clusters with fewer sample points are noise
+    min_points: Count = 8  # ours: clusters with fewer sample points are noise (12 before issue 29; 8: far objects, with support_ref_depth_m and mask_budget 1.5 unknown proposed +0.7 points on seeds 0000–0006)
     stats_points: Count = 256  # ours: a cluster's percentiles (extent, top) come from about this many of its points
     max_extent_m: Positive = 10.0  # ours: footprints longer than this are structures (walls, hedges), not objects
     # Image masks
@@ -54,10 +54,10 @@ class StereoProposerConfig:
     mask_close_px: Count = 7  # ours: closing kernel (full-resolution px) that fills stereo holes in a mask
     # Image refinement (issue 29): stereo masks bleed at their borders (a 20 px crate loses IoU 0.5 to
     # two pixels), so small masks are moved to the object's outline in the image by GrabCut.
-    refine: Annotated[str, OneOf(("none", "colour", "grabcut"))] = "none"  # ours: "colour" (histograms of mask vs ring), "grabcut" (OpenCV's, ~4 ms a mask) or "none" (the stereo mask as is, before issue 29)
+    refine: Annotated[str, OneOf(("none", "colour", "grabcut"))] = "colour"  # ours: "colour" (histograms of mask vs ring; unknown proposed 0.28 → 0.46 stereo, 0.50 → 0.60 onnx+stereo on seeds 0000–0006, every seed up), "grabcut" (OpenCV's, ~4 ms a mask, +0.01) or "none" (the stereo mask as is, before issue 29)
     refine_colour_bits: Count = 3  # ours: colour histograms of 2^(3·bits) bins (3: 512, from 8×8×8 RGB levels)
     refine_max_area_px: Count = 4000  # ours: only masks up to this area are refined (larger ones lose little IoU to a border pixel; GrabCut's cost grows with the area)
-    refine_band_px: Count = 4  # ours: the band around the mask GrabCut may give to the object (≈ the bleeding of left-reference stereo at half resolution)
+    refine_band_px: Count = 4  # ours: the band around the mask the refinement may give to the object (the colour ring lies outside it, to twice this) (≈ the bleeding of left-reference stereo at half resolution)
     refine_iterations: Count = 2  # ours: GrabCut iterations
     refine_keep_stereo: bool = False  # ours: also keep the stereo mask beside its refined one (both proposed)
     refine_min_keep: Fraction = 0.3  # ours: a cut keeping less of the stereo mask is a failed colour model: the stereo mask stays
@@ -66,7 +66,7 @@ class StereoProposerConfig:
     plausible_extent_m: Positive = 5.0  # ours: footprints up to this long are fully plausible (cars, people, bins)
     plausible_top_m: tuple[float, float] = (0.4, 2.5)  # ours: object tops in this height range are fully plausible
     support_points: Count = 400  # ours: clusters with this many sample points are fully supported
-    support_ref_depth_m: float = 0.0  # ours: > 0: support counts a cluster's visible surface, in sample points at this depth (nearer points count as at it), so a far object is not ranked out for having fewer points; 0 = points (before issue 29)
+    support_ref_depth_m: float = 10.0  # ours: > 0: support counts a cluster's visible surface, in sample points at this depth (nearer points count as at it), so a far object is not ranked out for having fewer points (10 m: unknown 40–60 m proposed 0.46 → 0.53 with the other far settings, seeds 0000–0006; 20 m: 0.52); 0 = points (before issue 29)
     border_gap_m: float = 0.5  # ours: a border pixel this much farther than the object (or more than the noise) is background
     # Weights chosen on KITTI 0005 frames 0–15 (cars only: support, fill and top separate them from
     # clutter best; the border contrast less, as parked cars touch bushes) and checked on synthetic
@@ -79,4 +79,4 @@ class StereoProposerConfig:
     w_support: float = 2.0  # ours: enough stereo points (4.0 ranks KITTI cars a bit higher, small unknown objects lower)
     nms_iou: Fraction = 0.9  # ours: box IoU at which a lower-scoring near-duplicate from another scale goes
     max_proposals: Count = 100  # ours: at most this many per frame, best objectness first
-    mask_budget: float = 1.0  # ours: masks are built for at most this × max_proposals clusters, best cheap cues first
+    mask_budget: float = 1.5  # ours: masks are built for at most this × max_proposals clusters, best cheap cues first (1.0 before issue 29; 1.5: unknown proposed 0.617 → 0.644 onnx+stereo with the other issue-29 settings, seeds 0000–0006)
