@@ -63,6 +63,7 @@ returned in ``StereoResult.reason`` (the caller also has ``geometry.ground.reaso
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass
@@ -444,7 +445,7 @@ def refine_with_image(crop: np.ndarray, x0: int, y0: int, image: np.ndarray,
     X1, Y1 = min(W, x0 + w + 2 * b), min(H, y0 + h + 2 * b)
     m = np.zeros((Y1 - Y0, X1 - X0), np.uint8)
     m[y0 - Y0: y0 - Y0 + h, x0 - X0: x0 - X0 + w] = crop
-    band = cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * b + 1, 2 * b + 1))) > 0
+    band = cv2.dilate(m, _disc(b)) > 0
     gc = np.full(m.shape, cv2.GC_BGD, np.uint8)
     gc[band] = cv2.GC_PR_BGD
     gc[m > 0] = cv2.GC_PR_FGD
@@ -486,6 +487,12 @@ def refine_candidates(candidates: list[Candidate], image: np.ndarray, cfg: Stere
     return out
 
 
+@functools.lru_cache(maxsize=8)
+def _disc(radius: int) -> np.ndarray:
+    """An elliptic structuring element of this radius (made once: the refinement runs per mask)."""
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+
+
 def colour_bins(image: np.ndarray, bits: int) -> np.ndarray:
     """(H, W) int32 colour bin of each pixel: the top ``bits`` bits of each RGB channel."""
     q = (image >> (8 - bits)).astype(np.int32)
@@ -508,8 +515,8 @@ def refine_by_colour(crop: np.ndarray, x0: int, y0: int, bins: np.ndarray,
     X1, Y1 = min(W, x0 + w + 2 * b), min(H, y0 + h + 2 * b)
     m = np.zeros((Y1 - Y0, X1 - X0), np.uint8)
     m[y0 - Y0: y0 - Y0 + h, x0 - X0: x0 - X0 + w] = crop
-    near = cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * b + 1, 2 * b + 1))) > 0
-    far = cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (4 * b + 1, 4 * b + 1))) > 0
+    near = cv2.dilate(m, _disc(b)) > 0
+    far = cv2.dilate(m, _disc(2 * b)) > 0
     c = bins[Y0:Y1, X0:X1]
     n_bins = 1 << (3 * cfg.refine_colour_bits)
     inside = m > 0

@@ -56,7 +56,7 @@ class StereoProposerConfig:
     # two pixels), so small masks are moved to the object's outline in the image by GrabCut.
     refine: Annotated[str, OneOf(("none", "colour", "grabcut"))] = "colour"  # ours: "colour" (histograms of mask vs ring; unknown proposed 0.28 → 0.46 stereo, 0.50 → 0.60 onnx+stereo on seeds 0000–0006, every seed up), "grabcut" (OpenCV's, ~4 ms a mask, +0.01) or "none" (the stereo mask as is, before issue 29)
     refine_colour_bits: Count = 3  # ours: colour histograms of 2^(3·bits) bins (3: 512, from 8×8×8 RGB levels)
-    refine_max_area_px: Count = 4000  # ours: only masks up to this area are refined (larger ones lose little IoU to a border pixel; GrabCut's cost grows with the area)
+    refine_max_area_px: Count = 2000  # ours: only masks up to this area are refined (larger ones lose little IoU to a border pixel); 2000 / 4000 / 8000 px: the same unknown proposed (0.644 onnx+stereo, seeds 0000–0006), 2000 the cheapest
     refine_band_px: Count = 4  # ours: the band around the mask the refinement may give to the object (the colour ring lies outside it, to twice this) (≈ the bleeding of left-reference stereo at half resolution)
     refine_iterations: Count = 2  # ours: GrabCut iterations
     refine_keep_stereo: bool = False  # ours: also keep the stereo mask beside its refined one (both proposed)
