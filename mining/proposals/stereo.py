@@ -37,6 +37,12 @@ Per frame:
    foreground disparity over the background it occludes, to its left), and run-length encoded from its crop (``mining.masks.crop_rle``). ``position`` is the
    median of the cluster's points (camera metres), ``size`` = (width across x, top height
    above the ground, length along z less the spread stereo noise alone makes).
+   Small masks (≤ ``refine_max_area_px``) are then moved to the object's outline in the image
+   (``refine``, issue 29): a colour model seeded by the mask (histograms of the mask vs a ring
+   around it, :func:`refine_by_colour`) or OpenCV's GrabCut (:func:`refine_with_image`), in
+   :func:`refine_candidates`. With ``low_min_height_m`` > 0, low points whose surface stands up
+   from the ground (:func:`low_standing`) join the image-region grouping; with
+   ``support_ref_depth_m`` > 0 the support cue counts visible surface instead of points.
 5. **Objectness** = sigmoid(bias + Σ wₖ·cueₖ), every cue in [0, 1] with higher meaning
    more object-like and every weight ≥ 0, so objectness is monotone non-decreasing in
    each cue (:func:`objectness_from_cues`). Cues, in ``CUES`` order: border contrast (the
@@ -45,8 +51,8 @@ Per frame:
    plausible top height, point support.
 
 Each step is a function below: :func:`points_above_ground` (1), :func:`polar_grid` (2),
-:func:`cluster_points` (3), :func:`cluster_stats`, :func:`first_masks` and :func:`build_mask`
-(4), :func:`score_and_encode` (5). ``StereoProposer.propose`` runs them and returns the
+:func:`cluster_points` (3), :func:`cluster_stats`, :func:`first_masks`, :func:`build_mask` and
+:func:`refine_candidates` (4), :func:`score_and_encode` (5). ``StereoProposer.propose`` runs them and returns the
 proposals with their cues and step timings (:class:`StereoResult`); calling the proposer
 returns the proposals alone, the shape every proposer has.
 
@@ -57,6 +63,7 @@ returned in ``StereoResult.reason`` (the caller also has ``geometry.ground.reaso
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass
@@ -146,11 +153,13 @@ class SamplePoints:
     low: np.ndarray  # (hs, ws) bool: ground, or no depth
     growable: np.ndarray  # (hs, ws) bool: masks may grow over these (an object's feet)
     keep: np.ndarray  # (hs, ws) bool: object-height points
+    keep_low: np.ndarray  # (hs, ws) bool: object-height points and low standing surfaces (``low_min_height_m``)
     pv: np.ndarray  # (P,) sample rows of the kept points
     pu: np.ndarray  # (P,) sample columns
     pz: np.ndarray  # (P,) depth
     ph: np.ndarray  # (P,) height above the ground
     px: np.ndarray  # (P,) camera x
+    high: np.ndarray  # (P,) bool: object-height points (the rest are low standing surfaces, image regions only)
 
 
 def points_above_ground(depth: np.ndarray, ground: GroundPlane, calib: StereoCalib,
@@ -174,9 +183,28 @@ def points_above_ground(depth: np.ndarray, ground: GroundPlane, calib: StereoCal
     # Masks may grow over points down to a lower cut: the feet of an object lie below ground_cut.
     growable = (h >= cfg.grow_min_height_m + np.abs(h - d0) / z * sigma_z) & (h < cfg.max_height_m)
     keep = valid & ~low & (h < cfg.max_height_m) & (z < cfg.max_depth_m)
-    pv, pu = np.nonzero(keep)
+    keep_low = keep | low_standing(z, h, sigma_z, d0, bf, s, calib, cfg) if cfg.low_min_height_m > 0 else keep
+    pv, pu = np.nonzero(keep_low)
     pz, ph, px = z[pv, pu], h[pv, pu], x[pv, pu]
-    return SamplePoints(s, z, x, y, low, growable, keep, pv, pu, pz, ph, px)
+    return SamplePoints(s, z, x, y, low, growable, keep, keep_low, pv, pu, pz, ph, px, keep[pv, pu])
+
+
+def low_standing(z: np.ndarray, h: np.ndarray, sigma_z: np.ndarray, d0: float, bf: float, s: int,
+                 calib: StereoCalib, cfg: StereoProposerConfig) -> np.ndarray:
+    """Low points (under the ground cut, above ``low_min_height_m`` + 1 height std) on a surface
+    that stands up from the ground: down the image, the ground's disparity grows by
+    bf·|n_y|/(−d0)·step/fy per sample row (a plane's disparity is linear in the pixel), a
+    standing face's stays nearly constant. A point is standing where the disparity grows by
+    less than ``low_standing_ratio`` of the ground's rate to the row above or below it
+    (a tyre, a kerb-side box, a fallen load; a plate lying flat is ground to stereo)."""
+    disparity = bf / z
+    ground_rate = bf * s / (calib.fy * abs(d0)) if d0 else np.inf  # disparity per sample row on the ground (n ≈ −y)
+    # the smaller one-sided step: a face two sample rows tall already has one neighbour on it
+    step = np.abs(np.diff(disparity, axis=0))
+    grad = np.full(z.shape, np.nan, np.float32)
+    grad[1:-1] = np.fmin(step[1:], step[:-1])
+    band = (h >= cfg.low_min_height_m + np.abs(h - d0) / z * sigma_z) & (h < cfg.max_height_m) & (z < cfg.max_depth_m)
+    return band & (np.abs(grad) < cfg.low_standing_ratio * ground_rate)
 
 
 @dataclass
@@ -194,7 +222,8 @@ def polar_grid(pts: SamplePoints, calib: StereoCalib, cfg: StereoProposerConfig)
     n_rows = int(range_index(np.array([cfg.max_depth_m]), bf, cfg)[0]) + 1
     rng = np.minimum(range_index(pts.pz, bf, cfg).astype(np.int64), n_rows - 1)
     cell = rng * n_cols + (pts.pu * s) // cfg.column_px
-    surface = np.bincount(cell, weights=s * s * pts.pz / (calib.fy * cfg.column_px), minlength=n_rows * n_cols)
+    surface = np.bincount(cell, weights=pts.high * s * s * pts.pz / (calib.fy * cfg.column_px),
+                          minlength=n_rows * n_cols)
     return PolarGrid(cell, surface.reshape(n_rows, n_cols))
 
 
@@ -203,21 +232,21 @@ def cluster_points(pts: SamplePoints, grid: PolarGrid, bf: float, cfg: StereoPro
     each distinct set once, in the order the groupings find them."""
     clusters: list[np.ndarray] = []
     seen: set[bytes] = set()
-    _grid_components(grid, cfg, seen, clusters)
+    _grid_components(pts, grid, cfg, seen, clusters)
     if cfg.height_band_m > 0:
         _height_band_components(pts, grid, cfg, seen, clusters)
     _image_regions(pts, bf, cfg, seen, clusters)
     return clusters
 
 
-def _grid_components(grid: PolarGrid, cfg: StereoProposerConfig, seen: set[bytes], clusters: list[np.ndarray]) -> None:
+def _grid_components(pts: SamplePoints, grid: PolarGrid, cfg: StereoProposerConfig, seen: set[bytes], clusters: list[np.ndarray]) -> None:
     """Connected components of occupied cells per ``scales`` entry (dilation only links cells)."""
     for mult, dr, dc in cfg.scales:
         occupied = (grid.surface >= cfg.min_density_m * mult).astype(np.uint8)
         links = cv2.dilate(occupied, np.ones((2 * dr + 1, 2 * dc + 1), np.uint8)) if dr or dc else occupied
         _, labels = cv2.connectedComponents(links, connectivity=8)
         labels[occupied == 0] = 0
-        _collect(labels.ravel()[grid.cell], labels.max(), cfg.min_points, seen, clusters)
+        _collect(labels.ravel()[grid.cell] * pts.high, labels.max(), cfg.min_points, seen, clusters)
 
 
 def _height_band_components(pts: SamplePoints, grid: PolarGrid, cfg: StereoProposerConfig, seen: set[bytes],
@@ -226,7 +255,7 @@ def _height_band_components(pts: SamplePoints, grid: PolarGrid, cfg: StereoPropo
     before a taller bush) part."""
     n_rows, n_cols = grid.surface.shape
     top = np.zeros(n_rows * n_cols)
-    np.maximum.at(top, grid.cell, pts.ph)
+    np.maximum.at(top, grid.cell, np.where(pts.high, pts.ph, 0.0))
     top = top.reshape(n_rows, n_cols)
     occupied = grid.surface >= cfg.min_density_m
     for offset in (0.0, 0.5 * cfg.height_band_m):
@@ -237,7 +266,7 @@ def _height_band_components(pts: SamplePoints, grid: PolarGrid, cfg: StereoPropo
             n_b, lab_b = cv2.connectedComponents((occupied & (band == b)).astype(np.uint8), connectivity=8)
             labels[lab_b > 0] = lab_b[lab_b > 0] + n_labels
             n_labels += n_b - 1
-        _collect(labels.ravel()[grid.cell], n_labels, cfg.min_points, seen, clusters)
+        _collect(labels.ravel()[grid.cell] * pts.high, n_labels, cfg.min_points, seen, clusters)
 
 
 def _image_regions(pts: SamplePoints, bf: float, cfg: StereoProposerConfig, seen: set[bytes],
@@ -246,14 +275,17 @@ def _image_regions(pts: SamplePoints, bf: float, cfg: StereoProposerConfig, seen
     hs, ws = pts.z.shape
     disparity = bf / pts.z
     for jump_px in cfg.image_jumps_px:
-        cut = np.zeros((hs, ws), bool)
-        gap = np.maximum(jump_px, cfg.border_gap_m * disparity * disparity / bf)
-        dx = np.abs(np.diff(disparity, axis=1)) > gap[:, 1:]
-        dy = np.abs(np.diff(disparity, axis=0)) > gap[1:, :]
-        cut[:, 1:] |= dx
-        cut[1:, :] |= dy
-        _, labels = cv2.connectedComponents((pts.keep & ~cut).astype(np.uint8), connectivity=4)
-        _collect(labels[pts.pv, pts.pu], labels.max(), cfg.min_points, seen, clusters)
+        for span in range(1, cfg.jump_span + 1):
+            cut = np.zeros((hs, ws), bool)
+            gap = np.maximum(jump_px, cfg.border_gap_m * disparity * disparity / bf)
+            # a jump over ``span`` samples: SGBM smears a depth edge over a few pixels
+            dx = np.abs(disparity[:, span:] - disparity[:, :-span]) > gap[:, span:]
+            dy = np.abs(disparity[span:, :] - disparity[:-span, :]) > gap[span:, :]
+            cut[:, span:] |= dx
+            cut[span:, :] |= dy
+            for keep in (pts.keep, pts.keep_low) if cfg.low_min_height_m > 0 else (pts.keep,):
+                _, labels = cv2.connectedComponents((keep & ~cut).astype(np.uint8), connectivity=4)
+                _collect(labels[pts.pv, pts.pu], labels.max(), cfg.min_points, seen, clusters)
 
 
 class ClusterStats(NamedTuple):
@@ -268,6 +300,7 @@ class ClusterStats(NamedTuple):
     width: float  # across x, metres
     length: float  # along z less the spread stereo noise alone makes, metres
     box: tuple  # sample-grid box of the points (x2, y2 exclusive)
+    support: float  # the support cue's raw value: points, or their visible surface in points at ``support_ref_depth_m``
 
 
 def cluster_stats(clusters: list[np.ndarray], pts: SamplePoints, bf: float,
@@ -286,7 +319,11 @@ def cluster_stats(clusters: list[np.ndarray], pts: SamplePoints, bf: float,
             continue
         cv_, cu_ = pts.pv[idx], pts.pu[idx]
         box = (cu_.min(), cv_.min(), cu_.max() + 1, cv_.max() + 1)
-        stats.append(ClusterStats(idx, sub, q, zq, xq, float(hs_[q[2]]), width, length, box))
+        # A far object has fewer points for the same surface: with a reference depth, support
+        # counts its visible surface (each point stands for (step·z/f)² m²) in points at that depth.
+        support = float(idx.size) if cfg.support_ref_depth_m <= 0 else \
+            float(np.sum(np.maximum(pts.pz[idx], cfg.support_ref_depth_m) ** 2)) / cfg.support_ref_depth_m ** 2
+        stats.append(ClusterStats(idx, sub, q, zq, xq, float(hs_[q[2]]), width, length, box, support))
     return stats
 
 
@@ -295,7 +332,7 @@ def first_masks(stats: list[ClusterStats], cfg: StereoProposerConfig) -> np.ndar
     masks are built: NMS on the point boxes, ranked by the cues known so far (border
     contrast taken as 1/2 for all); at most ``mask_budget·max_proposals``."""
     pre = np.array([(0.5, st.idx.size / ((st.box[2] - st.box[0]) * (st.box[3] - st.box[1])),
-                     max(st.width, st.length), st.top, st.idx.size) for st in stats])
+                     max(st.width, st.length), st.top, st.support) for st in stats])
     return nms_keep(np.array([st.box for st in stats], np.float64), objectness_from_cues(cues_from_raw(pre, cfg), cfg),
                     cfg.nms_iou, int(cfg.mask_budget * cfg.max_proposals))
 
@@ -339,7 +376,7 @@ def build_mask(st: ClusterStats, pts: SamplePoints, kernels: MaskKernels, calib:
     s, bf, H, W = pts.step, calib.bf, calib.height, calib.width
     hs, ws = pts.z.shape
     pad, trim = kernels.pad, kernels.trim
-    idx, sub, q, zq, xq, top, width, length, _ = st
+    idx, sub, q, zq, xq, top, width, length, _, support = st
     cv_, cu_, cz = pts.pv[idx], pts.pu[idx], pts.pz[idx]
     r0, c0 = max(0, cv_.min() - pad), max(0, cu_.min() - pad)
     r1, c1 = min(hs, cv_.max() + pad + 1), min(ws, cu_.max() + pad + 1)
@@ -388,8 +425,114 @@ def build_mask(st: ClusterStats, pts: SamplePoints, kernels: MaskKernels, calib:
     y0, x0 = (r0 + int(rows[0])) * s, (c0 + int(cols[0])) * s
     crop = np.repeat(np.repeat(mask.astype(bool), s, axis=0), s, axis=1)[: H - y0, : W - x0]
     return Candidate(crop, x0, y0, (x0, y0, x0 + crop.shape[1], y0 + crop.shape[0]),
-                     (contrast, fill, max(width, length), top, idx.size),
+                     (contrast, fill, max(width, length), top, support),
                      (xq[1], float(np.sort(pts.y[pts.pv[sub], pts.pu[sub]])[q[1]]), zq[1]), (width, top, length))
+
+
+def refine_with_image(crop: np.ndarray, x0: int, y0: int, image: np.ndarray,
+                      cfg: StereoProposerConfig) -> tuple[np.ndarray, int, int]:
+    """A stereo mask moved to the object's outline in the image: OpenCV's GrabCut (colour
+    GMMs of object and background, a graph cut along image edges) initialised from the
+    mask. The mask is *probable* object, a band of ``refine_band_px`` around it *probable*
+    background (what stereo bleeding may have missed or added lies in mask and band), the
+    rest of the crop certain background. Returns the refined (crop, x0, y0); the stereo
+    mask itself where the cut keeps less than ``refine_min_keep`` of it or adds more than
+    its own area (a colour model that failed, not an outline)."""
+    H, W = image.shape[:2]
+    b = cfg.refine_band_px
+    h, w = crop.shape
+    X0, Y0 = max(0, x0 - 2 * b), max(0, y0 - 2 * b)
+    X1, Y1 = min(W, x0 + w + 2 * b), min(H, y0 + h + 2 * b)
+    m = np.zeros((Y1 - Y0, X1 - X0), np.uint8)
+    m[y0 - Y0: y0 - Y0 + h, x0 - X0: x0 - X0 + w] = crop
+    band = cv2.dilate(m, _disc(b)) > 0
+    gc = np.full(m.shape, cv2.GC_BGD, np.uint8)
+    gc[band] = cv2.GC_PR_BGD
+    gc[m > 0] = cv2.GC_PR_FGD
+    bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
+    try:
+        cv2.grabCut(np.ascontiguousarray(image[Y0:Y1, X0:X1]), gc, None, bgd, fgd, cfg.refine_iterations,
+                    cv2.GC_INIT_WITH_MASK)
+    except cv2.error:  # a colour model that cannot be fit (too few pixels of one side)
+        return crop, x0, y0
+    out = (gc == cv2.GC_FGD) | (gc == cv2.GC_PR_FGD)
+    n_in, n_out = int(m.sum()), int(out.sum())
+    kept = int((out & (m > 0)).sum())
+    if kept < cfg.refine_min_keep * n_in or n_out > 2 * n_in:
+        return crop, x0, y0
+    rows, cols = np.nonzero(out.any(axis=1))[0], np.nonzero(out.any(axis=0))[0]
+    out = out[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]
+    return out, X0 + int(cols[0]), Y0 + int(rows[0])
+
+
+def refine_candidates(candidates: list[Candidate], image: np.ndarray, cfg: StereoProposerConfig) -> list[Candidate]:
+    """Step 4d: small masks (≤ ``refine_max_area_px``) moved to the object's outline in the
+    image (``refine``: :func:`refine_by_colour` or :func:`refine_with_image`), in place of the
+    stereo mask or, with ``refine_keep_stereo``, beside it (both hypotheses proposed). The
+    cues and 3D rows stay the stereo cluster's."""
+    if cfg.refine == "none":
+        return candidates
+    bins = colour_bins(image, cfg.refine_colour_bits) if cfg.refine == "colour" else image
+    refine = refine_by_colour if cfg.refine == "colour" else refine_with_image
+    out = []
+    for c in candidates:
+        area = int(c.crop.sum())
+        if 0 < area <= cfg.refine_max_area_px:
+            crop, x0, y0 = refine(c.crop, c.x0, c.y0, bins, cfg)
+            if crop is not c.crop:
+                if cfg.refine_keep_stereo:
+                    out.append(c)
+                c = c._replace(crop=crop, x0=x0, y0=y0, box=(x0, y0, x0 + crop.shape[1], y0 + crop.shape[0]))
+        out.append(c)
+    return out
+
+
+@functools.lru_cache(maxsize=8)
+def _disc(radius: int) -> np.ndarray:
+    """An elliptic structuring element of this radius (made once: the refinement runs per mask)."""
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+
+
+def colour_bins(image: np.ndarray, bits: int) -> np.ndarray:
+    """(H, W) int32 colour bin of each pixel: the top ``bits`` bits of each RGB channel."""
+    q = (image >> (8 - bits)).astype(np.int32)
+    return (q[..., 0] << (2 * bits)) | (q[..., 1] << bits) | q[..., 2]
+
+
+def refine_by_colour(crop: np.ndarray, x0: int, y0: int, bins: np.ndarray,
+                     cfg: StereoProposerConfig) -> tuple[np.ndarray, int, int]:
+    """A stereo mask moved to the object's outline by a colour model seeded by the mask:
+    colour histograms of the mask and of a ring around it (``refine_band_px`` to twice that
+    outside), and each pixel of the mask and its band goes to the side whose histogram
+    holds its colour more often (Bayes with equal priors, add-one smoothing). ``bins`` is
+    :func:`colour_bins` of the frame. The stereo mask stays where the colours do not tell
+    object from background (less than ``refine_min_keep`` of it kept, or more than twice its
+    area), cheap enough (a bincount per mask) to run on every small mask."""
+    H, W = bins.shape
+    b = cfg.refine_band_px
+    h, w = crop.shape
+    X0, Y0 = max(0, x0 - 2 * b), max(0, y0 - 2 * b)
+    X1, Y1 = min(W, x0 + w + 2 * b), min(H, y0 + h + 2 * b)
+    m = np.zeros((Y1 - Y0, X1 - X0), np.uint8)
+    m[y0 - Y0: y0 - Y0 + h, x0 - X0: x0 - X0 + w] = crop
+    near = cv2.dilate(m, _disc(b)) > 0
+    far = cv2.dilate(m, _disc(2 * b)) > 0
+    c = bins[Y0:Y1, X0:X1]
+    n_bins = 1 << (3 * cfg.refine_colour_bits)
+    inside = m > 0
+    ring = far & ~near
+    if not ring.any():
+        return crop, x0, y0
+    hf = np.bincount(c[inside], minlength=n_bins) + 1.0
+    hb = np.bincount(c[ring], minlength=n_bins) + 1.0
+    fg = (hf / hf.sum() > hb / hb.sum())[c] & near
+    fg = cv2.medianBlur(fg.astype(np.uint8), 3) > 0  # single pixels of a shared colour are noise
+    n_in, n_out = int(inside.sum()), int(fg.sum())
+    if (fg & inside).sum() < cfg.refine_min_keep * n_in or n_out > 2 * n_in or n_out == 0:
+        return crop, x0, y0
+    rows, cols = np.nonzero(fg.any(axis=1))[0], np.nonzero(fg.any(axis=0))[0]
+    fg = fg[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]
+    return fg, X0 + int(cols[0]), Y0 + int(rows[0])
 
 
 def cues_from_raw(raw: np.ndarray, cfg: StereoProposerConfig) -> np.ndarray:
@@ -463,6 +606,7 @@ class StereoProposer:
         t3 = time.perf_counter()
         kernels = mask_kernels(cfg)
         candidates = [build_mask(stats[i], pts, kernels, calib, geometry.ground.d, cfg) for i in chosen]
+        candidates = refine_candidates(candidates, frame.left, cfg)
         t4 = time.perf_counter()
         proposals, cues = score_and_encode(frame.index, candidates, calib, cfg)
         timings = {"points": 1e3 * (t1 - t0), "cluster": 1e3 * (t2 - t1), "stats": 1e3 * (t3 - t2),
