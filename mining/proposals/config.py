@@ -44,6 +44,16 @@ class OnnxConfig:
 
 
 @dataclass
+class OnnxGenericConfig:
+    """Generic candidates from the ONNX model's anchors below its score cut (mining/proposals/onnx_generic.py)."""
+
+    enabled: bool = False  # ours: off = today's proposals; on = the "onnx" proposer also gives its low-score anchors as class-agnostic "onnx_generic" rows
+    min_score: Fraction = 0.001  # ours: anchors with best class score in [min_score, onnx.score_threshold); 0.001 = ten times below the decoder's cut
+    nms_iou: Fraction = 0.7  # ours: their own class-agnostic NMS, as onnx.nms_iou (Ultralytics' default)
+    max_proposals: Count = 100  # ours: at most this many per frame, best score first
+
+
+@dataclass
 class TorchConfig:
     """MP R-CNN (the paper's proposer) on torchvision's Mask R-CNN ResNet-50 FPN (extra ``torch``).
 
@@ -122,6 +132,7 @@ class UnionConfig:
 class ProposalConfig:
     proposer: Annotated[str, Satisfies(_proposer_names)] = "stereo"  # ours: "stereo" (weight-free default), "onnx", "torch", "json", or a union: "onnx+stereo"
     onnx: OnnxConfig = field(default_factory=OnnxConfig)
+    onnx_generic: OnnxGenericConfig = field(default_factory=OnnxGenericConfig)
     torch: TorchConfig = field(default_factory=TorchConfig)
     json: JsonProposalsConfig = field(default_factory=JsonProposalsConfig)
     kitti_detections: KittiDetectionsConfig = field(default_factory=KittiDetectionsConfig)
