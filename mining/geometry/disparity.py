@@ -9,6 +9,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from dataclasses import replace
+
 from mining.geometry.config import StereoConfig
 
 _MODES = {
@@ -33,7 +35,13 @@ class StereoMatcher:
             raise ValueError(f"downscale must be 1 or 2, got {cfg.downscale}")
         if (cfg.num_disparities // cfg.downscale) % 16:
             raise ValueError(f"num_disparities / downscale must be a multiple of 16, got {cfg.num_disparities}")
+        if cfg.far_full_disparities % 16:
+            raise ValueError(f"far_full_disparities must be a multiple of 16, got {cfg.far_full_disparities}")
         self.cfg = cfg
+        # the far pass: the same matcher at full resolution over the small disparities only
+        self._far = (StereoMatcher(replace(cfg, downscale=1, num_disparities=cfg.far_full_disparities,
+                                           far_full_disparities=0))
+                     if cfg.far_full_disparities and cfg.downscale > 1 else None)
         self._ndisp = cfg.num_disparities // cfg.downscale  # search range at the matching scale
         channels = 1 if cfg.grayscale else 3
         area = channels * cfg.block_size**2
@@ -52,7 +60,7 @@ class StereoMatcher:
         )
 
     def _prepare(self, rgb: np.ndarray) -> np.ndarray:
-        img = _grey(rgb) if self.cfg.grayscale else rgb
+        img = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY) if self.cfg.grayscale else rgb
         if self.cfg.downscale > 1:
             img = cv2.resize(img, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
         # SGBM cannot match the leftmost num_disparities columns (their partners lie
@@ -66,58 +74,25 @@ class StereoMatcher:
         """(H, W) float32 disparity in pixels (x_left − x_right); NaN where invalid."""
         if left_rgb.shape != right_rgb.shape or left_rgb.ndim != 3 or left_rgb.shape[2] != 3:
             raise ValueError(f"expected two (H, W, 3) images of equal shape, got {left_rgb.shape} and {right_rgb.shape}")
-        left = self._prepare(left_rgb)
-        raw = self._sgbm.compute(left, self._prepare(right_rgb))
+        raw = self._sgbm.compute(self._prepare(left_rgb), self._prepare(right_rgb))
         if self.cfg.pad_left:
             raw = raw[:, self._ndisp :]
         disp = raw.astype(np.float32) / 16.0  # SGBM returns fixed point with 4 fractional bits
         disp[~(disp > 0)] = np.nan  # SGBM marks invalid with minDisparity − 1
         if self.cfg.downscale > 1:
             h, w = left_rgb.shape[:2]
-            if self.cfg.upsample == "guided":
-                coarse = left[:, self._ndisp:] if self.cfg.pad_left else left
-                disp = guided_upsample(disp, coarse, _grey(left_rgb) if self.cfg.grayscale else left_rgb)
-            else:
-                disp = _upsample(disp, w, h)
-            disp *= np.float32(self.cfg.downscale)
+            disp = _upsample(disp, w, h) * np.float32(self.cfg.downscale)
+        if self._far is not None:
+            fine = self._far.compute(left_rgb, right_rgb)
+            with np.errstate(invalid="ignore"):
+                far = np.isfinite(fine) & (disp < self.cfg.far_full_disparities - self.cfg.far_full_margin_px)
+            disp[far] = fine[far]
         if self.cfg.pad_left:
             # Near the left edge only disparities up to the column index are possible;
             # the replicated border can produce larger ones that are meaningless.
             cols = np.arange(disp.shape[1], dtype=np.float32)
             disp[disp > cols[None, :]] = np.nan
         return disp
-
-
-def _grey(rgb: np.ndarray) -> np.ndarray:
-    return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-
-
-def guided_upsample(disp: np.ndarray, coarse: np.ndarray, fine: np.ndarray) -> np.ndarray:
-    """Half-resolution disparity (h, w) → full resolution (H, W), each pixel taking the valid one of
-    its 2×2 coarse neighbours whose image value (``coarse``, the matched half-resolution image) is
-    closest to its own (``fine``); NaN where all four are invalid. Disparity values are not rescaled."""
-    h, w = disp.shape
-    H, W = fine.shape[:2]
-
-    def neighbours(n_fine: int, n_coarse: int) -> tuple[np.ndarray, np.ndarray]:
-        c = (np.arange(n_fine) + 0.5) * (n_coarse / n_fine) - 0.5  # pixel-centre convention
-        lo = np.floor(c).astype(np.int64)
-        return np.clip(lo, 0, n_coarse - 1), np.clip(lo + 1, 0, n_coarse - 1)
-
-    ys, xs = neighbours(H, h), neighbours(W, w)
-    f = fine.astype(np.float32)
-    c = coarse.astype(np.float32)
-    best = np.full((H, W), np.inf, np.float32)
-    out = np.full((H, W), np.nan, np.float32)
-    for yi in ys:
-        for xi in xs:
-            d = disp[yi[:, None], xi[None, :]]
-            diff = np.abs(c[yi[:, None], xi[None, :]] - f)
-            if diff.ndim == 3:
-                diff = diff.sum(axis=2)
-            better = np.isfinite(d) & (diff < best)
-            best[better], out[better] = diff[better], d[better]
-    return out
 
 
 def _upsample(disp: np.ndarray, w: int, h: int) -> np.ndarray:
