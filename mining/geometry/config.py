@@ -27,7 +27,8 @@ class StereoConfig:
     # ours: a second SGBM pass at full resolution over disparities [0, far_full_disparities) (on KITTI, bf ≈ 386 px·m:
     # 32 px = depths beyond 12 m), taken wherever the half-resolution disparity is below that range less
     # far_full_margin_px: far objects get full-resolution precision at about a fifth of a full-resolution match's
-    # cost; 0 = off (the old behaviour; chosen by scripts/proposal_funnel.py on seeds 0000–0006, docs in results29_depth)
+    # cost; 0 = off (the old behaviour, default: 32 lifts unknown proposals 3–5 points on seeds 0000–0006 but puts the
+    # geometry step at ~151 ms, over `mine bench geometry`'s 150 ms budget)
     far_full_disparities: Annotated[int, Range(0), MultipleOf(16, "OpenCV SGBM searches disparities in blocks of 16")] = 0
     far_full_margin_px: Annotated[float, Range(0)] = 8.0  # ours: the far pass's own range end is unreliable (a nearer surface clips to it)
     pad_left: bool = True  # ours: pad the left border so its first num_disparities columns get matched
