@@ -83,10 +83,18 @@ class StereoMatcher:
             h, w = left_rgb.shape[:2]
             disp = _upsample(disp, w, h) * np.float32(self.cfg.downscale)
         if self._far is not None:
-            fine = self._far.compute(left_rgb, right_rgb)
             with np.errstate(invalid="ignore"):
-                far = np.isfinite(fine) & (disp < self.cfg.far_full_disparities - self.cfg.far_full_margin_px)
-            disp[far] = fine[far]
+                small = disp < self.cfg.far_full_disparities - self.cfg.far_full_margin_px
+            rows = np.flatnonzero(small.any(axis=1))
+            if rows.size:
+                # only the band of rows that holds small disparities (not the near road at the bottom), with a
+                # block's margin so the band's own border does not touch them
+                r0 = max(0, int(rows[0]) - self.cfg.block_size)
+                r1 = min(disp.shape[0], int(rows[-1]) + 1 + self.cfg.block_size)
+                fine = self._far.compute(left_rgb[r0:r1], right_rgb[r0:r1])
+                band = disp[r0:r1]
+                far = np.isfinite(fine) & small[r0:r1]
+                band[far] = fine[far]
         if self.cfg.pad_left:
             # Near the left edge only disparities up to the column index are possible;
             # the replicated border can produce larger ones that are meaningless.
