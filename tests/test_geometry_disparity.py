@@ -72,3 +72,33 @@ def test_matcher_rejects_bad_settings_and_inputs():
     m = StereoMatcher(StereoConfig())
     with pytest.raises(ValueError):
         m.compute(np.zeros((10, 20, 3), np.uint8), np.zeros((10, 21, 3), np.uint8))
+
+
+def _textured_pair(h: int = 96, w: int = 256, d: float = 9.5):
+    """A fronto-parallel textured plane at a sub-pixel disparity d (the right image is the left shifted by d)."""
+    rng = np.random.default_rng(1)
+    tex = cv2.GaussianBlur(rng.integers(0, 255, (h, w + 32)).astype(np.float32), (0, 0), 1.0)
+    xs = np.arange(w, dtype=np.float32)[None, :].repeat(h, 0)
+    ys = np.arange(h, dtype=np.float32)[:, None].repeat(w, 1)
+    left = cv2.remap(tex, xs + 16, ys, cv2.INTER_LINEAR)
+    right = cv2.remap(tex, xs + 16 + d, ys, cv2.INTER_LINEAR)  # x_right = x_left − d
+    rgb = lambda g: np.repeat(np.clip(g, 0, 255).astype(np.uint8)[:, :, None], 3, axis=2)
+    return rgb(left), rgb(right)
+
+
+def test_far_full_resolution_pass_refines_small_disparities_only():
+    left, right = _textured_pair()
+    half = StereoMatcher(StereoConfig(num_disparities=64)).compute(left, right)
+    far = StereoMatcher(StereoConfig(num_disparities=64, far_full_disparities=16)).compute(left, right)
+    full = StereoMatcher(StereoConfig(num_disparities=64, downscale=1)).compute(left, right)
+    core = (slice(16, -16), slice(48, -16))
+    err = lambda d: float(np.nanmedian(np.abs(d[core] - 9.5)))
+    # a 16 px far range with the 8 px margin switches disparities below 8 px only: 9.5 px keeps the half-resolution value
+    np.testing.assert_array_equal(np.isnan(far), np.isnan(half))
+    np.testing.assert_allclose(far[np.isfinite(far)], half[np.isfinite(half)])
+    far_wide = StereoMatcher(StereoConfig(num_disparities=64, far_full_disparities=32)).compute(left, right)
+    # below 32 − 8 px: the full-resolution value (measured median error 0.125 px vs 0.344 px at half resolution)
+    assert err(far_wide) == pytest.approx(err(full), abs=0.02) and err(far_wide) < 0.5 * err(half)
+    assert StereoConfig().far_full_disparities == 0  # the old behaviour stays the default
+    with pytest.raises(ValueError):
+        StereoMatcher(StereoConfig(far_full_disparities=20))

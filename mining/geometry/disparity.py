@@ -9,6 +9,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from dataclasses import replace
+
 from mining.geometry.config import StereoConfig
 
 _MODES = {
@@ -33,7 +35,13 @@ class StereoMatcher:
             raise ValueError(f"downscale must be 1 or 2, got {cfg.downscale}")
         if (cfg.num_disparities // cfg.downscale) % 16:
             raise ValueError(f"num_disparities / downscale must be a multiple of 16, got {cfg.num_disparities}")
+        if cfg.far_full_disparities % 16:
+            raise ValueError(f"far_full_disparities must be a multiple of 16, got {cfg.far_full_disparities}")
         self.cfg = cfg
+        # the far pass: the same matcher at full resolution over the small disparities only
+        self._far = (StereoMatcher(replace(cfg, downscale=1, num_disparities=cfg.far_full_disparities,
+                                           far_full_disparities=0))
+                     if cfg.far_full_disparities and cfg.downscale > 1 else None)
         self._ndisp = cfg.num_disparities // cfg.downscale  # search range at the matching scale
         channels = 1 if cfg.grayscale else 3
         area = channels * cfg.block_size**2
@@ -74,6 +82,19 @@ class StereoMatcher:
         if self.cfg.downscale > 1:
             h, w = left_rgb.shape[:2]
             disp = _upsample(disp, w, h) * np.float32(self.cfg.downscale)
+        if self._far is not None:
+            with np.errstate(invalid="ignore"):
+                small = disp < self.cfg.far_full_disparities - self.cfg.far_full_margin_px
+            rows = np.flatnonzero(small.any(axis=1))
+            if rows.size:
+                # only the band of rows that holds small disparities (not the near road at the bottom), with a
+                # block's margin so the band's own border does not touch them
+                r0 = max(0, int(rows[0]) - self.cfg.block_size)
+                r1 = min(disp.shape[0], int(rows[-1]) + 1 + self.cfg.block_size)
+                fine = self._far.compute(left_rgb[r0:r1], right_rgb[r0:r1])
+                band = disp[r0:r1]
+                far = np.isfinite(fine) & small[r0:r1]
+                band[far] = fine[far]
         if self.cfg.pad_left:
             # Near the left edge only disparities up to the column index are possible;
             # the replicated border can produce larger ones that are meaningless.

@@ -44,6 +44,16 @@ class OnnxConfig:
 
 
 @dataclass
+class OnnxGenericConfig:
+    """Generic candidates from the ONNX model's anchors below its score cut (mining/proposals/onnx_generic.py)."""
+
+    enabled: bool = False  # ours: off = today's proposals; on = the "onnx" proposer also gives its low-score anchors as class-agnostic "onnx_generic" rows
+    min_score: Fraction = 0.001  # ours: anchors with best class score in [min_score, onnx.score_threshold); 0.001 = ten times below the decoder's cut
+    nms_iou: Fraction = 0.7  # ours: their own class-agnostic NMS, as onnx.nms_iou (Ultralytics' default)
+    max_proposals: Count = 300  # REFERENCE: at most 300 kept, best score first, as onnx.max_proposals (on seeds 0000–0006 a cap of 1000 keeps no more)
+
+
+@dataclass
 class FastSamConfig:
     """FastSAM-s/x ("everything" mode, class-agnostic) as a YOLOv8-seg ONNX export (``fastsam`` proposer).
 
@@ -172,6 +182,7 @@ class UnionConfig:
 class ProposalConfig:
     proposer: Annotated[str, Satisfies(_proposer_names)] = "stereo"  # ours: "stereo" (weight-free default), "onnx", "torch", "json", "fastsam", "sam", or a union: "onnx+stereo"
     onnx: OnnxConfig = field(default_factory=OnnxConfig)
+    onnx_generic: OnnxGenericConfig = field(default_factory=OnnxGenericConfig)
     fastsam: FastSamConfig = field(default_factory=FastSamConfig)
     sam: SamConfig = field(default_factory=SamConfig)
     torch: TorchConfig = field(default_factory=TorchConfig)

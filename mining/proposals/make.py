@@ -85,12 +85,32 @@ def make_one(name: str, cfg: ProposalConfig, frame_size: tuple[int, int]) -> Pro
     raise ConfigError(f"proposals.proposer: unknown proposer {name!r}; known: {NAMES} or a union like 'onnx+stereo'")
 
 
+def _with_generic(names: list[str], cfg: ProposalConfig, frame_size: tuple[int, int]) -> list[Proposer]:
+    """The parts of ``names`` with the ONNX model's generic candidates (``proposals.onnx_generic``) as
+    one more class-agnostic part, last, so they only add what the others did not find; one network run
+    per frame serves both ONNX parts."""
+    from mining.proposals.onnx_generic import SharedOnnxRun
+    from mining.proposals.onnx_yolo import OnnxProposer, decode_predictions
+
+    run = SharedOnnxRun(OnnxProposer(cfg.onnx, frame_size=frame_size))
+
+    def onnx(frame: StereoFrame, geometry: FrameGeometry) -> Proposals:
+        pred, protos, lb = run.outputs(frame.index, frame.left)
+        return decode_predictions(frame.index, pred, protos, lb, frame.left.shape[:2], cfg.onnx)
+
+    parts = [onnx if n == "onnx" else make_one(n, cfg, frame_size) for n in names]
+    return parts + [lambda frame, geometry: run.generic(frame.index, frame.left, cfg.onnx_generic)]
+
+
 def make_proposer(cfg: ProposalConfig, frame_size: tuple[int, int]) -> Proposer:
     """``frame_size`` is (height, width)."""
     names = proposer_names(cfg.proposer)
     if not names:
         raise ConfigError("proposals.proposer is empty")
-    parts = [make_one(n, cfg, frame_size) for n in names]
+    if "onnx" in names and cfg.onnx_generic.enabled:
+        parts = _with_generic(names, cfg, frame_size)
+    else:
+        parts = [make_one(n, cfg, frame_size) for n in names]
     if len(parts) == 1:
         return parts[0]
     return lambda frame, geometry: union([p(frame, geometry) for p in parts], cfg.union.mask_iou, cfg.union,
