@@ -25,10 +25,10 @@ class StereoConfig:
     grayscale: bool = True  # ours: match on grey images (3× cheaper cost volume than RGB)
     downscale: Count = 2  # ours: 2 = match at half resolution (≈5× faster than full, abs-rel +0.003 on KITTI raw); 1 = full
     # ours: a second SGBM pass at full resolution over disparities [0, far_full_disparities) (on KITTI, bf ≈ 386 px·m:
-    # 32 px = depths beyond 12 m), taken wherever the half-resolution disparity is below that range less
-    # far_full_margin_px: far objects get full-resolution precision at about half the extra cost of a full-resolution match's
-    # (+58 vs +111 ms); 0 = off (the old behaviour, default: 32 lifts unknown proposals 3–5 points on seeds 0000–0006 but puts the
-    # geometry step at ~151 ms, over `mine bench geometry`'s 150 ms budget)
+    # 32 px = depths beyond 12 m), over the rows that hold them, taken wherever the half-resolution disparity is below
+    # that range less far_full_margin_px: far objects get full-resolution precision. 0 = off, the old behaviour and
+    # the default; 32 measured on seeds 0000–0006 and KITTI 0005: unknown proposals +3–5 points, the geometry step
+    # 51 → 88 ms a frame on one core (`mine bench geometry`)
     far_full_disparities: Annotated[int, Range(0), MultipleOf(16, "OpenCV SGBM searches disparities in blocks of 16")] = 0
     far_full_margin_px: Annotated[float, Range(0)] = 8.0  # ours: the far pass's own range end is unreliable (a nearer surface clips to it)
     pad_left: bool = True  # ours: pad the left border so its first num_disparities columns get matched
