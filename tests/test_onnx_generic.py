@@ -56,10 +56,10 @@ def test_generic_candidates_are_the_anchors_below_the_cut_marked_and_class_agnos
     assert len(generic_candidates(3, pred, protos, lb, (H, W), onnx, OnnxGenericConfig(nms_iou=1.0))) == 3
 
 
-def test_generic_candidates_are_off_by_default():
+def test_generic_candidates_are_on_by_default_and_can_be_switched_off():
     cfg = load_config(None, [])
-    assert cfg.proposals.onnx_generic.enabled is False
-    assert load_config(None, ["proposals.onnx_generic.enabled=true"]).proposals.onnx_generic.enabled is True
+    assert cfg.proposals.onnx_generic.enabled is True
+    assert load_config(None, ["proposals.onnx_generic.enabled=false"]).proposals.onnx_generic.enabled is False
 
 
 @pytest.mark.slow  # converts the shared model at a new size and runs it twice (~4 s)
@@ -76,7 +76,7 @@ def test_union_with_generic_keeps_the_learned_rows_and_adds_marked_ones(kitti_tr
     bgr = cv2.imread(str(kitti_tracking_root / "training" / "image_02" / "0005" / "000000.png"))
     rgb = cv2.cvtColor(cv2.resize(bgr, (621, 188), interpolation=cv2.INTER_AREA), cv2.COLOR_BGR2RGB)
     sets = [f"proposals.onnx.model_path={MODEL}", f"proposals.onnx.cache_dir={tmp_path}", "proposals.proposer=onnx"]
-    cfg = load_config(None, sets + ["proposals.onnx_generic.enabled=true"])
+    cfg = load_config(None, sets)  # on by default
     calib = StereoCalib(360.0, 360.0, 310.0, 94.0, 0.54, 621, 188)
     frame = StereoFrame("kitti", "0005", 0, 0, rgb, rgb, calib)
     geom = FrameGeometry(0, 0, np.full((188, 621), np.nan, np.float32), np.full((188, 621), np.nan, np.float32),
@@ -90,5 +90,5 @@ def test_union_with_generic_keeps_the_learned_rows_and_adds_marked_ones(kitti_tr
     # the union gives the uncovered generic rows "unknown" with a detectability weight, never a COCO class
     assert np.isfinite(both.posterior[generic]).all() and (both.posterior[generic].argmax(axis=1) == 80).all()
     assert (both.objectness[generic] < cfg.proposals.onnx.score_threshold).all()
-    off = make_proposer(load_config(None, sets).proposals, (188, 621))(frame, geom)
+    off = make_proposer(load_config(None, sets + ["proposals.onnx_generic.enabled=false"]).proposals, (188, 621))(frame, geom)
     assert off.proposer == ["onnx"] * len(alone)  # off: today's proposals, nothing generic
