@@ -119,9 +119,10 @@ def synthetic_frames():
 
 def test_unknown_objects_are_found_on_synthetic(synthetic_frames):
     # Objects no detector knows (cones, bins, crates, debris) within 30 m. Measured on these
-    # 15 frames: box IoU ≥ 0.5 for 15 of 30 (0.50), mask IoU ≥ 0.5 for 8 (0.27): stereo at half
-    # resolution fattens small objects sideways, so masks overshoot while boxes still fit.
-    # Debris (≤ 0.3 m high) mostly lies under the ground cut.
+    # 15 frames (issue 29): box IoU ≥ 0.5 for 22 of 47 (0.47), mask IoU ≥ 0.5 for 24 (0.51); before
+    # the colour refinement and the issue-29 settings 17 and 15 (0.32): stereo at half resolution
+    # fattens small objects sideways and merges them with what stands behind, and the image step
+    # moves the masks to the outline. Debris (≤ 0.3 m high) mostly lies under the ground cut.
     proposer = StereoProposer()
     box_hit, mask_hit = [], []
     for f, g in synthetic_frames:
@@ -134,4 +135,4 @@ def test_unknown_objects_are_found_on_synthetic(synthetic_frames):
             mask_hit.append(mask_utils.iou(p.rles, [gt], [0]).max() >= 0.5)
     assert len(box_hit) >= 15
     assert np.mean(box_hit) >= 0.35
-    assert np.mean(mask_hit) >= 0.15
+    assert np.mean(mask_hit) >= 0.40

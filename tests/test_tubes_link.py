@@ -12,7 +12,7 @@ import pytest
 from conftest import MODEL
 from mining.config import load_config
 from mining.eval.synthetic import gt_frame
-from mining.masks import mask_iou
+from mining.masks import mask_ioa, mask_iou
 from mining.pipeline.frames import frame_records
 from mining.pipeline.mine import tube_generator, with_links
 from mining.sources import open_source
@@ -49,6 +49,17 @@ def _matches(frame, truth, track: int) -> np.ndarray:
     return np.flatnonzero(mask_iou([truth.rles[g]], rles)[0] >= 0.5)
 
 
+def _on_car(frame, truth, track: int) -> np.ndarray:
+    """Observations of ``frame`` on ``track``: its matches, and masks lying mostly inside it
+    (IoA ≥ 0.5 over their own area: the stereo proposer's colour-refined parts of a far car)."""
+    g = int(np.flatnonzero(truth.track_ids == track)[0])
+    rles = frame.observations.proposals.rles
+    if not rles:
+        return np.zeros(0, np.int64)
+    inside = mask_ioa(rles, [truth.rles[g]])[:, 0] >= 0.5
+    return np.union1d(_matches(frame, truth, track), np.flatnonzero(inside))
+
+
 def _target(frames, truths) -> int:
     """A ground-truth car proposed in every frame (the one with the most matching proposals)."""
     tracks = set.intersection(*(set(map(int, truths[f.index].track_ids)) for f in frames))
@@ -63,7 +74,7 @@ def _with_gap(frames, truths, track: int):
     out = []
     for f in frames:
         if f.index in GAP:
-            keep = np.setdiff1d(np.arange(len(f.observations)), _matches(f, truths[f.index], track))
+            keep = np.setdiff1d(np.arange(len(f.observations)), _on_car(f, truths[f.index], track))
             f = dataclasses.replace(f, observations=f.observations.take(keep))
         out.append(f)
     return out
@@ -115,7 +126,7 @@ def test_a_join_needs_the_continuation_to_be_the_same_object(parked_pair):
     gone = []
     for f in frames:
         if f.index >= GAP.start:
-            keep = np.setdiff1d(np.arange(len(f.observations)), _matches(f, truths[f.index], track))
+            keep = np.setdiff1d(np.arange(len(f.observations)), _on_car(f, truths[f.index], track))
             f = dataclasses.replace(f, observations=f.observations.take(keep))
         gone.append(f)
     tubes = _mine(cfg, gone)
