@@ -28,25 +28,26 @@ CALIBRATED: dict[str, dict[str, float]] = {
 # The calibrated confidence of the classifier's own rows (mining/tubes/category.py, RowConfidence): two logistics in
 # (1, logit s, ln h, ln z, logit s·ln h, logit s·ln z) of a row's max class score s, box height h (px) and depth z (m),
 # fit by `mine bench calibrate --calling` on the observed tube frames of synthetic seeds 0000–0006 (100 frames each,
-# onnx+stereo with the COCO YOLOv8n-seg int8 model) labelled by the truth they overlap (mask IoU ≥ 0.5).
-# 23,233 rows (15,308 on known objects, 734 on unknown ones, 7,191 on nothing); leave-one-seed-out AUC 0.75–0.88 (on
-# an object), 0.90–0.98 for known | object (the max score alone: 0.75–0.94).
+# onnx+stereo with the COCO YOLOv8n-seg int8 model, its generic candidates and the colour-refined stereo masks: issue 29)
+# labelled by the truth they overlap (mask IoU ≥ 0.5). 27,682 rows (17,035 on known objects, 844 on unknown ones, 9,803
+# on nothing); leave-one-seed-out AUC 0.77–0.89 (on an object), 0.92–0.98 for known | object (the max score alone:
+# 0.76–0.94).
 ROW_ON_OBJECT: dict[str, float] = {  # P(the row lies on an object, known or not)
-    "bias": 0.432838, "logit_score": -0.557604, "ln_height": 0.324196, "ln_depth": 0.113974,
-    "logit_x_ln_height": 0.1911, "logit_x_ln_depth": 0.179667}
+    "bias": -0.723345, "logit_score": -0.214962, "ln_height": 0.448603, "ln_depth": 0.326904,
+    "logit_x_ln_height": 0.147091, "logit_x_ln_depth": 0.135951}
 ROW_KNOWN: dict[str, float] = {  # P(known | on an object) at equal priors (unknown objects' rows weighted up)
-    "bias": -43.4245, "logit_score": -5.87129, "ln_height": 6.89734, "ln_depth": 6.64271,
-    "logit_x_ln_height": 1.05994, "logit_x_ln_depth": 0.946199}
+    "bias": -44.8634, "logit_score": -5.77047, "ln_height": 7.0155, "ln_depth": 7.02652,
+    "logit_x_ln_height": 0.993633, "logit_x_ln_depth": 1.00393}
 # The object evidence of a tube called unknown (mining/score/clutter.py), per proposer: logistic in OBJECT_FEATURES
 # on the candidate tubes of the same seeds, object against part or clutter (unknown objects weighted up);
-# leave-one-seed-out AUC 0.89–0.95.
+# leave-one-seed-out AUC 0.88–0.93.
 OBJECT_EVIDENCE: dict[str, dict[str, float]] = {
-    "onnx+stereo": {"bias": -2.6737, "ln_observed": 0.758389, "observed_share": 2.14493, "sd_ln_area_3d": 0.852245,
-                    "sd_ln_aspect": -1.6077, "mean_fill": 3.51717, "classifier_share": 2.71205,
-                    "mean_class_score": 4.25931, "mean_detectability": 2.05366, "ln_speed": -0.00206229,
-                    "ln_depth": 0.0995409, "ln_height_px": -0.926086, "border_share": -1.39624,
-                    "mean_ln_mask_iou": 2.25626, "ln_width": 1.18779, "ln_height": -0.650861, "ln_length": -0.442476,
-                    "sd_ln_size": -0.703684, "sd_footpoint": -0.131171, "bottom_gap": -7.24124},
+    "onnx+stereo": {"bias": -5.0881, "ln_observed": 0.802692, "observed_share": 1.39358, "sd_ln_area_3d": 0.746381,
+                    "sd_ln_aspect": -0.352434, "mean_fill": 4.06766, "classifier_share": 1.12267,
+                    "mean_class_score": 3.72333, "mean_detectability": -0.337726, "ln_speed": 0.302688,
+                    "ln_depth": 1.15759, "ln_height_px": -0.162569, "border_share": -1.69733,
+                    "mean_ln_mask_iou": 2.71204, "ln_width": 0.822326, "ln_height": -0.604381, "ln_length": -0.128404,
+                    "sd_ln_size": 0.276823, "sd_footpoint": -0.424078, "bottom_gap": -10.7877},
 }
 
 
@@ -78,7 +79,7 @@ class ScoreConfig:
     row_on_object: dict[str, Signed] = field(default_factory=lambda: dict(ROW_ON_OBJECT))  # weights of P(row on an object), by mining.tubes.category.ROW_FEATURES
     row_known: dict[str, Signed] = field(default_factory=lambda: dict(ROW_KNOWN))  # weights of P(known | on an object), likewise
     row_proposers: tuple[str, ...] = ("onnx", "onnx+stereo")  # ours: the jobs whose classifier rows these weights were fit on (the ONNX YOLO-seg decoder's); other classifiers (torch, detections) keep their rows as given
-    known_log_margin_calibrated: Signed = -1.0  # ours: the margin with calibrated rows, best balanced accuracy of tubes on objects (0.915) on seeds 0000–0006 (`mine bench calibrate --calling`; −0.5…−1 in every fold)
+    known_log_margin_calibrated: Signed = -1.0  # ours: the margin with calibrated rows, best balanced accuracy of tubes on objects (0.919) on seeds 0000–0006 (`mine bench calibrate --calling`; −1 in every fold)
     # Object or clutter before the unknown set (issue 29; mining/score/clutter.py): a tube called unknown whose object
     # evidence gives P(object) < unknown_min_object is "unclassified" = ours, the default: it stays selected but is not
     # called unknown (selection is the unary's judgement; the unknown set is what researchers export, and dropping
