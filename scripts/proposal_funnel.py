@@ -12,13 +12,15 @@ Two steps, so a setting can be tried in a minute instead of a full ``mine eval s
   evaluated ground-truth detections covered by a proposal with mask IoU ≥ 0.5, per split
   and distance bin, proposals per frame and disparity ms per frame.
 
-Run from the repository root: ``python scripts/proposal_funnel.py measure /work/cache_depth 0000 0001``.
+Run from the repository root: ``python scripts/proposal_funnel.py measure /tmp/funnel_cache 0000 0001``
+(the COCO model: ``TUBE_MINER_MODEL``, default ``../shared/models/yolov8n-seg_int8.onnx``).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -37,7 +39,9 @@ from mining.proposals.union import union
 from mining.sources import open_source
 from mining.types import FrameGeometry, StereoCalib, StereoFrame
 
-MODEL = "/work/shared/models/yolov8n-seg_int8.onnx"
+# the shared COCO model beside the checkout, as the tests find it
+MODEL = os.environ.get("TUBE_MINER_MODEL",
+                       str(Path(__file__).resolve().parents[1].parent / "shared" / "models" / "yolov8n-seg_int8.onnx"))
 KEEP_SCORE = 0.001  # anchors kept in the cache: ten times below the decoder's 0.01
 
 
