@@ -50,7 +50,7 @@ from scipy.stats import rankdata
 
 from mining.bench.synthetic import run_synthetic
 from mining.catalog import safe_files
-from mining.checks import count, finite_float, output_file, positive_float, real, worker_count
+from mining.checks import count, finite_float, output_file, output_folder, positive_float, real, worker_count
 from mining.config import JobConfig, validate
 from mining.errors import ConfigError, MiningError
 from mining.eval.synthetic import evaluate_synthetic
@@ -264,7 +264,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--calling", action="store_true",
                    help="fit what calls a tube unknown instead (issue 29: the classifier rows' calibrated confidence "
                         "and the object evidence, mining/bench/calling.py), leave-one-seed-out")
-    p.add_argument("--cache", metavar="DIR", default=None,
+    p.add_argument("--cache", type=output_folder, metavar="DIR", default=None,
                    help="with --calling: keep each mined seed here as NPZ and read it back on the next run with the "
                         "same proposer, seed and frames (delete it after changing the pipeline)")
     p.add_argument("--json", type=output_file, help="also write the results as JSON here")
