@@ -109,6 +109,7 @@ def test_a_manifest_row_round_trips_and_a_damaged_one_is_unreadable(tmp_path):
 
 # -- mine status and resume over a damaged record ---------------------------------------------
 
+@pytest.mark.slow  # a resubmission mines again
 def test_status_names_a_truncated_marker_and_a_resubmission_stitches_again(base_catalogue, tmp_path, capsys):
     out = copy_of(base_catalogue, tmp_path / "out")
     data = (out / MARKER).read_bytes()

@@ -198,6 +198,7 @@ def robotcar(kitti_tracking_root, tmp_path_factory) -> Path:
     return root
 
 
+@pytest.mark.slow  # mines the RobotCar recordings that are well named
 def test_a_badly_named_traversal_fails_alone_and_the_others_run(robotcar, shared_data, tmp_path, capsys):
     folder = shared_data / "proposals_4dgvt_format" / "kitti_tracking_0005" / "top20"
     cfg = load_config(None, ['source.dataset="oxford"', f'source.root="{robotcar}"', 'proposals.proposer="json"',

@@ -117,6 +117,7 @@ def synthetic_frames():
     return out
 
 
+@pytest.mark.slow  # renders and proposes a synthetic sequence
 def test_unknown_objects_are_found_on_synthetic(synthetic_frames):
     # Objects no detector knows (cones, bins, crates, debris) within 30 m. Measured on these
     # 15 frames (issue 29): box IoU ≥ 0.5 for 22 of 47 (0.47), mask IoU ≥ 0.5 for 24 (0.51); before

@@ -55,6 +55,7 @@ def _same(a, b) -> bool:
 # ---------------------------------------------------------------- (a) determinism
 
 
+@pytest.mark.slow  # each scenario rendered twice at full size
 @pytest.mark.parametrize("name", NEW)
 def test_new_scenario_renders_the_same_bits_twice(name):
     again = SyntheticSource(n_frames=80, scenario=name, **HALF)  # a fresh source: its own atlas and world
