@@ -7,7 +7,8 @@ import pytest
 from pycocotools import mask as mask_utils
 
 from mining.boxes import box_iou, size_similarity
-from mining.masks import areas, batch_mask_pixels, box_rle, crop_rle, mask_iou, mask_pixels, rle_box, rle_counts
+from mining.masks import (areas, batch_mask_pixels, batch_rle_problems, box_rle, crop_rle, mask_iou, mask_pixels, rle_box,
+                          rle_counts, rle_problem)
 
 
 def _random_masks(rng, n, h=60, w=80):
@@ -92,3 +93,29 @@ def test_crop_rle_is_canonical_when_the_mask_holds_the_last_pixel():
         full = np.zeros((10, 10), np.uint8)
         full[y0:y0 + crop.shape[0], x0:x0 + crop.shape[1]] = crop
         assert crop_rle(crop, x0, y0, 10, 10)["counts"] == mask_utils.encode(np.asfortranarray(full))["counts"]
+
+
+def _damaged(counts: str, rng) -> list[str]:
+    """Ways a compressed counts string breaks: cut, a character changed, doubled, grown, emptied."""
+    cut = counts[: rng.integers(0, len(counts))] if len(counts) > 1 else ""
+    k = int(rng.integers(0, len(counts)))
+    changed = counts[:k] + chr(int(rng.integers(33, 127))) + counts[k + 1:]
+    return [cut, changed, counts + counts, counts + "1", "", counts[:-1] + "o", "0" * 5, "\x7f", "é" + counts]
+
+
+def test_batch_rle_problems_says_what_rle_problem_says_of_each():
+    rng = np.random.default_rng(3)
+    sizes, counts = [], []
+    for m in _random_masks(rng, 60):
+        c = mask_utils.encode(np.asfortranarray(m.astype(np.uint8)))["counts"].decode()
+        for s in [c, *_damaged(c, rng)]:
+            sizes.append(m.shape)
+            counts.append(s)
+    sizes += [(0, 80), (60, -1), (60, 80), (60, 80), (2**40, 2**40)]
+    counts += ["PP", "PP", None, b"PP", "0"]
+    expected = [rle_problem(h, w, c) for (h, w), c in zip(sizes, counts)]
+    assert sum(p is None for p in expected) >= 60 and sum(p is not None for p in expected) >= 300  # both kinds
+    order = rng.permutation(len(counts))  # good and bad interleaved: no string's runs may leak into the next
+    got = batch_rle_problems([sizes[i] for i in order], [counts[i] for i in order])
+    assert got == [expected[i] for i in order]
+    assert batch_rle_problems([], []) == []

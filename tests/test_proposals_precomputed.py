@@ -272,12 +272,12 @@ def test_json_many_proposals_keep_the_best_before_any_mask_is_decoded(json_root,
     assert (tmp_path / "000000.json").stat().st_size < JsonProposalsConfig().max_file_bytes
     checked = []  # each mask whose runs are checked is one about to be decoded
 
-    def counting(h, w, counts):
-        checked.append(counts)
-        return real_check(h, w, counts)
+    def counting(sizes, counts):
+        checked.extend(counts)
+        return real_check(sizes, counts)
 
-    real_check = precomputed.rle_problem
-    monkeypatch.setattr(precomputed, "rle_problem", counting)
+    real_check = precomputed.batch_rle_problems
+    monkeypatch.setattr(precomputed, "batch_rle_problems", counting)
     monkeypatch.setattr(precomputed.mask_utils, "toBbox", lambda *a: pytest.fail("a mask decoded for its box"))
     k = JsonProposalsConfig().max_proposals
     p = JsonProposals(tmp_path, image_size=(W, H))(0)
