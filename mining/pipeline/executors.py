@@ -4,7 +4,10 @@ Both executors are made the same way — ``LocalExecutor(job)``, ``RayExecutor(j
 take the same calls (``Executor``): ``submit(step, *args)`` while ``free()`` and
 ``wait()`` for the next result, so the loop in ``submit.py`` does not know which one it
 drives. On Ray each worker is an actor holding the steps: a proposer that holds
-a model (ONNX) loads once per worker, not once per window. System failures (a killed
+a model (ONNX) loads once per worker, not once per window. Where the cluster has GPUs (or
+``run.proposal_actors`` asks), the proposer's model parts run on proposal actors of their
+own instead, one model per GPU, fed batches by the workers' observe steps
+(``proposal_stage.py``). System failures (a killed
 worker process, a lost node) restart the actor and retry the call; bad input is not a
 system failure and comes back as a failed ``StepResult``.
 """
@@ -15,8 +18,15 @@ import os
 from collections import deque
 from typing import Any, Protocol
 
+from mining.config import JobConfig
+from mining.errors import ConfigError
+from mining.pipeline.proposal_stage import ProposalWorker, RemoteModels, has_models
 from mining.pipeline.schedule import Step
 from mining.pipeline.steps import Finalize, Job, Observe, StepResult, Track
+from mining.proposals.make import MODELS
+
+
+PLACEMENT_TIMEOUT_S = 10.0  # ours: how long the end-of-job placement report waits on an actor
 
 
 class Executor(Protocol):
@@ -34,20 +44,32 @@ class Executor(Protocol):
         """(reference, result, None) of a finished step, or (reference, None, error) when it
         could not run; None when none finished within ``timeout`` seconds (None: wait on)."""
 
+    def placement(self) -> dict[str, list[dict[str, Any]]]:
+        """Where the steps ran: "workers" and "proposal_actors", each {pid, gpu_ids, ...} (``Summary``)."""
+
     def shutdown(self) -> None: ...
 
 
 class Worker:
-    """The steps of one job, held by one process."""
+    """The steps of one job, held by one process; ``proposal_actor``: where its observe steps
+    send the proposer's model parts (``proposal_stage.ProposalWorker``), None to run them here."""
 
-    def __init__(self, job: Job):
-        self.steps = {Step.OBSERVE: Observe(job), Step.TRACK: Track(job), Step.FINALIZE: Finalize(job)}
+    def __init__(self, job: Job, proposal_actor: Any = None):
+        models = None if proposal_actor is None else RemoteModels(proposal_actor)
+        self.steps = {Step.OBSERVE: Observe(job, models), Step.TRACK: Track(job), Step.FINALIZE: Finalize(job)}
 
     def run(self, step: str, *args: Any) -> StepResult:
         return self.steps[step].run(*args)
 
     def pid(self) -> int:
         return os.getpid()
+
+    def where(self) -> dict[str, Any]:
+        """This process and the GPUs Ray gave it (none: the workers hold CPUs only)."""
+        import ray
+
+        gpu_ids = [str(g) for g in ray.get_gpu_ids()] if ray.is_initialized() else []
+        return {"pid": os.getpid(), "gpu_ids": gpu_ids}
 
 
 class LocalExecutor:
@@ -75,6 +97,9 @@ class LocalExecutor:
     def wait(self, timeout: float | None = None) -> tuple[int, StepResult | None, BaseException | None]:
         return self.done.popleft()  # steps run in submit: one is always finished
 
+    def placement(self) -> dict[str, list[dict[str, Any]]]:
+        return {"workers": [{"pid": os.getpid(), "gpu_ids": []}], "proposal_actors": []}
+
     def shutdown(self) -> None:
         pass
 
@@ -98,8 +123,16 @@ class RayExecutor:
         # held by the pool (with num_cpus=1 it would wait for a free CPU forever, and so
         # would its call). The pool is sized to the CPUs, so nothing is oversubscribed
         # until a node is lost; SPREAD places the pool across the nodes.
+        # The proposal stage: actors holding the model parts and their GPUs; the CPU workers
+        # share them round robin. Each holds GPUs for life (nothing else may take them) and
+        # a CPU only to be placed (the CPU pool below keeps the cores).
+        n_models = proposal_actor_count(job.cfg, ray.cluster_resources())
+        gpus = job.cfg.run.gpus_per_proposal_actor
+        model_actor = ray.remote(max_restarts=-1, max_task_retries=max_retries, num_gpus=gpus)(ProposalWorker)
+        self.proposal_actors = [model_actor.remote(job.cfg.proposals) for _ in range(n_models)]
         actor = ray.remote(max_restarts=-1, max_task_retries=max_retries, scheduling_strategy="SPREAD")(Worker)
-        self.actors = [actor.remote(job) for _ in range(n_workers)]
+        self.actors = [actor.remote(job, self.proposal_actors[i % n_models] if n_models else None)
+                       for i in range(n_workers)]
         self.idle = deque(self.actors)
         self.busy: dict[Any, Any] = {}
 
@@ -129,6 +162,30 @@ class RayExecutor:
     def pids(self) -> list[int]:
         return self.ray.get([a.pid.remote() for a in self.actors])
 
+    def placement(self, timeout: float = PLACEMENT_TIMEOUT_S) -> dict[str, list[dict[str, Any]]]:
+        """Empty when an actor does not answer within ``timeout`` (a lost node): it is a report, not a result."""
+        try:
+            return {"workers": self.ray.get([a.where.remote() for a in self.actors], timeout=timeout),
+                    "proposal_actors": self.ray.get([a.where.remote() for a in self.proposal_actors], timeout=timeout)}
+        except Exception:  # noqa: BLE001 - the job's results are written; only the report is missing
+            return {}
+
     def shutdown(self) -> None:
-        for a in self.actors:
+        for a in self.actors + self.proposal_actors:
             self.ray.kill(a)
+
+
+def proposal_actor_count(cfg: JobConfig, resources: dict[str, float]) -> int:
+    """How many proposal actors a job starts on a cluster with ``resources`` (``run.proposal_actors``)."""
+    n, gpus = cfg.run.proposal_actors, cfg.run.gpus_per_proposal_actor
+    if not has_models(cfg.proposals):
+        if n > 0:
+            raise ConfigError(f"run.proposal_actors={n}, but proposer {cfg.proposals.proposer!r} runs no network "
+                              f"(a proposal stage runs {', '.join(MODELS)})")
+        return 0
+    if n >= 0:
+        if n * gpus > resources.get("GPU", 0.0) + 1e-9:
+            raise ConfigError(f"run.proposal_actors={n} with run.gpus_per_proposal_actor={gpus}: the cluster has "
+                              f"{resources.get('GPU', 0.0):g} GPUs")
+        return n
+    return int(resources.get("GPU", 0.0) // gpus) if gpus > 0 else 0

@@ -32,7 +32,8 @@ from mining.geometry.config import GeometryConfig
 from mining.geometry.poses import PoseChain, move_plane
 from mining.geometry.stage import GeometryStage
 from mining.localise.localise import geometric_filter, localise
-from mining.proposals.make import Proposer, make_proposer
+from mining.pipeline.proposal_stage import ModelStage, ahead
+from mining.proposals.make import FrameProposer, Proposer, make_proposer
 from mining.sources.base import Source
 from mining.types import (FrameGeometry, GroundPlane, Observations, Proposals, SequencePlan, StereoFrame,
                           TrackingFrame)
@@ -90,7 +91,9 @@ class FrameLoop:
         return self.stage.run(frame)
 
     def step(self, frame: StereoFrame, geometry: FrameGeometry | None = None, proposals: Proposals | None = None,
-             position: int | None = None) -> FrameRecord:
+             position: int | None = None, models: list[Proposals] | None = None) -> FrameRecord:
+        """``models``: the proposer's model parts of this frame, run elsewhere (a proposal stage);
+        the loop's proposer adds its frame parts (``FrameProposer.finish``)."""
         cfg = self.cfg
         geom = geometry if geometry is not None else self.geometry(frame)
         ego = geom.egomotion
@@ -105,8 +108,10 @@ class FrameLoop:
             self._ground = None
         if proposals is None:
             if self.proposer is None:
-                self.proposer = make_proposer(cfg.proposals, (frame.calib.height, frame.calib.width))
-            proposals = self.proposer(frame, geom)
+                size = (frame.calib.height, frame.calib.width)
+                self.proposer = (make_proposer(cfg.proposals, size) if models is None
+                                 else FrameProposer(cfg.proposals, size, models=False))
+            proposals = self.proposer(frame, geom) if models is None else self.proposer.finish(frame, geom, models)
         dt = None if self._prev_t is None else (frame.t_ns - self._prev_t) / 1e9
         self._prev_t = frame.t_ns
         plane = self._ground or GroundPlane(None, 0.0, 0, False, geom.ground.reason)
@@ -140,10 +145,19 @@ def plan_geometry(source: Source, plan: SequencePlan, start: int, stop: int,
 
 
 def frame_records(source: Source, plan: SequencePlan, start: int, stop: int, cfg: JobConfig,
-                  proposer: Proposer | None = None) -> Iterator[FrameRecord]:
-    """``FrameLoop`` over plan positions [start, stop), honouring the plan's recording gaps."""
+                  proposer: Proposer | None = None, stage: ModelStage | None = None) -> Iterator[FrameRecord]:
+    """``FrameLoop`` over plan positions [start, stop), honouring the plan's recording gaps;
+    with a ``stage`` the proposer's model parts run there, in batches sent ahead
+    (``run.proposal_batch``, ``run.proposal_queue``), and ``proposer`` must be one without them."""
     loop = FrameLoop(cfg, proposer)
-    for position, frame, after_gap in plan_frames(source, plan, start, stop):
+    if stage is None:
+        for position, frame, after_gap in plan_frames(source, plan, start, stop):
+            if after_gap:
+                loop.recording_gap()
+            yield loop.step(frame, position=position)
+        return
+    for position, frame, after_gap, models in ahead(plan_frames(source, plan, start, stop), stage,
+                                                   cfg.run.proposal_batch, cfg.run.proposal_queue):
         if after_gap:
             loop.recording_gap()
-        yield loop.step(frame, position=position)
+        yield loop.step(frame, position=position, models=models)

@@ -30,6 +30,7 @@ from mining.catalog.store import Store, write_sequence
 from mining.config import JobConfig
 from mining.errors import InputError, MiningError
 from mining.pipeline.cache import decode_frames, encode_frames
+from mining.pipeline.proposal_stage import ModelStage
 from mining.pipeline.stitch import concat_parts, stitch_sequence
 from mining.pipeline.window import ObservedFrame, observe_window, track_window
 from mining.sources.base import Source
@@ -102,8 +103,10 @@ def _error(e: BaseException) -> str:
 
 
 class Observe:
-    def __init__(self, job: Job):
+    def __init__(self, job: Job, models: ModelStage | None = None):
+        """``models``: where the proposer's model parts run when not here (a proposal actor)."""
         self.job = job
+        self.models = models
         self.proposer = None  # made on first use and kept: a model loads once per worker
 
     def run(self, window: Window) -> StepResult:
@@ -119,7 +122,7 @@ class Observe:
         report = _FrameReport(store, window)
         try:
             frames = observe_window(job_source(self.job), self.job.plans[window.sequence], window, self.job.cfg,
-                                    self._proposer(window), report)
+                                    self._proposer(window), report, self.models)
         except (InputError, MiningError) as e:
             return StepResult(window.name, False, _error(e), time.perf_counter() - t0)
         finally:
@@ -129,11 +132,12 @@ class Observe:
                           recomputed=recomputed)
 
     def _proposer(self, window: Window):
-        from mining.proposals.make import make_proposer
+        from mining.proposals.make import FrameProposer
 
         calib = self.job.plans[window.sequence].calib
-        if self.proposer is None:
-            self.proposer = make_proposer(self.job.cfg.proposals, (calib.height, calib.width))
+        if self.proposer is None:  # without its model parts where a proposal stage runs them
+            self.proposer = FrameProposer(self.job.cfg.proposals, (calib.height, calib.width),
+                                          models=self.models is None)
         return self.proposer
 
 

@@ -285,6 +285,7 @@ def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frame
             ex = executor(job)
             try:
                 summary = run_job(job, schedule, ex, progress, keep_cache)
+                summary.placement = ex.placement()
             finally:
                 ex.shutdown()
     summary.seconds = time.perf_counter() - t0

@@ -41,6 +41,9 @@ class Summary:
     classifiers: str = ""  # which proposers classified (proposals.make.classifiers_line)
     recomputed: dict[str, str] = field(default_factory=dict)  # window → why its observation cache did not read back
     swept: list[str] = field(default_factory=list)  # temporary files an interrupted run left, removed by this one
+    # Where the steps ran (executors' ``placement``): "workers" and "proposal_actors", each a
+    # list of {pid, gpu_ids, node, ...}; empty for a job that ran nothing.
+    placement: dict[str, list[dict]] = field(default_factory=dict)
 
     @property
     def any_failed(self) -> bool:
@@ -57,6 +60,12 @@ class Summary:
                f"time: {self.seconds:.1f} s in all, {self.mining_seconds:.1f} s mining: "
                f"{self.frames / max(self.mining_seconds, 1e-9):.2f} frames/s (core frames tracked / mining time, "
                f"as the bar)"]
+        if self.placement.get("proposal_actors"):
+            actors = self.placement["proposal_actors"]
+            gpus = ", ".join("+".join(a["gpu_ids"]) or "none" for a in actors)
+            out.append(f"proposal stage: {len(actors)} actor(s) on GPUs [{gpus}] proposed "
+                       f"{sum(a['frames'] for a in actors)} frames; {len(self.placement.get('workers', []))} CPU "
+                       f"worker(s) did the rest")
         if self.swept:
             more = f" and {len(self.swept) - 1} more" if len(self.swept) > 1 else ""
             out.append(f"swept {len(self.swept)} temporary file(s) an interrupted run left: {self.swept[0]}{more}")

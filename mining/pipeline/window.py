@@ -28,6 +28,7 @@ from mining.errors import InputError
 from mining.geometry.poses import chain_poses
 from mining.pipeline.frames import frame_records
 from mining.pipeline.mine import mine_tubes
+from mining.pipeline.proposal_stage import ModelStage
 from mining.proposals.make import Proposer
 from mining.sources.base import Source
 from mining.types import MinedTube, Observations, SequencePlan, StereoCalib, TrackingFrame, Window
@@ -55,25 +56,28 @@ class ObservedFrame:
 
 def observe_window(source: Source, plan: SequencePlan, window: Window, cfg: JobConfig,
                    proposer: Proposer | None = None,
-                   on_frame: Callable[[int], None] | None = None) -> list[ObservedFrame]:
+                   on_frame: Callable[[int], None] | None = None,
+                   models: ModelStage | None = None) -> list[ObservedFrame]:
     """Geometry, proposals and localisation for the window's core frames; ``on_frame(k)``
-    after each (k core frames done), for progress."""
+    after each (k core frames done), for progress. ``models``: a proposal stage running the
+    proposer's model parts (``proposer`` is then one without them)."""
     s, e = window.core
     start = max(0, s - WARMUP_FRAMES)
     try:
-        return _observe(source, plan, start, s, e, cfg, proposer, on_frame)
+        return _observe(source, plan, start, s, e, cfg, proposer, on_frame, models)
     except InputError as err:
         if err.frame is None or start == s or err.frame not in plan.frames[start:s]:
             raise
     # A bad warm-up frame belongs to the window before, which fails on it; this window
     # starts without a previous frame (its first egomotion is absent, a new pose segment).
-    return _observe(source, plan, s, s, e, cfg, proposer, on_frame)
+    return _observe(source, plan, s, s, e, cfg, proposer, on_frame, models)
 
 
 def _observe(source: Source, plan: SequencePlan, start: int, s: int, e: int, cfg: JobConfig,
-             proposer: Proposer | None, on_frame: Callable[[int], None] | None = None) -> list[ObservedFrame]:
+             proposer: Proposer | None, on_frame: Callable[[int], None] | None = None,
+             models: ModelStage | None = None) -> list[ObservedFrame]:
     out = []
-    for rec in frame_records(source, plan, start, e, cfg, proposer):
+    for rec in frame_records(source, plan, start, e, cfg, proposer, models):
         if rec.position >= s:
             ego = rec.geometry.egomotion
             obs = rec.tracking.observations

@@ -40,6 +40,7 @@ class OnnxConfig:
     max_proposals: Count = 300  # REFERENCE: sorted by score, at most 300 kept
     mask_threshold: Fraction = 0.5  # ours: sigmoid mask probability cut (Ultralytics' choice)
     intra_op_num_threads: int = 1  # ours: one thread per proposer; Ray parallelises over actors
+    device: Annotated[str, OneOf(("cpu", "cuda", "auto"))] = "cpu"  # ours: onnxruntime provider: "cpu" (as before), "cuda" (onnxruntime-gpu, refused without it) or "auto" (CUDA where installed)
     pad_value: Annotated[int, Range(0, 255)] = 114  # ours: letterbox grey the YOLO family was trained with
 
 
@@ -129,6 +130,7 @@ class TorchConfig:
     unknown_mass: str = "background"  # original implementation (see above); "none" is ours
     batch_norm_eps: float = 0.0  # torchvision: runs its COCO Mask R-CNN weights with frozen batch norm eps 0
     num_threads: int = 1  # ours: CPU threads per proposer, as onnx (Ray parallelises over actors); 0 = torch's default
+    precision: Annotated[str, OneOf(("fp32", "fp16"))] = "fp32"  # ours: "fp16" = autocast to half on a CUDA device (refused on the CPU); fp32 is torchvision's
 
 
 @dataclass

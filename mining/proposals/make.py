@@ -1,12 +1,16 @@
 """Build the configured proposer: one name or a union such as ``"onnx+stereo"``.
 
 Every proposer is called as ``proposer(frame, geometry) -> Proposals``. Proposers that
-hold a model load it once, in the constructor.
+hold a model load it once, in the constructor. ``FrameProposer`` splits a union into the
+parts that run a network on the image (batched; on a GPU stage when the job has one) and
+the parts that need the frame's geometry.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+
+import numpy as np
 
 from mining.errors import ConfigError
 from mining.proposals.config import ProposalConfig
@@ -85,33 +89,96 @@ def make_one(name: str, cfg: ProposalConfig, frame_size: tuple[int, int]) -> Pro
     raise ConfigError(f"proposals.proposer: unknown proposer {name!r}; known: {NAMES} or a union like 'onnx+stereo'")
 
 
-def _with_generic(names: list[str], cfg: ProposalConfig, frame_size: tuple[int, int]) -> list[Proposer]:
-    """The parts of ``names`` with the ONNX model's generic candidates (``proposals.onnx_generic``) as
-    one more class-agnostic part, last, so they only add what the others did not find; one network run
-    per frame serves both ONNX parts."""
-    from mining.proposals.onnx_generic import SharedOnnxRun
-    from mining.proposals.onnx_yolo import OnnxProposer, decode_predictions
-
-    run = SharedOnnxRun(OnnxProposer(cfg.onnx, frame_size=frame_size))
-
-    def onnx(frame: StereoFrame, geometry: FrameGeometry) -> Proposals:
-        pred, protos, lb = run.outputs(frame.index, frame.left)
-        return decode_predictions(frame.index, pred, protos, lb, frame.left.shape[:2], cfg.onnx)
-
-    parts = [onnx if n == "onnx" else make_one(n, cfg, frame_size) for n in names]
-    return parts + [lambda frame, geometry: run.generic(frame.index, frame.left, cfg.onnx_generic)]
+MODELS = ("onnx", "torch", "fastsam", "sam")  # proposers that run a network on the left image alone
+GENERIC = "onnx_generic"  # the ONNX model's generic candidates: a part of its own, from the same network run
 
 
-def make_proposer(cfg: ProposalConfig, frame_size: tuple[int, int]) -> Proposer:
+class FrameProposer:
+    """The configured proposer, split by what each part needs.
+
+    *Model parts* (``MODELS``, and the ONNX model's generic candidates) look at the left
+    image alone: ``propose_images`` runs them on a batch of frames, in this process or on a
+    proposal stage of their own (a GPU actor, ``mining/pipeline/proposal_stage.py``).
+    *Frame parts* (``stereo``, ``json``) need the frame's geometry or its index and run where
+    the geometry is. ``finish`` joins a frame's model parts with its frame parts through the
+    union, in the configured order, so a frame's proposals are the same wherever its model
+    parts ran. ``proposer(frame, geometry)`` does both for one frame.
+    """
+
+    def __init__(self, cfg: ProposalConfig, frame_size: tuple[int, int], models: bool = True,
+                 frame_parts: bool = True):
+        names = proposer_names(cfg.proposer)
+        if not names:
+            raise ConfigError("proposals.proposer is empty")
+        self.cfg, self.frame_size = cfg, frame_size
+        generic = "onnx" in names and cfg.onnx_generic.enabled
+        # The generic candidates come last, so the union keeps them only where no other part proposed.
+        self.names = names + ([GENERIC] if generic else [])
+        self.model_names = [n for n in self.names if n in MODELS or n == GENERIC]
+        self._frame_parts = {n: make_one(n, cfg, frame_size) for n in self.names
+                             if frame_parts and n not in self.model_names}
+        self._models = [_model(n, cfg, frame_size, generic) for n in self.model_names
+                        if models and n != GENERIC]
+
+    def propose_images(self, frames: Sequence[int], images: Sequence[np.ndarray]) -> list[list[Proposals]]:
+        """The model parts of each frame (in ``model_names`` order), batched where a model takes batches."""
+        per_model = [m(list(frames), list(images)) for m in self._models]
+        return [[p for outs in per_model for p in outs[i]] for i in range(len(frames))]
+
+    def finish(self, frame: StereoFrame, geometry: FrameGeometry, models: Sequence[Proposals]) -> Proposals:
+        """The frame's proposals from its model parts (``propose_images``) and its frame parts."""
+        if len(models) != len(self.model_names):
+            raise ValueError(f"{len(models)} model results for the model parts {self.model_names}")
+        given = dict(zip(self.model_names, models))
+        parts = [given[n] if n in given else self._frame_parts[n](frame, geometry) for n in self.names]
+        if len(parts) == 1:
+            return parts[0]
+        return union(parts, self.cfg.union.mask_iou, self.cfg.union, geometry.disparity, geometry.depth)
+
+    def __call__(self, frame: StereoFrame, geometry: FrameGeometry) -> Proposals:
+        models = self.propose_images([frame.index], [frame.left])[0] if self.model_names else []
+        return self.finish(frame, geometry, models)
+
+
+ModelBatch = Callable[[list[int], list[np.ndarray]], list[list[Proposals]]]
+
+
+def _model(name: str, cfg: ProposalConfig, frame_size: tuple[int, int], generic: bool) -> ModelBatch:
+    """A model part as a batch function: frames → per frame, its proposals (the ONNX model's
+    generic candidates beside its own when ``generic``: one network run serves both)."""
+    if name == "onnx":
+        from mining.proposals.onnx_generic import generic_candidates
+        from mining.proposals.onnx_yolo import OnnxProposer, decode_predictions
+
+        model = OnnxProposer(cfg.onnx, frame_size=frame_size)
+
+        def onnx(frames: list[int], images: list[np.ndarray]) -> list[list[Proposals]]:
+            out = []
+            for frame, image, (pred, protos, lb) in zip(frames, images, model.raw_outputs_batch(frames, images)):
+                hw = image.shape[:2]
+                own = decode_predictions(frame, pred, protos, lb, hw, cfg.onnx)
+                out.append([own, generic_candidates(frame, pred, protos, lb, hw, cfg.onnx, cfg.onnx_generic)]
+                           if generic else [own])
+            return out
+        return onnx
+    if name == "torch":
+        from mining.proposals.mprcnn_torch import TorchProposer  # a ConfigError naming the extra without torch
+
+        mprcnn = TorchProposer(cfg.torch)
+        return lambda frames, images: [[p] for p in mprcnn.propose_batch(frames, images)]
+    if name == "fastsam":
+        from mining.proposals.fastsam import FastSamProposer
+
+        fastsam = FastSamProposer(cfg.fastsam, frame_size=frame_size)
+        return lambda frames, images: [[fastsam(f, im)] for f, im in zip(frames, images)]
+    if name == "sam":
+        from mining.proposals.sam import SamProposer
+
+        sam = SamProposer(cfg.sam)
+        return lambda frames, images: [[sam(f, im)] for f, im in zip(frames, images)]
+    raise ConfigError(f"proposals.proposer: {name!r} is not a model proposer; models: {MODELS}")
+
+
+def make_proposer(cfg: ProposalConfig, frame_size: tuple[int, int]) -> FrameProposer:
     """``frame_size`` is (height, width)."""
-    names = proposer_names(cfg.proposer)
-    if not names:
-        raise ConfigError("proposals.proposer is empty")
-    if "onnx" in names and cfg.onnx_generic.enabled:
-        parts = _with_generic(names, cfg, frame_size)
-    else:
-        parts = [make_one(n, cfg, frame_size) for n in names]
-    if len(parts) == 1:
-        return parts[0]
-    return lambda frame, geometry: union([p(frame, geometry) for p in parts], cfg.union.mask_iou, cfg.union,
-                                         geometry.disparity, geometry.depth)
+    return FrameProposer(cfg, frame_size)

@@ -293,6 +293,9 @@ class TorchProposer:
         self.device = resolve_device(cfg.device)
         if cfg.num_threads and self.device.type == "cpu":
             torch.set_num_threads(cfg.num_threads)
+        if cfg.precision == "fp16" and self.device.type != "cuda":
+            raise ConfigError(f"proposals.torch.precision='fp16' needs a CUDA device; the proposer runs on "
+                              f"{self.device} (proposals.torch.device={cfg.device!r})")
         self.model = build_model(read_checkpoint(self.model_path), cfg, self.model_path).to(self.device)
         self.last_timings_ms: dict[str, float] = {}
 
@@ -311,8 +314,11 @@ class TorchProposer:
                                  frame=frame)
         out: list[Proposals] = []
         b = self.cfg.batch_size
+        # fp16: the network in half precision where autocast allows it; its heads' outputs return to float32.
+        half = torch.autocast("cuda", dtype=torch.float16, enabled=self.cfg.precision == "fp16")
         for s in range(0, len(frames), b):
-            out.extend(self._forward(list(frames[s:s + b]), list(images[s:s + b])))
+            with half:
+                out.extend(self._forward(list(frames[s:s + b]), list(images[s:s + b])))
         return out
 
     @torch.inference_mode()
@@ -328,6 +334,9 @@ class TorchProposer:
         t1 = time.perf_counter()
         x = rh.box_head(rh.box_roi_pool(features, rois, batch.image_sizes))
         obj_logits, cls_logits, deltas = rh.box_predictor(x)
+        # float() is a no-op in fp32; under fp16 autocast the heads' outputs come back to float32 here.
+        obj_logits, deltas = obj_logits.float(), deltas.float()
+        cls_logits = None if cls_logits is None else cls_logits.float()
         # log p(object) − log p(background): ranks like objectness but does not saturate at 1 in float32.
         log_odds = torch.logsumexp(obj_logits[:, 1:], dim=1) - obj_logits[:, 0]
         objectness = torch.sigmoid(log_odds)  # = 1 − p(background)
@@ -358,7 +367,7 @@ class TorchProposer:
         masks = torch.zeros((0, 28, 28), device=dev)
         if len(sel):
             mf = rh.mask_head(rh.mask_roi_pool(features, [boxes[k] for k in kept], batch.image_sizes))
-            logits = rh.mask_predictor(mf)  # (K, C, 28, 28)
+            logits = rh.mask_predictor(mf).float()  # (K, C, 28, 28)
             mch = channel[sel] if logits.shape[1] == N_CLASS_HEAD else torch.ones_like(sel)
             masks = logits[torch.arange(len(sel), device=dev), mch].sigmoid()
         t3 = time.perf_counter()

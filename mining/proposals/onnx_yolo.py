@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 import os
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -127,9 +128,15 @@ class OnnxProposer:
             opts.intra_op_num_threads = self.cfg.intra_op_num_threads
             opts.inter_op_num_threads = 1
             opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-            sess = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+            sess = ort.InferenceSession(str(path), opts, providers=execution_providers(self.cfg.device))
             self._sessions[input_hw] = (sess, sess.get_inputs()[0].name)
         return self._sessions[input_hw]
+
+    def batch_axis(self, input_hw: tuple[int, int]) -> bool:
+        """Whether the model takes several images per run: its input's first axis is not fixed
+        (YOLO exports usually fix it at 1, with the 1 also inside their reshapes)."""
+        sess, _ = self._session(input_hw)
+        return not isinstance(sess.get_inputs()[0].shape[0], int)
 
     def raw_outputs(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray, Letterbox]:
         """Run the network: (116, N) predictions, (32, h/4, w/4) prototypes and the letterbox."""
@@ -138,17 +145,51 @@ class OnnxProposer:
         out0, out1 = sess.run(None, {name: letterbox_image(image, lb, self.cfg.pad_value)})
         return out0[0], out1[0], lb
 
+    def raw_outputs_batch(self, frames: Sequence[int], images: Sequence[np.ndarray],
+                          ) -> list[tuple[np.ndarray, np.ndarray, Letterbox]]:
+        """``raw_outputs`` of each image: one run for all where the model has a batch axis and the
+        images share a size, else one run per image (the same outputs either way, tested)."""
+        for frame, image in zip(frames, images):
+            _check_image(frame, image)
+        lbs = [plan_letterbox(self.cfg, im.shape[:2]) for im in images]
+        if len(images) > 1 and len({lb.input_hw for lb in lbs}) == 1 and self.batch_axis(lbs[0].input_hw):
+            sess, name = self._session(lbs[0].input_hw)
+            x = np.concatenate([letterbox_image(im, lb, self.cfg.pad_value) for im, lb in zip(images, lbs)])
+            out0, out1 = sess.run(None, {name: x})
+            return [(out0[i], out1[i], lb) for i, lb in enumerate(lbs)]
+        return [self.raw_outputs(im) for im in images]
+
     def __call__(self, frame: int, image: np.ndarray) -> Proposals:
-        if not (isinstance(image, np.ndarray) and image.ndim == 3 and image.shape[2] == 3 and image.dtype == np.uint8):
-            shape = getattr(image, "shape", None)
-            raise InputError(f"expected an (H, W, 3) uint8 RGB image, got {shape} {getattr(image, 'dtype', '')}",
-                             frame=frame)
+        _check_image(frame, image)
         t0 = time.perf_counter()
         pred, protos, lb = self.raw_outputs(image)
         t1 = time.perf_counter()
         out = decode_predictions(frame, pred, protos, lb, image.shape[:2], self.cfg)
         self.last_timings_ms = {"network": 1e3 * (t1 - t0), "decode": 1e3 * (time.perf_counter() - t1)}
         return out
+
+
+def _check_image(frame: int, image: np.ndarray) -> None:
+    if not (isinstance(image, np.ndarray) and image.ndim == 3 and image.shape[2] == 3 and image.dtype == np.uint8):
+        shape = getattr(image, "shape", None)
+        raise InputError(f"expected an (H, W, 3) uint8 RGB image, got {shape} {getattr(image, 'dtype', '')}",
+                         frame=frame)
+
+
+def execution_providers(device: str) -> list[str]:
+    """onnxruntime's providers for ``proposals.onnx.device``: "cpu"; "cuda" (refused by name where
+    this onnxruntime has no CUDA provider); "auto" = CUDA where it has one, else the CPU."""
+    import onnxruntime as ort
+
+    have = ort.get_available_providers()
+    if device == "cpu":
+        return ["CPUExecutionProvider"]
+    if device == "cuda" and "CUDAExecutionProvider" not in have:
+        raise ConfigError("proposals.onnx.device='cuda', but this onnxruntime has no CUDA provider "
+                          f"(it has {', '.join(have)}): install onnxruntime-gpu")
+    if device in ("cuda", "auto"):
+        return (["CUDAExecutionProvider"] if "CUDAExecutionProvider" in have else []) + ["CPUExecutionProvider"]
+    raise ConfigError(f"proposals.onnx.device: 'cpu', 'cuda' or 'auto', got {device!r}")
 
 
 def decode_predictions(frame: int, pred: np.ndarray, protos: np.ndarray, lb: Letterbox,

@@ -1,0 +1,150 @@
+"""The proposal stage (issue 30): the proposer's model parts batched, on actors of their own.
+
+The model is the real maskrcnn_resnet50_fpn with random weights (conftest's ``torch_checkpoint``)
+at a reduced input size: random weights say nothing about accuracy, they exercise batching and
+placement. Ray's GPUs here are logical (``ray.init(num_gpus=2)``): the actors get GPU ids and
+``CUDA_VISIBLE_DEVICES`` as on a GPU node, and the model runs on the CPU.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from conftest import REPO, TORCH_SMALL
+
+from mining.config import load_config
+from mining.errors import ConfigError
+from mining.pipeline.executors import proposal_actor_count
+from mining.pipeline.frames import plan_frames, plan_geometry
+from mining.pipeline.proposal_stage import LocalModels, ahead
+from mining.proposals.make import FrameProposer
+from mining.sources.synthetic import SyntheticSource
+
+pytest.importorskip("torch")
+pytest.importorskip("torchvision")
+
+
+def _cfg(checkpoint, *sets: str):
+    torch_sets = [f"proposals.torch.{k}={v!r}" if isinstance(v, str) else f"proposals.torch.{k}={v}"
+                  for k, v in TORCH_SMALL.items()]
+    return load_config(REPO / "jobs" / "synthetic.toml",
+                       ["proposals.proposer='torch+stereo'", f"proposals.torch.model_path='{checkpoint}'",
+                        *torch_sets, *sets])
+
+
+def _same(a, b) -> None:
+    assert a.frame == b.frame and len(a) == len(b) and list(a.proposer) == list(b.proposer)
+    np.testing.assert_array_equal(a.boxes, b.boxes)
+    np.testing.assert_array_equal(a.objectness, b.objectness)
+    np.testing.assert_array_equal(a.posterior, b.posterior)
+    assert a.rles == b.rles
+
+
+def test_model_parts_in_batches_give_each_frame_its_own_proposals(torch_checkpoint):
+    # Three frames in batches of two (the torch proposer's own batch of two inside): the model
+    # parts run elsewhere and joined by finish equal the whole proposer on each frame alone.
+    cfg = _cfg(torch_checkpoint, "proposals.torch.batch_size=2")
+    src = SyntheticSource(n_frames=3)
+    plan = src.plan("0000")
+    size = (plan.calib.height, plan.calib.width)
+    whole = FrameProposer(cfg.proposals, size)
+    here = FrameProposer(cfg.proposals, size, models=False)
+    assert here.model_names == ["torch"] and whole.names == ["torch", "stereo"]
+    got = list(ahead(plan_frames(src, plan, 0, 3), LocalModels(cfg.proposals), batch=2, queue=2))
+    assert [g[0] for g in got] == [0, 1, 2]
+    n = 0
+    for (_, frame, geom, _), (_, frame2, _, models) in zip(plan_geometry(src, plan, 0, 3, cfg.geometry), got):
+        assert frame2.index == frame.index
+        alone = whole(frame, geom)
+        _same(here.finish(frame, geom, models), alone)
+        n += len(alone)
+    assert n > 0
+
+
+class _Counting(LocalModels):
+    """The in-process stage, counting the batches submitted and not yet collected."""
+
+    def __init__(self, cfg):
+        super().__init__(cfg)
+        self.out, self.most, self.sizes = 0, 0, []
+
+    def submit(self, frame_size, frames, images):
+        self.out += 1
+        self.most = max(self.most, self.out)
+        self.sizes.append(len(frames))
+        return super().submit(frame_size, frames, images)
+
+    def result(self, handle):
+        self.out -= 1
+        return super().result(handle)
+
+
+def test_ahead_sends_at_most_queue_batches_ahead_and_keeps_the_order(torch_checkpoint):
+    cfg = _cfg(torch_checkpoint)
+    src = SyntheticSource(n_frames=7)
+    plan = src.plan("0000")
+    stage = _Counting(cfg.proposals)
+    got = list(ahead(plan_frames(src, plan, 0, 7), stage, batch=3, queue=2))
+    assert [g[0] for g in got] == list(range(7))
+    assert stage.sizes == [3, 3, 1] and stage.most == 2 and stage.out == 0
+    assert all(models[0].frame == frame.index for _, frame, _, models in got)
+
+
+def test_how_many_proposal_actors_a_cluster_gets(torch_checkpoint):
+    auto = _cfg(torch_checkpoint)
+    assert auto.run.proposal_actors == -1  # one per GPU where there are GPUs, none elsewhere
+    assert proposal_actor_count(auto, {"CPU": 16.0}) == 0
+    assert proposal_actor_count(auto, {"CPU": 16.0, "GPU": 4.0}) == 4
+    half = dataclasses.replace(auto, run=dataclasses.replace(auto.run, gpus_per_proposal_actor=0.5))
+    assert proposal_actor_count(half, {"CPU": 16.0, "GPU": 4.0}) == 8
+    stereo = load_config(REPO / "jobs" / "synthetic.toml", ["run.proposal_actors=2"])
+    with pytest.raises(ConfigError, match="runs no network"):
+        proposal_actor_count(stereo, {"CPU": 16.0, "GPU": 4.0})
+    too_many = _cfg(torch_checkpoint, "run.proposal_actors=3")
+    with pytest.raises(ConfigError, match="the cluster has 2 GPUs"):
+        proposal_actor_count(too_many, {"CPU": 16.0, "GPU": 2.0})
+
+
+@pytest.fixture(scope="module")
+def ray_with_logical_gpus():
+    import ray
+
+    ray.init(num_cpus=2, num_gpus=2, include_dashboard=False, log_to_driver=False)
+    yield
+    ray.shutdown()
+
+
+@pytest.mark.slow  # two jobs of 24 frames on a local Ray
+@pytest.mark.own_process
+def test_logical_gpus_hold_the_proposal_stage_and_the_tubes_do_not_change(ray_with_logical_gpus, torch_checkpoint,
+                                                                          tmp_path):
+    from mining.catalog.views import connect
+    from mining.pipeline.executors import RayExecutor
+    from mining.pipeline.submit import mine_job
+
+    frames = (0, 24)
+    staged = mine_job(_cfg(torch_checkpoint, "window.core=12", "run.proposal_batch=4"), str(tmp_path / "staged"),
+                      ["0000"], frames, executor=RayExecutor)
+    plain = mine_job(_cfg(torch_checkpoint, "window.core=12", "run.proposal_actors=0"), str(tmp_path / "plain"),
+                     ["0000"], frames, executor=RayExecutor)
+    assert staged.ok == plain.ok == 2 and not staged.failed and not plain.failed
+
+    actors, workers = staged.placement["proposal_actors"], staged.placement["workers"]
+    assert len(actors) == 2 and sorted(g for a in actors for g in a["gpu_ids"]) == ["0", "1"]
+    assert all(len(a["gpu_ids"]) == 1 for a in actors)
+    assert len(workers) == 2 and all(w["gpu_ids"] == [] for w in workers)  # nothing else on a GPU
+    assert not {a["pid"] for a in actors} & {w["pid"] for w in workers}
+    # Every frame observed, warm-up frames included (2 before the second window), was proposed there.
+    assert sum(a["frames"] for a in actors) == 24 + 2
+    assert plain.placement["proposal_actors"] == []
+    assert "proposal stage: 2 actor(s) on GPUs" in "\n".join(staged.lines())
+
+    cols = "tube_id, selected, known, category, score, n_frames, frame_start, frame_end, mean_position, params_hash"
+    a = connect(str(tmp_path / "staged")).execute(f"SELECT {cols} FROM tubes ORDER BY tube_id").fetchall()
+    b = connect(str(tmp_path / "plain")).execute(f"SELECT {cols} FROM tubes ORDER BY tube_id").fetchall()
+    assert a == b and len(a) > 0
+    ma = connect(str(tmp_path / "staged")).execute("SELECT tube_id, frame, bbox, rle_counts, position_world FROM tube_frames ORDER BY 1, 2").fetchall()
+    mb = connect(str(tmp_path / "plain")).execute("SELECT tube_id, frame, bbox, rle_counts, position_world FROM tube_frames ORDER BY 1, 2").fetchall()
+    assert ma == mb
