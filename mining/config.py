@@ -67,10 +67,9 @@ class RunConfig:
     # ours: the interface a local Ray of the job's own binds every port to (pipeline/localray.py);
     # loopback unless the user names another (`mine submit --host`); 0.0.0.0 = Ray's own choice
     bind_host: str = "127.0.0.1"
-    # The proposal stage (pipeline/proposal_stage.py): the proposer's model parts on actors of their own.
-    # -1 = one actor per GPU of the cluster when the proposer runs a network (none without GPUs: the
-    # models run inside the CPU workers, as before); 0 = never; N = N actors.
-    proposal_actors: Annotated[int, Range(-1)] = -1  # ours: a GPU is only used where one is asked for or found
+    # The proposal stage (pipeline/proposal_stage.py): the proposer's model parts on actors of their own;
+    # without one the models run inside the CPU workers.
+    proposal_actors: Annotated[int, Range(-1)] = -1  # ours: -1 = one actor per cluster GPU when the proposer runs a network (none without GPUs); 0 = never; N = N actors
     gpus_per_proposal_actor: Annotated[float, Range(0.0)] = 1.0  # ours: one model per GPU (0 = actors on CPUs, for a test or a CPU-only pool)
     proposal_batch: Count = 8  # ours: frames per model call; torch batches them again by proposals.torch.batch_size
     proposal_queue: Count = 2  # ours: batches a window sends ahead: bounds the object store at workers × queue × batch left images

@@ -40,7 +40,7 @@ class OnnxConfig:
     max_proposals: Count = 300  # REFERENCE: sorted by score, at most 300 kept
     mask_threshold: Fraction = 0.5  # ours: sigmoid mask probability cut (Ultralytics' choice)
     intra_op_num_threads: int = 1  # ours: one thread per proposer; Ray parallelises over actors
-    device: Annotated[str, OneOf(("cpu", "cuda", "auto"))] = "cpu"  # ours: onnxruntime provider: "cpu" (as before), "cuda" (onnxruntime-gpu, refused without it) or "auto" (CUDA where installed)
+    device: Annotated[str, OneOf(("cpu", "cuda", "auto"))] = "cpu"  # ours: onnxruntime provider: "cpu", "cuda" (onnxruntime-gpu, refused without it) or "auto" (CUDA where installed)
     pad_value: Annotated[int, Range(0, 255)] = 114  # ours: letterbox grey the YOLO family was trained with
 
 
