@@ -38,9 +38,10 @@ def _save(graph, path: Path) -> Path:
 
 
 def fastsam_onnx(path: Path, height: int = 64, width: int = 64, n_classes: int = 1, n_coeffs: int = 32,
-                 seed: int = 0, proto_channels: int | None = None) -> Path:
-    """A YOLOv8-seg-layout model (FastSAM: ``n_classes`` = 1) with random weights; ``proto_channels``
-    other than ``n_coeffs`` makes an off-layout model."""
+                 seed: int = 0, proto_channels: int | None = None, batch: int | None = 1) -> Path:
+    """A YOLOv8-seg-layout model (FastSAM: ``n_classes`` = 1; the COCO YOLO layout: 80) with random
+    weights; ``proto_channels`` other than ``n_coeffs`` makes an off-layout model; ``batch=None``
+    declares the batch axis symbolic (an export with a batch axis; 1 is the usual fixed export)."""
     proto_channels = n_coeffs if proto_channels is None else proto_channels
     from onnx import TensorProto as T
     from onnx import helper, numpy_helper
@@ -57,7 +58,7 @@ def fastsam_onnx(path: Path, height: int = 64, width: int = 64, n_classes: int =
                                       kernel_shape=[s, s], strides=[s, s]))
         nodes.append(helper.make_node("Reshape", [f"feat{s}", "flat_shape"], [f"flat{s}"]))
         levels.append(f"flat{s}")
-    inits.append(numpy_helper.from_array(np.array([1, rows, -1], np.int64), "flat_shape"))
+    inits.append(numpy_helper.from_array(np.array([0 if batch is None else batch, rows, -1], np.int64), "flat_shape"))
     nodes.append(helper.make_node("Concat", levels, ["raw"], axis=2))
     inits.append(numpy_helper.from_array(np.array([4, n_classes, n_coeffs], np.int64), "split"))
     nodes.append(helper.make_node("Split", ["raw", "split"], ["dist", "cls", "coef"], axis=1))
@@ -87,11 +88,12 @@ def fastsam_onnx(path: Path, height: int = 64, width: int = 64, n_classes: int =
     wp = rng.normal(0, 0.3, (proto_channels, 3, 4, 4)).astype(np.float32)
     inits.append(numpy_helper.from_array(wp, "proto.w"))
     nodes.append(helper.make_node("Conv", ["images", "proto.w"], ["output1"], kernel_shape=[4, 4], strides=[4, 4]))
+    b = "batch" if batch is None else batch
     graph = helper.make_graph(
         nodes, "fastsam_tiny",
-        [helper.make_tensor_value_info("images", T.FLOAT, [1, 3, height, width])],
-        [helper.make_tensor_value_info("output0", T.FLOAT, [1, rows, grid.shape[1]]),
-         helper.make_tensor_value_info("output1", T.FLOAT, [1, proto_channels, height // 4, width // 4])],
+        [helper.make_tensor_value_info("images", T.FLOAT, [b, 3, height, width])],
+        [helper.make_tensor_value_info("output0", T.FLOAT, [b, rows, grid.shape[1]]),
+         helper.make_tensor_value_info("output1", T.FLOAT, [b, proto_channels, height // 4, width // 4])],
         inits)
     return _save(graph, path)
 

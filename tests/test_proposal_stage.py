@@ -12,7 +12,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from conftest import REPO, TORCH_SMALL
+from conftest import MODEL, REPO, TORCH_SMALL
 
 from mining.config import load_config
 from mining.errors import ConfigError
@@ -148,3 +148,32 @@ def test_logical_gpus_hold_the_proposal_stage_and_the_tubes_do_not_change(ray_wi
     ma = connect(str(tmp_path / "staged")).execute("SELECT tube_id, frame, bbox, rle_counts, position_world FROM tube_frames ORDER BY 1, 2").fetchall()
     mb = connect(str(tmp_path / "plain")).execute("SELECT tube_id, frame, bbox, rle_counts, position_world FROM tube_frames ORDER BY 1, 2").fetchall()
     assert ma == mb
+
+
+def test_an_onnx_model_with_a_batch_axis_runs_a_batch_at_once_with_the_same_outputs(tmp_path):
+    from _tiny_models import fastsam_onnx
+    from mining.proposals.config import OnnxConfig
+    from mining.proposals.onnx_yolo import OnnxProposer, decode_predictions
+
+    path = fastsam_onnx(tmp_path / "yolo_batch.onnx", height=64, width=96, n_classes=80, batch=None)
+    cfg = OnnxConfig(model_path=str(path), cache_dir=str(tmp_path / "cache"), input_height=64, input_width=96,
+                     score_threshold=0.3)
+    model = OnnxProposer(cfg)
+    assert model.batch_axis((64, 96))
+    rng = np.random.default_rng(0)
+    images = [rng.integers(0, 256, (128, 192, 3), dtype=np.uint8) for _ in range(3)]
+    together = model.raw_outputs_batch([0, 1, 2], images)
+    n = 0
+    for i, image in enumerate(images):
+        pred, protos, lb = model.raw_outputs(image)
+        np.testing.assert_array_equal(together[i][0], pred)
+        np.testing.assert_array_equal(together[i][1], protos)
+        a = decode_predictions(i, together[i][0], together[i][1], together[i][2], image.shape[:2], cfg)
+        b = model(i, image)
+        assert a.rles == b.rles and np.array_equal(a.boxes, b.boxes)
+        n += len(b)
+    assert n > 0
+    # The usual export fixes its batch at 1 (inside its reshapes too): it runs image by image.
+    shared = OnnxProposer(OnnxConfig(model_path=str(MODEL), cache_dir=str(tmp_path / "cache"),
+                                     input_height=320, input_width=320))
+    assert not shared.batch_axis((320, 320))
