@@ -206,7 +206,20 @@ def box_rle(box: np.ndarray, height: int, width: int) -> dict:
     x2, y2 = min(width, int(np.ceil(box[2]))), min(height, int(np.ceil(box[3])))
     if x2 <= x1 or y2 <= y1:
         return crop_rle(np.zeros((0, 0), bool), 0, 0, height, width)
-    return crop_rle(np.ones((y2 - y1, x2 - x1), bool), x1, y1, height, width)
+    # One run per column, [x·H + y1, x·H + y2); columns of full height join into one run.
+    # O(width) where a filled crop would cost O(area) (tested equal to crop_rle of the box).
+    if y1 == 0 and y2 == height:
+        starts, ends = np.array([x1 * height], np.int64), np.array([x2 * height], np.int64)
+    else:
+        cols = np.arange(x1, x2, dtype=np.int64) * height
+        starts, ends = cols + y1, cols + y2
+    bounds = np.empty(2 * starts.size + 2, np.int64)
+    bounds[0], bounds[-1] = 0, height * width
+    bounds[1:-1:2], bounds[2:-1:2] = starts, ends
+    counts = np.diff(bounds).tolist()
+    if counts[-1] == 0:  # the box holds the last pixel: COCO writes no trailing empty run
+        counts.pop()
+    return mask_utils.frPyObjects({"size": [height, width], "counts": counts}, height, width)
 
 
 def clip_rle(rle: dict, box: np.ndarray) -> dict:

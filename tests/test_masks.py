@@ -119,3 +119,23 @@ def test_batch_rle_problems_says_what_rle_problem_says_of_each():
     got = batch_rle_problems([sizes[i] for i in order], [counts[i] for i in order])
     assert got == [expected[i] for i in order]
     assert batch_rle_problems([], []) == []
+
+
+def test_box_rle_equals_the_rle_of_the_filled_box():
+    # box_rle writes one run per column; the truth is crop_rle of the box filled with ones.
+    rng = np.random.default_rng(3)
+    H, W = 37, 53
+    boxes = [[0, 0, W, H], [0, 0, 1, 1], [W - 1, H - 1, W, H], [3, 0, 9, H], [0, 5, W, 9], [-4, -2.5, 7.2, H + 3],
+             [10, 10, 10, 20], [5, 30, 6, 31]]
+    for _ in range(300):
+        (xa, xb), (ya, yb) = np.sort(rng.uniform(-5, W + 5, 2)), np.sort(rng.uniform(-5, H + 5, 2))
+        boxes.append([xa, ya, xb, yb])
+    for b in np.array(boxes, float):
+        x1, y1 = max(0, int(np.floor(b[0]))), max(0, int(np.floor(b[1])))
+        x2, y2 = min(W, int(np.ceil(b[2]))), min(H, int(np.ceil(b[3])))
+        filled = np.zeros((H, W), bool)
+        if x2 > x1 and y2 > y1:
+            filled[y1:y2, x1:x2] = True
+        got = box_rle(b, H, W)
+        assert got == crop_rle(filled, 0, 0, H, W), b
+        np.testing.assert_array_equal(mask_utils.decode(got).astype(bool), filled)

@@ -177,3 +177,36 @@ def test_an_onnx_model_with_a_batch_axis_runs_a_batch_at_once_with_the_same_outp
     shared = OnnxProposer(OnnxConfig(model_path=str(MODEL), cache_dir=str(tmp_path / "cache"),
                                      input_height=320, input_width=320))
     assert not shared.batch_axis((320, 320))
+
+
+LONG_FRAMES = 2000  # the long sequence: twenty 100-frame windows
+LONG_SIZE = (125, 414)  # ours: a third of KITTI's sides, so 2,000 frames fit the slow tier; memory is what is measured
+STORE_SLACK = 16 * 2**20  # ours: Ray's own objects (actor handles, step results), at the sampler's MiB resolution
+
+
+@pytest.mark.slow  # 2,000 frames on a local Ray
+@pytest.mark.own_process
+def test_on_2000_frames_the_object_store_stays_bounded_and_worker_memory_flat(tmp_path, fastsam_model):
+    from mining.bench.pipeline import GROWTH_TOLERANCE, growth, measure_run_here
+
+    h, w = LONG_SIZE
+    cfg = load_config(REPO / "jobs" / "synthetic.toml", [
+        "proposals.proposer='fastsam+stereo'", f"proposals.fastsam.model_path='{fastsam_model}'",
+        "proposals.fastsam.input_height=64", "proposals.fastsam.input_width=64", "proposals.fastsam.max_proposals=3",
+        f"source.options.n_frames={LONG_FRAMES}", f"source.options.width={w}", f"source.options.height={h}",
+        "source.sequences=['0000']"])
+    r = measure_run_here(cfg, tmp_path / "out", workers=2, gpus=2)
+    assert r["windows"] == LONG_FRAMES // 100 and r["frames"] == LONG_FRAMES
+    actors = r["placement"]["proposal_actors"]
+    assert len(actors) == 2 and sum(a["frames"] for a in actors) >= LONG_FRAMES
+    # What may wait in the store: each worker's batches sent ahead (left images out, proposals back).
+    batch_bytes = cfg.run.proposal_batch * h * w * 3
+    bound = 2 * cfg.run.proposal_queue * batch_bytes * 2 + STORE_SLACK
+    print(f"object store peak {r['object_store_peak_bytes'] / 2**20:.0f} MiB of a bound of {bound / 2**20:.0f} MiB "
+          f"({r['object_store_samples']} samples); worker peaks {[round(x / 2**20) for x in r['worker_hwm_bytes']]} MiB")
+    assert r["object_store_samples"] > 10
+    assert r["object_store_peak_bytes"] <= bound
+    g = growth(r["window_peak_rss_bytes"])
+    print(f"per-window peak RSS, first half {g['first_half_max'] / 2**20:.0f} MiB, second half "
+          f"{g['second_half_max'] / 2**20:.0f} MiB")
+    assert g["ratio"] <= GROWTH_TOLERANCE

@@ -28,6 +28,7 @@ import argparse
 import copy
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -130,6 +131,45 @@ class RssSampler:
         self._thread.join()
 
 
+PLASMA_LINE = re.compile(r"Plasma memory usage (\d+) MiB, (\d+) objects")  # Ray 2.58's `ray memory --stats-only`
+
+
+def object_store_bytes() -> int:
+    """Bytes in the object store of the Ray this driver is connected to (all nodes), at MiB
+    resolution: Ray's own aggregate (``ray memory --stats-only``)."""
+    from ray._private.internal_api import memory_summary  # noqa: PLC2701 - what `ray memory` itself calls
+
+    m = PLASMA_LINE.search(memory_summary(stats_only=True))
+    if m is None:
+        raise RuntimeError("Ray's memory summary has no 'Plasma memory usage' line (another Ray version?)")
+    return int(m.group(1)) * 2**20
+
+
+class ObjectStoreSampler:
+    """Polls the object store's usage in a thread; ``peak`` bytes, ``samples`` (unix time, bytes)."""
+
+    def __init__(self, period: float = POLL_S):
+        self.period, self.peak = period, 0
+        self.samples: list[tuple[float, int]] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, daemon=True)
+
+    def _loop(self) -> None:
+        while not self._stop.is_set():
+            b = object_store_bytes()
+            self.samples.append((time.time(), b))
+            self.peak = max(self.peak, b)
+            self._stop.wait(self.period)
+
+    def __enter__(self) -> "ObjectStoreSampler":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
 def _window_rows(out: Path) -> list[dict[str, Any]]:
     from mining.catalog.views import connect
 
@@ -193,9 +233,10 @@ def measure_run(cfg: JobConfig, out: str | Path, workers: int) -> dict[str, Any]
         return json.loads(result_json.read_text())
 
 
-def measure_run_here(cfg: JobConfig, out: str | Path, workers: int) -> dict[str, Any]:
+def measure_run_here(cfg: JobConfig, out: str | Path, workers: int, gpus: int = 0) -> dict[str, Any]:
     """``measure_run`` in this process, which must not have started Ray before (and will
-    not start it again): the body of the bench's child process."""
+    not start it again): the body of the bench's child process. ``gpus``: logical GPUs the
+    local Ray announces (the proposal stage's actors take them; a test without a GPU)."""
     from mining.pipeline.localray import init_local_ray, prepare_local_ray
 
     prepare_local_ray(cfg.run.bind_host)  # before `import ray`: loopback unless run.bind_host says otherwise
@@ -211,10 +252,12 @@ def measure_run_here(cfg: JobConfig, out: str | Path, workers: int) -> dict[str,
         raise RuntimeError("the bench measures a Ray of its own: this process already runs one")
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     t0 = time.perf_counter()
-    init_local_ray(workers, cfg.run.bind_host, runtime_env={"env_vars": {"OPENCV_FOR_THREADS_NUM": "1"}})
+    init_local_ray(workers, cfg.run.bind_host, runtime_env={"env_vars": {"OPENCV_FOR_THREADS_NUM": "1"}},
+                   **({"num_gpus": gpus} if gpus else {}))
     init_s = time.perf_counter() - t0
     try:
-        with RssSampler(local_raylet_pid()) as sampler:  # the sampler's thread ends before Ray does
+        # The samplers' threads end before Ray does.
+        with RssSampler(local_raylet_pid()) as sampler, ObjectStoreSampler() as plasma:
             summary = mine_job(cfg, str(out), executor=lambda job: RayExecutor(job, workers), keep_cache=True)
     finally:
         ray.shutdown()
@@ -236,6 +279,8 @@ def measure_run_here(cfg: JobConfig, out: str | Path, workers: int) -> dict[str,
         "worker_hwm_bytes": sorted(sampler.hwm.values()),
         "worker_processes": len(sampler.hwm), "rss_samples": len(sampler.samples),
         "window_peak_rss_bytes": peaks, "load_avg": os.getloadavg(),
+        "object_store_peak_bytes": plasma.peak, "object_store_samples": len(plasma.samples),
+        "placement": summary.placement, "ray_version": ray.__version__,
     }
 
 
