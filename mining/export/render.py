@@ -199,7 +199,7 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
     if depth:
         from mining.geometry.disparity import StereoMatcher
 
-        matcher, far = StereoMatcher(job.geometry.stereo), job.geometry.stereo.max_depth_m
+        matcher, far = StereoMatcher(job.geometry.stereo, plan.calib.bf), job.geometry.stereo.max_depth_m
 
     # 4:2:0 video needs even sides: an odd one gets a black row / column (KITTI's 375 rows → 376).
     width = 2 * w if depth else w

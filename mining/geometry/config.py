@@ -24,6 +24,17 @@ class StereoConfig:
     mode: Annotated[str, OneOf(("sgbm", "sgbm_3way", "hh", "hh4"))] = "sgbm_3way"  # ours: "sgbm", "sgbm_3way", "hh" or "hh4"
     grayscale: bool = True  # ours: match on grey images (3× cheaper cost volume than RGB)
     downscale: Count = 2  # ours: 2 = match at half resolution (≈5× faster than full, abs-rel +0.003 on KITTI raw); 1 = full
+    # ours: a matching image (after downscale) taller than this is also reduced vertically, by the smallest integer
+    # factor that brings it within; depth precision is horizontal (bf), so it holds there. KITTI (188 rows at half
+    # resolution) is untouched at 256; RobotCar 1280×960 would match at 640×240 (SGBM 38 → 18 ms). 0 = never, the default.
+    # Off by default: measured, it fails the depth gate (abs-rel ≤ 40 m 0.037 → 0.050 on RobotCar-geometry synthetic
+    # frames at 256 rows, 0.037 → 0.057 on KITTI raw LiDAR forced to half its rows; docs/RESULTS.md, issue 30)
+    max_match_rows: Annotated[int, Range(0)] = 0
+    # ours: when > 0, the search range is set by the nearest depth to match instead of num_disparities: bf / min_depth_m,
+    # rounded up to SGBM's blocks (16 px at the matching scale). 0 = num_disparities as given (the default: KITTI's 128 px
+    # is 3.0 m at bf 384 px·m). jobs/oxford.toml sets 2.5 m: RobotCar's wide pair (bf 236 px·m) then searches 96 px
+    # instead of 128 (SGBM at 1280×960 −19 %, depth unchanged within 40 m; docs/RESULTS.md, issue 30)
+    min_depth_m: Annotated[float, Range(0)] = 0.0
     # ours: a second SGBM pass at full resolution over disparities [0, far_full_disparities) (on KITTI, bf ≈ 386 px·m:
     # 32 px = depths beyond 12 m), over the rows that hold them, taken wherever the half-resolution disparity is below
     # that range less far_full_margin_px: far objects get full-resolution precision. 0 = off, the old behaviour and

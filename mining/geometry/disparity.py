@@ -24,7 +24,12 @@ _MODES = {
 class StereoMatcher:
     """One SGBM matcher per configuration; create once and reuse for every frame."""
 
-    def __init__(self, cfg: StereoConfig):
+    def __init__(self, cfg: StereoConfig, bf: float | None = None):
+        """``bf`` (px·m) is needed only with ``min_depth_m``, which sets the search range from it."""
+        if cfg.min_depth_m > 0:
+            if bf is None or not bf > 0:
+                raise ValueError("geometry.stereo.min_depth_m needs the pair's bf (focal length × baseline)")
+            cfg = replace(cfg, num_disparities=search_range(cfg, bf), min_depth_m=0.0)
         if cfg.mode not in _MODES:
             raise ValueError(f"unknown SGBM mode {cfg.mode!r}; expected one of {sorted(_MODES)}")
         if cfg.num_disparities <= 0 or cfg.num_disparities % 16:
@@ -40,7 +45,7 @@ class StereoMatcher:
         self.cfg = cfg
         # the far pass: the same matcher at full resolution over the small disparities only
         self._far = (StereoMatcher(replace(cfg, downscale=1, num_disparities=cfg.far_full_disparities,
-                                           far_full_disparities=0))
+                                           far_full_disparities=0, max_match_rows=0))
                      if cfg.far_full_disparities and cfg.downscale > 1 else None)
         self._ndisp = cfg.num_disparities // cfg.downscale  # search range at the matching scale
         channels = 1 if cfg.grayscale else 3
@@ -59,9 +64,21 @@ class StereoMatcher:
             mode=_MODES[cfg.mode],
         )
 
-    def _prepare(self, rgb: np.ndarray) -> np.ndarray:
-        img = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY) if self.cfg.grayscale else rgb
-        if self.cfg.downscale > 1:
+    def vertical_factor(self, height: int) -> int:
+        """The extra vertical reduction of a ``height``-row image (``max_match_rows``); 1 = none."""
+        rows = int(round(height / self.cfg.downscale))  # as cv2.resize rounds the half-resolution size
+        if not self.cfg.max_match_rows or rows <= self.cfg.max_match_rows:
+            return 1
+        return -(-rows // self.cfg.max_match_rows)
+
+    def _prepare(self, img: np.ndarray, vertical: int) -> np.ndarray:
+        if img.ndim == 3 and self.cfg.grayscale:
+            img = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
+        if vertical > 1:
+            h, w = img.shape[:2]
+            size = (int(round(w / self.cfg.downscale)), max(1, int(round(h / self.cfg.downscale / vertical))))
+            img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+        elif self.cfg.downscale > 1:
             img = cv2.resize(img, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
         # SGBM cannot match the leftmost num_disparities columns (their partners lie
         # outside the right image); padding on the left lets it match them with the
@@ -71,17 +88,20 @@ class StereoMatcher:
         return img
 
     def compute(self, left_rgb: np.ndarray, right_rgb: np.ndarray) -> np.ndarray:
-        """(H, W) float32 disparity in pixels (x_left − x_right); NaN where invalid."""
-        if left_rgb.shape != right_rgb.shape or left_rgb.ndim != 3 or left_rgb.shape[2] != 3:
+        """(H, W) float32 disparity in pixels (x_left − x_right); NaN where invalid. With ``grayscale``
+        the images may be given grey already, (H, W) uint8 (the geometry stage has them: no second conversion)."""
+        grey = self.cfg.grayscale and left_rgb.ndim == 2
+        if left_rgb.shape != right_rgb.shape or not (grey or (left_rgb.ndim == 3 and left_rgb.shape[2] == 3)):
             raise ValueError(f"expected two (H, W, 3) images of equal shape, got {left_rgb.shape} and {right_rgb.shape}")
-        raw = self._sgbm.compute(self._prepare(left_rgb), self._prepare(right_rgb))
+        vertical = self.vertical_factor(left_rgb.shape[0])
+        raw = self._sgbm.compute(self._prepare(left_rgb, vertical), self._prepare(right_rgb, vertical))
         if self.cfg.pad_left:
             raw = raw[:, self._ndisp :]
         disp = raw.astype(np.float32) / 16.0  # SGBM returns fixed point with 4 fractional bits
         disp[~(disp > 0)] = np.nan  # SGBM marks invalid with minDisparity − 1
-        if self.cfg.downscale > 1:
+        if self.cfg.downscale > 1 or vertical > 1:
             h, w = left_rgb.shape[:2]
-            disp = _upsample(disp, w, h) * np.float32(self.cfg.downscale)
+            disp = _upsample(disp, w, h) * np.float32(self.cfg.downscale)  # disparity scales with the columns only
         if self._far is not None:
             with np.errstate(invalid="ignore"):
                 small = disp < self.cfg.far_full_disparities - self.cfg.far_full_margin_px
@@ -101,6 +121,12 @@ class StereoMatcher:
             cols = np.arange(disp.shape[1], dtype=np.float32)
             disp[disp > cols[None, :]] = np.nan
         return disp
+
+
+def search_range(cfg: StereoConfig, bf: float) -> int:
+    """``num_disparities`` (full-resolution px) reaching depths down to ``cfg.min_depth_m`` for a pair of ``bf`` px·m."""
+    block = 16 * cfg.downscale  # SGBM searches in blocks of 16 at the matching scale
+    return max(block, int(np.ceil(bf / cfg.min_depth_m / block - 1e-9)) * block)
 
 
 def _upsample(disp: np.ndarray, w: int, h: int) -> np.ndarray:

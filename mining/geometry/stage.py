@@ -27,7 +27,7 @@ class GeometryStage:
     def __init__(self, calib: StereoCalib, cfg: GeometryConfig | None = None):
         self.calib = calib
         self.cfg = cfg or GeometryConfig()
-        self.matcher = StereoMatcher(self.cfg.stereo)
+        self.matcher = StereoMatcher(self.cfg.stereo, calib.bf)
         self._prev: StereoFeatures | None = None
         self._prev_index: int | None = None
         self._last_motion: np.ndarray | None = None  # last good T_cur_prev, predicts the next matches
@@ -63,8 +63,12 @@ class GeometryStage:
         cfg, calib, timings = self.cfg, self.calib, {}
 
         t0 = time.perf_counter()
+        left = cv2.cvtColor(frame.left, cv2.COLOR_RGB2GRAY)
+        right = cv2.cvtColor(frame.right, cv2.COLOR_RGB2GRAY)
         if cfg.stereo.exact_depth:
             disparity = self._exact_disparity(frame)
+        elif cfg.stereo.grayscale:
+            disparity = self.matcher.compute(left, right)  # the same grey images the features use
         else:
             disparity = self.matcher.compute(frame.left, frame.right)
         depth = calib.depth_from_disparity(disparity)
@@ -72,8 +76,6 @@ class GeometryStage:
         t1 = time.perf_counter()
         timings["disparity"] = (t1 - t0) * 1e3
 
-        left = cv2.cvtColor(frame.left, cv2.COLOR_RGB2GRAY)
-        right = cv2.cvtColor(frame.right, cv2.COLOR_RGB2GRAY)
         cur = stereo_features(left, right, disparity, cfg.flow)
         matches = None if self._prev is None else match_quad(self._prev, cur, calib, cfg.flow, self._last_motion)
         t2 = time.perf_counter()
