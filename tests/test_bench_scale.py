@@ -23,6 +23,9 @@ def test_the_projection_takes_the_slower_side():
     g = project_hours(806_000, 0.35, 0.15, Cluster(64, 4, 0.9), 50.0)
     assert g["cpu_s_per_frame"] == pytest.approx(0.2)
     assert g["gpu_hours"] == pytest.approx(806_000 / 200 / 3600) and g["hours"] == g["gpu_hours"]
+    # A noisy end-to-end figure below the model part: the other stages' sum is the CPU side's floor.
+    f = project_hours(806_000, 11.0, 11.1, Cluster(64, 4, 0.9), 50.0, rest_s_per_frame=0.3)
+    assert f["cpu_s_per_frame"] == pytest.approx(0.3)
     # Without GPUs the model part stays on the CPUs.
     c = project_hours(806_000, 0.35, 0.15, Cluster(64, 0, 0.9), 50.0)
     assert c["cpu_s_per_frame"] == pytest.approx(0.35) and c["hours"] == c["cpu_hours"]

@@ -69,6 +69,11 @@ class StageRates:
     def model(self) -> float:
         return self.seconds.get("model proposals", 0.0)
 
+    @property
+    def rest(self) -> float:
+        """The stages a proposal stage leaves on the CPUs."""
+        return sum(v for k, v in self.seconds.items() if k != "model proposals")
+
 
 @dataclass(frozen=True)
 class Cluster:
@@ -78,11 +83,13 @@ class Cluster:
 
 
 def project_hours(frames: int, cpu_s_per_frame: float, model_s_per_frame: float, cluster: Cluster,
-                  gpu_fps: float | None) -> dict[str, float]:
+                  gpu_fps: float | None, rest_s_per_frame: float = 0.0) -> dict[str, float]:
     """Hours for ``frames``: the CPU side and, where GPUs run the model part, the GPU side; the job
-    takes the slower. Without GPUs the model part runs on the CPUs (``cpu_s_per_frame`` includes it)."""
+    takes the slower. Without GPUs the model part runs on the CPUs (``cpu_s_per_frame`` includes it).
+    ``rest_s_per_frame``: the other stages' sum, a floor for the CPU side where a large model part is
+    taken off a noisy end-to-end figure."""
     on_gpu = cluster.gpus > 0 and model_s_per_frame > 0 and gpu_fps is not None
-    cpu_s = cpu_s_per_frame - (model_s_per_frame if on_gpu else 0.0)
+    cpu_s = max(cpu_s_per_frame - model_s_per_frame, rest_s_per_frame) if on_gpu else cpu_s_per_frame
     cpu_h = frames * cpu_s / (cluster.cpus * cluster.efficiency) / 3600
     gpu_h = frames / (cluster.gpus * gpu_fps) / 3600 if on_gpu else 0.0
     return {"cpu_hours": cpu_h, "gpu_hours": gpu_h, "hours": max(cpu_h, gpu_h), "cpu_s_per_frame": cpu_s}
@@ -209,7 +216,8 @@ def chart(path: str, rates: StageRates, frames: int, gpu_fps: float, efficiency:
                           "(scripts/setup.sh bench)") from None
     fig, ax = plt.subplots(figsize=(7, 4.5), dpi=120)
     for g in CHART_GPUS if rates.model else (0,):
-        hours = [project_hours(frames, rates.end_to_end, rates.model, Cluster(c, g, efficiency), gpu_fps)["hours"]
+        hours = [project_hours(frames, rates.end_to_end, rates.model, Cluster(c, g, efficiency), gpu_fps,
+                               rates.rest)["hours"]
                  for c in CHART_CORES]
         ax.plot(CHART_CORES, hours, marker="o", label=f"{g} GPU{'s' if g != 1 else ''}" if rates.model else "CPUs only")
     ax.axhline(1.0, color="grey", linestyle="--", linewidth=1)
@@ -253,7 +261,7 @@ def run_scale_bench(cfg: JobConfig, sequence: str, n_frames: int, cluster: Clust
     if gpu_fps is None:
         best = max((r["fps"] for r in measured["rows"]), default=None) if measured else None
         gpu_fps = best if best is not None else ASSUMED_GPU_FPS
-    p = project_hours(project, rates.end_to_end, rates.model, cluster, gpu_fps)
+    p = project_hours(project, rates.end_to_end, rates.model, cluster, gpu_fps, rates.rest)
     h, w = rates.size
     print(f"Per-stage CPU seconds a frame on one core ({_machine()}; Ray {ray.__version__}): "
           f"{cfg.source.dataset} {sequence}, {rates.frames} frames at {w}×{h}, proposer {rates.proposer}")
