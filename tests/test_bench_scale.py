@@ -34,7 +34,7 @@ def test_the_projection_takes_the_slower_side():
 def test_the_command_prints_every_stage_and_writes_its_chart_and_json(tmp_path):
     chart, out = tmp_path / "scale.png", tmp_path / "scale.json"
     p = subprocess.run([sys.executable, "-m", "mining.cli", "bench", "scale", "--option", "width=414",
-                        "--option", "height=125", "--frames", "5", "--cpus", "32", "--chart", str(chart),
+                        "--option", "height=125", "--frames", "5", "--ray-frames", "0", "--cpus", "32", "--chart", str(chart),
                         "--json", str(out)], cwd=REPO, env=env(), capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr
     for stage in ("read", "geometry", "frame proposals", "localise", "tubes", "end to end", "Ray 2.58"):
@@ -50,3 +50,15 @@ def test_the_command_prints_every_stage_and_writes_its_chart_and_json(tmp_path):
     again = subprocess.run([sys.executable, "-m", "mining.cli", "bench", "scale", "--no-job", "--chart", str(chart)],
                            cwd=REPO, env=env(), capture_output=True, text=True, timeout=60)
     assert again.returncode == 2 and "exists" in again.stderr  # an existing file is refused before any work
+
+
+@pytest.mark.slow  # a job on a local Ray
+def test_the_ray_job_reports_the_object_store_and_worker_memory(tmp_path):
+    out = tmp_path / "scale.json"
+    p = subprocess.run([sys.executable, "-m", "mining.cli", "bench", "scale", "--option", "width=414",
+                        "--option", "height=125", "--frames", "4", "--no-job", "--ray-frames", "30",
+                        "--json", str(out)], cwd=REPO, env=env(), capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr
+    r = json.loads(out.read_text())["ray_job"]
+    assert r["frames"] == 30 and r["object_store_samples"] > 0 and r["peak_rss_bytes"] > 100 * 2**20
+    assert "object store peak" in p.stdout and "worker peak memory" in p.stdout

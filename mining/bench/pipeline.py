@@ -149,16 +149,20 @@ class ObjectStoreSampler:
     """Polls the object store's usage in a thread; ``peak`` bytes, ``samples`` (unix time, bytes)."""
 
     def __init__(self, period: float = POLL_S):
-        self.period, self.peak = period, 0
+        self.period, self.peak, self.error = period, 0, ""
         self.samples: list[tuple[float, int]] = []
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, daemon=True)
 
     def _loop(self) -> None:
         while not self._stop.is_set():
-            b = object_store_bytes()
-            self.samples.append((time.time(), b))
-            self.peak = max(self.peak, b)
+            try:
+                b = object_store_bytes()
+            except Exception as e:  # noqa: BLE001 - a report: said in the result, never a silent zero
+                self.error = f"{type(e).__name__}: {e}"
+            else:
+                self.samples.append((time.time(), b))
+                self.peak = max(self.peak, b)
             self._stop.wait(self.period)
 
     def __enter__(self) -> "ObjectStoreSampler":
@@ -210,7 +214,7 @@ def window_peaks(out: Path, rows: list[dict[str, Any]], samples: list[tuple[floa
     return peaks
 
 
-def measure_run(cfg: JobConfig, out: str | Path, workers: int) -> dict[str, Any]:
+def measure_run(cfg: JobConfig, out: str | Path, workers: int, frames: int | None = None) -> dict[str, Any]:
     """Mine ``cfg`` into a fresh ``out`` on a local Ray of ``workers`` CPUs; time, overhead, memory.
 
     Each run is a process of its own (``python -m mining.bench.pipeline``): Ray's core
@@ -225,7 +229,8 @@ def measure_run(cfg: JobConfig, out: str | Path, workers: int) -> dict[str, Any]
     with tempfile.TemporaryDirectory(prefix="bench-run-", dir=out.parent) as tmp:
         job_json, result_json = Path(tmp) / "job.json", Path(tmp) / "result.json"
         job_json.write_text(json.dumps(cfg.to_dict()))
-        cmd = [sys.executable, "-m", "mining.bench.pipeline", str(job_json), str(out), str(int(workers)), str(result_json)]
+        cmd = [sys.executable, "-m", "mining.bench.pipeline", str(job_json), str(out), str(int(workers)), str(result_json),
+               *([str(int(frames))] if frames else [])]
         p = subprocess.run(cmd, capture_output=True, text=True)
         if p.returncode != 0 or not result_json.exists():
             tail = "\n".join((p.stdout + p.stderr).splitlines()[-20:])
@@ -233,7 +238,8 @@ def measure_run(cfg: JobConfig, out: str | Path, workers: int) -> dict[str, Any]
         return json.loads(result_json.read_text())
 
 
-def measure_run_here(cfg: JobConfig, out: str | Path, workers: int, gpus: int = 0) -> dict[str, Any]:
+def measure_run_here(cfg: JobConfig, out: str | Path, workers: int, gpus: int = 0,
+                     frames: int | None = None) -> dict[str, Any]:
     """``measure_run`` in this process, which must not have started Ray before (and will
     not start it again): the body of the bench's child process. ``gpus``: logical GPUs the
     local Ray announces (the proposal stage's actors take them; a test without a GPU)."""
@@ -258,7 +264,8 @@ def measure_run_here(cfg: JobConfig, out: str | Path, workers: int, gpus: int = 
     try:
         # The samplers' threads end before Ray does.
         with RssSampler(local_raylet_pid()) as sampler, ObjectStoreSampler() as plasma:
-            summary = mine_job(cfg, str(out), executor=lambda job: RayExecutor(job, workers), keep_cache=True)
+            summary = mine_job(cfg, str(out), frames=(0, frames), executor=lambda job: RayExecutor(job, workers),
+                               keep_cache=True)
     finally:
         ray.shutdown()
     if summary.failed or summary.stitch_failed:
@@ -280,6 +287,7 @@ def measure_run_here(cfg: JobConfig, out: str | Path, workers: int, gpus: int = 
         "worker_processes": len(sampler.hwm), "rss_samples": len(sampler.samples),
         "window_peak_rss_bytes": peaks, "load_avg": os.getloadavg(),
         "object_store_peak_bytes": plasma.peak, "object_store_samples": len(plasma.samples),
+        "object_store_error": plasma.error,
         "placement": summary.placement, "ray_version": ray.__version__,
     }
 
@@ -381,13 +389,13 @@ def run_pipeline_bench(cfg: JobConfig, frames: int = 200, sequences: list[str] |
 
 
 def _main(argv: list[str]) -> int:
-    """``python -m mining.bench.pipeline JOB.json OUT WORKERS RESULT.json``: one measured run
-    (``measure_run``'s child); the job is the JSON of ``JobConfig.to_dict``."""
+    """``python -m mining.bench.pipeline JOB.json OUT WORKERS RESULT.json [FRAMES]``: one measured run
+    (``measure_run``'s child); the job is the JSON of ``JobConfig.to_dict``; FRAMES: each sequence's first."""
     from mining.config import JobConfig, section_from_dict
 
-    job_json, out, workers, result_json = argv
+    job_json, out, workers, result_json, *frames = argv
     cfg = section_from_dict(JobConfig, json.loads(Path(job_json).read_text()), job_json)
-    result = measure_run_here(cfg, out, int(workers))
+    result = measure_run_here(cfg, out, int(workers), frames=int(frames[0]) if frames else None)
     Path(result_json).write_text(json.dumps(result, default=float))
     return 0
 

@@ -237,6 +237,20 @@ def chart(path: str, rates: StageRates, frames: int, gpu_fps: float, efficiency:
     safe_files.write_file(path, buf.getvalue(), overwrite)
 
 
+def ray_run(cfg: JobConfig, sequence: str, frames: int, workers: int | None = None) -> dict[str, Any]:
+    """A job of ``frames`` frames on a local Ray of this machine's CPUs (``mine bench pipeline``'s
+    measured run in a process of its own): object store peak, worker peak memory, frames/s."""
+    from mining.bench.pipeline import measure_run
+
+    cfg = copy.deepcopy(cfg)
+    cfg.source.sequences = [sequence]
+    if cfg.source.dataset == "synthetic":
+        cfg.source.options = {**cfg.source.options, "n_frames": max(int(cfg.source.options.get("n_frames", 0)),
+                                                                      frames)}
+    with tempfile.TemporaryDirectory(prefix="bench-scale-ray-") as tmp:
+        return measure_run(cfg, Path(tmp) / "out", workers or 1, frames)
+
+
 def _machine() -> str:
     try:
         model = next(line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
@@ -248,14 +262,17 @@ def _machine() -> str:
 
 def run_scale_bench(cfg: JobConfig, sequence: str, n_frames: int, cluster: Cluster, project: int,
                     gpu_fps: float | None, chart_path: str | None, json_path: str | None,
-                    end_to_end: bool = True, overwrite: bool = False) -> dict[str, Any]:
+                    end_to_end: bool = True, overwrite: bool = False, ray_frames: int = 0) -> dict[str, Any]:
     import ray
 
     from mining.bench.geometry import pin_one_core
 
+    cores = len(os.sched_getaffinity(0))
     pin_one_core()
     rates = measure_stages(cfg, sequence, n_frames)
     rates.end_to_end = measure_end_to_end(cfg, sequence, n_frames) if end_to_end else sum(rates.seconds.values())
+    # Pinned to one core above; the Ray job's own process takes every core this process may use.
+    ray_job = ray_run(cfg, sequence, ray_frames, cores) if ray_frames else None
     measured = gpu_rate(cfg, rates.size) if rates.model else None
     assumed = gpu_fps is None and measured is None
     if gpu_fps is None:
@@ -276,7 +293,14 @@ def run_scale_bench(cfg: JobConfig, sequence: str, n_frames: int, cluster: Clust
         for r in measured["rows"]:
             print(f"  {r['precision']} batch {r['batch']:>2}: {r['fps']:7.1f} frames/s, "
                   f"peak {r['peak_gpu_bytes'] / 2**30:.1f} GiB")
-    elif rates.model:
+    if ray_job:
+        r = ray_job
+        stage = (f"; proposal stage {len(r['placement'].get('proposal_actors', []))} actor(s)"
+                 if r["placement"].get("proposal_actors") else "")
+        print(f"On a local Ray of {r['workers']} workers, {r['frames']} frames: object store peak "
+              f"{r['object_store_peak_bytes'] / 2**20:.0f} MiB, worker peak memory "
+              f"{r['peak_rss_bytes'] / 2**20:.0f} MiB (stitch included), {r['fps']:.2f} frames/s{stage}")
+    if rates.model and not measured:
         print("GPU: none here (no CUDA device or no torch part): the GPU rate below is "
               + ("given by --gpu-fps" if not assumed else f"ASSUMED ({ASSUMED_GPU_FPS:g} frames/s a GPU)"))
     tag = " ASSUMED" if assumed and rates.model and cluster.gpus else ""
@@ -291,7 +315,7 @@ def run_scale_bench(cfg: JobConfig, sequence: str, n_frames: int, cluster: Clust
     result = {"ray_version": ray.__version__, "machine": _machine(), "dataset": cfg.source.dataset,
               "sequence": sequence, "frames": rates.frames, "size": list(rates.size), "proposer": rates.proposer,
               "stage_cpu_s_per_frame": rates.seconds, "end_to_end_cpu_s_per_frame": rates.end_to_end,
-              "end_to_end_measured": end_to_end, "gpu": measured, "gpu_fps": gpu_fps,
+              "end_to_end_measured": end_to_end, "gpu": measured, "ray_job": ray_job, "gpu_fps": gpu_fps,
               "gpu_fps_assumed": assumed, "cluster": {"cpus": cluster.cpus, "gpus": cluster.gpus,
                                                       "efficiency": cluster.efficiency},
               "project_frames": project, "projection": p}
@@ -319,6 +343,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--project-frames", type=count(1, 10**9), default=ROBOTCAR_FRAMES,
                    help=f"frames projected (default {ROBOTCAR_FRAMES:,}: 14 h of RobotCar at 16 Hz)")
     p.add_argument("--no-job", action="store_true", help="skip the end-to-end job (the sum of stages projects)")
+    p.add_argument("--ray-frames", type=count(0, 10**7), default=200,
+                   help="frames of a job on a local Ray for the object store and worker memory peaks "
+                        "(default 200; 0 skips it)")
     p.add_argument("--chart", type=output_file, default=None, help="PNG of hours against cluster size")
     p.add_argument("--json", type=output_file, default=None, help="every figure as JSON")
     add_overwrite_option(p, "the --chart and --json files")
@@ -331,5 +358,6 @@ def run(args: argparse.Namespace) -> int:
         cfg.source.options = {**cfg.source.options, "width": ROBOTCAR_SIZE[1], "height": ROBOTCAR_SIZE[0]}
     sequence = args.sequence or (cfg.source.sequences[0] if cfg.source.sequences else "0000")
     run_scale_bench(cfg, sequence, args.frames, Cluster(args.cpus, args.gpus, args.efficiency), args.project_frames,
-                    args.gpu_fps, args.chart, args.json, end_to_end=not args.no_job, overwrite=args.overwrite)
+                    args.gpu_fps, args.chart, args.json, end_to_end=not args.no_job, overwrite=args.overwrite,
+                    ray_frames=args.ray_frames)
     return 0
