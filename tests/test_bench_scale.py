@@ -40,7 +40,9 @@ def test_the_command_prints_every_stage_and_writes_its_chart_and_json(tmp_path):
     for stage in ("read", "geometry", "frame proposals", "localise", "tubes", "end to end", "Ray 2.58"):
         assert stage in p.stdout
     r = json.loads(out.read_text())
-    assert set(r["stage_cpu_s_per_frame"]) == {"read", "geometry", "frame proposals", "localise", "tubes"}
+    stages = r["stage_cpu_s_per_frame"]
+    assert set(stages) == {"read", "geometry", "frame proposals", "localise", "tubes", "tubes: context"}
+    assert stages["tubes: context"] == pytest.approx(0.6 * stages["tubes"])  # 30 + 30 context frames a 100-frame core
     assert r["size"] == [125, 414] and r["end_to_end_cpu_s_per_frame"] > 0
     assert r["projection"]["hours"] == pytest.approx(
         806_000 * r["end_to_end_cpu_s_per_frame"] / (32 * 0.9) / 3600)

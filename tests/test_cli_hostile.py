@@ -50,6 +50,8 @@ ALLOWED = {
     ("bench calibrate", "--epsilon1", "-1"): "a log-odds price is signed (select.epsilon1_calibrated)",
     ("bench calibrate", "--epsilon2", "0"): "no overlap penalty (select.epsilon2_calibrated ≥ 0)",
     ("eval synthetic", "--min-visible-px", "0"): "0 keeps every object",
+    ("bench scale", "--gpus", "0"): "a cluster without GPUs (the models on the CPU cores)",
+    ("bench scale", "--ray-frames", "0"): "0 skips the job on a local Ray",
 }
 FRAME_ZERO = "frame 0 is the first frame (A = 0, one frame)"
 # Options that are neither numbers nor paths: why (their values are checked where they are used).
