@@ -4,7 +4,9 @@ Measured here, in this process pinned to one core (OpenCV single-threaded), as C
 (``time.process_time``) per frame over ``--frames`` frames of the job's source (default: the
 synthetic source at RobotCar's 1280×960):
 
-* **read** — the source's read and decode of a stereo pair;
+* **read** — the source's read and decode of a stereo pair (for the synthetic source a render,
+  which a real job does not pay: ``--config jobs/oxford.toml --root …`` times the RobotCar
+  reader's PNG decode, demosaic and undistortion);
 * **geometry** — disparity, depth, features, egomotion, ground, flow (``GeometryStage``);
 * **model proposals** — the proposer's network parts (``FrameProposer.propose_images``): the
   part a proposal stage runs on GPUs; absent for a stereo-only job;
