@@ -8,6 +8,7 @@ configuration is hashed into ``params_hash`` so that a catalogue records what ma
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import hashlib
 import json
 import tomllib
@@ -113,6 +114,9 @@ def _build(cls: type, data: dict[str, Any], where: str, prefix: str = "") -> Any
         keys = sorted(prefix + k for k in unknown)
         moved = [f"{k} {moved_key(k)}" for k in keys if moved_key(k) is not None]
         hint = f" (moved: {'; '.join(moved)})" if moved else ""
+        near = [f"{prefix}{k} → {prefix}{m[0]}" for k in sorted(unknown)
+                if (m := difflib.get_close_matches(k, names, n=1))]  # a typo of a real key of this table
+        hint += f"; did you mean {', '.join(near)}?" if near else ""
         raise ConfigError(f"{where}: unknown key(s) {keys}{hint}; known: {sorted(names)}")
     kwargs = {}
     for key, value in data.items():
@@ -224,9 +228,12 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
             raise ConfigError(f"file {p}: job config not found") from None
         except tomllib.TOMLDecodeError as e:
             raise ConfigError(f"file {p}: not valid TOML: {e}") from None
+    where = str(path) if path else "config"
+    _build(JobConfig, data, where)  # the file's own faults are the file's
     for o in overrides or []:
         data = merge(data, parse_override(o))
-    where = str(path) if path else "config"
+        where = f"--set {o.split('=', 1)[0].strip()}"  # an override's fault names its key, not the file
+        _build(JobConfig, data, where)
     return _check_job(_build(JobConfig, data, where), where)
 
 

@@ -131,3 +131,18 @@ def test_the_source_section_opens_its_source():
 
     source = SourceConfig(dataset="synthetic").open()
     assert source.sequences()[:1]
+
+
+def test_a_set_typo_names_the_key_and_the_near_real_key_not_the_file(tmp_path):
+    job = tmp_path / "job.toml"
+    job.write_text("[window]\ncore = 8\n")
+    with pytest.raises(ConfigError) as e:
+        load_config(job, ["proposals.proposr=onnx"])
+    msg = str(e.value)
+    assert msg.startswith("--set proposals.proposr:") and "job.toml" not in msg
+    assert "did you mean proposals.proposr → proposals.proposer?" in msg
+    with pytest.raises(ConfigError, match=r"^--set window\.core: window\.core = -3"):
+        load_config(job, ["window.core=-3"])
+    job.write_text("[window]\ncroe = 8\n")  # the file's own typo is still the file's
+    with pytest.raises(ConfigError, match=r"job\.toml: unknown key.*did you mean window\.croe → window\.core"):
+        load_config(job, ["window.core=4"])

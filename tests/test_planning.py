@@ -136,3 +136,14 @@ def test_after_a_preflight_failure_the_fixed_command_runs_on_the_same_out(tmp_pa
     rc, stdout, stderr = submit(out, *SYNTHETIC, "--set", 'proposals.proposer="stereo"', workers=1)
     assert rc == 0, (rc, stdout, stderr)
     assert "windows: 1 ok, 0 failed, 0 already done (of 1)" in stdout
+
+
+def test_a_sequence_the_source_does_not_have_says_the_nearest_it_has(tmp_path, kitti_tracking_root):
+    from mining.pipeline.preflight import plan_sequences
+
+    root = kitti_copy(tmp_path / "kitti", kitti_tracking_root, n_frames=4)
+    with pytest.raises(InputError, match=re.escape("no sequence '5'; did you mean '0005'? (have: 0005)")):
+        plan_sequences(_cfg(root), ["5"])
+    with pytest.raises(InputError, match=re.escape("no sequence 'zzz' (have: 0005)")):
+        plan_sequences(_cfg(root), ["zzz"])
+    assert list(plan_sequences(_cfg(root), ["0005"]).plans) == ["0005"]

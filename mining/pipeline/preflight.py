@@ -23,6 +23,7 @@ rule. Nothing but the probe is written before all of them pass.
 
 from __future__ import annotations
 
+import difflib
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -103,6 +104,28 @@ def job_sequences(cfg: JobConfig, sequences: list[str] | None, source: Source) -
     return names, refused
 
 
+# ours: how many of the source's sequence names an "absent sequence" message lists
+MAX_LISTED_SEQUENCES = 10
+
+
+def _absent_sequences(given: list[str], source: Source) -> dict[str, str]:
+    """Given names the source does not list (name → why, with the nearest name it has:
+    ``5`` → ``0005``); empty where the source cannot list its sequences."""
+    try:
+        have = sorted(source.sequences())
+    except Exception:  # a source that cannot list: each sequence's own plan says what is wrong
+        return {}
+    listed = ", ".join(have[:MAX_LISTED_SEQUENCES]) + (" …" if len(have) > MAX_LISTED_SEQUENCES else "")
+    out = {}
+    for seq in given:
+        if seq in have:
+            continue
+        near = [h for h in have if h.lstrip("0") == seq.lstrip("0")] or difflib.get_close_matches(seq, have, n=1)
+        hint = f"; did you mean {near[0]!r}?" if near else ""
+        out[seq] = f"no sequence {seq!r}{hint} (have: {listed or 'none'})"
+    return out
+
+
 def plan_sequences(cfg: JobConfig, sequences: list[str] | None = None,
                    frames: tuple[int, int | None] = (0, None)) -> Preflight:
     """Plan every sequence of the job; a sequence that cannot be mined is reported, not fatal,
@@ -115,14 +138,16 @@ def plan_sequences(cfg: JobConfig, sequences: list[str] | None = None,
     w = cfg.window
     pf = Preflight({}, [])
     pf.failed.update(refused)  # names of the source's listing that are not safe names: left out
+    # a name the user gave that the source does not list: its failure says what the source has
+    absent = _absent_sequences(seqs, source) if (sequences or cfg.source.sequences) else {}
     for seq in seqs:
         try:
             plan = checked_plan(source, cfg, seq, frames)
         except MiningError as e:
-            pf.failed[seq] = str(e)
+            pf.failed[seq] = "; ".join([str(e)] + ([absent[seq]] if seq in absent else []))
             continue
         except Exception as e:  # bad data an adapter did not foresee: still that sequence's failure only
-            pf.failed[seq] = f"{type(e).__name__}: {e}"
+            pf.failed[seq] = "; ".join([f"{type(e).__name__}: {e}"] + ([absent[seq]] if seq in absent else []))
             continue
         pf.plans[seq] = plan
         pf.windows += plan_windows(plan, w.core, w.context_before, w.context_after, frames[0], frames[1])
