@@ -171,7 +171,8 @@ def cmd_query(args: argparse.Namespace) -> int:
 def cmd_export(args: argparse.Namespace) -> int:
     from mining.export.run import run_export
 
-    return run_export(args.out, args.where, args.format, args.dest, args.margin, args.images, args.overwrite)
+    return run_export(args.out, args.where, args.format, args.dest, args.margin, args.images, args.overwrite,
+                      args.unknown_class)
 
 
 def cmd_render(args: argparse.Namespace) -> int:
@@ -265,6 +266,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="crops: context on each side, as a fraction of the box (default 0.15, at least 8 px)")
     exp.add_argument("--images", action="store_true",
                      help="youtube-vis, tao: also write the video frames (rectified left images, JPEG) the JSON names")
+    exp.add_argument("--unknown-class", type=int, default=None,
+                     help="kitti-mots: class id for unknown tubes (default 10, the format's ignore, which MOTS tools drop)")
     exp.set_defaults(func=cmd_export)
 
     rnd = sub.add_parser("render", help="a sequence with its selected tubes drawn (mask, id, category), as a video")

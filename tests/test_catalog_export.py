@@ -279,3 +279,32 @@ def test_exports_type_tubes_by_the_known_flag(catalogue, tmp_path):
         assert run_export(str(cat), f"selected AND {where}", "kitti-mots", str(dest / "mots")) == 0
         classes = {int(line.split()[2]) for line in (dest / "mots" / f"{SEQUENCE}.txt").read_text().splitlines()}
         assert classes <= mots, where
+
+
+def test_kitti_mots_keeps_unknowns_as_a_class_and_maps_ids_to_tubes(catalogue, tmp_path):
+    """--unknown-class N writes unknown tubes as class N (not 10, which MOTS tools drop); the id
+    map beside each txt names the tube of every object id written."""
+    out, tables = catalogue
+    rows = tables["tubes"].to_pylist()
+    for r in rows:
+        if r["selected"]:
+            r["known"], r["category"] = False, "unknown"
+    cat = tmp_path / "cat"
+    store = Store(cat)
+    write_sequence(store, "tubes", DATASET, SEQUENCE, pa.Table.from_pylist(rows, schema=SCHEMAS["tubes"]))
+    write_sequence(store, "tube_frames", DATASET, SEQUENCE, tables["tube_frames"])
+    assert main(["export", str(tmp_path / "m"), "--out", str(cat), "--format", "kitti-mots",
+                 "--unknown-class", "3"]) == 0
+    lines = (tmp_path / "m" / f"{SEQUENCE}.txt").read_text().splitlines()
+    assert lines and {int(x.split()[2]) for x in lines} == {3}
+    ids = json.loads((tmp_path / "m" / f"{SEQUENCE}.ids.json").read_text())
+    selected = {r["tube_id"] for r in rows if r["selected"]}
+    assert {v["tube_id"] for v in ids.values()} == selected
+    assert {int(x.split()[1]) for x in lines} <= {int(k) for k in ids}
+    assert main(["export", str(tmp_path / "k"), "--out", str(cat), "--format", "kitti"]) == 0
+    kids = json.loads((tmp_path / "k" / f"{SEQUENCE}.ids.json").read_text())
+    got = read_kitti_tracking(tmp_path / "k" / f"{SEQUENCE}.txt", require_score=True)
+    assert {int(i) for i in set(got.track_id)} <= {int(k) for k in kids}
+    assert {v["tube_id"] for v in kids.values()} == selected
+    assert main(["export", str(tmp_path / "x"), "--out", str(cat), "--format", "kitti-mots",
+                 "--unknown-class", "2"]) == 2

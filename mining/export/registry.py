@@ -36,7 +36,7 @@ class ExportFormat:
 
 FORMATS: dict[str, ExportFormat] = {f.name: f for f in (
     ExportFormat("kitti", "kitti", "export_kitti", "rows", masks=False),  # boxes only: masks are not read
-    ExportFormat("kitti-mots", "kitti", "export_kitti_mots", "masks"),
+    ExportFormat("kitti-mots", "kitti", "export_kitti_mots", "masks", ("unknown_class",)),
     ExportFormat("crops", "crops", "export_crops", "crops", ("margin",)),
     ExportFormat("youtube-vis", "video_json", "export_youtube_vis", "tube annotations", ("images", "video_frames")),
     ExportFormat("tao", "video_json", "export_tao", "frame annotations", ("images", "video_frames")),

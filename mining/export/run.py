@@ -40,7 +40,8 @@ LEFT_OUT = 1  # exit status: written, but tubes with a bad mask were left out (a
 
 
 def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: float | None = None,
-           images: bool = False, overwrite: bool = False) -> tuple[int, int, dict[str, str]]:
+           images: bool = False, overwrite: bool = False,
+           unknown_class: int | None = None) -> tuple[int, int, dict[str, str]]:
     """Export the tubes of catalogue ``out`` matching ``where``; (tubes, items written, tubes
     left out for a bad mask: tube id → why).
 
@@ -56,6 +57,10 @@ def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: floa
         if "margin" not in form.options:
             raise InputError("--margin applies to --format crops only")
         options["margin"] = margin
+    if unknown_class is not None:
+        if "unknown_class" not in form.options:
+            raise InputError("--unknown-class applies to --format kitti-mots only")
+        options["unknown_class"] = unknown_class
     if images:
         if not form.video:
             raise InputError(f"--images applies to --format {' and '.join(VIDEO_FORMATS)} only")
@@ -88,12 +93,12 @@ def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: floa
 
 
 def run_export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: float | None = None,
-               images: bool = False, overwrite: bool = False) -> int:
+               images: bool = False, overwrite: bool = False, unknown_class: int | None = None) -> int:
     """`mine export`: 0 on success; LEFT_OUT (1) when tubes with a bad mask were left out (one
     line on standard error names them); NothingMatched (``cli.main``: exit 1) when no tube
     matches; 2 with a message on standard error otherwise."""
     try:
-        n_tubes, n_items, left_out = export(out, where, fmt, dest, margin, images, overwrite)
+        n_tubes, n_items, left_out = export(out, where, fmt, dest, margin, images, overwrite, unknown_class)
     except (MiningError, duckdb.Error) as e:
         print(f"mine export: {e}", file=sys.stderr)
         return 2
