@@ -12,6 +12,10 @@ window's context, and each observation's class posterior to re-average it.
 
 from __future__ import annotations
 
+import ast
+import functools
+from pathlib import Path
+
 import pyarrow as pa
 
 SCHEMA_VERSION = 2  # v2: known / category nullable (unclassified), classified_frames, class_evidence
@@ -134,12 +138,65 @@ PART_EXTRA = {
 }
 
 
+# Units of the columns that have one, by column name, in every table (a new column with a unit: one entry).
+UNITS = {
+    "t_start": "ns", "t_end": "ns", "t_ns": "ns",
+    "mean_position": "m", "size": "m", "path_length": "m", "speed": "m/s",
+    "position_cam": "m", "position_world": "m", "velocity_world": "m/s",
+    "footpoint_cam": "m", "velocity_cam": "m/s",
+    "bbox": "px", "rle_h": "px", "rle_w": "px", "egomotion_rmse_px": "px",
+    "class_evidence": "frame-equivalents", "seconds_observe": "s", "seconds_tubes": "s",
+}
+DESCRIPTION_KEY, UNIT_KEY = b"description", b"unit"  # ours: the Parquet / Arrow field metadata keys
+_VARS = {"tubes": "TUBES", "tube_frames": "TUBE_FRAMES", "frames": "FRAMES", "windows": "WINDOWS"}
+
+
+@functools.cache
+def field_comments() -> dict[str, dict[str, str]]:
+    """``{schema variable: {field name: trailing comment}}`` read from this file's source: the
+    comments are the columns' descriptions (one source for schemas/, Parquet and DuckDB)."""
+    source = Path(__file__).read_text()
+    lines = source.splitlines()
+    out: dict[str, dict[str, str]] = {}
+    for node in ast.walk(ast.parse(source)):
+        if not (isinstance(node, ast.Assign) and isinstance(node.targets[0], ast.Name)):
+            continue
+        for call in ast.walk(node.value):
+            if (isinstance(call, ast.Call) and getattr(call.func, "attr", "") == "field" and call.args
+                    and isinstance(call.args[0], ast.Constant)):
+                line = lines[call.end_lineno - 1]
+                out.setdefault(node.targets[0].id, {})[call.args[0].value] = line.split("#", 1)[1].strip() if "#" in line else ""
+    return out
+
+
+def column_doc(table: str, name: str) -> tuple[str, str]:
+    """A column's description and unit ("" where none)."""
+    c = field_comments()
+    desc = c.get(_VARS[table], {}).get(name) or c.get("PART_EXTRA", {}).get(name, "")
+    return desc, UNITS.get(name, "")
+
+
+def documented(table: str, f: pa.Field) -> pa.Field:
+    """``f`` with its description and unit as field metadata (written into every Parquet file)."""
+    desc, unit = column_doc(table, f.name)
+    md = {k: v.encode() for k, v in ((DESCRIPTION_KEY, desc), (UNIT_KEY, unit)) if v}
+    return f.with_metadata(md) if md else f
+
+
 def file_schema(table: str) -> pa.Schema:
     """The schema of a catalogue Parquet file: the table without its partition columns."""
     s = SCHEMAS[table]
-    return pa.schema([f for f in s if f.name not in PARTITION])
+    return pa.schema([documented(table, f) for f in s if f.name not in PARTITION])
 
 
 def part_schema(table: str) -> pa.Schema:
     """The schema of a per-window part (partition columns left out, part-only columns added)."""
-    return pa.schema(list(file_schema(table)) + PART_EXTRA[table])
+    return pa.schema(list(file_schema(table)) + [documented(table, f) for f in PART_EXTRA[table]])
+
+
+def partitioning() -> "pyarrow.dataset.Partitioning":  # noqa: F821
+    """The folders' hive partitioning with ``dataset`` / ``sequence`` as strings: without it pandas,
+    pyarrow and polars infer ``sequence=0005`` as the integer 5 (pass it as ``partitioning=``)."""
+    import pyarrow.dataset as ds
+
+    return ds.partitioning(pa.schema([pa.field(n, pa.string()) for n in PARTITION]), flavor="hive")

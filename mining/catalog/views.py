@@ -55,7 +55,7 @@ import pyarrow.dataset as ds
 
 from mining.catalog.integrity import Damage, check_versions, unreadable_parquet, vouched_files
 from mining.catalog.layout import MANIFEST, PART_SUFFIX, PARTS, TABLE_DIRS
-from mining.catalog.schema import PARTITION, SCHEMAS, file_schema, part_schema
+from mining.catalog.schema import PARTITION, SCHEMAS, column_doc, file_schema, part_schema
 from mining.catalog.store import Store
 from mining.errors import InputError
 
@@ -198,6 +198,17 @@ def file_refused(con: duckdb.DuckDBPyConnection, err: duckdb.PermissionException
         "file is disabled. Query the tables (tubes, tube_frames, frames, windows) instead", path)
 
 
+def _comment_columns(con: duckdb.DuckDBPyConnection) -> None:
+    """Each base table's column descriptions and units (schema.py, the one source) as DuckDB comments."""
+    for table in SCHEMAS:
+        have = {r[0] for r in con.execute("SELECT column_name FROM duckdb_columns() WHERE table_name = ?", [table]).fetchall()}
+        for f in SCHEMAS[table]:
+            desc, unit = column_doc(table, f.name)
+            text = f"{desc} (unit: {unit})" if unit else desc
+            if text and f.name in have:
+                con.execute(f'COMMENT ON COLUMN {table}."{f.name}" IS {sql_string(text)}')
+
+
 def connect(out: str | Path, native: bool | None = None, memory_limit: str | None = None,
             threads: int | None = None, verify: bool = True) -> duckdb.DuckDBPyConnection:
     """An in-memory DuckDB with the catalogue's tables and views (see module docstring).
@@ -243,6 +254,7 @@ def connect(out: str | Path, native: bool | None = None, memory_limit: str | Non
     for table in PROVISIONAL:
         _part_view(con, store, table, native)
     con.execute(VIEWS_SQL.read_text())
+    _comment_columns(con)
     # From here on: no file access but what the views read, and no way to turn that back on.
     folders = (MANIFEST, PARTS)
     paths = sorted({store.full(f) for t in SCHEMAS for f in vouched.files[t]}) if native else []

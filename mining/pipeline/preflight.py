@@ -134,7 +134,9 @@ def plan_sequences(cfg: JobConfig, sequences: list[str] | None = None,
     seqs, refused = job_sequences(cfg, sequences, source)
     dataset = cfg.source.dataset
     if not seqs and not refused:
-        raise InputError(f"no {dataset} sequences found", cfg.source.root or None)
+        looked = f": looked for {source.layout}" if source.layout else ""
+        raise InputError(f"no {dataset} sequences found under {cfg.source.root or 'its root'}{looked}",
+                         cfg.source.root or None)
     w = cfg.window
     pf = Preflight({}, [])
     pf.failed.update(refused)  # names of the source's listing that are not safe names: left out

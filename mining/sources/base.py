@@ -19,6 +19,8 @@ class Source(ABC):
     """
 
     dataset: str = ""
+    # What ``sequences`` looks for under the root, for the "no sequences found" error ("" = not stated).
+    layout: str = ""
 
     @abstractmethod
     def sequences(self) -> list[str]:

@@ -167,6 +167,9 @@ class OxfordSource(Source):
     """
 
     dataset = "oxford"
+    layout = (f"each traversal a folder <root>/<traversal>/ holding {TIMESTAMPS_FILE} and stereo/{{left,centre,right}}/<µs>.png "
+              "(raw Bayer GBRG), the camera models and LUTs in <root>/models/ (or --option models_dir=DIR): "
+              "<camera>.txt and <camera>_distortion_lut.bin from the RobotCar SDK's models/ folder")
 
     def __init__(
         self,
