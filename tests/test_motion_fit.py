@@ -31,3 +31,14 @@ def test_moving_car_speed_within_its_uncertainty():
     assert abs(speed - 8.0) < MOTION_K_SIGMA * sigma
     assert speed > MOTION_K_SIGMA * sigma
     assert abs(path - 8.0 * (t[-1] - t[0])) < MOTION_K_SIGMA * path_sigma
+
+
+def test_smooth_filtered_track_is_floored_by_stereo_noise():
+    # a filtered track drifts smoothly (no scatter) by less than its stereo depth noise
+    t = np.arange(4) / FPS
+    foot = np.array([0.0, 1.6, 60.0]) + t[:, None] * np.array([0.0, 0.0, 6.0])
+    foot[:, 0] += np.array([0.0, 0.01, -0.01, 0.0])
+    bare, bare_sigma, _, _ = motion_fit(t, foot)
+    _, sigma, _, _ = motion_fit(t, foot, np.full(4, 60.0 ** 2 / 387.6 * 0.3))
+    assert bare > MOTION_K_SIGMA * bare_sigma  # residuals alone call depth drift "moving"
+    assert bare <= MOTION_K_SIGMA * sigma

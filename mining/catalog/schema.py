@@ -49,7 +49,7 @@ TUBES = pa.schema([
     pa.field("size", vec3, False),  # metres (width, height, length), median over observed frames
     pa.field("path_length", pa.float32(), False),  # metres, net ground displacement of a line fitted to the observed footpoints over time
     pa.field("speed", pa.float32(), False),  # m/s, slope of that line (ground plane); noise-level for static objects: read moving_speed_mps
-    pa.field("speed_sigma_mps", pa.float32()),  # m/s, σ of speed from the fit's residual scatter; null under 3 observations
+    pa.field("speed_sigma_mps", pa.float32()),  # m/s, σ of speed: the fit residuals, floored by stereo depth noise Z²/(f·B)·σ_d (rows.DISPARITY_SIGMA_PX); null under 3 observations
     pa.field("path_sigma_m", pa.float32()),  # metres, σ of path_length (speed_sigma_mps × duration); null under 3 observations
     pa.field("moving_speed_mps", pa.float32()),  # m/s, speed where it exceeds 3 σ (rows.MOTION_K_SIGMA); null: static or not measurable
     pa.field("n_windows", pa.int16(), False),  # how many window pieces were stitched into it
