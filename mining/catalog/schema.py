@@ -51,8 +51,11 @@ TUBES = pa.schema([
     pa.field("segment", pa.int32(), False),  # egomotion segment: world coordinates are per segment
     pa.field("mean_position", vec3, False),  # world metres, mean footpoint
     pa.field("size", vec3, False),  # metres (width, height, length), median over observed frames
-    pa.field("path_length", pa.float32(), False),  # metres travelled in the world frame
-    pa.field("speed", pa.float32(), False),  # m/s, mean filtered ground speed
+    pa.field("path_length", pa.float32(), False),  # metres, net ground displacement of a line fitted to the observed footpoints over time
+    pa.field("speed", pa.float32(), False),  # m/s, slope of that line (ground plane); noise-level for static objects: read moving_speed_mps
+    pa.field("speed_sigma_mps", pa.float32()),  # m/s, σ of speed: the fit residuals, floored by stereo depth noise Z²/(f·B)·σ_d (rows.DISPARITY_SIGMA_PX); null under 3 observations
+    pa.field("path_sigma_m", pa.float32()),  # metres, σ of path_length (speed_sigma_mps × duration); null under 3 observations
+    pa.field("moving_speed_mps", pa.float32()),  # m/s, speed where it exceeds 3 σ (rows.MOTION_K_SIGMA); null: static or not measurable
     pa.field("n_windows", pa.int16(), False),  # how many window pieces were stitched into it
     pa.field("run_id", pa.string(), False),
     pa.field("params_hash", pa.string(), False),

@@ -79,7 +79,7 @@ class Job:
         return Store(self.out)
 
     def run_info(self, sequence: str) -> RunInfo:
-        return RunInfo(self.cfg.source.dataset, sequence, self.run_id, self.params_hash)
+        return RunInfo(self.cfg.source.dataset, sequence, self.run_id, self.params_hash, self.plans[sequence].calib.bf)
 
 
 _SOURCES: dict[str, Source] = {}
