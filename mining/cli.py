@@ -13,6 +13,7 @@ from typing import Any, NamedTuple
 from mining.checks import (MAX_WORKERS, count, memory_size, output_file, output_folder, path_text, positive_float, real,
                            seconds, time_limit, worker_count)
 from mining.errors import ConfigError, MiningError, NothingMatched
+from mining.export.kitti import MOTS_MAX_CLASS
 from mining.export.registry import FORMATS as EXPORT_FORMATS
 from mining.names import check_name
 from mining.pipeline.arguments import add_job_options, add_overwrite_option, check_paths, frame_range, job_config
@@ -266,7 +267,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="crops: context on each side, as a fraction of the box (default 0.15, at least 8 px)")
     exp.add_argument("--images", action="store_true",
                      help="youtube-vis, tao: also write the video frames (rectified left images, JPEG) the JSON names")
-    exp.add_argument("--unknown-class", type=int, default=None,
+    exp.add_argument("--unknown-class", type=count(1, MOTS_MAX_CLASS - 1), default=None,
                      help="kitti-mots: class id for unknown tubes (default 10, the format's ignore, which MOTS tools drop)")
     exp.set_defaults(func=cmd_export)
 

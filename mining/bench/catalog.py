@@ -138,7 +138,10 @@ def _sequence_tables(rng: np.random.Generator, masks, dataset: str, sequence: st
         "classified_frames": pa.array(lengths_a, pa.int32()), "class_evidence": pa.array(lengths_a, pa.float32()),
         "segment": pa.array(np.zeros(m, np.int32)), "mean_position": vec(f32(m, 3) * 50),
         "size": vec(np.abs(f32(m, 3)) + 1), "path_length": pa.array(np.abs(f32(m)) * 20),
-        "speed": pa.array(np.abs(f32(m)) * 5), "n_windows": pa.array(np.ones(m, np.int16)),
+        "speed": pa.array(np.abs(f32(m)) * 5), "speed_sigma_mps": pa.array(np.full(m, 0.5, np.float32)),
+        "path_sigma_m": pa.array(np.full(m, 1.0, np.float32)),
+        "moving_speed_mps": pa.array(np.where(np.arange(m) % 3 == 0, np.abs(f32(m)) * 5, np.nan), pa.float32(),
+                                     mask=np.arange(m) % 3 != 0), "n_windows": pa.array(np.ones(m, np.int16)),
         "run_id": pa.array(["bench"] * m), "params_hash": pa.array(["0" * 16] * m),
         "schema_version": pa.array(np.full(m, SCHEMA_VERSION, np.int16)),
     })
