@@ -13,7 +13,6 @@ from typing import Any, NamedTuple
 from mining.checks import (MAX_WORKERS, count, memory_size, output_file, output_folder, path_text, positive_float, real,
                            seconds, time_limit, worker_count)
 from mining.errors import ConfigError, MiningError, NothingMatched
-from mining.export.kitti import MOTS_MAX_CLASS
 from mining.export.registry import FORMATS as EXPORT_FORMATS
 from mining.names import check_name
 from mining.pipeline.arguments import add_job_options, add_overwrite_option, check_paths, frame_range, job_config
@@ -173,7 +172,21 @@ def cmd_export(args: argparse.Namespace) -> int:
     from mining.export.run import run_export
 
     return run_export(args.out, args.where, args.format, args.dest, args.margin, args.images, args.overwrite,
-                      args.unknown_class)
+                      args.unknown_class, args.category_from)
+
+
+# Copies of constants whose modules load pyarrow/DuckDB (slow for every `mine` call); tests/test_labels.py
+# checks each equal to its source.
+MOTS_MAX_CLASS = 1000  # export/kitti.MOTS_MAX_CLASS
+VERDICTS = ("object", "not_object", "part_of", "duplicate")  # catalog/labels.VERDICTS
+MAX_TAG_CHARS = 64  # catalog/labels.MAX_TAG_CHARS
+
+
+def cmd_label(args: argparse.Namespace) -> int:
+    from mining.catalog.triage import run_label
+
+    return run_label(args.out, args.where, args.verdict, args.clear_verdict, args.tag, args.untag, args.author,
+                     args.dry_run, args.compact, args.lock_wait)
 
 
 def cmd_render(args: argparse.Namespace) -> int:
@@ -194,7 +207,7 @@ def _version_text() -> str:
 def cmd_view(args: argparse.Namespace) -> int:
     from mining.view.server import run_view
 
-    return run_view(args.out, args.host, args.port, args.cache, args.log)
+    return run_view(args.out, args.host, args.port, args.cache, args.log, args.author)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -269,7 +282,25 @@ def build_parser() -> argparse.ArgumentParser:
                      help="youtube-vis, tao: also write the video frames (rectified left images, JPEG) the JSON names")
     exp.add_argument("--unknown-class", type=count(1, MOTS_MAX_CLASS - 1), default=None,
                      help="kitti-mots: class id for unknown tubes (default 10, the format's ignore, which MOTS tools drop)")
+    exp.add_argument("--category-from", choices=["category", "tag"], default="category",
+                     help="tag: a tagged tube's category is its tag (mine label / mine view), as a known class; "
+                          "default: the mined category. Every export writes tube_labels.json beside its files")
     exp.set_defaults(func=cmd_export)
+
+    lab = sub.add_parser("label", help="label the tubes a SQL predicate selects (a verdict or a tag), for scripted triage")
+    lab.add_argument("--out", type=path_text, default="out/catalog", help="catalogue folder")
+    lab.add_argument("--where", help="SQL predicate over the tubes and their labels (as mine export's)")
+    lab.add_argument("--verdict", choices=list(VERDICTS), help="set this verdict")
+    lab.add_argument("--clear-verdict", action="store_true", help="take the verdict back")
+    lab.add_argument("--tag", help=f"add this tag (a free label, at most {MAX_TAG_CHARS} characters)")
+    lab.add_argument("--untag", help="remove this tag")
+    lab.add_argument("--author", help="who decided (default: the login name)")
+    lab.add_argument("--dry-run", action="store_true", help="say how many tubes would be labelled; write nothing")
+    lab.add_argument("--compact", action="store_true",
+                     help="merge the label files into one (under the writer lock; waits --lock-wait seconds for it)")
+    lab.add_argument("--lock-wait", type=real(0.0, 86400.0), default=0.0, metavar="SECONDS",
+                     help="--compact: wait this long for a running job's lock (default 0: refuse at once)")
+    lab.set_defaults(func=cmd_label)
 
     rnd = sub.add_parser("render", help="a sequence with its selected tubes drawn (mask, id, category), as a video")
     rnd.add_argument("dest", type=output_file, help="DEST.mp4 (H.264 with PyAV, the `video` extra; without it MPEG-4 Part 2, which "
@@ -294,6 +325,7 @@ def build_parser() -> argparse.ArgumentParser:
     viw.add_argument("--cache", type=output_folder, help="folder for rendered pictures (default: tube-miner/view in $XDG_CACHE_HOME or "
                                      "~/.cache, made 0700; refused when not yours alone; not inside the catalogue)")
     viw.add_argument("--log", action="store_true", help="log one line per request on standard error")
+    viw.add_argument("--author", help="the author of labels made in this viewer (default: the login name)")
     viw.set_defaults(func=cmd_view)
 
     add_commands(sub)

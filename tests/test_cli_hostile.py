@@ -72,6 +72,9 @@ FREE_TEXT = {
     "--host": "an interface address (IP)",
     "--job": "a Ray Jobs submission id",
     "--where": "an SQL predicate (read-only, mining/catalog/views.py)",
+    "--tag": "a free label, checked by mining/catalog/labels.check_text",
+    "--untag": "a free label, checked by mining/catalog/labels.check_text",
+    "--author": "a name, checked by mining/catalog/labels.check_text",
     "sql": "an SQL statement (read-only, mining/catalog/views.py)",
 }
 CASE_S = 10  # seconds one case may take before it counts as real work started

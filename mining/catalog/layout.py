@@ -15,6 +15,8 @@ draws the same tree); ``store.py`` does the I/O on them::
     _running/dataset=D/sequence=S/<window>.json               a window a driver has started and not finished
     _parts/<table>/dataset=D/sequence=S/<window>.part         a window's parts before stitching (Parquet)
     _cache/obs/dataset=D/sequence=S/<window>.npz.zst          a window's observations, until no track needs them
+    labels/part-<UTC>-<hex>.parquet                           what people decided about tubes (labels.py): one file
+    labels/compact-<UTC>-<hex>.parquet                        per write, merged by `mine label --compact`
 
 The records among them are types: ``JobRecord`` here, the others in ``records.py``.
 Every path is built from names checked by ``mining/names.py`` (dataset, sequence, window),
@@ -59,6 +61,9 @@ LOCK = ".mine.lock"  # a dot name: every reader skips it (store.is_temporary)
 REPLACED = "_replaced"  # catalogues moved aside by --new-run, one folder each
 # What a job writes under --out (a --new-run moves exactly these aside).
 JOB_ENTRIES = (JOB, CATALOG, MANIFEST, PARTS, "_cache")
+# People's labels of the tubes (labels.py): no job writes or resumes them; a --new-run moves them
+# aside with the catalogue whose tube ids they name.
+LABELS = "labels"
 RUNNING = "_running"
 STITCH_ROW = "stitch"  # the ``window`` of a sequence's failed-stitch row (no window is named so: windows are S-start-end)
 CACHE_SUFFIX = ".npz.zst"  # the observation cache's format: mining/pipeline/cache.py

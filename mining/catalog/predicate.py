@@ -9,6 +9,10 @@ in after a closing parenthesis, no second statement. Decision: subqueries are re
 anywhere in the expression (they could read other tables and views); export by
 ``tube_id IN (…)`` with ids found by ``mine query`` instead.
 
+The expression may name the labels' columns too (``verdict``, ``tags``, ``tag``,
+``labelled_at``, ``labelled_by``): the checked tree reads the view ``labelled_tubes`` (the tubes
+with their labels, views.sql) in place of ``tubes``.
+
 What runs is the statement DuckDB renders back from that tree (``json_deserialize_sql``),
 never the user's text, and only if rendering it again parses to the same tree: comments
 and stray quotes cannot change what it means when it is embedded in the export's other
@@ -26,6 +30,7 @@ import duckdb
 from mining.errors import InputError
 
 _WRAP = "SELECT * FROM tubes WHERE ({})"
+LABELLED = "labelled_tubes"  # what the checked statement reads: tubes and their labels (views.sql)
 # The parts of a SELECT node that must be empty: anything here was added around the predicate.
 _EMPTY = {"modifiers": ([], "ORDER BY, LIMIT or DISTINCT"), "group_expressions": ([], "GROUP BY"),
           "group_sets": ([], "GROUP BY"), "having": (None, "HAVING"), "sample": (None, "USING SAMPLE"),
@@ -98,6 +103,9 @@ def tubes_query(where: str) -> str:
             raise PredicateError(f"--where {where!r} is not one SQL expression: {tree.get('error_message', '')}")
         if (problem := _shape_problem(tree)) is not None:
             raise PredicateError(f"--where {where!r} is not one SQL expression over the tubes table: {problem}")
+        # The expression reads the tubes with their labels (views.sql ``labelled_tubes``): a
+        # predicate may say ``verdict = 'object'`` or ``list_contains(tags, 'barrier')``.
+        tree["statements"][0]["node"]["from_table"]["table_name"] = LABELLED
         sql = con.execute("SELECT json_deserialize_sql(?)", [json.dumps(tree)]).fetchone()[0]
         again = _parse(con, sql)
         if again.get("error") or _strip_locations(again) != _strip_locations(tree):

@@ -19,6 +19,9 @@ from pathlib import Path
 import pyarrow as pa
 
 SCHEMA_VERSION = 2  # v2: known / category nullable (unclassified), classified_frames, class_evidence
+# Nullable columns added within a version: files written before them read them as null
+# (catalog/views.py), so an older catalogue of the same version stays readable.
+ADDED_COLUMNS = {"tubes": frozenset({"speed_sigma_mps", "path_sigma_m", "moving_speed_mps"})}
 PARTITION = ("dataset", "sequence")
 
 vec3 = pa.list_(pa.float32(), 3)

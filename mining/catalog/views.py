@@ -54,8 +54,9 @@ import pyarrow as pa
 import pyarrow.dataset as ds
 
 from mining.catalog.integrity import Damage, check_versions, unreadable_parquet, vouched_files
+from mining.catalog.labels import LABEL_SCHEMA, label_files, read_labels
 from mining.catalog.layout import MANIFEST, PART_SUFFIX, PARTS, TABLE_DIRS
-from mining.catalog.schema import PARTITION, SCHEMAS, column_doc, file_schema, part_schema
+from mining.catalog.schema import ADDED_COLUMNS, PARTITION, SCHEMAS, column_doc, file_schema, part_schema
 from mining.catalog.store import Store
 from mining.errors import InputError
 
@@ -80,15 +81,16 @@ def _as_read(schema: pa.Schema) -> pa.Schema:
     return pa.schema([f.with_type(plain(f.type)) for f in schema])
 
 
-def _damaged_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, damage: list[Damage]) -> None:
+def _damaged_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, damage: list[Damage],
+                  schema: pa.Schema | None = None, msg: str | None = None) -> None:
     """``table`` as a view with its columns that raises, naming the damaged files, when read."""
     files = "; ".join(f"{store.full(d.path)} ({d.reason})" for d in damage[:5])
     more = f" and {len(damage) - 5} more" if len(damage) > 5 else ""
-    msg = (f"table {table} is damaged: {files}{more}. `mine status --out {store.uri}` lists all; resubmitting "
-           "the job recomputes them; the other tables can be queried")
+    msg = msg or (f"table {table} is damaged: {files}{more}. `mine status --out {store.uri}` lists all; resubmitting "
+                  "the job recomputes them; the other tables can be queried")
     # Every column is the error, and so is the filter: the optimizer can prune neither, so
     # any query that reads a row of the table (joins, counts, views over it) raises.
-    con.register(f"_schema_{table}", _as_read(SCHEMAS[table]).empty_table())
+    con.register(f"_schema_{table}", _as_read(SCHEMAS[table] if schema is None else schema).empty_table())
     types = con.sql(f"DESCRIBE _schema_{table}").fetchall()
     con.unregister(f"_schema_{table}")
     err = f"error({sql_string(msg)})"
@@ -112,8 +114,18 @@ def _base_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, native:
         _damaged_view(con, store, table, damage)
 
 
+def _duck_type(con: duckdb.DuckDBPyConnection, t: pa.DataType) -> str:
+    """The DuckDB name of Arrow type ``t``."""
+    con.register("_type_probe", pa.schema([pa.field("x", t)]).empty_table())
+    try:
+        return con.execute("DESCRIBE _type_probe").fetchone()[1]
+    finally:
+        con.unregister("_type_probe")
+
+
 def _folder_view(con: duckdb.DuckDBPyConnection, store: Store, name: str, folder: str, suffix: str,
-                 schema: pa.Schema, cols: str, native: bool, files: list[str] | None = None) -> None:
+                 schema: pa.Schema, cols: str, native: bool, files: list[str] | None = None,
+                 added: frozenset[str] = frozenset()) -> None:
     """View ``name`` over the hive-partitioned files ``folder/*/*/*<suffix>`` of ``schema``, or
     over exactly ``files`` (relative paths under ``folder``) when given (partition columns
     included; empty when there are no files): DuckDB's own Parquet reader, or a registered
@@ -126,6 +138,12 @@ def _folder_view(con: duckdb.DuckDBPyConnection, store: Store, name: str, folder
     if native:
         what = (sql_string(f"{store.full(folder)}/*/*/*{suffix}") if files is None
                 else "[" + ", ".join(sql_string(store.full(f)) for f in files) + "]")
+        if added:  # files of the same schema version written before a nullable column was added
+            hive += ", union_by_name = true"
+            have = {r[0] for r in con.execute(f"DESCRIBE SELECT * FROM read_parquet({what}, {hive})").fetchall()}
+            cols = ", ".join(f'"{f.name}"' if f.name in have or f.name not in added
+                             else f'CAST(NULL AS {_duck_type(con, f.type)}) AS "{f.name}"' for f in schema
+                             if f.name in set(n.strip('"') for n in cols.split(", ")))
         con.execute(f"CREATE VIEW {name} AS SELECT {cols} FROM read_parquet({what}, {hive})")
         return
     part = pa.schema([pa.field(n, pa.string()) for n in PARTITION])
@@ -144,7 +162,7 @@ def _files_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, native
                 files: list[str] | None = None) -> None:
     cols = ", ".join(f'"{n}"' for n in SCHEMAS[table].names)
     _folder_view(con, store, table, TABLE_DIRS[table], ".parquet", _with_partition(file_schema(table)), cols, native,
-                 files)
+                 files, ADDED_COLUMNS.get(table, frozenset()))
 
 
 PROVISIONAL = ("tubes", "tube_frames")  # the part tables the provisional views read
@@ -209,6 +227,28 @@ def _comment_columns(con: duckdb.DuckDBPyConnection) -> None:
                 con.execute(f'COMMENT ON COLUMN {table}."{f.name}" IS {sql_string(text)}')
 
 
+def refresh_labels(con: duckdb.DuckDBPyConnection, store: Store) -> list[str]:
+    """(Re)register the ``labels`` table: every label event under ``OUT/labels`` (``labels.py``),
+    read into memory (label files are small, and a viewer reads new ones as they appear); a file
+    that does not read makes ``labels`` (and the views over it) fail naming it, and nothing else.
+    The label files read."""
+    files = label_files(store)
+    try:
+        con.unregister("labels")
+    except duckdb.Error:
+        pass
+    try:
+        table = read_labels(store, files)
+    except InputError as e:
+        con.execute("DROP VIEW IF EXISTS labels")
+        _damaged_view(con, store, "labels", [], LABEL_SCHEMA,
+                      f"the labels cannot be read: {e}. Move that file aside; the mined tables can be queried")
+        return files
+    con.execute("DROP VIEW IF EXISTS labels")
+    con.register("labels", table)
+    return files
+
+
 def connect(out: str | Path, native: bool | None = None, memory_limit: str | None = None,
             threads: int | None = None, verify: bool = True) -> duckdb.DuckDBPyConnection:
     """An in-memory DuckDB with the catalogue's tables and views (see module docstring).
@@ -253,6 +293,7 @@ def connect(out: str | Path, native: bool | None = None, memory_limit: str | Non
                    None if table == "windows" else vouched.files[table])
     for table in PROVISIONAL:
         _part_view(con, store, table, native)
+    refresh_labels(con, store)
     con.execute(VIEWS_SQL.read_text())
     _comment_columns(con)
     # From here on: no file access but what the views read, and no way to turn that back on.

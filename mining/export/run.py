@@ -23,12 +23,16 @@ share a folder, and every file written must resolve inside DEST.
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
 import duckdb
+import pyarrow as pa
+import pyarrow.compute as pc
 
 from mining.catalog import safe_files
+from mining.catalog.labels import VERDICTS
 from mining.catalog.views import connect
 from mining.errors import InputError, MiningError, NothingMatched
 from mining.export.dest import check_folder, publish_folder
@@ -36,12 +40,14 @@ from mining.export.registry import FORMATS, VIDEO_FORMATS
 from mining.export.selection import (frame_sizes, left_out_line, mined_frames, read_job, selected_rows,
                                      without_bad_masks)
 
+LABELS_FILE = "tube_labels.json"  # beside every format's files: the exported tubes' labels
+CATEGORY_FROM = ("category", "tag")  # --category-from: the mined category, or the user's tag where there is one
 LEFT_OUT = 1  # exit status: written, but tubes with a bad mask were left out (as `mine submit` with a failed window)
 
 
 def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: float | None = None,
            images: bool = False, overwrite: bool = False,
-           unknown_class: int | None = None) -> tuple[int, int, dict[str, str]]:
+           unknown_class: int | None = None, category_from: str = "category") -> tuple[int, int, dict[str, str]]:
     """Export the tubes of catalogue ``out`` matching ``where``; (tubes, items written, tubes
     left out for a bad mask: tube id → why).
 
@@ -51,6 +57,8 @@ def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: floa
     before anything is written or removed, when no tube matches."""
     if fmt not in FORMATS:
         raise InputError(f"unknown export format {fmt!r}; one of {', '.join(FORMATS)}")
+    if category_from not in CATEGORY_FROM:
+        raise InputError(f"--category-from {category_from!r}: one of {', '.join(CATEGORY_FROM)}")
     form = FORMATS[fmt]
     options: dict = {}
     if margin is not None:
@@ -73,6 +81,8 @@ def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: floa
         tubes, frames = selected_rows(con, where)
         if not tubes.num_rows:
             raise NothingMatched(f"no tube matches --where {where!r}; nothing written")
+        if category_from == "tag":
+            tubes = category_from_tag(tubes)
         left_out: dict[str, str] = {}
         if form.masks:
             sizes = frame_sizes(con, tubes)
@@ -88,17 +98,45 @@ def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: floa
                 "options": {k: v for k, v in options.items() if k != "video_frames"}} | (
                     {"left_out": left_out} if left_out else {})
 
-    n = publish_folder(dest, replaced, lambda staging: write(tubes, frames, job, staging, **options), record)
+    def write_all(staging: Path) -> int:
+        n = write(tubes, frames, job, staging, **options)
+        safe_files.write_atomic(staging, LABELS_FILE, labels_json(tubes))
+        return n
+
+    n = publish_folder(dest, replaced, write_all, record)
     return tubes.num_rows, n, left_out
 
 
+def category_from_tag(tubes: pa.Table) -> pa.Table:
+    """``tubes`` whose tagged rows carry their tag (``tube_labels.tag``, the most recent) as the
+    category, as a known class: the user's decision is the label the formats write."""
+    tagged = pc.is_valid(tubes.column("tag"))
+    category = pc.if_else(tagged, tubes.column("tag"), tubes.column("category"))
+    known = pc.if_else(tagged, pa.scalar(True), tubes.column("known"))
+    tubes = tubes.set_column(tubes.schema.get_field_index("category"), "category", category)
+    return tubes.set_column(tubes.schema.get_field_index("known"), "known", known)
+
+
+def labels_json(tubes: pa.Table) -> bytes:
+    """LABELS_FILE: each exported tube's id with its labels (views.sql ``tube_labels``), so the
+    decisions travel with every format; tubes without labels are listed too (verdict null)."""
+    rows = tubes.select(["tube_id", "verdict", "tags", "tag", "labelled_at", "labelled_by"]).to_pylist()
+    for r in rows:
+        r["labelled_at"] = None if r["labelled_at"] is None else r["labelled_at"].isoformat() + "Z"
+    return (json.dumps({"about": "mine export: the labels of the exported tubes (tube_labels in the catalogue); "
+                                 "verdict one of " + ", ".join(VERDICTS) + "; times UTC",
+                        "tubes": rows}, indent=1) + "\n").encode()
+
+
 def run_export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: float | None = None,
-               images: bool = False, overwrite: bool = False, unknown_class: int | None = None) -> int:
+               images: bool = False, overwrite: bool = False, unknown_class: int | None = None,
+               category_from: str = "category") -> int:
     """`mine export`: 0 on success; LEFT_OUT (1) when tubes with a bad mask were left out (one
     line on standard error names them); NothingMatched (``cli.main``: exit 1) when no tube
     matches; 2 with a message on standard error otherwise."""
     try:
-        n_tubes, n_items, left_out = export(out, where, fmt, dest, margin, images, overwrite, unknown_class)
+        n_tubes, n_items, left_out = export(out, where, fmt, dest, margin, images, overwrite, unknown_class,
+                                            category_from)
     except (MiningError, duckdb.Error) as e:
         print(f"mine export: {e}", file=sys.stderr)
         return 2

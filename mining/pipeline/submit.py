@@ -42,7 +42,7 @@ from typing import Any
 import pyarrow.fs as pafs
 
 from mining.catalog.identity import check_resubmit, job_identity
-from mining.catalog.layout import (FRESH_START, JOB, JOB_ENTRIES, LEGACY_CACHE_SUFFIX, PART_TABLES, REPLACED,
+from mining.catalog.layout import (FRESH_START, JOB, JOB_ENTRIES, LABELS, LEGACY_CACHE_SUFFIX, PART_TABLES, REPLACED,
                                    JobRecord, UnreadableRecord, cache_path, files_path, manifest_path, part_path)
 from mining.catalog.lock import OutputLock
 from mining.catalog.store import Store
@@ -84,7 +84,8 @@ def _move_aside(store: Store, run_id: str | None) -> str:
     object stores have no rename, so there the old catalogue must be removed by hand."""
     stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
     name = f"{run_id or 'unknown-run'}-{stamp}"
-    present = [e for e in JOB_ENTRIES if store.fs.get_file_info(store.full(e)).type != pafs.FileType.NotFound]
+    # The labels go too: the new run's tube ids may name other objects.
+    present = [e for e in (*JOB_ENTRIES, LABELS) if store.fs.get_file_info(store.full(e)).type != pafs.FileType.NotFound]
     if not store.local:
         raise ConfigError(f"{store.uri}: --new-run cannot move the old catalogue (run {run_id or 'unknown'}) aside on "
                           f"this filesystem (no rename); delete {', '.join(present)} there, or use another --out")

@@ -20,9 +20,10 @@ from pathlib import Path
 
 import duckdb
 
+from mining.catalog import labels
 from mining.catalog.layout import JOB, JobRecord
 from mining.catalog.store import Store
-from mining.catalog.views import connect, sql_string
+from mining.catalog.views import connect, refresh_labels, sql_string
 from mining.config import JobConfig
 from mining.errors import InputError
 from mining.formats.coco import COCO_CLASSES
@@ -69,9 +70,13 @@ def _rows(cur: duckdb.DuckDBPyConnection) -> list[dict]:
 class CatalogueBrowser:
     """The queries behind the viewer's JSON API, over one catalogue folder."""
 
-    def __init__(self, out: str | Path):
+    def __init__(self, out: str | Path, author: str | None = None):
         self.out = str(out)
         self.con = connect(out)  # InputError when ``out`` is not a catalogue folder
+        self.store = Store(out)
+        self.author = labels.check_text(labels.default_author() if author is None else author, "--author",
+                                        labels.MAX_AUTHOR_CHARS)
+        self._label_files = labels.label_files(self.store)
         self._lock = threading.Lock()
         self.job: JobConfig | None = None  # the typed config of OUT/job.json (None: the catalogue has none)
         self.job_error: str | None = None
@@ -85,17 +90,39 @@ class CatalogueBrowser:
     def close(self) -> None:
         self.con.close()
 
+    def _fresh_labels(self) -> None:
+        """Re-read the labels when their files changed (another viewer, `mine label`, a compaction):
+        one folder listing per query. Under ``_lock``."""
+        files = labels.label_files(self.store)
+        if files != self._label_files:
+            self._label_files = refresh_labels(self.con, self.store)
+
     def _query(self, sql: str, params: list | None = None) -> list[dict]:
         with self._lock:
+            self._fresh_labels()
             self.con.execute(sql, params or [])
             return _rows(self.con)
+
+    def label(self, tube_ids: list[str], kind: str, value: str | None, op: str) -> list[dict]:
+        """Apply one decision to ``tube_ids`` (each must be a tube of the catalogue: InputError
+        naming the first that is not), as one new labels part; the tubes' labels after it."""
+        found = {r["tube_id"]: r for r in self._query(
+            "SELECT dataset, sequence, tube_id FROM tubes WHERE tube_id IN (SELECT unnest(?))", [tube_ids])}
+        missing = [t for t in tube_ids if t not in found]
+        if missing:
+            raise InputError(f"no tube {missing[0]!r} in this catalogue" + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""))
+        table = labels.events([(found[t]["dataset"], found[t]["sequence"], t) for t in tube_ids], kind, value, op,
+                              self.author, via="view")
+        labels.append(self.store, table)
+        return self._query("SELECT tube_id, verdict, tags, tag, labelled_at, labelled_by FROM labelled_tubes "
+                           "WHERE tube_id IN (SELECT unnest(?)) ORDER BY tube_id", [tube_ids])
 
     def page(self, flt: TubeFilter) -> dict:
         """One gallery page: the total that match, and the tubes of ``flt``'s page."""
         pred, values = flt.predicate()
-        total = self._query(f"SELECT count(*) AS n FROM tubes WHERE {pred}", values)[0]["n"]
+        total = self._query(f"SELECT count(*) AS n FROM labelled_tubes WHERE {pred}", values)[0]["n"]
         cols = ", ".join(CARD_COLUMNS)
-        tubes = self._query(f"SELECT {cols} FROM tubes WHERE {pred} ORDER BY {flt.order_by()} LIMIT ? OFFSET ?",
+        tubes = self._query(f"SELECT {cols} FROM labelled_tubes WHERE {pred} ORDER BY {flt.order_by()} LIMIT ? OFFSET ?",
                             [*values, flt.limit, flt.offset])
         where = flt.export_where()
         return {"total": total, "offset": flt.offset, "limit": flt.limit, "tubes": tubes, "where": where,
@@ -114,12 +141,17 @@ class CatalogueBrowser:
         agg = ", ".join(f"min({c}) AS min_{c}, max({c}) AS max_{c}" for c in RANGE_COLUMNS)
         r = self._query(f"SELECT {agg} FROM tubes WHERE {pred}")[0]
         ranges = {c: [r[f"min_{c}"], r[f"max_{c}"]] for c in RANGE_COLUMNS}
+        verdicts = {("none" if v["verdict"] is None else v["verdict"]): v["n"] for v in self._query(
+            f"SELECT verdict, count(*) AS n FROM labelled_tubes WHERE {pred} GROUP BY verdict")}
+        tags = self._query(f"SELECT tag, count(*) AS n FROM (SELECT unnest(tags) AS tag FROM labelled_tubes WHERE {pred}) "
+                           "GROUP BY tag ORDER BY n DESC, tag")
         return {"catalogue": self.out, "tubes": counts["tubes"], "selected": counts["selected"], "known": known,
-                "categories": categories, "sequences": sequences, "ranges": ranges}
+                "categories": categories, "sequences": sequences, "ranges": ranges, "verdicts": verdicts,
+                "tags": tags, "author": self.author}
 
     def tube(self, tube_id: str) -> dict | None:
         """The tubes row of ``tube_id`` (looked up by parameter), or None."""
-        rows = self._query("SELECT * FROM tubes WHERE tube_id = ?", [tube_id])
+        rows = self._query("SELECT * FROM labelled_tubes WHERE tube_id = ?", [tube_id])
         return rows[0] if rows else None
 
     def frames(self, tube: dict, columns: tuple[str, ...] = FRAME_COLUMNS) -> list[dict]:

@@ -1,4 +1,5 @@
-"""The gallery's filter: URL query parameters → one parameterised SQL predicate over ``tubes``.
+"""The gallery's filter: URL query parameters → one parameterised SQL predicate over the tubes
+and their labels (views.sql ``labelled_tubes``).
 
 A filter reads only parameters it knows and checks each one (a bad value is a FilterError,
 which the server answers with 400 and the message). User values reach DuckDB as bound
@@ -13,6 +14,8 @@ Parameters (each may repeat where it says so):
 * ``category``: one of ``CATEGORIES``, the 80 COCO class names or ``unknown`` (repeat for several)
 * ``seq``: ``DATASET/SEQUENCE``, both safe names (``mining/names.py``; repeat for several)
 * ``min_C`` / ``max_C`` for C in ``RANGE_COLUMNS``: inclusive bounds
+* ``verdict``: one of ``labels.VERDICTS`` or ``none`` (no verdict yet) (repeat for several)
+* ``tag``: a tag the tube carries (repeat: any of them)
 * ``sort``: one of ``SORT_COLUMNS`` (default score), ``order``: ``desc`` (default) or ``asc``
 * ``offset`` in 0..``MAX_OFFSET`` and ``limit`` in 1..``MAX_LIMIT`` (default ``DEFAULT_LIMIT``): the page
 
@@ -25,12 +28,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from mining.catalog.labels import MAX_TAG_CHARS, VERDICTS, check_text
 from mining.catalog.views import sql_string
+from mining.errors import InputError
 from mining.names import NAME_RULE, name_problem
 from mining.formats.coco import COCO_CLASSES
 
 RANGE_COLUMNS = ("score", "score_motion", "score_mask", "score_objectness", "n_frames", "n_observed",
-                 "category_prob", "class_evidence", "speed", "path_length")
+                 "category_prob", "class_evidence", "speed", "moving_speed_mps", "path_length")
 INT_COLUMNS = frozenset({"n_frames", "n_observed"})
 SORT_COLUMNS = (*RANGE_COLUMNS, "tube_id", "sequence", "frame_start", "category")
 KNOWN_VALUES = {"true": "known = true", "false": "known = false", "null": "known IS NULL"}
@@ -42,7 +47,8 @@ CATEGORIES = frozenset((*COCO_CLASSES, "unknown"))
 # The columns a gallery card shows (the whole row is one `mine query` away).
 CARD_COLUMNS = ("tube_id", "dataset", "sequence", "frame_start", "frame_end", "n_frames", "n_observed", "score",
                 "score_motion", "score_mask", "score_objectness", "selected", "known", "category", "category_prob",
-                "best_known", "speed", "path_length")
+                "best_known", "speed", "moving_speed_mps", "path_length", "verdict", "tags")
+VERDICT_VALUES = (*VERDICTS, "none")  # none: no verdict yet
 
 
 class FilterError(ValueError):
@@ -80,6 +86,8 @@ class TubeFilter:
     categories: tuple[str, ...] = ()
     sequences: tuple[tuple[str, str], ...] = ()  # (dataset, sequence)
     ranges: tuple[tuple[str, float | int | None, float | int | None], ...] = ()  # (column, min, max)
+    verdicts: tuple[str, ...] = ()  # subset of VERDICT_VALUES
+    tags: tuple[str, ...] = ()
     sort: str = "score"
     descending: bool = True
     offset: int = 0
@@ -88,7 +96,7 @@ class TubeFilter:
     @classmethod
     def from_query(cls, params: dict[str, list[str]]) -> TubeFilter:
         """Parse ``urllib.parse.parse_qs`` output (blank values kept); FilterError when bad."""
-        allowed = {"set", "known", "category", "seq", "sort", "order", "offset", "limit",
+        allowed = {"set", "known", "category", "seq", "sort", "order", "offset", "limit", "verdict", "tag",
                    *(f"{b}_{c}" for c in RANGE_COLUMNS for b in ("min", "max"))}
         unknown = sorted(set(params) - allowed)
         if unknown:
@@ -124,6 +132,14 @@ class TubeFilter:
                 raise FilterError(f"min_{c} = {lo} is above max_{c} = {hi}")
             if lo is not None or hi is not None:
                 ranges.append((c, lo, hi))
+        verdicts = tuple(dict.fromkeys(v for v in params.get("verdict", []) if v))
+        bad = [v for v in verdicts if v not in VERDICT_VALUES]
+        if bad:
+            raise FilterError(f"parameter 'verdict' is one of {', '.join(VERDICT_VALUES)}, got {bad[0]!r}")
+        try:
+            tags = tuple(dict.fromkeys(check_text(v, "parameter 'tag'", MAX_TAG_CHARS) for v in params.get("tag", []) if v))
+        except InputError as e:
+            raise FilterError(str(e)) from None
         sort = _one(params, "sort") or "score"
         if sort not in SORT_COLUMNS:
             raise FilterError(f"cannot sort by {sort!r}; one of {', '.join(SORT_COLUMNS)}")
@@ -138,8 +154,8 @@ class TubeFilter:
             raise FilterError(f"parameter 'offset' must be at most {MAX_OFFSET}, got {offset}")
         if not 1 <= limit <= MAX_LIMIT:
             raise FilterError(f"parameter 'limit' must be in 1..{MAX_LIMIT}, got {limit}")
-        return cls(which == "all", known, categories, tuple(sequences), tuple(ranges), sort, order == "desc",
-                   int(offset), int(limit))
+        return cls(which == "all", known, categories, tuple(sequences), tuple(ranges), verdicts, tags, sort,
+                   order == "desc", int(offset), int(limit))
 
     def _terms(self, literal: bool) -> tuple[list[str], list]:
         """The predicate's AND-ed terms, with ``?`` and their values, or with literals."""
@@ -162,6 +178,12 @@ class TubeFilter:
         if self.sequences:
             pairs = [f"(dataset = {bind(d)} AND sequence = {bind(s)})" for d, s in self.sequences]
             terms.append(pairs[0][1:-1] if len(pairs) == 1 else "(" + " OR ".join(pairs) + ")")
+        if self.verdicts:
+            parts = ["verdict IS NULL" if v == "none" else f"verdict = {bind(v)}" for v in self.verdicts]
+            terms.append(parts[0] if len(parts) == 1 else "(" + " OR ".join(parts) + ")")
+        if self.tags:
+            parts = [f"list_contains(tags, {bind(t)})" for t in self.tags]
+            terms.append(parts[0] if len(parts) == 1 else "(" + " OR ".join(parts) + ")")
         for c, lo, hi in self.ranges:  # c is one of RANGE_COLUMNS: a fixed identifier
             if lo is not None:
                 terms.append(f"{c} >= {bind(lo)}")

@@ -5,7 +5,8 @@
 * pages and their script/style, read once from the package's ``static/`` folder (plain HTML,
   vanilla JS and CSS; no build step): ``/`` the gallery, ``/tube?id=…`` a tube;
 * a JSON API: ``/api/facets?set=…``, ``/api/tubes?<filter>`` (``filters.py``),
-  ``/api/tube?id=…``; a bad or unknown parameter is 400 naming it, an unknown tube 404, a
+  ``/api/tube?id=…``, and the one write, ``POST /api/labels`` (a verdict or tag for several
+  tubes: ``catalog/labels.py``, appended as a new file, never a rewrite); a bad or unknown parameter is 400 naming it, an unknown tube 404, a
   request over a limit 413 saying which, a damaged catalogue table 503 naming the file;
 * pictures: ``/img/thumb?id=…`` and ``/img/frame?id=…&frame=N&size=full|strip`` (JPEG,
   ``images.py``). Where the frames cannot be read the picture is a placeholder saying why
@@ -25,6 +26,9 @@ What a hostile page, catalogue or client can do is bounded here:
   handler thread (``Limits.workers`` of them) only once its whole request head has arrived,
   idle ones are closed after ``Limits.idle_timeout_s``, and past ``Limits.max_connections``
   the longest-waiting one is closed, so idle sockets cannot starve a real request;
+* a POST is answered only from this server's own pages: a JSON body (which another site's
+  page cannot send without a CORS preflight, never granted), an ``Origin`` (when sent) of this
+  server's own address, at most ``MAX_BODY_BYTES`` (``_post_problem``);
 * one request costs at most one picture of ``images.MAX_PICTURE_PIXELS`` and
   ``catalogue.MAX_TUBE_FRAMES`` frames (413 past either).
 """
@@ -70,6 +74,8 @@ PAGE_POLICY = ("default-src 'none'; script-src 'self'; style-src 'self' 'unsafe-
 DATA_POLICY = "default-src 'none'; sandbox; frame-ancestors 'none'"
 MAX_HEADER_CHARS = 1000  # ours: a placeholder's reason is cut here in its header (the picture says it whole)
 MAX_FRAME = 2**31 - 1  # frame numbers are int32 in the catalogue
+MAX_BODY_BYTES = 1 << 20  # ours: a labelling request's JSON (MAX_LABEL_TUBES ids of ~25 characters fit many times)
+MAX_LABEL_TUBES = 1000  # ours: tubes one request labels (a gallery page is at most filters.MAX_LIMIT)
 _NOT_PRINTABLE = re.compile(r"[^\x20-\x7e]")
 _HOST = re.compile(r"(?:\[(?P<v6>[0-9a-f:.]+)\]|(?P<name>[^:\[\]]+))(?::(?P<port>[0-9]{1,5}))?")
 _HEAD_END = re.compile(rb"\r?\n\r?\n")
@@ -80,6 +86,11 @@ class HttpError(Exception):
     def __init__(self, status: HTTPStatus, message: str):
         super().__init__(message)
         self.status = status
+
+
+def _not_json(constant: str) -> None:
+    """``json.loads``'s hook for NaN / Infinity, which JSON does not have."""
+    raise ValueError(f"{constant} is not JSON")
 
 
 def header_value(value: object) -> str:
@@ -197,8 +208,8 @@ def connection_cap(wanted: int) -> int:
 class ViewApp:
     """The catalogue, its pictures and the static files behind one server."""
 
-    def __init__(self, out: str | Path, cache_dir: Path | None, log_requests: bool = False):
-        self.browser = CatalogueBrowser(out)
+    def __init__(self, out: str | Path, cache_dir: Path | None, log_requests: bool = False, author: str | None = None):
+        self.browser = CatalogueBrowser(out, author)
         out_dir = Path(out).resolve()
         if cache_dir is not None and cache_dir.resolve().is_relative_to(out_dir):
             raise InputError("the picture cache may not live inside the catalogue; choose another --cache", cache_dir)
@@ -266,7 +277,36 @@ class ViewApp:
             raise HttpError(HTTPStatus.NOT_FOUND, f"tube {tube['tube_id']!r} has no frame {n}")
         return self.images.frame(tube, frame, size)
 
+    def api_labels(self, body: object) -> dict:
+        """POST /api/labels: {"tubes": [ids], and one of "verdict": V (null: take it back),
+        "tag": T, "untag": T}; the tubes' labels after it."""
+        if not isinstance(body, dict):
+            raise HttpError(HTTPStatus.BAD_REQUEST, "the body is a JSON object: {\"tubes\": [ids], \"verdict\" | \"tag\" | \"untag\": …}")
+        unknown = sorted(set(body) - {"tubes", "verdict", "tag", "untag"})
+        if unknown:
+            raise HttpError(HTTPStatus.BAD_REQUEST, f"unknown field {unknown[0]!r}; /api/labels takes tubes and one of "
+                                                    "verdict, tag, untag")
+        ids = body.get("tubes")
+        if not isinstance(ids, list) or not ids or not all(isinstance(t, str) for t in ids):
+            raise HttpError(HTTPStatus.BAD_REQUEST, "field 'tubes' is a non-empty list of tube ids")
+        if len(ids) > MAX_LABEL_TUBES:
+            raise TooLarge(f"{len(ids)} tubes in one labelling; at most {MAX_LABEL_TUBES}")
+        actions = [k for k in ("verdict", "tag", "untag") if k in body]
+        if len(actions) != 1:
+            raise HttpError(HTTPStatus.BAD_REQUEST, "give exactly one of the fields verdict, tag, untag")
+        action = actions[0]
+        value = body[action]
+        kind, op = {"verdict": ("verdict", "unset" if value is None else "set"), "tag": ("tag", "set"),
+                    "untag": ("tag", "unset")}[action]
+        try:
+            rows = self.browser.label(list(dict.fromkeys(ids)), kind, value, op)
+        except InputError as e:
+            raise HttpError(HTTPStatus.NOT_FOUND if str(e).startswith("no tube") else HTTPStatus.BAD_REQUEST,
+                            str(e)) from None
+        return {"labelled": rows, "author": self.browser.author}
+
     API: ClassVar = {"/api/facets": api_facets, "/api/tubes": api_tubes, "/api/tube": api_tube}
+    POSTS: ClassVar = {"/api/labels": api_labels}
     IMAGES: ClassVar = {"/img/thumb": img_thumb, "/img/frame": img_frame}
 
 
@@ -283,7 +323,7 @@ class Handler(BaseHTTPRequestHandler):
     protocol_version = "HTTP/1.1"
 
     def setup(self) -> None:  # the socketserver hook
-        sock, head = self.request
+        sock, head, self.leftover = self.request
         self.request = self.connection = sock
         sock.settimeout(self.server.limits.write_timeout_s)
         self.rfile = io.BytesIO(head)
@@ -358,7 +398,14 @@ class Handler(BaseHTTPRequestHandler):
         t0 = time.perf_counter()
         if self.headers.get("Content-Length", "0").strip() not in ("", "0") or "Transfer-Encoding" in self.headers:
             self.close_connection = True  # a body is never read: the connection cannot carry another request
-        (status, body, ctype, headers), note = self._answer()
+        self._finish(t0, *self._answer())
+
+    def do_POST(self) -> None:  # the http.server name
+        t0 = time.perf_counter()
+        self._finish(t0, *self._answer_post())
+
+    def _finish(self, t0: float, answer: tuple[HTTPStatus, bytes, str, dict[str, str]], note: str | None) -> None:
+        status, body, ctype, headers = answer
         # At most one line per request, written before the answer leaves (so it is there when the client has it).
         if self.app.log_requests:
             tail = f" ({note})" if note else ""
@@ -371,6 +418,78 @@ class Handler(BaseHTTPRequestHandler):
             self.wfile.flush()
         except OSError:  # the client left or stopped reading (write timeout)
             self.close_connection = True
+
+    def _post_problem(self) -> str | None:
+        """Why a POST is not from this server's own pages, or None. A page of another site can
+        send a form (urlencoded, multipart, text/plain) here without asking; a JSON body it can
+        send only after a CORS preflight, which this server never grants; and a browser names
+        the page's origin, which must be this server's."""
+        ctype = (self.headers.get("Content-Type") or "").split(";")[0].strip().lower()
+        if ctype != "application/json":
+            return f"a POST body is application/json, got {ctype or 'none'!r}"
+        origin = self.headers.get("Origin")
+        host = (self.headers.get("Host") or "").strip().lower()
+        if origin is not None and origin.strip().lower() not in (f"http://{host}", f"https://{host}"):
+            return f"the request comes from another site ({header_value(origin)!r}); labels are made on this server's pages"
+        site = self.headers.get("Sec-Fetch-Site")
+        if site is not None and site.strip().lower() not in ("same-origin", "none"):
+            return f"the request comes from another site (Sec-Fetch-Site: {header_value(site)!r})"
+        return None
+
+    def _read_body(self) -> bytes:
+        """The request's body (Content-Length bytes): what arrived with the head, then the socket."""
+        if "Transfer-Encoding" in self.headers:
+            self.close_connection = True
+            raise HttpError(HTTPStatus.LENGTH_REQUIRED, "a POST gives its Content-Length (no chunked bodies)")
+        text = (self.headers.get("Content-Length") or "").strip()
+        if not text.isdigit():
+            self.close_connection = True
+            raise HttpError(HTTPStatus.LENGTH_REQUIRED, "a POST gives its Content-Length")
+        n = int(text)
+        if n > MAX_BODY_BYTES:
+            self.close_connection = True  # the body is not read: the connection cannot carry another request
+            raise TooLarge(f"a body of {n} bytes; at most {MAX_BODY_BYTES}")
+        body, self.leftover = bytes(self.leftover[:n]), self.leftover[n:]
+        while len(body) < n:  # the socket's write timeout bounds the wait (Limits.write_timeout_s)
+            try:
+                chunk = self.connection.recv(n - len(body))
+            except OSError:
+                chunk = b""
+            if not chunk:
+                self.close_connection = True
+                raise HttpError(HTTPStatus.BAD_REQUEST, f"the body ended after {len(body)} of {n} bytes")
+            body += chunk
+        return body
+
+    def _answer_post(self) -> tuple[tuple[HTTPStatus, bytes, str, dict[str, str]], str | None]:
+        problem = self.server.hosts.problem(self.headers.get_all("Host"))
+        if problem:
+            self.close_connection = True
+            return self._json(HTTPStatus.BAD_REQUEST, {"error": problem}), None
+        path = urlsplit(self.path).path
+        try:
+            body = self._read_body()
+            if path not in ViewApp.POSTS:
+                raise HttpError(HTTPStatus.NOT_FOUND if path not in PAGES and path not in ViewApp.API
+                                else HTTPStatus.METHOD_NOT_ALLOWED, f"no POST to {path!r}; POST /api/labels only")
+            problem = self._post_problem()
+            if problem:
+                raise HttpError(HTTPStatus.FORBIDDEN, problem)
+            try:
+                obj = json.loads(body, parse_constant=_not_json)
+            except (ValueError, UnicodeDecodeError) as e:
+                raise HttpError(HTTPStatus.BAD_REQUEST, f"the body is not JSON: {e}") from None
+            return self._json(HTTPStatus.OK, ViewApp.POSTS[path](self.app, obj)), None
+        except HttpError as e:
+            return self._json(e.status, {"error": str(e)}), None
+        except TooLarge as e:
+            return self._json(HTTPStatus.REQUEST_ENTITY_TOO_LARGE, {"error": str(e)}), None
+        except (duckdb.Error, OSError) as e:  # a damaged labels file, a full disk: named
+            note = str(e).splitlines()[0]
+            return self._json(HTTPStatus.SERVICE_UNAVAILABLE, {"error": f"the labels cannot be written: {e}"}), note
+        except Exception as e:  # a bug: answer 500 with its name, log it, keep serving
+            note = f"{type(e).__name__}: {e}"
+            return self._json(HTTPStatus.INTERNAL_SERVER_ERROR, {"error": note}), note
 
     do_HEAD = do_GET
 
@@ -561,8 +680,9 @@ class ViewServer(HTTPServer):
             sock, address, head, rest = item
             keep = False
             try:
-                handler = self.RequestHandlerClass((sock, head), address, self)
+                handler = self.RequestHandlerClass((sock, head, rest), address, self)
                 keep = not handler.close_connection and not self._closing
+                rest = handler.leftover  # what the client sent after this request (less the body a POST read)
             except Exception:  # a bug in answering: say so, drop this connection, keep serving
                 self.handle_error(sock, address)
             if keep:
@@ -577,9 +697,10 @@ class ViewServer(HTTPServer):
 
 
 def make_server(out: str | Path, host: str = "127.0.0.1", port: int = DEFAULT_PORT,
-                cache_dir: Path | None = None, log_requests: bool = False, limits: Limits | None = None) -> ViewServer:
+                cache_dir: Path | None = None, log_requests: bool = False, limits: Limits | None = None,
+                author: str | None = None) -> ViewServer:
     """A server for catalogue ``out`` bound to ``host:port`` (0: a free port); accepting once serve_forever runs."""
-    app = ViewApp(out, default_cache_dir() if cache_dir is None else cache_dir, log_requests)
+    app = ViewApp(out, default_cache_dir() if cache_dir is None else cache_dir, log_requests, author)
     handler = type("BoundHandler", (Handler,), {"app": app})
     try:
         server = ViewServer((host, port), handler, limits or Limits(), HostRule(host))
@@ -591,10 +712,11 @@ def make_server(out: str | Path, host: str = "127.0.0.1", port: int = DEFAULT_PO
     return server
 
 
-def run_view(out: str, host: str, port: int, cache_dir: str | None, log_requests: bool) -> int:
+def run_view(out: str, host: str, port: int, cache_dir: str | None, log_requests: bool,
+             author: str | None = None) -> int:
     """`mine view`: serve until Ctrl-C."""
     t0 = time.perf_counter()
-    server = make_server(out, host, port, Path(cache_dir) if cache_dir else None, log_requests)
+    server = make_server(out, host, port, Path(cache_dir) if cache_dir else None, log_requests, author=author)
     app = server.app
     try:
         url = f"http://{host if ':' not in host else f'[{host}]'}:{server.server_address[1]}/"

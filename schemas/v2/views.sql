@@ -55,3 +55,43 @@ FROM _part_tube_frames AS p
 JOIN windows AS w ON w.dataset = p.dataset AND w.sequence = p.sequence AND w."window" = p."window"
 WHERE w.status = 'done' AND p.core
   AND NOT EXISTS (SELECT 1 FROM tubes AS t WHERE t.dataset = p.dataset AND t.sequence = p.sequence);
+
+-- What people decided about the tubes (`mine view`, `mine label`): one row per labelled tube,
+-- the replay of its events in the `labels` table (mining/catalog/labels.py) in time order.
+-- verdict: the last verdict set (object, not_object, part_of, duplicate; null when unset);
+-- tags: the tags whose last event set them, sorted; tag: the most recently set of them (the
+-- name `mine export --category-from tag` gives the tube); labelled_at / labelled_by: the
+-- last event's time and author. A tube whose every decision was taken back is not here.
+CREATE VIEW tube_labels AS
+WITH ordered AS (
+    SELECT *, row_number() OVER (PARTITION BY dataset, sequence, tube_id, kind,
+                                 CASE WHEN kind = 'tag' THEN value END
+                                 ORDER BY "at" DESC, label_id DESC) AS newest
+    FROM labels
+),
+verdicts AS (
+    SELECT dataset, sequence, tube_id, value AS verdict FROM ordered
+    WHERE kind = 'verdict' AND newest = 1 AND op = 'set'
+),
+tags AS (
+    SELECT dataset, sequence, tube_id, list(value ORDER BY value) AS tags, arg_max(value, "at") AS tag
+    FROM ordered WHERE kind = 'tag' AND newest = 1 AND op = 'set'
+    GROUP BY dataset, sequence, tube_id
+),
+touched AS (
+    SELECT dataset, sequence, tube_id, max("at") AS labelled_at, arg_max(author, "at") AS labelled_by
+    FROM labels GROUP BY dataset, sequence, tube_id
+)
+SELECT t.dataset, t.sequence, t.tube_id, v.verdict, coalesce(g.tags, []::VARCHAR[]) AS tags, g.tag,
+       t.labelled_at, t.labelled_by
+FROM touched AS t
+LEFT JOIN verdicts AS v ON v.dataset = t.dataset AND v.sequence = t.sequence AND v.tube_id = t.tube_id
+LEFT JOIN tags AS g ON g.dataset = t.dataset AND g.sequence = t.sequence AND g.tube_id = t.tube_id
+WHERE v.verdict IS NOT NULL OR g.tags IS NOT NULL;
+
+-- Every tube with its labels (null / [] where none): what `mine export --where` and the
+-- gallery filter read, so a predicate may say `verdict = 'object'` or `list_contains(tags, 'barrier')`.
+CREATE VIEW labelled_tubes AS
+SELECT t.*, l.verdict, coalesce(l.tags, []::VARCHAR[]) AS tags, l.tag, l.labelled_at, l.labelled_by
+FROM tubes AS t
+LEFT JOIN tube_labels AS l ON l.dataset = t.dataset AND l.sequence = t.sequence AND l.tube_id = t.tube_id;

@@ -32,7 +32,35 @@ function knownKey(known) { return known === null || known === undefined ? "null"
 
 function classLabel(t) {
   if (t.known === null || t.known === undefined) return "unclassified";
-  return t.known ? t.category : `unknown (best: ${t.best_known || "–"})`;
+  return t.known ? t.category : "unknown";
+}
+
+// What the number beside a class badge is: the posterior of the class the badge names.
+function probLabel(t) {
+  if (t.category_prob === null || t.category_prob === undefined) return "";
+  if (t.known === null || t.known === undefined) return "";
+  return `P(${t.known ? t.category : "unknown"}) ${t.category_prob.toFixed(2)}`;
+}
+
+// Labels: the verdicts' names and keys (catalog/labels.py VERDICTS), and the one write.
+const VERDICTS = [["object", "object", "o"], ["not_object", "not an object", "n"], ["part_of", "part of another", "p"],
+  ["duplicate", "duplicate", "d"]];
+const VERDICT_NAME = Object.fromEntries(VERDICTS.map(([v, name]) => [v, name]));
+
+async function postLabels(body) {
+  const r = await fetch("/api/labels", { method: "POST", headers: { "Content-Type": "application/json" },
+    body: JSON.stringify(body) });
+  let answer;
+  try { answer = await r.json(); } catch (e) { answer = { error: `${r.status} ${r.statusText}` }; }
+  if (!r.ok) throw new Error(answer.error || `${r.status} ${r.statusText}`);
+  return answer;
+}
+
+function labelChips(t) {
+  const box = el("span", { class: "labels" });
+  if (t.verdict) box.append(el("span", { class: `verdict v-${t.verdict}`, text: VERDICT_NAME[t.verdict] || t.verdict }));
+  for (const tag of t.tags || []) box.append(el("span", { class: "tag", text: tag }));
+  return box;
 }
 
 function showBanner(text) {

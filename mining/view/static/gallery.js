@@ -8,7 +8,7 @@
 const RANGES = [
   ["score", "score"], ["score_motion", "motion"], ["score_mask", "mask"],
   ["score_objectness", "objectness"], ["n_frames", "frames"], ["n_observed", "frames seen"],
-  ["category_prob", "class prob."], ["class_evidence", "class evidence"], ["speed", "speed m/s"],
+  ["category_prob", "class prob."], ["class_evidence", "class evidence"], ["moving_speed_mps", "moving m/s"],
   ["path_length", "path m"],
 ];
 const form = document.getElementById("filters");
@@ -36,6 +36,8 @@ function formToParams() {
   for (const c of form.querySelectorAll("input[name=known]:checked")) p.append("known", c.value);
   for (const o of document.getElementById("category").selectedOptions) p.append("category", o.value);
   for (const o of document.getElementById("seq").selectedOptions) p.append("seq", o.value);
+  for (const c of form.querySelectorAll("input[name=verdict]:checked")) p.append("verdict", c.value);
+  for (const o of document.getElementById("tagfilter").selectedOptions) p.append("tag", o.value);
   for (const [col] of RANGES) {
     for (const b of ["min", "max"]) {
       const v = document.getElementById(`${b}_${col}`).value;
@@ -61,6 +63,8 @@ function paramsToForm(p) {
   for (const r of form.querySelectorAll("input[name=set]")) r.checked = r.value === set;
   const known = p.getAll("known");
   for (const c of form.querySelectorAll("input[name=known]")) c.checked = known.includes(c.value);
+  const verdicts = p.getAll("verdict");
+  for (const c of form.querySelectorAll("input[name=verdict]")) c.checked = verdicts.includes(c.value);
   for (const [col] of RANGES) {
     for (const b of ["min", "max"]) document.getElementById(`${b}_${col}`).value = p.get(`${b}_${col}`) || "";
   }
@@ -88,6 +92,10 @@ function fillSelects(p) {
   fillSelect(cats, facets.categories.map(c => [c.category, `${c.category} (${c.n})`]), p.getAll("category"));
   if (!cats.options.length) cats.append(el("option", { disabled: "", text: "none: no tube is classified" }));
   fillSelect(document.getElementById("seq"), facets.sequences.map(s => [`${s.dataset}/${s.sequence}`, `${s.dataset}/${s.sequence} (${s.n})`]), p.getAll("seq"));
+  const tags = document.getElementById("tagfilter");
+  fillSelect(tags, facets.tags.map(t => [t.tag, `${t.tag} (${t.n})`]), p.getAll("tag"));
+  if (!tags.options.length) tags.append(el("option", { disabled: "", text: "no tags yet" }));
+  document.getElementById("tag-list").replaceChildren(...facets.tags.map(t => el("option", { value: t.tag })));
 }
 
 async function loadFacets(p) {
@@ -100,6 +108,8 @@ async function loadFacets(p) {
   document.getElementById("catalogue").textContent = f.catalogue;
   document.getElementById("totals").textContent = `${f.selected} selected of ${f.tubes} candidate tubes`;
   for (const s of document.querySelectorAll("span.n[data-known]")) s.textContent = `(${f.known[s.dataset.known] || 0})`;
+  for (const s of document.querySelectorAll("span.n[data-verdict]")) s.textContent = `(${f.verdicts[s.dataset.verdict] || 0})`;
+  document.getElementById("author").textContent = `labels by ${f.author}`;
   fillSelects(p);
   for (const [col] of RANGES) {
     const [lo, hi] = f.ranges[col] || [null, null];
@@ -118,16 +128,119 @@ function card(t, back) {
   const id = encodeURIComponent(t.tube_id);
   const img = el("img", { src: `/img/thumb?id=${id}`, alt: `tube ${t.tube_id}`, width: "240", height: "180", loading: "lazy" });
   const badge = el("span", { class: `badge k-${knownKey(t.known)}`, text: classLabel(t) });
-  const prob = t.category_prob === null ? "" : t.category_prob.toFixed(2);
-  return el("a", { class: "card", href: `/tube?id=${id}&back=${encodeURIComponent(back)}`, "data-tube": t.tube_id },
+  const moving = t.moving_speed_mps === null || t.moving_speed_mps === undefined ? "" : ` · moving ${fmt(t.moving_speed_mps, 1)} m/s`;
+  const a = el("a", { class: "card", href: `/tube?id=${id}&back=${encodeURIComponent(back)}`, "data-tube": t.tube_id },
     img,
-    el("div", { class: "card-head" }, badge, el("span", { class: "muted", text: prob }),
-      el("span", { class: "score", text: fmt(t.score, 1) })),
+    el("div", { class: "card-head" }, badge, el("span", { class: "muted prob-text", text: probLabel(t) }),
+      el("span", { class: "score", title: "score (see the tube page for its terms)", text: fmt(t.score, 1) })),
     el("div", { class: "card-id", text: t.tube_id }),
     el("div", { class: "card-facts muted",
-      text: `motion ${fmt(t.score_motion, 1)} · mask ${fmt(t.score_mask, 1)} · obj ${fmt(t.score_objectness, 1)}` }),
-    el("div", { class: "card-facts muted",
-      text: `${t.n_frames} frames (${t.n_observed} seen) · ${t.frame_start}–${t.frame_end}${t.selected ? "" : " · not selected"}` }));
+      text: `${t.n_frames} frames (${t.n_observed} seen) · ${t.frame_start}–${t.frame_end}${moving}` }),
+    t.selected ? "" : el("div", { class: "card-facts unselected-note", text: "candidate, not selected" }));
+  const pick = el("input", { type: "checkbox", class: "pick", title: "select (x)", "aria-label": `select tube ${t.tube_id}` });
+  const cell = el("div", { class: `cell${t.selected ? "" : " unselected"}`, "data-id": t.tube_id }, a, pick, labelChips(t));
+  pick.addEventListener("change", () => { cell.classList.toggle("picked", pick.checked); pickedChanged(); });
+  return cell;
+}
+
+// ------------------------------------------------------------------ labelling: selection, keys, the one write
+
+let cursor = -1;  // the focused cell (keys act on it when nothing is selected)
+function cells() { return [...document.querySelectorAll("#grid .cell")]; }
+function picked() { return cells().filter(c => c.querySelector(".pick").checked); }
+
+function pickedChanged() {
+  const n = picked().length;
+  document.getElementById("picked").textContent = n ? `${n} selected` : (cursor >= 0 ? "1 focused" : "none selected");
+}
+
+function focusCell(k) {
+  const all = cells();
+  if (!all.length) return;
+  cursor = Math.max(0, Math.min(all.length - 1, k));
+  all.forEach((c, i) => c.classList.toggle("focused", i === cursor));
+  all[cursor].scrollIntoView({ block: "nearest" });
+  pickedChanged();
+}
+
+function columns() {
+  const all = cells();
+  if (!all.length) return 1;
+  const top = all[0].offsetTop;
+  return Math.max(1, all.filter(c => c.offsetTop === top).length);
+}
+
+function targets() {
+  const chosen = picked();
+  if (chosen.length) return chosen;
+  const all = cells();
+  return cursor >= 0 && cursor < all.length ? [all[cursor]] : [];
+}
+
+async function applyLabel(body) {
+  const chosen = targets();
+  const status = document.getElementById("label-status");
+  if (!chosen.length) { status.textContent = "select tubes first (click their boxes, or x / a)"; return; }
+  body.tubes = chosen.map(c => c.dataset.id);
+  try {
+    const answer = await postLabels(body);
+    const byId = new Map(answer.labelled.map(r => [r.tube_id, r]));
+    for (const c of cells()) {
+      const r = byId.get(c.dataset.id);
+      if (r) c.querySelector(".labels").replaceWith(labelChips(r));
+    }
+    status.textContent = `${answer.labelled.length} labelled by ${answer.author}`;
+    document.body.dataset.labelled = String(Number(document.body.dataset.labelled || 0) + 1);
+    facetsFor = null;  // the counts changed
+    await loadFacets(address());
+  } catch (e) {
+    status.textContent = `not labelled: ${e.message}`;
+    document.body.dataset.labelError = e.message;
+  }
+}
+
+function tagValue() { return document.getElementById("tag").value.trim(); }
+
+function wireLabelling() {
+  const bar = document.getElementById("verdicts");
+  for (const [v, name, key] of VERDICTS) {
+    const b = el("button", { type: "button", "data-verdict": v, title: `${name} (${key})` }, name + " ", el("kbd", { text: key }));
+    b.addEventListener("click", () => applyLabel({ verdict: v }));
+    bar.append(b);
+  }
+  document.getElementById("clear-verdict").addEventListener("click", () => applyLabel({ verdict: null }));
+  document.getElementById("add-tag").addEventListener("click", () => { if (tagValue()) applyLabel({ tag: tagValue() }); });
+  document.getElementById("remove-tag").addEventListener("click", () => { if (tagValue()) applyLabel({ untag: tagValue() }); });
+  document.getElementById("tag").addEventListener("keydown", e => {
+    if (e.key === "Enter") { e.preventDefault(); if (tagValue()) applyLabel({ tag: tagValue() }); e.target.blur(); }
+    else if (e.key === "Escape") e.target.blur();
+    e.stopPropagation();
+  });
+  const keyed = Object.fromEntries(VERDICTS.map(([v, , key]) => [key, v]));
+  document.addEventListener("keydown", e => {
+    if (e.ctrlKey || e.metaKey || e.altKey) return;
+    const t = e.target;
+    if (t.tagName === "INPUT" && t.type !== "checkbox" || t.tagName === "SELECT" || t.tagName === "TEXTAREA") return;
+    const all = cells();
+    let handled = true;
+    if (e.key === "ArrowRight") focusCell(cursor + 1);
+    else if (e.key === "ArrowLeft") focusCell(cursor - 1);
+    else if (e.key === "ArrowDown") focusCell(cursor < 0 ? 0 : cursor + columns());
+    else if (e.key === "ArrowUp") focusCell(cursor - columns());
+    else if (e.key === "x" || e.key === " ") {
+      if (cursor < 0) focusCell(0);
+      const box = all[cursor] && all[cursor].querySelector(".pick");
+      if (box) { box.checked = !box.checked; box.dispatchEvent(new Event("change")); }
+    }
+    else if (e.key === "a") { for (const c of all) { const b = c.querySelector(".pick"); b.checked = true; c.classList.add("picked"); } pickedChanged(); }
+    else if (e.key === "Escape") { for (const c of all) { c.querySelector(".pick").checked = false; c.classList.remove("picked"); } pickedChanged(); }
+    else if (keyed[e.key]) applyLabel({ verdict: keyed[e.key] });
+    else if (e.key === "u") applyLabel({ verdict: null });
+    else if (e.key === "t") document.getElementById("tag").focus();
+    else if (e.key === "Enter" && cursor >= 0 && all[cursor]) location.href = all[cursor].querySelector("a.card").href;
+    else handled = false;
+    if (handled) e.preventDefault();
+  });
 }
 
 async function load() {
@@ -147,6 +260,8 @@ async function load() {
     document.getElementById("pageinfo").textContent = page.total > size ? ` · page ${Math.floor(offset / size) + 1} of ${pages}` : "";
     const back = location.search;
     document.getElementById("grid").replaceChildren(...page.tubes.map(t => card(t, back)));
+    cursor = -1;
+    pickedChanged();
     if (!page.tubes.length) document.getElementById("grid").append(el("p", { class: "muted", text: "No tube matches this filter." }));
     document.getElementById("prev").disabled = offset <= 0;
     document.getElementById("next").disabled = offset + size >= page.total;
@@ -197,4 +312,5 @@ document.getElementById("prev").addEventListener("click", () => setOffset(Math.m
 document.getElementById("next").addEventListener("click", () => setOffset(Number(address().get("offset") || 0) + pageSize()));
 window.addEventListener("popstate", () => { paramsToForm(address()); facetsFor = null; load(); });
 wireCopyButtons();
+wireLabelling();
 load();
