@@ -471,12 +471,17 @@ class Tube:
 
 @dataclass
 class TubeScore:
-    """The tube's unary score (paper Eq. 2–8): its three log-likelihood ratios and their weighted total."""
+    """The tube's unary score (paper Eq. 2–8): its three log-likelihood ratios and the total the
+    run's unary gives: REFERENCE's weighted sum of them (``model`` "reference"), or the
+    calibrated log-odds (``model`` "calibrated"), whose groups of terms (``terms``,
+    ``mining.score.calibrated.GROUPS``) add up to it."""
 
     motion: float
     mask: float
     objectness: float
     total: float
+    model: str = "reference"
+    terms: dict[str, float] | None = None
 
 
 @dataclass

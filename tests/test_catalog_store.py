@@ -119,7 +119,7 @@ def test_schema_json_is_generated_from_schema_py():
     assert files["views.sql"] == (REPO / "mining" / "catalog" / "views.sql").read_text()
     doc = __import__("json").loads(files["tubes.json"])
     assert [f["name"] for f in doc["fields"]] == SCHEMAS["tubes"].names
-    assert next(f for f in doc["fields"] if f["name"] == "score")["comment"].startswith("the weighted total")
+    assert next(f for f in doc["fields"] if f["name"] == "score")["comment"].startswith("the unary score_model names")
 
 
 def test_job_record_round_trips(tmp_path):

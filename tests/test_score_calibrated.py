@@ -224,3 +224,27 @@ def test_detections_only_mode_is_never_scored_with_an_image_proposers_weights():
     t = _random_tube(np.random.default_rng(7), 5)
     assert unary(cfg, DETECTIONS)(t).total == score_tube(t, cfg.score).total
     assert unary(cfg)(t).total == pytest.approx(calibrated_score(t, cfg.score.calibrated["stereo"], cfg.score.floor))
+
+
+def test_the_catalogue_stores_which_unary_made_the_score_and_the_terms_that_add_up_to_it(base_catalogue):
+    from mining.catalog.rows import THETA_GROUPS
+    from mining.catalog.views import connect
+    from mining.score.calibrated import GROUPS
+    from mining.score.config import ScoreConfig
+
+    assert THETA_GROUPS == tuple(GROUPS)
+    out, _ = base_catalogue
+    con = connect(out)
+    try:
+        rows = con.execute("SELECT score_model, score, score_motion, score_mask, score_objectness, "
+                           + ", ".join(f"theta_{g}" for g in GROUPS) + " FROM tubes").fetchall()
+    finally:
+        con.close()
+    assert rows and {r[0] for r in rows} <= {"calibrated", "reference"}
+    cfg = ScoreConfig()
+    for model, score, motion, mask, obj, *theta in rows:
+        if model == "calibrated":
+            assert None not in theta and abs(sum(theta) - score) <= 1e-9 * max(1.0, abs(score))
+        else:
+            assert theta == [None] * len(GROUPS)
+            assert abs(cfg.beta * (cfg.alpha * motion + (1 - cfg.alpha) * mask) + (1 - cfg.beta) * obj - score) < 1e-9

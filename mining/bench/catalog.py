@@ -26,7 +26,7 @@ from pycocotools import mask as mask_utils
 
 from mining.catalog.integrity import sequence_files
 from mining.catalog.records import SequenceMarker
-from mining.catalog.schema import SCHEMA_VERSION, file_schema
+from mining.catalog.schema import SCHEMA_VERSION, THETA_COLUMNS, file_schema
 from mining.catalog.store import Store, write_sequence
 from mining.catalog.views import connect
 from mining.formats.coco import CLASS_INDEX
@@ -130,7 +130,8 @@ def _sequence_tables(rng: np.random.Generator, masks, dataset: str, sequence: st
         "t_end": pa.array((starts_a + lengths_a - 1) * 100_000_000),
         "frame_start": pa.array(starts_a, pa.int32()), "frame_end": pa.array(starts_a + lengths_a - 1, pa.int32()),
         "n_frames": pa.array(lengths_a, pa.int32()), "n_observed": pa.array(lengths_a, pa.int32()),
-        "score": pa.array(0.4 * motion + mask + objn), "score_motion": pa.array(motion),
+        "score": pa.array(0.4 * motion + mask + objn), "score_model": pa.array(["reference"] * m),
+        **{c: pa.nulls(m, pa.float64()) for c in THETA_COLUMNS}, "score_motion": pa.array(motion),
         "score_mask": pa.array(mask), "score_objectness": pa.array(objn),
         "selected": pa.array(rng.random(m) > 0.5), "known": pa.array(known),
         "category": pa.array(np.where(known, best, "unknown")), "category_prob": pa.array(rng.random(m), pa.float32()),

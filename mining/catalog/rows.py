@@ -23,7 +23,7 @@ import numpy as np
 import pyarrow as pa
 from pycocotools import mask as mask_utils
 
-from mining.catalog.schema import SCHEMA_VERSION, file_schema, part_schema
+from mining.catalog.schema import SCHEMA_VERSION, THETA_COLUMNS, file_schema, part_schema
 from mining.errors import InputError
 from mining.masks import rle_problem
 from mining.types import MinedTube, TubeFrame
@@ -119,6 +119,9 @@ def tube_summary(mt: MinedTube, bf: float | None = None) -> dict:
     }
 
 
+THETA_GROUPS = tuple(c.removeprefix("theta_") for c in THETA_COLUMNS)  # score/calibrated.GROUPS (tests check)
+
+
 def tube_row(mt: MinedTube, tube_id: str, run: RunInfo, n_windows: int = 1) -> dict:
     t = mt.tube
     c = mt.category
@@ -127,7 +130,9 @@ def tube_row(mt: MinedTube, tube_id: str, run: RunInfo, n_windows: int = 1) -> d
         "t_start": int(t.frames[0].t_ns), "t_end": int(t.frames[-1].t_ns),
         "frame_start": int(t.first_frame), "frame_end": int(t.last_frame),
         "n_frames": len(t.frames), "n_observed": t.n_inliers,
-        "score": float(mt.score.total), "score_motion": float(mt.score.motion),
+        "score": float(mt.score.total), "score_model": mt.score.model,
+        **{f"theta_{g}": (None if mt.score.terms is None else float(mt.score.terms[g])) for g in THETA_GROUPS},
+        "score_motion": float(mt.score.motion),
         "score_mask": float(mt.score.mask), "score_objectness": float(mt.score.objectness),
         "selected": bool(mt.selected), "known": None if c.known is None else bool(c.known), "category": c.category,
         "category_prob": _opt(c.probability), "best_known": c.best_known,

@@ -21,7 +21,8 @@ import pyarrow as pa
 SCHEMA_VERSION = 2  # v2: known / category nullable (unclassified), classified_frames, class_evidence
 # Nullable columns added within a version: files written before them read them as null
 # (catalog/views.py), so an older catalogue of the same version stays readable.
-ADDED_COLUMNS = {"tubes": frozenset({"speed_sigma_mps", "path_sigma_m", "moving_speed_mps"})}
+THETA_COLUMNS = ("theta_prior", "theta_motion", "theta_mask", "theta_objectness", "theta_shape", "theta_class")
+ADDED_COLUMNS = {"tubes": frozenset({"speed_sigma_mps", "path_sigma_m", "moving_speed_mps", "score_model", *THETA_COLUMNS})}
 PARTITION = ("dataset", "sequence")
 
 vec3 = pa.list_(pa.float32(), 3)
@@ -37,10 +38,18 @@ TUBES = pa.schema([
     pa.field("frame_end", pa.int32(), False),  # index of the last frame (inclusive)
     pa.field("n_frames", pa.int32(), False),
     pa.field("n_observed", pa.int32(), False),
-    pa.field("score", pa.float64(), False),  # the weighted total (score.beta, score.alpha)
-    pa.field("score_motion", pa.float64(), False),
-    pa.field("score_mask", pa.float64(), False),
-    pa.field("score_objectness", pa.float64(), False),
+    pa.field("score", pa.float64(), False),  # the unary score_model names: calibrated = natural-log odds that the tube is an object (the theta_* add up to it); reference = β·(α·score_motion + (1−α)·score_mask) + (1−β)·score_objectness
+    pa.field("score_model", pa.string()),  # calibrated | reference: which unary made score (null: written before it was stored)
+    # Under the calibrated unary, score's terms by group (mining/score/calibrated.py GROUPS): null under reference.
+    pa.field("theta_prior", pa.float64()),  # log-odds from the tube's constant and its length (bias, frame)
+    pa.field("theta_motion", pa.float64()),  # log-odds from the footpoints' motion density
+    pa.field("theta_mask", pa.float64()),  # log-odds from the warped masks' IoU
+    pa.field("theta_objectness", pa.float64()),  # log-odds from the proposals' objectness
+    pa.field("theta_shape", pa.float64()),  # log-odds from the 3D extent (objects are compact and of bounded size)
+    pa.field("theta_class", pa.float64()),  # log-odds from the classifier's mass on the 80 known classes
+    pa.field("score_motion", pa.float64(), False),  # REFERENCE's motion LLR Σ ln(x·score.motion_k): part of score only under reference
+    pa.field("score_mask", pa.float64(), False),  # REFERENCE's mask LLR Σ ln(IoU·score.mask_k): part of score only under reference
+    pa.field("score_objectness", pa.float64(), False),  # REFERENCE's objectness LLR Σ ln(o·score.objectness_k): part of score only under reference
     pa.field("selected", pa.bool_(), False),  # chosen by co-selection
     # Known / unknown / unclassified (mining/tubes/category.py): known is null where no classifier
     # looked (or too little evidence); category is then null too.

@@ -141,9 +141,10 @@ def _folder_view(con: duckdb.DuckDBPyConnection, store: Store, name: str, folder
         if added:  # files of the same schema version written before a nullable column was added
             hive += ", union_by_name = true"
             have = {r[0] for r in con.execute(f"DESCRIBE SELECT * FROM read_parquet({what}, {hive})").fetchall()}
-            cols = ", ".join(f'"{f.name}"' if f.name in have or f.name not in added
-                             else f'CAST(NULL AS {_duck_type(con, f.type)}) AS "{f.name}"' for f in schema
-                             if f.name in set(n.strip('"') for n in cols.split(", ")))
+            types = {f.name: f.type for f in schema}
+            names = [n.strip('"') for n in cols.split(", ")]
+            cols = ", ".join(f'"{n}"' if n in have or n not in added
+                             else f'CAST(NULL AS {_duck_type(con, types[n])}) AS "{n}"' for n in names)
         con.execute(f"CREATE VIEW {name} AS SELECT {cols} FROM read_parquet({what}, {hive})")
         return
     part = pa.schema([pa.field(n, pa.string()) for n in PARTITION])

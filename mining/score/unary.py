@@ -21,7 +21,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from mining.errors import ConfigError
-from mining.score.calibrated import TERMS, calibrated_score
+from mining.score.calibrated import TERMS, calibrated_score, grouped_terms
 from mining.score.config import ScoreConfig
 from mining.types import Tube, TubeScore
 
@@ -65,9 +65,9 @@ def score_tube(tube: Tube, cfg: ScoreConfig | None = None, weights: Mapping[str,
     obj = llr([f.objectness for f in inl], cfg.objectness_k, cfg.floor)
     if weights is None:
         total = cfg.beta * (cfg.alpha * motion + (1 - cfg.alpha) * mask) + (1 - cfg.beta) * obj
-    else:
-        total = calibrated_score(tube, weights, cfg.floor)
-    return TubeScore(motion, mask, obj, total)
+        return TubeScore(motion, mask, obj, total)
+    return TubeScore(motion, mask, obj, calibrated_score(tube, weights, cfg.floor), "calibrated",
+                     grouped_terms(tube, weights, cfg.floor))
 
 
 def unary_line(cfg: ScoreConfig, proposer: str) -> str:

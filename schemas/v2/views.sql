@@ -19,12 +19,18 @@ SELECT * FROM tubes WHERE selected AND known = true;
 CREATE VIEW unclassified_tubes AS
 SELECT * FROM tubes WHERE selected AND known IS NULL;
 
--- A tube's score and its components: re-ranking by another weighting is one SELECT, e.g.
---   SELECT tube_id, 0.5 * score_motion + 2 * score_mask + score_objectness AS s
---   FROM tube_scores ORDER BY s DESC LIMIT 100
+-- A tube's score and the terms that make it. score_model says which unary made the score:
+--   calibrated: natural-log odds that the tube is an object; the theta_* columns add up to it, so
+--     re-weighting what carried a tube is one SELECT, e.g. without the classifier's term:
+--       SELECT tube_id, score - theta_class AS s FROM tube_scores ORDER BY s DESC LIMIT 100
+--   reference: REFERENCE's β·(α·score_motion + (1−α)·score_mask) + (1−β)·score_objectness (theta_* null):
+--       SELECT tube_id, 0.5 * score_motion + 2 * score_mask + score_objectness AS s
+--       FROM tube_scores ORDER BY s DESC LIMIT 100
+-- score_motion / score_mask / score_objectness are REFERENCE's terms under both models.
 CREATE VIEW tube_scores AS
 SELECT tube_id, dataset, sequence, n_frames, n_observed,
-       score, score_motion, score_mask, score_objectness,
+       score, score_model, theta_prior, theta_motion, theta_mask, theta_objectness, theta_shape, theta_class,
+       score_motion, score_mask, score_objectness,
        selected, known, category, category_prob, classified_frames, class_evidence
 FROM tubes;
 

@@ -109,7 +109,7 @@ async function loadFacets(p) {
   document.getElementById("totals").textContent = `${f.selected} selected of ${f.tubes} candidate tubes`;
   for (const s of document.querySelectorAll("span.n[data-known]")) s.textContent = `(${f.known[s.dataset.known] || 0})`;
   for (const s of document.querySelectorAll("span.n[data-verdict]")) s.textContent = `(${f.verdicts[s.dataset.verdict] || 0})`;
-  document.getElementById("author").textContent = `labels by ${f.author}`;
+  document.getElementById("author").textContent = `· you label as ${f.author}`;
   fillSelects(p);
   for (const [col] of RANGES) {
     const [lo, hi] = f.ranges[col] || [null, null];
@@ -137,7 +137,7 @@ function card(t, back) {
     el("div", { class: "card-facts muted",
       text: `${t.n_frames} frames (${t.n_observed} seen) · ${t.frame_start}–${t.frame_end}${moving}` }),
     t.selected ? "" : el("div", { class: "card-facts unselected-note", text: "candidate, not selected" }));
-  const pick = el("input", { type: "checkbox", class: "pick", title: "select (x)", "aria-label": `select tube ${t.tube_id}` });
+  const pick = el("input", { type: "checkbox", class: "pick", title: "pick for labelling (x)", "aria-label": `pick tube ${t.tube_id}` });
   const cell = el("div", { class: `cell${t.selected ? "" : " unselected"}`, "data-id": t.tube_id }, a, pick, labelChips(t));
   pick.addEventListener("change", () => { cell.classList.toggle("picked", pick.checked); pickedChanged(); });
   return cell;
@@ -151,7 +151,7 @@ function picked() { return cells().filter(c => c.querySelector(".pick").checked)
 
 function pickedChanged() {
   const n = picked().length;
-  document.getElementById("picked").textContent = n ? `${n} selected` : (cursor >= 0 ? "1 focused" : "none selected");
+  document.getElementById("picked").textContent = n ? `${n} picked` : (cursor >= 0 ? "1 focused" : "none picked");
 }
 
 function focusCell(k) {
@@ -180,7 +180,7 @@ function targets() {
 async function applyLabel(body) {
   const chosen = targets();
   const status = document.getElementById("label-status");
-  if (!chosen.length) { status.textContent = "select tubes first (click their boxes, or x / a)"; return; }
+  if (!chosen.length) { status.textContent = "pick tubes first (their boxes, or x / a)"; return; }
   body.tubes = chosen.map(c => c.dataset.id);
   try {
     const answer = await postLabels(body);
@@ -189,10 +189,10 @@ async function applyLabel(body) {
       const r = byId.get(c.dataset.id);
       if (r) c.querySelector(".labels").replaceWith(labelChips(r));
     }
-    status.textContent = `${answer.labelled.length} labelled by ${answer.author}`;
-    document.body.dataset.labelled = String(Number(document.body.dataset.labelled || 0) + 1);
+    status.textContent = `${answer.labelled.length} labelled`;
     facetsFor = null;  // the counts changed
     await loadFacets(address());
+    document.body.dataset.labelled = String(Number(document.body.dataset.labelled || 0) + 1);
   } catch (e) {
     status.textContent = `not labelled: ${e.message}`;
     document.body.dataset.labelError = e.message;
