@@ -40,5 +40,6 @@ FORMATS: dict[str, ExportFormat] = {f.name: f for f in (
     ExportFormat("crops", "crops", "export_crops", "crops", ("margin",)),
     ExportFormat("youtube-vis", "video_json", "export_youtube_vis", "tube annotations", ("images", "video_frames")),
     ExportFormat("tao", "video_json", "export_tao", "frame annotations", ("images", "video_frames")),
+    ExportFormat("burst", "burst", "export_burst", "masks", ("images", "video_frames")),
 )}
 VIDEO_FORMATS = tuple(name for name, f in FORMATS.items() if f.video)

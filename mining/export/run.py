@@ -1,7 +1,8 @@
 """`mine export`: the tubes matching a SQL predicate, in formats other tools read.
 
 The formats (``registry.FORMATS``, one module each): ``kitti`` and ``kitti-mots``
-(``kitti.py``), ``crops`` (``crops.py``), ``youtube-vis`` and ``tao`` (``video_json.py``).
+(``kitti.py``), ``crops`` (``crops.py``), ``youtube-vis`` and ``tao`` (``video_json.py``), ``burst``
+(``burst.py``); the video formats write a dataset file and a results file each.
 Boxes: the catalogue keeps x1, y1, x2, y2; COCO-style formats (YouTube-VIS, TAO, the crops
 index's ``bbox_xywh``) get x, y, width, height.
 
@@ -63,7 +64,7 @@ def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: floa
         options["unknown_class"] = unknown_class
     if images:
         if not form.video:
-            raise InputError(f"--images applies to --format {' and '.join(VIDEO_FORMATS)} only")
+            raise InputError(f"--images applies to --format {', '.join(VIDEO_FORMATS)} only")
         options["images"] = True
     dest = Path(dest)
     replaced = check_folder(dest, overwrite)
