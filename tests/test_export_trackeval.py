@@ -6,7 +6,8 @@ class average (an empty category listed would pull that to 2/3, the reported bug
 copy of the results scores below 1, so the check can fail.
 
 The catalogue is the real KITTI 0005 one (tests/_catalog_data.py) with its three selected
-tubes made known (car), unknown and unclassified in turn, so every kind of category is read.
+tubes made known (car), unknown and unclassified in turn, so every kind of category is read,
+and a copy of them as a second sequence (``OTHER``), so ids must stay apart across videos.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from mining.formats.lvis import COCO_IN_LVIS, TAO_MAX_ID
 
 trackeval = pytest.importorskip("trackeval")
 
+OTHER = "0006"  # the second sequence: the same tubes again (KITTI-MOTS wants numeric sequence names)
 EVAL_CONFIG = {"USE_PARALLEL": False, "PRINT_RESULTS": False, "PRINT_CONFIG": False, "TIME_PROGRESS": False,
                "OUTPUT_SUMMARY": False, "OUTPUT_DETAILED": False, "PLOT_CURVES": False, "DISPLAY_LESS_PROGRESS": True,
                "LOG_ON_ERROR": None}
@@ -38,7 +40,8 @@ EVAL_CONFIG = {"USE_PARALLEL": False, "PRINT_RESULTS": False, "PRINT_CONFIG": Fa
 
 @pytest.fixture(scope="module")
 def kinds(catalogue, tmp_path_factory) -> Path:
-    """A copy of the catalogue whose selected tubes are known (car), unknown and unclassified in turn."""
+    """A copy of the catalogue whose selected tubes are known (car), unknown and unclassified in
+    turn, and the same tubes again as sequence OTHER."""
     out, tables = catalogue
     rows = tables["tubes"].to_pylist()
     selected = [r for r in rows if r["selected"]]
@@ -48,8 +51,14 @@ def kinds(catalogue, tmp_path_factory) -> Path:
         r["category"] = ("car", "unknown", None)[i]
     cat = tmp_path_factory.mktemp("kinds") / "cat"
     store = Store(cat)
-    write_sequence(store, "tubes", DATASET, SEQUENCE, pa.Table.from_pylist(rows, schema=SCHEMAS["tubes"]))
-    write_sequence(store, "tube_frames", DATASET, SEQUENCE, tables["tube_frames"])
+    frames = tables["tube_frames"].to_pylist()
+    for seq in (SEQUENCE, OTHER):
+        def moved(r: dict) -> dict:
+            return dict(r, sequence=seq, tube_id=r["tube_id"].replace(f"/{SEQUENCE}/", f"/{seq}/"))
+        write_sequence(store, "tubes", DATASET, seq, pa.Table.from_pylist([moved(r) for r in rows],
+                                                                          schema=SCHEMAS["tubes"]))
+        write_sequence(store, "tube_frames", DATASET, seq, pa.Table.from_pylist([moved(r) for r in frames],
+                                                                                schema=SCHEMAS["tube_frames"]))
     store.write_bytes("job.json", Store(out).read_bytes("job.json"))
     return cat
 
@@ -117,17 +126,22 @@ def test_the_lvis_table_is_taos_category_list():
 # -- KITTI-MOTS ---------------------------------------------------------------------------
 
 
-def test_kitti_mots_scores_itself_perfectly(kinds, tmp_path):
-    """The KITTI-MOTS txt as TrackEval's KittiMOTS ground truth and tracker: car HOTA 1 (the
-    unknown and unclassified tubes are class 10, ignore regions to it)."""
-    dest = _export(kinds, "kitti-mots", tmp_path / "mots")
-    txt = dest / f"{SEQUENCE}.txt"
-    lines = txt.read_text().splitlines()
-    assert {ln.split()[2] for ln in lines} == {"1", "10"}
-    _place(txt, tmp_path / "gt" / "label_02")
-    _place(txt, tmp_path / "trackers" / "ours" / "data")
+@pytest.mark.parametrize("unknown_class", [None, 3])
+def test_kitti_mots_scores_itself_perfectly(kinds, tmp_path, unknown_class):
+    """The KITTI-MOTS txt as TrackEval's KittiMOTS ground truth and tracker: car HOTA 1. The
+    unknown and unclassified tubes are class 10 (ignore regions to it), or with
+    ``--unknown-class 3`` class 3, which it reads and leaves out of car."""
+    dest = _export(kinds, "kitti-mots", tmp_path / "mots", unknown_class=unknown_class)
+    lengths = {}
+    for seq in (SEQUENCE, OTHER):
+        txt = dest / f"{seq}.txt"
+        lines = txt.read_text().splitlines()
+        assert {ln.split()[2] for ln in lines} == ({"1", "10"} if unknown_class is None else {"1", "3"})
+        _place(txt, tmp_path / "gt" / "label_02")
+        _place(txt, tmp_path / "trackers" / "ours" / "data")
+        lengths[seq] = max(int(ln.split()[0]) for ln in lines) + 1
     config = {"GT_FOLDER": str(tmp_path / "gt"), "TRACKERS_FOLDER": str(tmp_path / "trackers"),
-              "CLASSES_TO_EVAL": ["car"], "SEQ_INFO": {SEQUENCE: max(int(ln.split()[0]) for ln in lines) + 1}}
+              "CLASSES_TO_EVAL": ["car"], "SEQ_INFO": lengths}
     _perfect(_evaluate(trackeval.datasets.KittiMOTS, config, tmp_path), {"car"})
     # a tracker that misses every other car frame is not perfect
     cars = [ln for ln in lines if ln.split()[2] == "1"]
@@ -185,9 +199,9 @@ def test_burst_scores_itself_perfectly(kinds, tmp_path):
     unknown and unclassified tubes have ids outside TAO's, which it does not score."""
     dest = _export(kinds, "burst", tmp_path / "burst")
     doc = json.loads((dest / "burst.json").read_text())
-    assert doc["split"] == "val" and len(doc["sequences"]) == 1
-    seq = doc["sequences"][0]
-    assert sorted(seq["track_category_ids"].values()) == [211, burst.UNKNOWN_ID, burst.UNCLASSIFIED_ID]
+    assert doc["split"] == "val" and [s["seq_name"] for s in doc["sequences"]] == [SEQUENCE, OTHER]
+    for seq in doc["sequences"]:
+        assert seq["track_category_ids"] == {"1": 211, "2": burst.UNKNOWN_ID, "3": burst.UNCLASSIFIED_ID}
     assert {c["id"]: c["synset"] for c in doc["categories"]}[211] == "car.n.01"
     config, results = _burst_folders(dest, tmp_path)
     _perfect(_evaluate(trackeval.datasets.BURST, config, tmp_path), {"car_(automobile)"})
@@ -205,3 +219,16 @@ def test_burst_open_world_scores_every_tube_perfectly(kinds, tmp_path):
     dest = _export(kinds, "burst", tmp_path / "burst")
     config, _ = _burst_folders(dest, tmp_path)
     _perfect(_evaluate(trackeval.datasets.BURST_OW, config, tmp_path), {"object"})
+
+
+def test_a_catalogue_of_cars_averages_over_car_alone(catalogue, tmp_path):
+    """The reported bug: the old instances.json listed "unknown" and "unclassified" with no tube
+    in them, and TrackEval's class average counted them as failed classes (HOTA 2/3 and less).
+    Only the categories used are listed now."""
+    out, _ = catalogue
+    dest = _export(out, "youtube-vis", tmp_path / "vis")
+    _place(dest / "instances.json", tmp_path / "gt" / "youtube_vis_cars")
+    _place(dest / "results" / "results.json", tmp_path / "trk" / "youtube_vis_cars" / "ours" / "data")
+    config = {"GT_FOLDER": f"{tmp_path / 'gt'}{os.sep}", "TRACKERS_FOLDER": f"{tmp_path / 'trk'}{os.sep}",
+              "SPLIT_TO_EVAL": "cars"}
+    _perfect(_evaluate(trackeval.datasets.YouTubeVIS, config, tmp_path), {"car"})
