@@ -232,3 +232,17 @@ def test_a_catalogue_of_cars_averages_over_car_alone(catalogue, tmp_path):
     config = {"GT_FOLDER": f"{tmp_path / 'gt'}{os.sep}", "TRACKERS_FOLDER": f"{tmp_path / 'trk'}{os.sep}",
               "SPLIT_TO_EVAL": "cars"}
     _perfect(_evaluate(trackeval.datasets.YouTubeVIS, config, tmp_path), {"car"})
+
+
+def test_burst_carries_the_sequence_frame_rate(catalogue, tmp_path):
+    """BURST's ``fps`` is the mined frames' rate: KITTI's 10 Hz from the catalogue's timestamps
+    (the copy without a frames table has none, and leaves it out)."""
+    from mining.catalog.views import connect
+
+    out, _ = catalogue
+    con = connect(out)
+    t_ns = [t for (t,) in con.execute("SELECT t_ns FROM frames ORDER BY frame").fetchall()]
+    con.close()
+    assert len(t_ns) == 16 and round(1e9 / np.median(np.diff(t_ns))) == 10
+    doc = json.loads((_export(out, "burst", tmp_path / "b") / "burst.json").read_text())
+    assert [s["fps"] for s in doc["sequences"]] == [10]

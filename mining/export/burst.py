@@ -5,7 +5,8 @@ benchmark's ``ANNOTATION_FORMAT.md``), which its evaluation (TrackEval's ``BURST
 
 * ``DEST/burst.json`` — the dataset file: ``split`` (``BURST_SPLIT``), ``categories`` (the
   ones used: id, name, synset) and per sequence ``id``, ``width``, ``height``, ``seq_name``,
-  ``dataset``, ``all_image_paths`` and ``annotated_image_paths`` (the video's frames,
+  ``dataset``, ``fps`` (the mined frames' rate, rounded as BURST's integer; absent when the
+  catalogue has no timestamps or they say under one), ``all_image_paths`` and ``annotated_image_paths`` (the video's frames,
   ``<frame, zero-padded>.jpg``), ``neg_category_ids`` and ``not_exhaustive_category_ids``
   (empty), ``track_category_ids`` (track id → category id) and ``segmentations``: per
   annotated frame, track id → ``{"rle": compressed RLE counts, "is_gt": false, "score"}``
@@ -71,12 +72,20 @@ def image_path(v: Video, frame: int) -> str:
 
 
 def export_burst(tubes: pa.Table, frames: pa.Table, job: JobConfig | None, dest: Path,
-                 video_frames: dict[tuple[str, str], list[int]] | None = None, images: bool = False) -> int:
+                 video_frames: dict[tuple[str, str], list[int]] | None = None, images: bool = False,
+                 video_rates: dict[tuple[str, str], float] | None = None) -> int:
     """``DEST/burst.json``, ``DEST/results/results.json`` (and ``DEST/frames/`` with
-    ``images``); returns the masks (tube frames) written."""
+    ``images``); returns the masks (tube frames) written. ``video_rates``: frames per second
+    per (dataset, sequence), BURST's ``fps`` (left out where unknown)."""
     vids = videos(tubes, frames, video_frames or {})
+    rates = video_rates or {}
+
+    def fps(v: Video) -> dict:
+        rate = rates.get((v.dataset, v.sequence))
+        return {} if rate is None or round(rate) < 1 else {"fps": round(rate)}
+
     seqs = {v.id: {"id": v.id, "width": v.width, "height": v.height, "seq_name": v.sequence, "dataset": v.dataset,
-                   "all_image_paths": [v.image_name(f) for f in v.frames],
+                   **fps(v), "all_image_paths": [v.image_name(f) for f in v.frames],
                    "annotated_image_paths": [v.image_name(f) for f in v.frames],
                    "neg_category_ids": [], "not_exhaustive_category_ids": [],
                    "track_category_ids": {}, "track_tube_ids": {},
