@@ -234,9 +234,10 @@ def test_a_catalogue_of_cars_averages_over_car_alone(catalogue, tmp_path):
     _perfect(_evaluate(trackeval.datasets.YouTubeVIS, config, tmp_path), {"car"})
 
 
-def test_burst_carries_the_sequence_frame_rate(catalogue, tmp_path):
+def test_burst_carries_the_frame_rate_and_its_image_layout(catalogue, tmp_path):
     """BURST's ``fps`` is the mined frames' rate: KITTI's 10 Hz from the catalogue's timestamps
-    (the copy without a frames table has none, and leaves it out)."""
+    (the copy without a frames table has none, and leaves it out). ``--images`` puts each frame
+    where BURST's paths point: ``frames/<split>/<dataset>/<seq_name>/<image path>``."""
     from mining.catalog.views import connect
 
     out, _ = catalogue
@@ -244,5 +245,9 @@ def test_burst_carries_the_sequence_frame_rate(catalogue, tmp_path):
     t_ns = [t for (t,) in con.execute("SELECT t_ns FROM frames ORDER BY frame").fetchall()]
     con.close()
     assert len(t_ns) == 16 and round(1e9 / np.median(np.diff(t_ns))) == 10
-    doc = json.loads((_export(out, "burst", tmp_path / "b") / "burst.json").read_text())
+    dest = _export(out, "burst", tmp_path / "b", images=True)
+    doc = json.loads((dest / "burst.json").read_text())
     assert [s["fps"] for s in doc["sequences"]] == [10]
+    seq = doc["sequences"][0]
+    folder = dest / "frames" / doc["split"] / seq["dataset"] / seq["seq_name"]
+    assert sorted(p.name for p in folder.iterdir()) == seq["annotated_image_paths"] == [f"{k:06d}.jpg" for k in range(16)]

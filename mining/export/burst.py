@@ -6,13 +6,14 @@ benchmark's ``ANNOTATION_FORMAT.md``), which its evaluation (TrackEval's ``BURST
 * ``DEST/burst.json`` — the dataset file: ``split`` (``BURST_SPLIT``), ``categories`` (the
   ones used: id, name, synset) and per sequence ``id``, ``width``, ``height``, ``seq_name``,
   ``dataset``, ``fps`` (the mined frames' rate, rounded as BURST's integer; absent when the
-  catalogue has no timestamps or they say under one), ``all_image_paths`` and ``annotated_image_paths`` (the video's frames,
-  ``<frame, zero-padded>.jpg``), ``neg_category_ids`` and ``not_exhaustive_category_ids``
-  (empty), ``track_category_ids`` (track id → category id) and ``segmentations``: per
-  annotated frame, track id → ``{"rle": compressed RLE counts, "is_gt": false, "score"}``
-  (``is_gt`` false: BURST's flag for a mask made automatically, ``score`` its confidence: the
-  tube's score). Ours beside them: ``track_tube_ids`` (track id → tube id). Track ids are 1, 2,
-  … per sequence, as BURST numbers them.
+  catalogue has no timestamps or they say under one), ``all_image_paths`` and
+  ``annotated_image_paths`` (the video's frames, ``<frame, zero-padded>.jpg``),
+  ``neg_category_ids`` and ``not_exhaustive_category_ids`` (empty), ``track_category_ids``
+  (track id → category id) and ``segmentations``: per annotated frame, track id →
+  ``{"rle": compressed RLE counts, "is_gt": false, "score"}`` (``is_gt`` false: BURST's flag
+  for a mask made automatically, ``score`` its confidence: the tube's score). Ours beside
+  them: ``track_tube_ids`` (track id → tube id). Track ids are 1, 2, … per sequence, as BURST
+  numbers them.
 * ``DEST/results/results.json`` — the results file, in the same layout (BURST's evaluation
   takes a tracker's output so: the dataset file with ``track_category_ids`` and
   ``segmentations`` replaced), each mask with its ``score``.
@@ -46,7 +47,7 @@ BURST_SPLIT = "val"  # REFERENCE: BURST's splits are train / val / test; its eva
 OUTSIDE_TAO_BASE = 1900  # ours: + COCO id (1..90) for the COCO classes TAO lacks
 UNKNOWN_ID = 1998  # ours: unknown tubes (above TAO's 1..1230, inside BURST-OW's 1..1999)
 UNCLASSIFIED_ID = 1999  # ours: unclassified tubes
-BURST_OW_MAX_ID = 1999  # REFERENCE: TrackEval's BURST-OW splits the category ids 1..1999 into known, unknown, distractor
+BURST_OW_MAX_ID = 1999  # REFERENCE: TrackEval's BURST-OW: ids 1..1999 are known, unknown or distractor
 
 assert TAO_MAX_ID < OUTSIDE_TAO_BASE and OUTSIDE_TAO_BASE + 90 < UNKNOWN_ID < UNCLASSIFIED_ID <= BURST_OW_MAX_ID
 
@@ -63,7 +64,6 @@ def burst_category(tube: dict) -> tuple[int, str, str]:
     if tao is None:
         return OUTSIDE_TAO_BASE + coco_id, label, synset(label)
     return tao[0], tao[1], synset(label)
-
 
 
 def image_path(v: Video, frame: int) -> str:
