@@ -22,7 +22,8 @@ if [ ! -f "$stamp" ]; then
   if [[ ",$extras," == *",test,"* ]]; then
     # TrackEval (MIT, the KITTI/MOT reference evaluator) cross-checks our metrics in the
     # tests. --no-deps: its metadata pulls opencv-python, which clashes with the headless
-    # OpenCV we use; the metrics need only numpy and scipy.
+    # OpenCV we use; the metrics need only numpy and scipy (and its BURST readers tabulate, which
+    # the test extra pins).
     .venv/bin/python -m pip install -q --no-deps trackeval==1.3.0 >>.venv/setup.log 2>&1 || { tail -30 .venv/setup.log >&2; exit 1; }
   fi
   touch "$stamp"

@@ -196,7 +196,7 @@ def _files(dest) -> dict[str, bytes]:
 
 
 @pytest.mark.parametrize("damage", ["malformed", "5700²"])
-@pytest.mark.parametrize("fmt", ["crops", "kitti-mots", "youtube-vis", "tao",
+@pytest.mark.parametrize("fmt", ["crops", "kitti-mots", "youtube-vis", "tao", "burst",
                                  pytest.param("render", marks=pytest.mark.slow)])  # render: an MP4 per tube, 5 s
 def test_a_bad_mask_fails_only_its_tube_naming_it_and_the_table(catalogue, tmp_path, capsys, fmt, damage):
     """The catalogue's masks are checked as the viewer checks them, before anything decodes them

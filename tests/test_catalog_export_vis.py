@@ -84,26 +84,33 @@ def test_youtube_vis_one_video_of_the_mined_frames(ytvis):
     v = doc["videos"][0]
     assert (v["width"], v["height"], v["length"]) == (W, H, N_FRAMES) == (W, H, len(v["file_names"]))
     assert v["file_names"] == [f"{DATASET}_{SEQUENCE}/{k:06d}.jpg" for k in range(N_FRAMES)]
+    assert doc["categories"] == [{"id": CAR, "name": "car", "supercategory": "coco"}], "only the categories used"
 
 
 def test_youtube_vis_masks_decode_to_the_catalogues(ytvis, catalogue):
-    """One RLE or null per video frame, decoding with pycocotools to h×w, equal to the
-    catalogue's mask; boxes COCO xywh of the catalogue's x1y1x2y2; null where not observed."""
-    _, doc = ytvis
+    """One RLE or null per video frame, reading with pycocotools as YouTube-VIS's API reads its
+    uncompressed RLE (``frPyObjects``) to h×w, equal to the catalogue's mask; boxes COCO xywh of
+    the catalogue's x1y1x2y2; null where not observed. The results file: the same masks as
+    compressed RLE (counts a string), with the tube's category and score."""
+    dest, doc = ytvis
     _, tables = catalogue
     frames = _frames(tables)
     anns = doc["annotations"]
+    results = json.loads((dest / "results" / "results.json").read_text())
+    assert [r["tube_id"] for r in results] == [a["tube_id"] for a in anns]
     assert sorted(a["tube_id"] for a in anns) == sorted(t["tube_id"] for t in _selected(tables))
-    for a in anns:
+    for a, r in zip(anns, results):
         assert a["video_id"] == 1 and a["iscrowd"] == 0 and isinstance(a["score"], float)
-        assert len(a["segmentations"]) == len(a["bboxes"]) == len(a["areas"]) == N_FRAMES
+        assert (r["video_id"], r["category_id"], r["score"]) == (a["video_id"], a["category_id"], a["score"])
+        assert len(a["segmentations"]) == len(a["bboxes"]) == len(a["areas"]) == N_FRAMES == len(r["segmentations"])
         tf = frames[a["tube_id"]]
         for k, (seg, box, area) in enumerate(zip(a["segmentations"], a["bboxes"], a["areas"])):
             if k not in tf or not tf[k]["observed"]:
-                assert seg is None and box is None and area is None
+                assert seg is None and box is None and area is None and r["segmentations"][k] is None
                 continue
-            assert isinstance(seg["counts"], str) and seg["size"] == [H, W]
-            m = _decode(seg)
+            assert isinstance(seg["counts"], list) and seg["size"] == [H, W] and sum(seg["counts"]) == H * W
+            m = _decode(mask_utils.frPyObjects(seg, H, W))
+            assert isinstance(r["segmentations"][k]["counts"], str) and (_decode(r["segmentations"][k]) == m).all()
             assert m.shape == (H, W) and m.sum() == area > 0
             ref = _decode({"size": [H, W], "counts": tf[k]["rle_counts"].encode()})
             assert (m == ref).all()
@@ -136,8 +143,9 @@ def test_youtube_vis_images_are_the_source_frames(ytvis, kitti_tracking_root):
 
 def test_tao_tracks_images_and_annotations(tao, catalogue):
     """Every observed tube frame is one annotation on the image of its frame, in its tube's
-    track; boxes xywh; RLE masks decode to the catalogue's."""
-    _, doc = tao
+    track; boxes xywh; RLE masks decode to the catalogue's; the results file holds the same
+    detections."""
+    dest, doc = tao
     _, tables = catalogue
     frames = _frames(tables)
     assert [v["name"] for v in doc["videos"]] == [f"{DATASET}_{SEQUENCE}"]
@@ -155,7 +163,10 @@ def test_tao_tracks_images_and_annotations(tao, catalogue):
         np.testing.assert_allclose(a["bbox"], _xywh(f["bbox"]), atol=1e-3)
         m = _decode(a["segmentation"])
         assert m.shape == (H, W) and m.sum() == a["area"] > 0
-    assert {c["id"] for c in doc["categories"]} == {CAR, UNKNOWN_ID, UNCLASSIFIED_ID}
+    assert doc["categories"] == [{"id": CAR, "name": "car", "synset": "car.n.01"}], "only the categories used"
+    results = json.loads((dest / "results" / "results.json").read_text())
+    assert [(r["image_id"], r["track_id"], r["bbox"], r["segmentation"]) for r in results] == [
+        (a["image_id"], a["track_id"], a["bbox"], a["segmentation"]) for a in doc["annotations"]]
 
 
 def test_crops_margin_widens_the_context(catalogue, tmp_path):

@@ -21,7 +21,8 @@ class ExportFormat:
     module: str  # mining.export.<module>
     writer: str  # its writing function
     items: str  # what the count a writer returns counts (the command's summary line)
-    options: tuple[str, ...] = ()  # keyword options beyond the rows: margin (crops); images, video_frames (videos)
+    options: tuple[str, ...] = ()  # keyword options beyond the rows: margin (crops); images, video_frames (videos),
+    # video_rates (burst: frames per second)
     masks: bool = True  # the format writes or reads the masks: a tube with a bad one is left out (selection.py)
 
     @property
@@ -40,5 +41,6 @@ FORMATS: dict[str, ExportFormat] = {f.name: f for f in (
     ExportFormat("crops", "crops", "export_crops", "crops", ("margin",)),
     ExportFormat("youtube-vis", "video_json", "export_youtube_vis", "tube annotations", ("images", "video_frames")),
     ExportFormat("tao", "video_json", "export_tao", "frame annotations", ("images", "video_frames")),
+    ExportFormat("burst", "burst", "export_burst", "masks", ("images", "video_frames", "video_rates")),
 )}
 VIDEO_FORMATS = tuple(name for name, f in FORMATS.items() if f.video)

@@ -1,7 +1,8 @@
 """`mine export`: the tubes matching a SQL predicate, in formats other tools read.
 
 The formats (``registry.FORMATS``, one module each): ``kitti`` and ``kitti-mots``
-(``kitti.py``), ``crops`` (``crops.py``), ``youtube-vis`` and ``tao`` (``video_json.py``).
+(``kitti.py``), ``crops`` (``crops.py``), ``youtube-vis`` and ``tao`` (``video_json.py``), ``burst``
+(``burst.py``); the video formats write a dataset file and a results file each.
 Boxes: the catalogue keeps x1, y1, x2, y2; COCO-style formats (YouTube-VIS, TAO, the crops
 index's ``bbox_xywh``) get x, y, width, height.
 
@@ -37,8 +38,8 @@ from mining.catalog.views import connect
 from mining.errors import InputError, MiningError, NothingMatched
 from mining.export.dest import check_folder, publish_folder
 from mining.export.registry import FORMATS, VIDEO_FORMATS
-from mining.export.selection import (frame_sizes, left_out_line, mined_frames, read_job, selected_rows,
-                                     without_bad_masks)
+from mining.export.selection import (frame_rates, frame_sizes, left_out_line, mined_frames, read_job,
+                                     selected_rows, without_bad_masks)
 
 LABELS_FILE = "tube_labels.json"  # beside every format's files: the exported tubes' labels
 CATEGORY_FROM = ("category", "tag")  # --category-from: the mined category, or the user's tag where there is one
@@ -71,7 +72,7 @@ def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: floa
         options["unknown_class"] = unknown_class
     if images:
         if not form.video:
-            raise InputError(f"--images applies to --format {' and '.join(VIDEO_FORMATS)} only")
+            raise InputError(f"--images applies to --format {', '.join(VIDEO_FORMATS)} only")
         options["images"] = True
     dest = Path(dest)
     replaced = check_folder(dest, overwrite)
@@ -89,13 +90,15 @@ def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: floa
             tubes, frames, left_out = without_bad_masks(tubes, frames, lambda d, s: sizes.get((d, s)))
         if form.video:
             options["video_frames"] = mined_frames(con, tubes)
+        if "video_rates" in form.options:
+            options["video_rates"] = frame_rates(con, tubes)
     finally:
         con.close()
     write = form.load()
 
     def record(n: int) -> dict:
         return {"format": fmt, "catalogue": str(out), "where": where, "tubes": tubes.num_rows, "items": n,
-                "options": {k: v for k, v in options.items() if k != "video_frames"}} | (
+                "options": {k: v for k, v in options.items() if k not in ("video_frames", "video_rates")}} | (
                     {"left_out": left_out} if left_out else {})
 
     def write_all(staging: Path) -> int:

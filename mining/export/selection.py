@@ -6,7 +6,8 @@ selects, and the groupings the formats share.
   and ``export_settings`` gives its ``[export]`` section.
 * ``selected_rows`` — (tubes, tube_frames) of the tubes matching a ``--where`` predicate,
   through the read-only checks of ``catalog/views.py``; ``mined_frames`` — the frames the
-  catalogue mined per sequence (the videos of YouTube-VIS and TAO).
+  catalogue mined per sequence (the videos of YouTube-VIS, TAO and BURST), ``frame_rates``
+  their rate.
 * ``frame_sizes`` and ``without_bad_masks`` — a bad tube fails only itself: a tube with a
   ``tube_frames`` row whose mask is malformed or not of its frames' size (``rows.mask_rle``)
   is left out of what is written and named (``left_out_line``); when every tube asked for
@@ -21,6 +22,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import duckdb
+import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
@@ -89,6 +91,25 @@ def mined_frames(con: duckdb.DuckDBPyConnection, tubes: pa.Table) -> dict[tuple[
     for d, s, f in con.execute("SELECT dataset, sequence, frame FROM frames ORDER BY dataset, sequence, frame").fetchall():
         if (d, s) in seqs:
             out.setdefault((d, s), []).append(f)
+    return out
+
+
+def frame_rates(con: duckdb.DuckDBPyConnection, tubes: pa.Table) -> dict[tuple[str, str], float]:
+    """Frames per second per (dataset, sequence) of ``tubes``: one over the median interval
+    of the mined frames' timestamps (``frames.t_ns``); a sequence with fewer than two
+    increasing timestamps has none."""
+    seqs = {(d, s) for d, s in zip(tubes.column("dataset").to_pylist(), tubes.column("sequence").to_pylist())}
+    times: dict[tuple[str, str], list[int]] = {}
+    for d, s, t in con.execute("SELECT dataset, sequence, t_ns FROM frames WHERE t_ns IS NOT NULL "
+                               "ORDER BY dataset, sequence, frame").fetchall():
+        if (d, s) in seqs:
+            times.setdefault((d, s), []).append(t)
+    out = {}
+    for key, t in times.items():
+        dt = np.diff(np.asarray(t, np.int64))
+        dt = dt[dt > 0]
+        if dt.size:
+            out[key] = float(1e9 / np.median(dt))
     return out
 
 
