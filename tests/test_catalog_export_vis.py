@@ -19,7 +19,7 @@ from mining.catalog.store import Store, write_sequence
 from mining.cli import main
 from mining.export.crops import crop_box
 from mining.export.dest import RECORD
-from mining.export.run import run_export
+from mining.export.run import LABELS_FILE, run_export
 from mining.export.selection import frame_digits
 from mining.export.video_json import UNCLASSIFIED_ID, UNKNOWN_ID
 from mining.names import tube_folder
@@ -233,9 +233,10 @@ def test_overwrite_replaces_exactly_what_the_last_export_wrote(catalogue, tmp_pa
     one = _selected(tables)[0]["tube_id"]
     assert run_export(str(out), f"tube_id = '{one}'", "crops", str(dest), overwrite=True) == 0
     assert sorted(p.name for p in dest.iterdir()) == sorted([RECORD, "index.json", "index.parquet", "notes.txt",
-                                                             tube_folder(one)])
+                                                             LABELS_FILE, tube_folder(one)])
     assert (tmp_path / "outside.txt").read_text() == "outside"
-    assert json.loads((dest / RECORD).read_text())["written"] == sorted(["index.json", "index.parquet", tube_folder(one)])
+    assert json.loads((dest / RECORD).read_text())["written"] == sorted(["index.json", "index.parquet", LABELS_FILE,
+                                                                         tube_folder(one)])
 
 
 def test_overwrite_needs_an_export_record(catalogue, tmp_path, capsys):

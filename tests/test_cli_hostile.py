@@ -44,6 +44,7 @@ HOSTILE_PATHS = {
 ALLOWED = {
     ("submit", "--lock-wait", "0"): "0 s: refuse at once when another submit holds the lock (the default)",
     ("query", "--limit", "0"): "0 = show every row",
+    ("label", "--lock-wait", "0"): "0 s: --compact refuses at once when a submit holds the lock (the default)",
     ("export", "--margin", "0"): "no context around the box",
     ("view", "--port", "0"): "0 picks a free port",
     ("bench calibrate", "--epsilon1", "0"): "a log-odds price: 0 is the default",
@@ -123,7 +124,7 @@ def test_every_option_is_checked_by_its_type():
 
 def test_the_walk_finds_every_command():
     names = [c for c, _ in COMMANDS]
-    assert {"submit", "status", "query", "export", "render", "view"} | {f"{c.group} {c.name}" for c in cli_module.COMMANDS} \
+    assert {"submit", "status", "query", "export", "render", "view", "label"} | {f"{c.group} {c.name}" for c in cli_module.COMMANDS} \
         == set(names)
     assert len(set(names)) == len(names)
 

@@ -344,7 +344,7 @@ def test_the_export_record_replaces_a_link_planted_at_its_name(catalogue, tmp_pa
     assert _export(out, "kitti", dest) == 0
     assert secret.read_text() == SECRET
     assert not (dest / RECORD).is_symlink()
-    assert json.loads((dest / RECORD).read_text())["written"] == [f"{SEQUENCE}.ids.json", f"{SEQUENCE}.txt"]
+    assert json.loads((dest / RECORD).read_text())["written"] == [f"{SEQUENCE}.ids.json", f"{SEQUENCE}.txt", "tube_labels.json"]
 
 
 def test_a_failed_export_keeps_the_previous_one(catalogue, tmp_path, monkeypatch, capsys):

@@ -63,11 +63,11 @@ def run_label(out: str, where: str | None, verdict: str | None = None, clear_ver
     matches; 2 with one line on standard error otherwise."""
     try:
         store = Store(out)
+        if not store.root_exists():
+            raise MiningError(f"--out {out}: catalogue folder not found")
         if compact:
             if where is not None or verdict or clear_verdict or tag or untag:
                 raise MiningError("--compact takes no --where and no decision")
-            if not store.root_exists():
-                raise MiningError(f"catalogue folder not found: {out}")
             merged, kept = labels.compact(store, lock_wait_s)
             print(f"mine label: {out}: merged {merged} label files into one ({kept} events)" if merged
                   else f"mine label: {out}: nothing to compact ({kept} events in at most one file)")
