@@ -17,6 +17,7 @@ import pytest
 
 from _cdp import Browser
 from conftest import count_tubes, serving
+from mining.view.images import best_frame
 
 # The natural widths of the images in view (a lazy image out of view, e.g. far along the tube page's
 # strip, is not fetched), once each has loaded or failed.
@@ -87,12 +88,25 @@ def test_gallery_filter_and_tube_page_in_chromium(catalogue, chromium, tmp_path)
             assert b.evaluate("document.querySelectorAll('#strip img').length") == best["n_frames"]
             widths = b.evaluate(ALL_IMAGES_LOADED)
             assert widths[0] == 1242 and 200 in widths[1:] and 0 not in widths
+            # It opens on the frame its card showed (the largest whole view), not on the first.
+            rows = sorted((f for f in tables["tube_frames"].to_pylist() if f["tube_id"] == best["tube_id"]),
+                          key=lambda f: f["frame"])
+            shown = best_frame(rows)["frame"]
+            k = [f["frame"] for f in rows].index(shown)
             assert b.evaluate("document.getElementById('frame-label').textContent").startswith(
-                f"frame {best['frame_start']} (1 of {best['n_frames']})")
+                f"frame {shown} ({k + 1} of {best['n_frames']})")
             b.key("ArrowRight", key_code=39)
             b.key("ArrowRight", key_code=39)
             b.key("ArrowLeft", key_code=37)
-            assert b.evaluate("document.getElementById('frame-label').textContent").startswith("frame 1 (2 of")
+            nxt = rows[(k + 1) % len(rows)]["frame"]
+            assert b.evaluate("document.getElementById('frame-label').textContent").startswith(
+                f"frame {nxt} ({(k + 1) % len(rows) + 1} of")
+            # Follow the object: the frame is scaled onto its box; again, the whole frame.
+            b.key("f", key_code=70)
+            assert float(b.evaluate("document.body.dataset.zoom")) > 1.5
+            b.screenshot(shots / "tube-follow.png")
+            b.key("f", key_code=70)
+            assert b.evaluate("document.body.dataset.zoom") == "1"
             b.wait_for("document.getElementById('frame').complete")
             assert b.evaluate("document.querySelectorAll('#track polyline').length") == 2  # tube and camera
             assert best["tube_id"] in b.evaluate("document.getElementById('export').textContent")

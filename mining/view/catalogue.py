@@ -29,6 +29,7 @@ from mining.errors import InputError
 from mining.formats.coco import COCO_CLASSES
 from mining.types import UNKNOWN_CLASS
 from mining.view.filters import CARD_COLUMNS, RANGE_COLUMNS, TooLarge, TubeFilter
+from mining.view.images import best_frame
 
 CLASS_NAMES = (*COCO_CLASSES, "unknown")
 assert len(CLASS_NAMES) == UNKNOWN_CLASS + 1
@@ -177,17 +178,50 @@ class CatalogueBrowser:
                            [tube["dataset"], tube["sequence"], tube["segment"], tube["frame_start"], tube["frame_end"],
                             MAX_TUBE_FRAMES])
 
-    def detail(self, tube_id: str) -> dict | None:
-        """Everything a tube page shows, or None for an id the catalogue does not hold."""
+    def score_line(self, tube: dict) -> str:
+        """What this tube's score is, in words."""
+        model = tube.get("score_model")
+        if model == "calibrated":
+            return "calibrated log-odds that the tube is an object (the θ terms add up to it; 0 = even odds)"
+        if model == "reference":
+            return "REFERENCE's weighted total β·(α·motion + (1−α)·mask) + (1−β)·objectness (no probability scale)"
+        return "not recorded: the catalogue was written before score_model (job.json's score.model says which unary ran)"
+
+    def class_rule(self, tube: dict, posterior: list | None) -> dict | None:
+        """The known / unknown decision as the run made it (mining/tubes/category.py): the margin
+        and evidence bound of its job, and this tube's ln P[best known] − ln P[unknown]."""
+        if self.job is None:
+            return None
+        s = self.job.score
+        calibrated = s.class_confidence == "calibrated" and self.job.proposals.proposer in s.row_proposers
+        rule = {"margin": s.known_log_margin_calibrated if calibrated else s.known_log_margin,
+                "margin_key": "score.known_log_margin_calibrated" if calibrated else "score.known_log_margin",
+                "min_evidence": s.min_class_evidence, "evidence": tube.get("class_evidence"), "log_ratio": None}
+        if posterior and len(posterior) == len(CLASS_NAMES):
+            known = [p or 0.0 for p in posterior[:UNKNOWN_CLASS]]
+            k = max(range(len(known)), key=known.__getitem__)
+            p_best, p_unknown = known[k], posterior[UNKNOWN_CLASS] or 0.0
+            if p_best > 0 and p_unknown > 0:
+                rule["log_ratio"] = math.log(p_best) - math.log(p_unknown)
+            rule |= {"best_known": CLASS_NAMES[k], "p_best": p_best, "p_unknown": p_unknown}
+        return rule
+
+    def detail(self, tube_id: str, frame: int | None = None) -> dict | None:
+        """Everything a tube page shows, or None for an id the catalogue does not hold; the page
+        opens on ``frame`` when the tube has it, else on the thumbnail's (``images.best_frame``)."""
         tube = self.tube(tube_id)
         if tube is None:
             return None
         posterior = tube.pop("class_posterior")
+        rule = self.class_rule(tube, posterior)
         top = []
         if posterior:
             order = sorted(range(len(posterior)), key=lambda k: -(posterior[k] or 0.0))[:TOP_CLASSES]
             top = [{"name": CLASS_NAMES[k] if k < len(CLASS_NAMES) else str(k), "p": posterior[k]} for k in order]
         frames = self.frames(tube)
         where = f"tube_id = {sql_string(tube_id)}"
-        return {"tube": tube, "top_classes": top, "frames": frames, "ego": self.ego_path(tube),
+        numbers = [f["frame"] for f in frames]
+        start = frame if frame in numbers else (best_frame(frames)["frame"] if frames else None)
+        return {"tube": tube, "top_classes": top, "class_rule": rule, "frames": frames, "ego": self.ego_path(tube),
+                "start_frame": start, "score_model": self.score_line(tube),
                 "where": where, "export_command": export_command(self.out, where, f"crops/{tube_id.replace('/', '_')}")}

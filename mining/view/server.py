@@ -126,6 +126,17 @@ def _one(query: dict[str, list[str]], name: str, allowed: frozenset[str], path: 
     return values[0] if values else None
 
 
+def _frame_number(text: str) -> int:
+    """Parameter ``frame`` as a frame number; 400 saying why not."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise HttpError(HTTPStatus.BAD_REQUEST, f"parameter 'frame': the frame must be an integer, got {text!r}") from None
+    if not 0 <= n <= MAX_FRAME:
+        raise HttpError(HTTPStatus.BAD_REQUEST, f"parameter 'frame': the frame must be in 0..{MAX_FRAME}, got {n}")
+    return n
+
+
 class HostRule:
     """Which ``Host`` headers a server bound to ``host`` answers.
 
@@ -246,8 +257,11 @@ class ViewApp:
         return self.browser.page(flt)
 
     def api_tube(self, query: dict[str, list[str]]) -> dict:
-        tube = self._tube(query, "/api/tube", frozenset({"id"}))
-        detail = self.browser.detail(tube["tube_id"])
+        allowed = frozenset({"id", "frame"})
+        tube = self._tube(query, "/api/tube", allowed)
+        text = _one(query, "frame", allowed, "/api/tube")
+        frame = None if text in (None, "") else _frame_number(text)
+        detail = self.browser.detail(tube["tube_id"], frame)
         detail["frames_unavailable"] = self.source.reason
         return detail
 
@@ -265,13 +279,7 @@ class ViewApp:
         size = _one(query, "size", allowed, "/img/frame") or "full"
         if size not in SIZES:
             raise HttpError(HTTPStatus.BAD_REQUEST, f"parameter 'size': the size is one of {', '.join(SIZES)}, got {size!r}")
-        text = _one(query, "frame", allowed, "/img/frame") or ""
-        try:
-            n = int(text)
-        except ValueError:
-            raise HttpError(HTTPStatus.BAD_REQUEST, f"parameter 'frame': the frame must be an integer, got {text!r}") from None
-        if not 0 <= n <= MAX_FRAME:
-            raise HttpError(HTTPStatus.BAD_REQUEST, f"parameter 'frame': the frame must be in 0..{MAX_FRAME}, got {n}")
+        n = _frame_number(_one(query, "frame", allowed, "/img/frame") or "")
         frame = self.browser.frame(tube, n)
         if frame is None:
             raise HttpError(HTTPStatus.NOT_FOUND, f"tube {tube['tube_id']!r} has no frame {n}")

@@ -8,7 +8,9 @@ const tubeId = params.get("id");
 const FPS = 10;  // KITTI's frame rate; the player shows frames, not real time
 const PRELOAD = 4;  // frames fetched ahead while playing
 const SVG_NS = "http://www.w3.org/2000/svg";
-let frames = [], current = 0, timer = null, marker = null, toSvg = null;
+let frames = [], current = 0, timer = null, marker = null, toSvg = null, follow = false, zoom = 1;
+const FOLLOW_CONTEXT = 0.6;  // the crop around the object: its box plus this fraction on each side
+const MAX_ZOOM = 8;
 const cache = new Map();
 
 function frameUrl(f, size) { return `/img/frame?id=${encodeURIComponent(tubeId)}&frame=${f.frame}&size=${size}`; }
@@ -25,6 +27,7 @@ function show(k) {
   current = (k + frames.length) % frames.length;
   const f = frames[current];
   document.getElementById("frame").src = frameUrl(f, "full");
+  place();
   document.getElementById("scrub").value = current;
   document.getElementById("frame-label").textContent =
     `frame ${f.frame} (${current + 1} of ${frames.length}) · ${f.observed ? "observed" : "predicted (gap)"}` +
@@ -38,6 +41,29 @@ function show(k) {
     marker.setAttribute("cx", x); marker.setAttribute("cy", y);
   }
   for (let d = 1; d <= PRELOAD; d++) preload(current + d);
+}
+
+// Follow the object: scale and shift the full frame so that its box (with context) fills the view.
+function place() {
+  const img = document.getElementById("frame"), f = frames[current];
+  if (!follow || !f || !f.bbox) { img.style.transform = ""; return; }
+  const W = f.rle_w, H = f.rle_h, [x1, y1, x2, y2] = f.bbox;
+  const d = img.clientWidth / W;  // displayed pixels per image pixel
+  let cw = Math.max((x2 - x1) * (1 + 2 * FOLLOW_CONTEXT), (y2 - y1) * (1 + 2 * FOLLOW_CONTEXT) * W / H, W / MAX_ZOOM) / zoom;
+  cw = Math.min(W, Math.max(W / MAX_ZOOM, cw));
+  const ch = cw * H / W, s = W / cw;
+  const x0 = Math.min(W - cw, Math.max(0, (x1 + x2) / 2 - cw / 2)), y0 = Math.min(H - ch, Math.max(0, (y1 + y2) / 2 - ch / 2));
+  img.style.transform = `scale(${s.toFixed(3)}) translate(${(-x0 * d).toFixed(1)}px, ${(-y0 * d).toFixed(1)}px)`;
+  document.body.dataset.zoom = s.toFixed(2);
+}
+
+function setFollow(on) {
+  follow = on;
+  const b = document.getElementById("follow");
+  b.setAttribute("aria-pressed", String(on));
+  b.classList.toggle("on", on);
+  if (!on) document.body.dataset.zoom = "1";
+  place();
 }
 
 function play(on) {
@@ -112,35 +138,99 @@ function drawTrack(tubeFrames, ego, known) {
   box.append(marker);
 }
 
+// Motion only where it exceeds its own uncertainty (stereo noise at the tube's depth: speed_sigma_mps).
+function motionText(t) {
+  if (t.moving_speed_mps !== null && t.moving_speed_mps !== undefined)
+    return `moving ${fmt(t.moving_speed_mps, 1)} ± ${fmt(t.speed_sigma_mps, 1)} m/s · path ${fmt(t.path_length, 1)} ± ${fmt(t.path_sigma_m, 1)} m`;
+  if (t.speed_sigma_mps === null || t.speed_sigma_mps === undefined) return "not measurable (under 3 observations)";
+  return `static: ${fmt(t.speed, 1)} m/s is within 3 × its ±${fmt(t.speed_sigma_mps, 1)} m/s noise`;
+}
+
+function ruleText(t, r) {
+  if (!r) return "";
+  if (t.known === null) return `Unclassified: classifier evidence ${fmt(r.evidence, 2)} is below ${fmt(r.min_evidence, 2)} frame(s) (score.min_class_evidence).`;
+  if (r.log_ratio === null) return `Known when ln P(best COCO class) − ln P(unknown) > ${fmt(r.margin, 2)} (${r.margin_key}).`;
+  const cmp = r.log_ratio > r.margin ? ">" : "≤";
+  return `Known when ln P(best COCO class) − ln P(unknown) > ${fmt(r.margin, 2)} (${r.margin_key}). Here ln P(${r.best_known}) − ln P(unknown) = ` +
+    `ln ${fmt(r.p_best, 3)} − ln ${fmt(r.p_unknown, 3)} = ${fmt(r.log_ratio, 2)} ${cmp} ${fmt(r.margin, 2)}: ` +
+    (r.log_ratio > r.margin ? `known, ${r.best_known}.` : "unknown.");
+}
+
+function showLabels(r) {
+  document.getElementById("tube-labels").replaceChildren(labelChips(r),
+    el("span", { class: "muted small", text: r.labelled_by ? ` by ${r.labelled_by}` : " none yet" }));
+}
+
+async function label(body) {
+  body.tubes = [tubeId];
+  try {
+    const answer = await postLabels(body);
+    showLabels(answer.labelled[0]);
+    document.getElementById("label-status").textContent = "saved";
+    document.body.dataset.labelled = String(Number(document.body.dataset.labelled || 0) + 1);
+  } catch (e) { document.getElementById("label-status").textContent = `not saved: ${e.message}`; }
+}
+
+function wireLabels() {
+  const box = document.getElementById("label-buttons");
+  for (const [v, name, key] of VERDICTS) {
+    const b = el("button", { type: "button", title: `${name} (${key})` }, name + " ", el("kbd", { text: key }));
+    b.addEventListener("click", () => label({ verdict: v }));
+    box.append(b);
+  }
+  const clear = el("button", { type: "button", title: "take the verdict back (u)" }, "no verdict ", el("kbd", { text: "u" }));
+  clear.addEventListener("click", () => label({ verdict: null }));
+  box.append(clear);
+  const tag = document.getElementById("tag");
+  document.getElementById("add-tag").addEventListener("click", () => { if (tag.value.trim()) label({ tag: tag.value.trim() }); });
+  document.getElementById("remove-tag").addEventListener("click", () => { if (tag.value.trim()) label({ untag: tag.value.trim() }); });
+  tag.addEventListener("keydown", e => {
+    if (e.key === "Enter" && tag.value.trim()) { label({ tag: tag.value.trim() }); tag.blur(); }
+    else if (e.key === "Escape") tag.blur();
+    e.stopPropagation();
+  });
+}
+
 async function main() {
   const back = params.get("back");
   if (back && back.startsWith("?")) document.getElementById("back").href = `/${back}`;
   if (!tubeId) { showBanner("No tube id in the address (?id=…)."); document.body.dataset.state = "error"; return; }
   let d;
-  try { d = await getJSON(`/api/tube?id=${encodeURIComponent(tubeId)}`); }
+  const asked = params.get("frame");
+  try { d = await getJSON(`/api/tube?id=${encodeURIComponent(tubeId)}` + (asked ? `&frame=${encodeURIComponent(asked)}` : "")); }
   catch (e) { showBanner(`Error: ${e.message}`); document.body.dataset.state = "error"; return; }
   const t = d.tube;
   frames = d.frames;
   document.title = `Tube Miner · ${t.tube_id}`;
   document.getElementById("title").textContent = t.tube_id;
   const badge = document.getElementById("badge");
-  badge.textContent = classLabel(t) + (t.selected ? "" : " · not selected");
+  badge.textContent = classLabel(t) + (t.selected ? "" : " · candidate, not selected");
+  showLabels(t);
+  wireLabels();
   badge.classList.add(`k-${knownKey(t.known)}`);
   if (d.frames_unavailable) showBanner(`Pictures are placeholders: ${d.frames_unavailable}`);
-  rows(document.getElementById("scores"), [
-    ["score", fmt(t.score, 2)], ["motion", fmt(t.score_motion, 2)], ["mask", fmt(t.score_mask, 2)],
-    ["objectness", fmt(t.score_objectness, 2)], ["selected", t.selected ? "yes" : "no"]]);
+  document.getElementById("score-model").textContent = `score: ${d.score_model}`;
+  const scoreRows = [["score", fmt(t.score, 2)]];
+  if (t.score_model === "calibrated") {
+    for (const g of ["prior", "motion", "mask", "objectness", "shape", "class"]) scoreRows.push([`  θ ${g}`, fmt(t[`theta_${g}`], 2)]);
+    scoreRows.push(["REFERENCE terms", "(not in this score)"]);
+  }
+  scoreRows.push(["motion LLR", fmt(t.score_motion, 1)], ["mask LLR", fmt(t.score_mask, 1)],
+    ["objectness LLR", fmt(t.score_objectness, 1)], ["selected", t.selected ? "yes" : "no: a candidate co-selection did not choose"]);
+  rows(document.getElementById("scores"), scoreRows);
   rows(document.getElementById("class"), [
-    ["class", KNOWN_LABEL[knownKey(t.known)]], ["category", fmt(t.category)], ["probability", t.category_prob === null ? "–" : t.category_prob.toFixed(3)],
+    ["class", KNOWN_LABEL[knownKey(t.known)]], ["category", fmt(t.category)],
+    [t.known === null ? "probability" : `P(${t.known ? t.category : "unknown"})`, t.category_prob === null ? "–" : t.category_prob.toFixed(3)],
     ["best COCO class", fmt(t.best_known)], ["classified frames", fmt(t.classified_frames)],
     ["evidence", fmt(t.class_evidence, 2)]]);
+  document.getElementById("class-rule").textContent = ruleText(t, d.class_rule);
   const top = document.getElementById("top-classes");
   top.replaceChildren(...d.top_classes.map(c => bar(c.name, c.p)));
   if (!d.top_classes.length) top.append(el("p", { class: "muted", text: "No classifier looked at this tube." }));
   rows(document.getElementById("facts"), [
     ["sequence", `${t.dataset}/${t.sequence}`], ["frames", `${t.frame_start}–${t.frame_end} (${t.n_frames}, ${t.n_observed} observed)`],
-    ["size (w, h, l)", (t.size || []).map(v => fmt(v, 2)).join(" × ") + " m"], ["path length", `${fmt(t.path_length, 1)} m`],
-    ["speed", `${fmt(t.speed, 2)} m/s`], ["segment", fmt(t.segment)], ["windows stitched", fmt(t.n_windows)]]);
+    ["size (w, h, l)", (t.size || []).map(v => fmt(v, 2)).join(" × ") + " m"],
+    ["motion", motionText(t)], ["segment", fmt(t.segment)], ["windows stitched", fmt(t.n_windows)]]);
   document.getElementById("export").textContent = d.export_command;
   drawTrack(frames, d.ego, t.known);
   document.querySelector(".swatch.tube").classList.add(`k-${knownKey(t.known)}`);
@@ -159,14 +249,27 @@ async function main() {
   document.getElementById("play").addEventListener("click", () => play());
   document.getElementById("step-back").addEventListener("click", () => { play(false); show(current - 1); });
   document.getElementById("step-fwd").addEventListener("click", () => { play(false); show(current + 1); });
+  document.getElementById("follow").addEventListener("click", () => setFollow(!follow));
+  document.getElementById("zoom-in").addEventListener("click", () => { zoom = Math.min(4, zoom * 1.5); if (!follow) setFollow(true); else place(); });
+  document.getElementById("zoom-out").addEventListener("click", () => { zoom = Math.max(0.25, zoom / 1.5); place(); });
+  document.getElementById("frame").addEventListener("load", place);
+  window.addEventListener("resize", place);
+  const keyed = Object.fromEntries(VERDICTS.map(([v, , key]) => [key, v]));
   document.addEventListener("keydown", e => {
     if (e.target.tagName === "INPUT" && e.target.type !== "range") return;
     if (e.key === "ArrowRight") { play(false); show(current + 1); e.preventDefault(); }
     else if (e.key === "ArrowLeft") { play(false); show(current - 1); e.preventDefault(); }
     else if (e.key === " ") { play(); e.preventDefault(); }
+    else if (e.key === "f") setFollow(!follow);
+    else if (e.key === "+" || e.key === "=") { zoom = Math.min(4, zoom * 1.5); if (!follow) setFollow(true); else place(); }
+    else if (e.key === "-") { zoom = Math.max(0.25, zoom / 1.5); place(); }
+    else if (keyed[e.key]) label({ verdict: keyed[e.key] });
+    else if (e.key === "u") label({ verdict: null });
+    else if (e.key === "t") { document.getElementById("tag").focus(); e.preventDefault(); }
   });
   wireCopyButtons();
-  show(0);
+  const start = frames.findIndex(f => f.frame === d.start_frame);
+  show(start < 0 ? 0 : start);
   document.body.dataset.state = "ready";
 }
 
