@@ -207,3 +207,17 @@ def test_labels_of_neighbouring_tubes_do_not_cover_each_other():
     above = out[:100, 40:200]
     assert ((above == (255, 0, 0)).all(axis=2).any() and (above == (0, 0, 255)).all(axis=2).any()), \
         "both labels' boxes are visible above the mask"
+
+
+def test_render_labels_keep_the_id_apart_from_the_probability():
+    from mining.export.render import short_id, tube_caption
+
+    # 3.9 and 3.90 are different tubes; neither id reads as a number.
+    assert short_id("kitti/0005/0000003.009") == "#3:9" and short_id("kitti/0005/0000003.090") == "#3:90"
+    assert short_id("kitti/0005/0000012.003-1") == "#12:3-1"  # a second tube from one observation
+    assert tube_caption({"tube_id": "kitti/0005/0000090.001", "known": True, "category": "car",
+                         "category_prob": 0.372}) == "#90:1 car 0.37"
+    assert tube_caption({"tube_id": "kitti/0005/0000004.001", "known": False, "category": "unknown",
+                         "category_prob": 0.91}) == "#4:1 unknown 0.91"
+    assert tube_caption({"tube_id": "kitti/0005/0000004.001", "known": None, "category": None,
+                         "category_prob": None}) == "#4:1 unclassified"

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import re
 import sys
 import time
 from dataclasses import dataclass
@@ -54,15 +55,27 @@ DEPTH_NEAR_M = 2.0  # ours: the depth colour map's near end (red); KITTI's 128 p
 DEPTH_TICKS_M = (2, 5, 10, 20, 50, 90)  # ours: legend ticks (the far end is the job's geometry.stereo.max_depth_m)
 
 
+_TUBE_NAME = re.compile(r"(?P<frame>[0-9]+)\.(?P<obs>[0-9]+)(?:-(?P<dup>[0-9]+))?")  # stitch.py's FRAME.OBS[-k]
+
+
 def short_id(tube_id: str) -> str:
-    """``kitti/0005/0000012.003`` → ``12.3``: the first frame and observation, without the
-    sequence (a render shows one sequence) or leading zeros."""
+    """``kitti/0005/0000012.003`` → ``#12:3`` (``…003-1`` → ``#12:3-1``): the first frame and
+    observation, without the sequence (a render shows one sequence) or leading zeros. The ``#``
+    and the colon keep it from reading as a number (12.3 as a confidence, 3.9 and 3.90 alike)."""
     last = tube_id.rsplit("/", 1)[-1]
-    frame, _, obs = last.partition(".")
-    try:
-        return f"{int(frame)}.{int(obs)}"
-    except ValueError:
-        return last
+    m = _TUBE_NAME.fullmatch(last)
+    if m is None:
+        return f"#{last}"
+    return f"#{int(m['frame'])}:{int(m['obs'])}" + (f"-{m['dup']}" if m["dup"] else "")
+
+
+def tube_caption(t: dict) -> str:
+    """A render's label: the short id, then the class by the rule of ``known``, with the
+    posterior of the class named (``#12:3 car 0.37``, ``#4:1 unknown 0.91``, ``#7:2 unclassified``)."""
+    name = category_label(t)
+    p = t.get("category_prob")
+    prob = "" if t.get("known") is None or p is None or p != p else f" {p:.2f}"
+    return f"{short_id(t['tube_id'])} {name}{prob}"
 
 
 def depth_colours(depth_m: np.ndarray, far_m: float) -> np.ndarray:
@@ -189,7 +202,7 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
     keep = {t["tube_id"] for t in tube_rows}  # not empty: without_bad_masks refuses when no tube is left
 
     colours = tube_colours(list(keep))
-    info = {t["tube_id"]: (f"{short_id(t['tube_id'])} {category_label(t)}", colours[t["tube_id"]]) for t in tube_rows}
+    info = {t["tube_id"]: (tube_caption(t), colours[t["tube_id"]]) for t in tube_rows}
     by_frame: dict[int, list[dict]] = {}
     for f in tube_frames.to_pylist():
         if f["tube_id"] in keep:
