@@ -11,6 +11,7 @@ const SVG_NS = "http://www.w3.org/2000/svg";
 let frames = [], current = 0, timer = null, marker = null, toSvg = null, follow = false, zoom = 1;
 const FOLLOW_CONTEXT = 0.6;  // the crop around the object: its box plus this fraction on each side
 const MAX_ZOOM = 8;
+const AUTO_FOLLOW_AREA = 0.01;  // a box under 1 % of the frame opens followed
 const cache = new Map();
 
 function frameUrl(f, size) { return `/img/frame?id=${encodeURIComponent(tubeId)}&frame=${f.frame}&size=${size}`; }
@@ -269,6 +270,10 @@ async function main() {
   });
   wireCopyButtons();
   const start = frames.findIndex(f => f.frame === d.start_frame);
+  // A small object (a speck on the full frame) opens followed: cropped to it, `f` shows the whole frame.
+  const first = frames[start < 0 ? 0 : start];
+  if (first && first.bbox && (first.bbox[2] - first.bbox[0]) * (first.bbox[3] - first.bbox[1]) < AUTO_FOLLOW_AREA * first.rle_w * first.rle_h) setFollow(true);
+  else document.body.dataset.zoom = "1";
   show(start < 0 ? 0 : start);
   document.body.dataset.state = "ready";
 }
