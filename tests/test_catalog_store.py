@@ -116,10 +116,35 @@ def test_schema_json_is_generated_from_schema_py():
         sys.path.pop(0)
     files = generate.generate()
     assert sorted(files) == sorted([f"{t}.json" for t in SCHEMAS] + ["views.sql"])
-    assert files["views.sql"] == (REPO / "mining" / "catalog" / "views.sql").read_text()
+    assert files["views.sql"] == generate.STANDALONE + (REPO / "mining" / "catalog" / "views.sql").read_text()
     doc = __import__("json").loads(files["tubes.json"])
     assert [f["name"] for f in doc["fields"]] == SCHEMAS["tubes"].names
     assert next(f for f in doc["fields"] if f["name"] == "score")["comment"].startswith("the unary score_model names")
+
+
+def test_the_published_views_run_on_their_own_inside_a_catalogue(base_catalogue, tmp_path, monkeypatch):
+    """schemas/v2/views.sql in a bare DuckDB, from inside the catalogue folder: every view
+    answers as `mine query`'s do, labels included once loaded."""
+    import duckdb
+
+    from _jobs import copy_of
+    from mining.catalog import labels
+    from mining.catalog.views import connect
+
+    out = copy_of(base_catalogue, tmp_path / "c")
+    store = Store(out)
+    first = connect(out).execute("SELECT dataset, sequence, tube_id FROM tubes ORDER BY tube_id LIMIT 1").fetchone()
+    labels.append(store, labels.events([first], "tag", "post"))
+    views = ("selected_tubes", "unknown_tubes", "tube_scores", "tube_tracks", "provisional_tubes",
+             "provisional_tube_frames", "tube_labels", "labelled_tubes")
+    ours = connect(out)
+    want = {v: ours.execute(f"SELECT count(*) FROM {v}").fetchone()[0] for v in views}
+    monkeypatch.chdir(out)
+    con = duckdb.connect()
+    con.execute((REPO / "schemas" / "v2" / "views.sql").read_text())
+    con.execute("INSERT INTO labels SELECT * FROM read_parquet('labels/*.parquet')")
+    assert {v: con.execute(f"SELECT count(*) FROM {v}").fetchone()[0] for v in views} == want
+    assert want["tube_labels"] == 1 and want["selected_tubes"] > 0
 
 
 def test_job_record_round_trips(tmp_path):
