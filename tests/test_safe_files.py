@@ -295,7 +295,8 @@ def test_an_unrecorded_link_among_the_files_is_refused_before_the_previous_expor
     assert _tree(dest) == before and list(elsewhere.iterdir()) == []
 
 
-FORMATS = [("kitti", ()), ("kitti-mots", ()), ("crops", ()), ("youtube-vis", ("--images",)), ("tao", ("--images",))]
+FORMATS = [("kitti", ()), ("kitti-mots", ()), ("crops", ()), ("youtube-vis", ("--images",)), ("tao", ("--images",)),
+           ("fiftyone", ("--images",)), ("rerun", ())]
 
 
 @pytest.mark.parametrize("fmt,extra", FORMATS, ids=[f for f, _ in FORMATS])

@@ -21,7 +21,9 @@ class ExportFormat:
     module: str  # mining.export.<module>
     writer: str  # its writing function
     items: str  # what the count a writer returns counts (the command's summary line)
-    options: tuple[str, ...] = ()  # keyword options beyond the rows: margin (crops); images, video_frames (videos)
+    # keyword options beyond the rows: margin (crops); images, video_frames (videos); frame_rows (the
+    # catalogue's frames rows per sequence: poses)
+    options: tuple[str, ...] = ()
     masks: bool = True  # the format writes or reads the masks: a tube with a bad one is left out (selection.py)
 
     @property
@@ -40,5 +42,7 @@ FORMATS: dict[str, ExportFormat] = {f.name: f for f in (
     ExportFormat("crops", "crops", "export_crops", "crops", ("margin",)),
     ExportFormat("youtube-vis", "video_json", "export_youtube_vis", "tube annotations", ("images", "video_frames")),
     ExportFormat("tao", "video_json", "export_tao", "frame annotations", ("images", "video_frames")),
+    ExportFormat("fiftyone", "fiftyone_video", "export_fiftyone", "videos", ("images", "video_frames")),
+    ExportFormat("rerun", "rerun_rrd", "export_rerun", "recordings", ("images", "video_frames", "frame_rows")),
 )}
 VIDEO_FORMATS = tuple(name for name, f in FORMATS.items() if f.video)

@@ -34,8 +34,9 @@ from mining.errors import InputError, MiningError, NothingMatched
 from mining.export.dest import check_folder, publish_folder
 from mining.export.registry import FORMATS, VIDEO_FORMATS
 from mining.export.selection import (frame_sizes, left_out_line, mined_frames, read_job, selected_rows,
-                                     without_bad_masks)
+                                     sequence_frames, without_bad_masks)
 
+ROWS_PASSED = ("video_frames", "frame_rows")  # options that carry catalogue rows, not the user's choices
 LEFT_OUT = 1  # exit status: written, but tubes with a bad mask were left out (as `mine submit` with a failed window)
 
 
@@ -79,13 +80,15 @@ def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: floa
             tubes, frames, left_out = without_bad_masks(tubes, frames, lambda d, s: sizes.get((d, s)))
         if form.video:
             options["video_frames"] = mined_frames(con, tubes)
+        if "frame_rows" in form.options:
+            options["frame_rows"] = sequence_frames(con, tubes)
     finally:
         con.close()
     write = form.load()
 
     def record(n: int) -> dict:
         return {"format": fmt, "catalogue": str(out), "where": where, "tubes": tubes.num_rows, "items": n,
-                "options": {k: v for k, v in options.items() if k != "video_frames"}} | (
+                "options": {k: v for k, v in options.items() if k not in ROWS_PASSED}} | (
                     {"left_out": left_out} if left_out else {})
 
     n = publish_folder(dest, replaced, lambda staging: write(tubes, frames, job, staging, **options), record)
