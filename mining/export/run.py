@@ -1,7 +1,8 @@
 """`mine export`: the tubes matching a SQL predicate, in formats other tools read.
 
 The formats (``registry.FORMATS``, one module each): ``kitti`` and ``kitti-mots``
-(``kitti.py``), ``crops`` (``crops.py``), ``youtube-vis`` and ``tao`` (``video_json.py``).
+(``kitti.py``), ``crops`` (``crops.py``), ``youtube-vis`` and ``tao`` (``video_json.py``),
+``fiftyone`` (``fiftyone_video.py``) and ``rerun`` (``rerun_rrd.py``).
 Boxes: the catalogue keeps x1, y1, x2, y2; COCO-style formats (YouTube-VIS, TAO, the crops
 index's ``bbox_xywh``) get x, y, width, height.
 
