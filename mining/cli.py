@@ -279,7 +279,8 @@ def build_parser() -> argparse.ArgumentParser:
     exp.add_argument("--margin", type=real(0.0, 10.0), default=None,
                      help="crops: context on each side, as a fraction of the box (default 0.15, at least 8 px)")
     exp.add_argument("--images", action="store_true",
-                     help="youtube-vis, tao, burst: also write the video frames (rectified left images, JPEG) the JSON names")
+                     help="youtube-vis, tao, burst: also write the video frames (rectified left images, JPEG) the JSON names; "
+                          "fiftyone: the videos the manifest names; rerun: the frames, stereo depth and pinhole")
     exp.add_argument("--unknown-class", type=count(1, MOTS_MAX_CLASS - 1), default=None,
                      help="kitti-mots: class id for unknown tubes (default 10, the format's ignore, which MOTS tools drop)")
     exp.add_argument("--category-from", choices=["category", "tag"], default="category",

@@ -296,7 +296,8 @@ def test_an_unrecorded_link_among_the_files_is_refused_before_the_previous_expor
 
 
 FORMATS = [("kitti", ()), ("kitti-mots", ()), ("crops", ()), ("youtube-vis", ("--images",)), ("tao", ("--images",)),
-           ("burst", ("--images",))]
+           ("burst", ("--images",)),
+           ("fiftyone", ("--images",)), ("rerun", ())]
 
 
 @pytest.mark.parametrize("fmt,extra", FORMATS, ids=[f for f, _ in FORMATS])

@@ -21,8 +21,9 @@ class ExportFormat:
     module: str  # mining.export.<module>
     writer: str  # its writing function
     items: str  # what the count a writer returns counts (the command's summary line)
-    options: tuple[str, ...] = ()  # keyword options beyond the rows: margin (crops); images, video_frames (videos),
-    # video_rates (burst: frames per second)
+    # keyword options beyond the rows: margin (crops); images, video_frames (videos); video_rates (burst:
+    # frames per second); frame_rows (the catalogue's frames rows per sequence: poses)
+    options: tuple[str, ...] = ()
     masks: bool = True  # the format writes or reads the masks: a tube with a bad one is left out (selection.py)
 
     @property
@@ -42,5 +43,7 @@ FORMATS: dict[str, ExportFormat] = {f.name: f for f in (
     ExportFormat("youtube-vis", "video_json", "export_youtube_vis", "tube annotations", ("images", "video_frames")),
     ExportFormat("tao", "video_json", "export_tao", "frame annotations", ("images", "video_frames")),
     ExportFormat("burst", "burst", "export_burst", "masks", ("images", "video_frames", "video_rates")),
+    ExportFormat("fiftyone", "fiftyone_video", "export_fiftyone", "videos", ("images", "video_frames")),
+    ExportFormat("rerun", "rerun_rrd", "export_rerun", "recordings", ("images", "video_frames", "frame_rows")),
 )}
 VIDEO_FORMATS = tuple(name for name, f in FORMATS.items() if f.video)

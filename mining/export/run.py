@@ -2,7 +2,8 @@
 
 The formats (``registry.FORMATS``, one module each): ``kitti`` and ``kitti-mots``
 (``kitti.py``), ``crops`` (``crops.py``), ``youtube-vis`` and ``tao`` (``video_json.py``), ``burst``
-(``burst.py``); the video formats write a dataset file and a results file each.
+(``burst.py``), whose dataset and results files TrackEval reads; ``fiftyone`` (``fiftyone_video.py``)
+and ``rerun`` (``rerun_rrd.py``).
 Boxes: the catalogue keeps x1, y1, x2, y2; COCO-style formats (YouTube-VIS, TAO, the crops
 index's ``bbox_xywh``) get x, y, width, height.
 
@@ -39,10 +40,11 @@ from mining.errors import InputError, MiningError, NothingMatched
 from mining.export.dest import check_folder, publish_folder
 from mining.export.registry import FORMATS, VIDEO_FORMATS
 from mining.export.selection import (frame_rates, frame_sizes, left_out_line, mined_frames, read_job,
-                                     selected_rows, without_bad_masks)
+                                     selected_rows, sequence_frames, without_bad_masks)
 
 LABELS_FILE = "tube_labels.json"  # beside every format's files: the exported tubes' labels
 CATEGORY_FROM = ("category", "tag")  # --category-from: the mined category, or the user's tag where there is one
+ROWS_PASSED = ("video_frames", "video_rates", "frame_rows")  # options that carry catalogue rows, not the user's choices
 LEFT_OUT = 1  # exit status: written, but tubes with a bad mask were left out (as `mine submit` with a failed window)
 
 
@@ -92,13 +94,15 @@ def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: floa
             options["video_frames"] = mined_frames(con, tubes)
         if "video_rates" in form.options:
             options["video_rates"] = frame_rates(con, tubes)
+        if "frame_rows" in form.options:
+            options["frame_rows"] = sequence_frames(con, tubes)
     finally:
         con.close()
     write = form.load()
 
     def record(n: int) -> dict:
         return {"format": fmt, "catalogue": str(out), "where": where, "tubes": tubes.num_rows, "items": n,
-                "options": {k: v for k, v in options.items() if k not in ("video_frames", "video_rates")}} | (
+                "options": {k: v for k, v in options.items() if k not in ROWS_PASSED}} | (
                     {"left_out": left_out} if left_out else {})
 
     def write_all(staging: Path) -> int:

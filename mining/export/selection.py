@@ -113,6 +113,22 @@ def frame_rates(con: duckdb.DuckDBPyConnection, tubes: pa.Table) -> dict[tuple[s
     return out
 
 
+def sequence_frames(con: duckdb.DuckDBPyConnection, tubes: pa.Table) -> dict[tuple[str, str], list[dict]]:
+    """The ``frames`` rows (frame, t_ns, segment, pose) per (dataset, sequence) of ``tubes``,
+    in frame order."""
+    seqs = {(d, s) for d, s in zip(tubes.column("dataset").to_pylist(), tubes.column("sequence").to_pylist())}
+    out: dict[tuple[str, str], list[dict]] = {}
+    try:
+        rows = con.execute("SELECT dataset, sequence, frame, t_ns, segment, pose FROM frames "
+                           "ORDER BY dataset, sequence, frame").fetchall()
+    except duckdb.Error as e:  # a damaged file (the message names it)
+        raise InputError(f"cannot read the catalogue: {e}") from None
+    for d, s, frame, t_ns, segment, pose in rows:
+        if (d, s) in seqs:
+            out.setdefault((d, s), []).append({"frame": frame, "t_ns": t_ns, "segment": segment, "pose": pose})
+    return out
+
+
 def frame_sizes(con: duckdb.DuckDBPyConnection, tubes: pa.Table) -> dict[tuple[str, str], tuple[int, int]]:
     """The catalogue's frame size (height, width) per (dataset, sequence) of ``tubes``: the
     size most of the sequence's masks share, over all its ``tube_frames`` rows (the catalogue
