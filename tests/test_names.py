@@ -272,7 +272,7 @@ def test_the_other_tubes_still_export_and_a_safe_id_keeps_its_folder(catalogue, 
     dest = tmp_path / "dest"
     assert run_export(str(cat), "tube_id LIKE '%renamed%'", "crops", str(dest)) == 0
     assert sorted(p.name for p in dest.iterdir()) == [RECORD, "index.json", "index.parquet",
-                                                      f"{DATASET}_{SEQUENCE}_renamed.000"]
+                                                      f"{DATASET}_{SEQUENCE}_renamed.000", "tube_labels.json"]
 
 
 def test_kitti_export_of_an_unsafe_sequence_name(catalogue, tmp_path, capsys):
