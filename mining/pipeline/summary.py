@@ -5,8 +5,9 @@ whole command's time, the classifiers and the sequences the preflight left out; 
 prints ``lines()`` and exits 1 when a window, a stitch or a sequence's planning failed
 (``any_failed``). A sequence's stitch is counted apart from its windows: ``failed`` holds
 windows, ``stitch_failed`` sequences.
-Frames/s is the progress bar's definition: core frames of the windows tracked this run over
-the mining time (``run_job``'s, from its first step to its last result).
+Frames/s is core frames of the windows tracked this run over the mining time (``run_job``'s,
+from its first step to its last result); the progress bar counts frames observed over the
+same time, which is this rate once every window is tracked.
 """
 
 from __future__ import annotations
@@ -58,8 +59,7 @@ class Summary:
                f"{self.unclassified} unclassified) of {self.candidates} candidates, in {self.sequences_written} sequence(s)",
                *([self.classifiers] if self.classifiers else []),
                f"time: {self.seconds:.1f} s in all, {self.mining_seconds:.1f} s mining: "
-               f"{self.frames / max(self.mining_seconds, 1e-9):.2f} frames/s (core frames tracked / mining time, "
-               f"as the bar)"]
+               f"{self.frames / max(self.mining_seconds, 1e-9):.2f} frames/s (core frames tracked / mining time)"]
         if self.placement.get("proposal_actors"):
             actors = self.placement["proposal_actors"]
             gpus = ", ".join("+".join(a["gpu_ids"]) or "none" for a in actors)
