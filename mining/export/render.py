@@ -39,6 +39,7 @@ import numpy as np
 from mining.catalog import safe_files
 from mining.catalog.rows import decode_mask
 from mining.catalog.views import connect, sql_string
+from mining.checks import clamped_note
 from mining.draw import FONT, Drawn, caption, draw_tubes, tube_colours
 from mining.errors import InputError, MiningError, NothingMatched
 from mining.export.dest import check_file, publish_file
@@ -119,6 +120,7 @@ class RenderResult:
     fps: float
     seconds: float
     left_out: dict[str, str]  # tubes not drawn for a bad mask: tube id → why
+    clamped: str | None = None  # --frames past the sequence's end: what was asked and rendered (checks.clamped_note)
 
 
 def check_dest(dest: Path, overwrite: bool) -> None:
@@ -169,8 +171,10 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
         raise NothingMatched(f"no selected tube of sequence {sequence!r} matches"
                              + ("" if where is None else f" --where {where!r}") + "; nothing written")
     plan = source.survey(sequence)
+    clamped = None
     if frames is not None:
         start, stop = frames
+        clamped = clamped_note(sequence, frames, len(plan), "rendered")
         stop = len(plan) if stop is None else min(stop, len(plan))
     elif mined[2]:
         start, stop = int(mined[0]), min(int(mined[1]) + 1, len(plan))
@@ -247,7 +251,7 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
 
     codec = publish_file(dest, overwrite, write)
     return RenderResult(dest, stop - start, len(drawn), size[0], size[1], codec, fps, time.perf_counter() - t0,
-                        left_out)
+                        left_out, clamped)
 
 
 def run_render(out: str | Path, sequence: str, dest: str | Path, where: str | None = None, depth: bool = False,
@@ -263,6 +267,8 @@ def run_render(out: str | Path, sequence: str, dest: str | Path, where: str | No
     except OSError as e:  # the system's error from a writer (a full disk…): one line naming the file
         print(f"mine render: {safe_files.write_error(e, e.filename or dest)}", file=sys.stderr)
         return 2
+    if r.clamped:
+        print(f"mine render: {r.clamped}")
     print(f"mine render: {r.frames} frames, {r.tubes} tubes, {r.width}×{r.height} {r.codec} at {r.fps:g} fps → "
           f"{r.dest} ({r.seconds:.1f} s){codec_note(r.codec)}")
     if r.left_out:

@@ -30,6 +30,7 @@ class Summary:
     failed: dict[str, str] = field(default_factory=dict)  # window → error
     stitch_failed: dict[str, str] = field(default_factory=dict)  # "dataset/sequence" whose stitch failed → error
     unplanned: dict[str, str] = field(default_factory=dict)  # "dataset/sequence" left out by the preflight → why
+    clamped: list[str] = field(default_factory=list)  # what of a --frames range past a sequence's end was mined
     frames: int = 0
     tubes: int = 0
     candidates: int = 0
@@ -55,6 +56,7 @@ class Summary:
         stitch = f"; stitch: {len(self.stitch_failed)} failed" if self.stitch_failed else ""
         out = [f"windows: {self.ok} ok, {len(self.failed)} failed, {self.skipped} already done (of {self.windows})"
                f"{stitch}",
+               *self.clamped,
                f"tubes written this run: {self.tubes} selected ({self.known} known, {self.unknown} unknown, "
                f"{self.unclassified} unclassified) of {self.candidates} candidates, in {self.sequences_written} sequence(s)",
                *([self.classifiers] if self.classifiers else []),
