@@ -73,6 +73,7 @@ FREE_TEXT = {
     "--job": "a Ray Jobs submission id",
     "--where": "an SQL predicate (read-only, mining/catalog/views.py)",
     "sql": "an SQL statement (read-only, mining/catalog/views.py)",
+    "keys": "mine config's filter: matched against the config's key names, never a path or a number",
 }
 CASE_S = 10  # seconds one case may take before it counts as real work started
 
@@ -120,7 +121,7 @@ def test_every_option_is_checked_by_its_type():
 
 def test_the_walk_finds_every_command():
     names = [c for c, _ in COMMANDS]
-    assert {"submit", "status", "query", "export", "render", "view"} | {f"{c.group} {c.name}" for c in cli_module.COMMANDS} \
+    assert {"submit", "status", "query", "export", "render", "config", "view"} | {f"{c.group} {c.name}" for c in cli_module.COMMANDS} \
         == set(names)
     assert len(set(names)) == len(names)
 
