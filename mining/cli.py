@@ -180,7 +180,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     from mining.export.render import run_render
 
     return run_render(args.out, args.sequence, args.dest, args.where, args.depth, args.fps, args.frames,
-                      overwrite=args.overwrite)
+                      overwrite=args.overwrite, all_candidates=args.all_candidates)
 
 
 def cmd_config(args: argparse.Namespace) -> int:
@@ -316,6 +316,8 @@ def build_parser() -> argparse.ArgumentParser:
                      help="frame rate, > 0 and ≤ 1000 (default: the sequence's, from its timestamps)")
     rnd.add_argument("--frames", type=frame_range, default=None, metavar="A:B",
                      help="plan positions [A, B) (default: the frames the catalogue mined)")
+    rnd.add_argument("--all-candidates", action="store_true",
+                     help="also draw the candidates co-selection left out, dimmed (outline and label, no fill)")
     rnd.add_argument("--overwrite", action="store_true",
                      help="DEST exists: replace it (a plain file only; without this flag an existing DEST is refused)")
     rnd.set_defaults(func=cmd_render)
