@@ -390,3 +390,12 @@ local_input = PathType("local-input")
 output_file = PathType("output-file")
 output_folder = PathType("output-folder")
 path_text = PathType("text")
+
+
+def clamped_note(sequence: str, frames: tuple[int, int | None], n_frames: int, verb: str = "mined") -> str | None:
+    """``sequence 0005: frames 0:400 asked, 0:16 exist: mined 0:16`` when the range asked for
+    ends past the sequence's last frame (the range is cut to it); None when it fits."""
+    start, stop = frames
+    if stop is None or stop <= n_frames:
+        return None
+    return f"sequence {sequence}: frames {start}:{stop} asked, 0:{n_frames} exist: {verb} {start}:{n_frames}"

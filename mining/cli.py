@@ -1,5 +1,5 @@
 """The ``mine`` command line: it parses; the packages act. ``submit``, ``status``, ``query``,
-``export``, ``render`` and ``view`` are parsed here; every ``mine GROUP NAME`` command of
+``export``, ``render``, ``config`` and ``view`` are parsed here; every ``mine GROUP NAME`` command of
 COMMANDS lives in its module, which offers ``add_arguments(parser)`` and ``run(args)``."""
 
 from __future__ import annotations
@@ -193,7 +193,41 @@ def cmd_render(args: argparse.Namespace) -> int:
     from mining.export.render import run_render
 
     return run_render(args.out, args.sequence, args.dest, args.where, args.depth, args.fps, args.frames,
-                      overwrite=args.overwrite)
+                      overwrite=args.overwrite, all_candidates=args.all_candidates)
+
+
+def cmd_config(args: argparse.Namespace) -> int:
+    import difflib
+    import json
+
+    from mining.config import JobConfig
+    from mining.configdoc import all_keys, matching_keys, source_tag, toml_value, value_at
+
+    given = bool(args.config or args.set or args.dataset or args.root or args.option)
+    cfg = job_config(args) if given else JobConfig()
+    keys = all_keys()
+    shown = matching_keys(keys, args.keys)
+    if not shown:
+        words = sorted({k.path for k in keys} | {k.path.rsplit(".", 1)[0] + "." for k in keys if "." in k.path})
+        near = difflib.get_close_matches(args.keys, words, n=3)
+        hint = f"; did you mean {' or '.join(repr(w) for w in near)}?" if near else ""
+        raise ConfigError(f"no config key matches {args.keys!r}{hint} (`mine config` lists all {len(keys)})")
+    rows = [{"key": k.path, "value": value_at(cfg, k.path), "default": k.default, "source": source_tag(k.comment),
+             "type": k.type, "rules": k.rules, "comment": k.comment} for k in shown]
+    if args.format == "json":
+        print(json.dumps(rows, indent=1, ensure_ascii=False, default=str))
+        return 0
+    origin = " + ".join(([str(args.config)] if args.config else []) + (["the options given"] if given and (
+        args.set or args.option or args.dataset or args.root) else [])) or "the defaults"
+    print(f"{len(rows)} of {len(keys)} job config keys, values of {origin}; [where the default comes from]; "
+          "rules: docs/CONFIG.md")
+    for r in rows:
+        value = toml_value(r["value"])
+        differs = f"  (default {r['default']})" if value != r["default"] else ""
+        print(f"{r['key']} = {value}{differs}  [{r['source']}]")
+        if r["comment"]:
+            print(f"    {r['comment']}")
+    return 0
 
 
 def _version_text() -> str:
@@ -231,7 +265,7 @@ def build_parser() -> argparse.ArgumentParser:
     smt.add_argument("--host", metavar="IP", help="local Ray only: the interface every Ray port listens on (default: "
                                                   "the config's run.bind_host, 127.0.0.1). Ray's ports run code "
                                                   "unauthenticated: another interface only on a network you trust")
-    smt.add_argument("--no-progress", action="store_true", help="no progress bar (logs and CI)")
+    smt.add_argument("--no-progress", action="store_true", help="no progress display (without it a log or a pipe gets a line per tenth of the work)")
     smt.add_argument("--extend", action="store_true",
                      help="--out holds this job with a narrower --frames or fewer --sequences: widen it (what differs "
                           "from a clean run of the new range is recomputed); anything else that differs is refused")
@@ -314,9 +348,18 @@ def build_parser() -> argparse.ArgumentParser:
                      help="frame rate, > 0 and ≤ 1000 (default: the sequence's, from its timestamps)")
     rnd.add_argument("--frames", type=frame_range, default=None, metavar="A:B",
                      help="plan positions [A, B) (default: the frames the catalogue mined)")
+    rnd.add_argument("--all-candidates", action="store_true",
+                     help="also draw the candidates co-selection left out, dimmed (outline and label, no fill)")
     rnd.add_argument("--overwrite", action="store_true",
                      help="DEST exists: replace it (a plain file only; without this flag an existing DEST is refused)")
     rnd.set_defaults(func=cmd_render)
+
+    cfg = sub.add_parser("config", help="every job config key with its value, default, source and comment")
+    cfg.add_argument("keys", nargs="?", metavar="KEYS",
+                     help="only the keys starting with this (e.g. tubes. or select.epsilon), else those holding it")
+    add_job_options(cfg)
+    cfg.add_argument("--format", choices=["text", "json"], default="text")
+    cfg.set_defaults(func=cmd_config)
 
     viw = sub.add_parser("view", help="browse the catalogue in a web browser: a gallery of tubes, a page per tube")
     viw.add_argument("--out", type=path_text, default="out/catalog", help="catalogue folder")

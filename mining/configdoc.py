@@ -245,6 +245,45 @@ def _anchor(title: str) -> str:
     return re.sub(r"[^\w\- ]", "", title.lower()).replace(" ", "-")
 
 
+# The first word of a field's comment → the source tag `mine config` shows (HEADER's sources).
+SOURCE_WORDS = {"ours": "ours", "REFERENCE": "REFERENCE", "REFERENCE's": "REFERENCE", "original": "REFERENCE",
+                "paper": "paper", "REFERENCE/paper": "REFERENCE/paper", "DESIGN.md": "DESIGN.md"}
+# ours: the libraries whose defaults a comment names first (torchvision's Mask R-CNN, SAM, FastSAM…)
+LIBRARIES = ("torchvision", "SAM", "MobileSAM", "FastSAM", "Ultralytics")
+
+
+def source_tag(comment: str) -> str:
+    """Where a key's default comes from, by its comment's first word: ``REFERENCE``,
+    ``paper``, ``ours``, ``library`` (a library's own default), or ``—`` where the comment
+    only says what the key is (``source.root``) or gives each value's source."""
+    word = re.split(r"[\s:;,(]", comment.strip(), maxsplit=1)[0] if comment.strip() else ""
+    if word in SOURCE_WORDS:
+        return SOURCE_WORDS[word]
+    if word in LIBRARIES:
+        return "library"
+    return "—"
+
+
+def all_keys(cls: type = JobConfig) -> list[Key]:
+    """Every settable key of the config, in CONFIG.md's order."""
+    return [k for s in sections(cls) for k in s.keys]
+
+
+def value_at(cfg: Any, path: str) -> Any:
+    """The value of dotted ``path`` in config ``cfg``."""
+    for part in path.split("."):
+        cfg = getattr(cfg, part)
+    return cfg
+
+
+def matching_keys(keys: list[Key], pattern: str | None) -> list[Key]:
+    """The keys ``pattern`` names: those it starts (``tubes.``, ``select.epsilon``), else those
+    holding it (``epsilon``); every key without a pattern."""
+    if not pattern:
+        return keys
+    return [k for k in keys if k.path.startswith(pattern)] or [k for k in keys if pattern in k.path]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m mining.configdoc", description=__doc__.splitlines()[0])
     ap.add_argument("--check", action="store_true", help="exit 1 when the file differs from what would be written")

@@ -77,6 +77,7 @@ FREE_TEXT = {
     "--untag": "a free label, checked by mining/catalog/labels.check_text",
     "--author": "a name, checked by mining/catalog/labels.check_text",
     "sql": "an SQL statement (read-only, mining/catalog/views.py)",
+    "keys": "mine config's filter: matched against the config's key names, never a path or a number",
 }
 CASE_S = 10  # seconds one case may take before it counts as real work started
 
@@ -124,7 +125,7 @@ def test_every_option_is_checked_by_its_type():
 
 def test_the_walk_finds_every_command():
     names = [c for c, _ in COMMANDS]
-    assert {"submit", "status", "query", "export", "render", "view", "label"} | {f"{c.group} {c.name}" for c in cli_module.COMMANDS} \
+    assert {"submit", "status", "query", "export", "render", "config", "view", "label"} | {f"{c.group} {c.name}" for c in cli_module.COMMANDS} \
         == set(names)
     assert len(set(names)) == len(names)
 

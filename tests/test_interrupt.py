@@ -55,6 +55,7 @@ def test_ctrl_c_prints_one_line_and_exits_130_and_status_tells_running_from_pend
     said = [ln for ln in stderr.splitlines() if ln.strip() and "INFO worker.py" not in ln]  # Ray's "Started a local Ray"
     assert said == ["interrupted — rerun the same command to resume"], stderr
     assert "Traceback" not in stdout + stderr
+    assert "will be retried" not in stdout + stderr and "(raylet)" not in stdout + stderr, stdout + stderr
 
     rc, shown = status(out)
     after = counts(shown)

@@ -144,7 +144,7 @@ def test_progress_bar_shows_phases_eta_and_the_summarys_frames_per_second(tmp_pa
     assert "windows 2/2 (0 failed)" in bar and "frames/s" in bar and "ETA" in bar
     assert "track 1" in bar or "observe 1" in bar  # the phase of the step in flight
     line = next(x for x in summary.lines() if x.startswith("time:"))
-    assert "frames/s (core frames tracked / mining time, as the bar)" in line
+    assert "frames/s (core frames tracked / mining time)" in line
     assert summary.frames == 12 and 0 < summary.mining_seconds <= summary.seconds
     rate = float(line.split("mining: ")[1].split(" frames/s")[0])
     assert rate == pytest.approx(summary.frames / summary.mining_seconds, rel=0.01)

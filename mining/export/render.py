@@ -21,6 +21,10 @@ it and moved on; a failed render leaves DEST as it was. A bad tube fails only it
 whose ``tube_frames`` rows hold a malformed mask, or one of another size than the
 sequence's frames (its calibration), is not drawn, and is named with the table in one line
 (exit 1); when no selected tube is left, nothing is written (exit 2).
+
+``--all-candidates`` draws the candidates co-selection left out too (``selected = false``),
+dimmed: outline and label only, in a colour halfway to grey, under the selected tubes; so
+that a new dataset's misses can be told from tubes that were never proposed.
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ import numpy as np
 from mining.catalog import safe_files
 from mining.catalog.rows import decode_mask
 from mining.catalog.views import connect, sql_string
+from mining.checks import clamped_note
 from mining.draw import FONT, Drawn, caption, draw_tubes, tube_colours
 from mining.errors import InputError, MiningError, NothingMatched
 from mining.export.dest import check_file, publish_file
@@ -51,6 +56,8 @@ from mining.progress import Ticker
 
 DEFAULT_FPS = 10.0  # ours: frame rate when the plan's timestamps give none (KITTI records at 10 Hz)
 MAX_FPS = 1000.0  # ours: `mine render --fps` at most (video containers store a rational rate)
+DIM = 0.5  # ours: a candidate's colour is this far from its own hue towards DIM_GREY (dimmed, still told apart)
+DIM_GREY = 128  # ours: mid grey, the dimmed colours' end
 DEPTH_NEAR_M = 2.0  # ours: the depth colour map's near end (red); KITTI's 128 px search reaches ≈ 3 m
 DEPTH_TICKS_M = (2, 5, 10, 20, 50, 90)  # ours: legend ticks (the far end is the job's geometry.stereo.max_depth_m)
 
@@ -115,6 +122,11 @@ def _depth_legend(img: np.ndarray, far_m: float) -> None:
         cv2.putText(img, str(tick), (x - tw // 2, y0 + bar_h + 15), FONT, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
 
 
+def dimmed(colour: tuple[int, int, int]) -> tuple[int, int, int]:
+    """``colour`` halfway to mid grey: a candidate co-selection left out."""
+    return tuple(int(c + (DIM_GREY - c) * DIM) for c in colour)  # type: ignore[return-value]
+
+
 def _fps(t_ns: tuple[int, ...]) -> float:
     dt = np.diff(np.asarray(t_ns, np.int64))
     dt = dt[dt > 0]
@@ -125,13 +137,15 @@ def _fps(t_ns: tuple[int, ...]) -> float:
 class RenderResult:
     dest: Path
     frames: int
-    tubes: int  # tubes drawn in at least one rendered frame
+    tubes: int  # selected tubes drawn in at least one rendered frame
     width: int
     height: int
     codec: str  # h264, avc1, mp4v or VP80
     fps: float
     seconds: float
     left_out: dict[str, str]  # tubes not drawn for a bad mask: tube id → why
+    candidates: int = 0  # unselected candidates drawn (--all-candidates)
+    clamped: str | None = None  # --frames past the sequence's end: what was asked and rendered (checks.clamped_note)
 
 
 def check_dest(dest: Path, overwrite: bool) -> None:
@@ -143,7 +157,7 @@ def check_dest(dest: Path, overwrite: bool) -> None:
 
 def render(out: str | Path, sequence: str, dest: str | Path, where: str | None = None, depth: bool = False,
            fps: float | None = None, frames: tuple[int, int | None] | None = None,
-           progress: bool = True, overwrite: bool = False) -> RenderResult:
+           progress: bool = True, overwrite: bool = False, all_candidates: bool = False) -> RenderResult:
     """Render ``sequence`` of catalogue ``out`` with its selected tubes (those matching
     ``where`` too, when given) to ``dest``; ``frames`` are plan positions [a, b) (default:
     the positions the catalogue mined). An existing ``dest`` is replaced only with
@@ -161,7 +175,8 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
     try:
         # The selection goes through the export's predicate helper; sequence and selection
         # are checked again below whatever the predicate did.
-        pred = f"selected AND dataset = {sql_string(dataset)} AND sequence = {sql_string(sequence)}"
+        pred = f"dataset = {sql_string(dataset)} AND sequence = {sql_string(sequence)}"
+        pred = pred if all_candidates else f"selected AND {pred}"
         tubes, tube_frames = selected_rows(con, pred if where is None else f"{pred} AND ({where})")
         mined = con.execute("SELECT min(position), max(position), count(*) FROM frames "
                             "WHERE dataset = ? AND sequence = ?", [dataset, sequence]).fetchone()
@@ -176,14 +191,17 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
         raise InputError(f"cannot read the catalogue: {e}", out) from None
     finally:
         con.close()
-    tube_rows = [t for t in tubes.to_pylist() if t["selected"] and t["sequence"] == sequence and t["dataset"] == dataset]
+    tube_rows = [t for t in tubes.to_pylist() if (t["selected"] or all_candidates) and t["sequence"] == sequence
+                 and t["dataset"] == dataset]
     keep = {t["tube_id"] for t in tube_rows}
     if not tube_rows:
-        raise NothingMatched(f"no selected tube of sequence {sequence!r} matches"
+        raise NothingMatched(f"no {'candidate' if all_candidates else 'selected'} tube of sequence {sequence!r} matches"
                              + ("" if where is None else f" --where {where!r}") + "; nothing written")
     plan = source.survey(sequence)
+    clamped = None
     if frames is not None:
         start, stop = frames
+        clamped = clamped_note(sequence, frames, len(plan), "rendered")
         stop = len(plan) if stop is None else min(stop, len(plan))
     elif mined[2]:
         start, stop = int(mined[0]), min(int(mined[1]) + 1, len(plan))
@@ -201,8 +219,10 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
     tube_rows = [t for t in tube_rows if t["tube_id"] not in left_out]
     keep = {t["tube_id"] for t in tube_rows}  # not empty: without_bad_masks refuses when no tube is left
 
-    colours = tube_colours(list(keep))
-    info = {t["tube_id"]: (tube_caption(t), colours[t["tube_id"]]) for t in tube_rows}
+    selected = {t["tube_id"] for t in tube_rows if t["selected"]}
+    colours = tube_colours(sorted(selected)) | {k: dimmed(c) for k, c in tube_colours(sorted(keep - selected)).items()}
+    info = {t["tube_id"]: (tube_caption(t) if t["selected"] else f"{short_id(t['tube_id'])} candidate",
+                           colours[t["tube_id"]]) for t in tube_rows}
     by_frame: dict[int, list[dict]] = {}
     for f in tube_frames.to_pylist():
         if f["tube_id"] in keep:
@@ -218,6 +238,11 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
     width = 2 * w if depth else w
     size = (width + width % 2, h + h % 2)
     drawn: set[str] = set()  # the tubes present in the rendered frames
+
+    def paint(img: np.ndarray, items: list[Drawn], fill: bool = True) -> np.ndarray:
+        """The candidates (outlines only) first, the selected tubes over them."""
+        img = draw_tubes(img, [it for it in items if it.tube_id not in selected], fill=False)
+        return draw_tubes(img, [it for it in items if it.tube_id in selected], fill=fill)
 
     def write(tmp: Path) -> str:
         """The video into ``tmp``, read back; its codec."""
@@ -235,10 +260,12 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
                     mask = decode_mask(f, (h, w), root)
                     items.append(Drawn(f["tube_id"], label, colour, mask, tuple(f["bbox"]), f["observed"]))
                     drawn.add(f["tube_id"])
-                left = draw_tubes(cv2.cvtColor(frame.left, cv2.COLOR_RGB2BGR), items)
-                caption(left, f"{dataset}/{sequence} frame {frame.index}  {len(items)} tubes")
+                left = paint(cv2.cvtColor(frame.left, cv2.COLOR_RGB2BGR), items)
+                n_sel = sum(it.tube_id in selected for it in items)
+                more = f", {len(items) - n_sel} candidates" if all_candidates else ""
+                caption(left, f"{dataset}/{sequence} frame {frame.index}  {n_sel} tubes{more}")
                 if matcher is not None:
-                    panel = draw_tubes(depth_colours(stereo_depth(matcher, frame, far), far), items, fill=False)
+                    panel = paint(depth_colours(stereo_depth(matcher, frame, far), far), items, fill=False)
                     _depth_legend(panel, far)
                     left = np.hstack([left, panel])
                 writer.write(cv2.copyMakeBorder(left, 0, size[1] - left.shape[0], 0, size[0] - left.shape[1],
@@ -259,24 +286,28 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
         return writer.codec
 
     codec = publish_file(dest, overwrite, write)
-    return RenderResult(dest, stop - start, len(drawn), size[0], size[1], codec, fps, time.perf_counter() - t0,
-                        left_out)
+    return RenderResult(dest, stop - start, len(drawn & selected), size[0], size[1], codec, fps,
+                        time.perf_counter() - t0, left_out, len(drawn - selected), clamped)
 
 
 def run_render(out: str | Path, sequence: str, dest: str | Path, where: str | None = None, depth: bool = False,
-               fps: float | None = None, frames: tuple[int, int | None] | None = None, overwrite: bool = False) -> int:
+               fps: float | None = None, frames: tuple[int, int | None] | None = None, overwrite: bool = False,
+               all_candidates: bool = False) -> int:
     """`mine render`: 0 on success; 1 when tubes with a bad mask were left out (one line on
     standard error names them); NothingMatched (``cli.main``: exit 1) when no tube matches; 2
     with a message otherwise."""
     try:
-        r = render(out, sequence, dest, where, depth, fps, frames, overwrite=overwrite)
+        r = render(out, sequence, dest, where, depth, fps, frames, overwrite=overwrite, all_candidates=all_candidates)
     except (MiningError, duckdb.Error) as e:
         print(f"mine render: {e}", file=sys.stderr)
         return 2
     except OSError as e:  # the system's error from a writer (a full disk…): one line naming the file
         print(f"mine render: {safe_files.write_error(e, e.filename or dest)}", file=sys.stderr)
         return 2
-    print(f"mine render: {r.frames} frames, {r.tubes} tubes, {r.width}×{r.height} {r.codec} at {r.fps:g} fps → "
+    if r.clamped:
+        print(f"mine render: {r.clamped}")
+    cands = f" and {r.candidates} unselected candidates" if all_candidates else ""
+    print(f"mine render: {r.frames} frames, {r.tubes} tubes{cands}, {r.width}×{r.height} {r.codec} at {r.fps:g} fps → "
           f"{r.dest} ({r.seconds:.1f} s){codec_note(r.codec)}")
     if r.left_out:
         print(f"mine render: {left_out_line(r.left_out, str(r.dest))}", file=sys.stderr)

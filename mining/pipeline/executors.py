@@ -14,6 +14,8 @@ system failure and comes back as a failed ``StepResult``.
 
 from __future__ import annotations
 
+import contextlib
+
 import os
 from collections import deque
 from typing import Any, Protocol
@@ -171,6 +173,12 @@ class RayExecutor:
             return {}
 
     def shutdown(self) -> None:
+        # The calls still in flight (Ctrl-C, an error) are cancelled before their actors go:
+        # a call killed with its retries left makes Ray print "… will be retried" lines on the
+        # user's terminal after the one "interrupted" line.
+        for ref in list(self.busy):
+            with contextlib.suppress(Exception):
+                self.ray.cancel(ref)
         for a in self.actors + self.proposal_actors:
             self.ray.kill(a)
 

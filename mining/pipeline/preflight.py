@@ -31,6 +31,7 @@ from pathlib import Path
 from mining.catalog.integrity import check_versions
 from mining.catalog.layout import JobRecord
 from mining.catalog.store import Store
+from mining.checks import clamped_note
 from mining.config import JobConfig, validate
 from mining.errors import ConfigError, InputError, MiningError
 from mining.names import check_name
@@ -46,6 +47,8 @@ class Preflight:
     plans: dict[str, SequencePlan]
     windows: list[Window]
     failed: dict[str, str] = field(default_factory=dict)  # sequence → why it cannot be mined
+    clamped: dict[str, str] = field(default_factory=dict)  # sequence → what of --frames it has (clamped_note)
+
 
 
 def check_frames(frames: tuple[int, int | None]) -> None:
@@ -152,6 +155,8 @@ def plan_sequences(cfg: JobConfig, sequences: list[str] | None = None,
             pf.failed[seq] = "; ".join([f"{type(e).__name__}: {e}"] + ([absent[seq]] if seq in absent else []))
             continue
         pf.plans[seq] = plan
+        if (note := clamped_note(seq, frames, len(plan))) is not None:
+            pf.clamped[seq] = note
         pf.windows += plan_windows(plan, w.core, w.context_before, w.context_after, frames[0], frames[1])
     if not pf.plans:
         raise InputError("no sequence can be mined: " + "; ".join(f"{dataset}/{s}: {e}" for s, e in pf.failed.items()))

@@ -293,6 +293,7 @@ def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frame
     summary.classifiers = classifiers_line(cfg.proposals.proposer)
     summary.swept = swept
     summary.unplanned = {f"{cfg.source.dataset}/{seq}": error for seq, error in unplanned.items()}
+    summary.clamped = [pf.clamped[seq] for seq in sorted(pf.clamped)]
     return summary
 
 

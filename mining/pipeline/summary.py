@@ -5,8 +5,9 @@ whole command's time, the classifiers and the sequences the preflight left out; 
 prints ``lines()`` and exits 1 when a window, a stitch or a sequence's planning failed
 (``any_failed``). A sequence's stitch is counted apart from its windows: ``failed`` holds
 windows, ``stitch_failed`` sequences.
-Frames/s is the progress bar's definition: core frames of the windows tracked this run over
-the mining time (``run_job``'s, from its first step to its last result).
+Frames/s is core frames of the windows tracked this run over the mining time (``run_job``'s,
+from its first step to its last result); the progress bar counts frames observed over the
+same time, which is this rate once every window is tracked.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ class Summary:
     failed: dict[str, str] = field(default_factory=dict)  # window → error
     stitch_failed: dict[str, str] = field(default_factory=dict)  # "dataset/sequence" whose stitch failed → error
     unplanned: dict[str, str] = field(default_factory=dict)  # "dataset/sequence" left out by the preflight → why
+    clamped: list[str] = field(default_factory=list)  # what of a --frames range past a sequence's end was mined
     frames: int = 0
     tubes: int = 0
     candidates: int = 0
@@ -54,12 +56,12 @@ class Summary:
         stitch = f"; stitch: {len(self.stitch_failed)} failed" if self.stitch_failed else ""
         out = [f"windows: {self.ok} ok, {len(self.failed)} failed, {self.skipped} already done (of {self.windows})"
                f"{stitch}",
+               *self.clamped,
                f"tubes written this run: {self.tubes} selected ({self.known} known, {self.unknown} unknown, "
                f"{self.unclassified} unclassified) of {self.candidates} candidates, in {self.sequences_written} sequence(s)",
                *([self.classifiers] if self.classifiers else []),
                f"time: {self.seconds:.1f} s in all, {self.mining_seconds:.1f} s mining: "
-               f"{self.frames / max(self.mining_seconds, 1e-9):.2f} frames/s (core frames tracked / mining time, "
-               f"as the bar)"]
+               f"{self.frames / max(self.mining_seconds, 1e-9):.2f} frames/s (core frames tracked / mining time)"]
         if self.placement.get("proposal_actors"):
             actors = self.placement["proposal_actors"]
             gpus = ", ".join("+".join(a["gpu_ids"]) or "none" for a in actors)
