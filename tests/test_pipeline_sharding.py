@@ -30,7 +30,7 @@ from mining.types import Window
 
 pytestmark = pytest.mark.slow  # 300 frames at full resolution on a local Ray
 
-N_FRAMES = 300  # three 100-frame windows
+N_FRAMES = 200  # two 100-frame windows: one border to cross
 
 
 def test_observations_do_not_depend_on_the_window():
@@ -85,7 +85,7 @@ def test_100_frame_windows_give_the_tubes_of_one_window_over_all(local_ray, tmp_
     agreement = tube_agreement(selected_tube_masks(whole), selected_tube_masks(sharded))
     print(f"selected tubes: unsharded {agreement.n_reference}, sharded {agreement.n_other}, "
           f"agreeing at mean mask IoU >= {AGREE_IOU}: {agreement.fraction:.3f}")
-    assert agreement.n_reference > 50
+    assert agreement.n_reference >= 20  # enough tubes that the 0.95 agreement below means something (one tube in 20)
     assert agreement.fraction >= 0.95
 
     con = connect(sharded)

@@ -116,7 +116,7 @@ def ray_with_logical_gpus():
     ray.shutdown()
 
 
-@pytest.mark.slow  # two jobs of 24 frames on a local Ray
+@pytest.mark.slow  # two jobs of 16 frames on a local Ray
 @pytest.mark.own_process
 def test_logical_gpus_hold_the_proposal_stage_and_the_tubes_do_not_change(ray_with_logical_gpus, torch_checkpoint,
                                                                           tmp_path):
@@ -124,10 +124,10 @@ def test_logical_gpus_hold_the_proposal_stage_and_the_tubes_do_not_change(ray_wi
     from mining.pipeline.executors import RayExecutor
     from mining.pipeline.submit import mine_job
 
-    frames = (0, 24)
-    staged = mine_job(_cfg(torch_checkpoint, "window.core=12", "run.proposal_batch=4"), str(tmp_path / "staged"),
+    frames = (0, 16)
+    staged = mine_job(_cfg(torch_checkpoint, "window.core=8", "run.proposal_batch=4"), str(tmp_path / "staged"),
                       ["0000"], frames, executor=RayExecutor)
-    plain = mine_job(_cfg(torch_checkpoint, "window.core=12", "run.proposal_actors=0"), str(tmp_path / "plain"),
+    plain = mine_job(_cfg(torch_checkpoint, "window.core=8", "run.proposal_actors=0"), str(tmp_path / "plain"),
                      ["0000"], frames, executor=RayExecutor)
     assert staged.ok == plain.ok == 2 and not staged.failed and not plain.failed
 
@@ -137,7 +137,7 @@ def test_logical_gpus_hold_the_proposal_stage_and_the_tubes_do_not_change(ray_wi
     assert len(workers) == 2 and all(w["gpu_ids"] == [] for w in workers)  # nothing else on a GPU
     assert not {a["pid"] for a in actors} & {w["pid"] for w in workers}
     # Every frame observed, warm-up frames included (2 before the second window), was proposed there.
-    assert sum(a["frames"] for a in actors) == 24 + 2
+    assert sum(a["frames"] for a in actors) == frames[1] + 2
     assert plain.placement["proposal_actors"] == []
     assert "proposal stage: 2 actor(s) on GPUs" in "\n".join(staged.lines())
 
