@@ -31,6 +31,7 @@ def test_the_projection_takes_the_slower_side():
     assert c["cpu_s_per_frame"] == pytest.approx(0.35) and c["hours"] == c["cpu_hours"]
 
 
+@pytest.mark.slow  # over ~1.5 s: the fast tier's 3-minute budget
 def test_the_command_prints_every_stage_and_writes_its_chart_and_json(tmp_path):
     chart, out = tmp_path / "scale.png", tmp_path / "scale.json"
     p = subprocess.run([sys.executable, "-m", "mining.cli", "bench", "scale", "--option", "width=414",

@@ -124,6 +124,7 @@ def test_mp4_is_h264(mp4):
     assert _codec(mp4) in {"h264", "avc1"}
 
 
+@pytest.mark.slow  # over ~1.5 s: the fast tier's 3-minute budget
 def test_without_pyav_mp4_is_mpeg4_part2_and_says_so(catalogue, tmp_path):
     """A machine without PyAV still gets an MP4, MPEG-4 Part 2, and is told that browsers will not play it."""
     out, _ = catalogue

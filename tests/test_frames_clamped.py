@@ -4,6 +4,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from _jobs import N_FRAMES, SEQ, tiny_cfg
 
 from mining.checks import clamped_note
@@ -18,6 +20,7 @@ def test_the_note_says_what_was_asked_what_exists_and_what_was_done():
     assert clamped_note("0005", (0, 16), 16) is None and clamped_note("0005", (0, None), 16) is None
 
 
+@pytest.mark.slow  # over ~1.5 s: the fast tier's 3-minute budget
 def test_submit_says_a_range_past_the_end_was_cut(tmp_path):
     summary = mine_job(tiny_cfg(), str(tmp_path / "cat"), ["0000"], (0, 400), executor=LocalExecutor)
     lines = summary.lines()
@@ -27,6 +30,7 @@ def test_submit_says_a_range_past_the_end_was_cut(tmp_path):
     assert not any("asked" in ln for ln in fits.lines()), fits.lines()
 
 
+@pytest.mark.slow  # over ~1.5 s: the fast tier's 3-minute budget
 def test_render_says_a_range_past_the_end_was_cut(base_catalogue, tmp_path, capsys):
     out, _ = base_catalogue
     capsys.readouterr()
@@ -36,6 +40,7 @@ def test_render_says_a_range_past_the_end_was_cut(base_catalogue, tmp_path, caps
     assert said[1].startswith(f"mine render: {N_FRAMES - 10} frames, "), said
 
 
+@pytest.mark.slow  # over ~1.5 s: the fast tier's 3-minute budget
 def test_render_all_candidates_draws_the_unselected_ones_dimmed(base_catalogue, tmp_path, capsys):
     """``--all-candidates``: the candidates co-selection left out are drawn too (outline and
     label in a dimmed colour), under the selected tubes, and counted apart."""

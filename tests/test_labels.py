@@ -122,6 +122,7 @@ def test_compaction_waits_for_the_writer_lock(base_catalogue, tmp_path):
     assert labels.compact(store) == (3, 5)
 
 
+@pytest.mark.slow  # over ~1.5 s: the fast tier's 3-minute budget
 def test_a_resubmission_keeps_every_label_and_a_new_run_moves_them_aside(base_catalogue, tmp_path):
     out = copy_of(base_catalogue, tmp_path / "c")
     tubes = _ids(out, "selected")

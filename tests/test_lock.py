@@ -87,6 +87,7 @@ def test_a_stale_lock_of_a_killed_process_is_taken_over(base_catalogue, tmp_path
     assert f"taking over a stale lock of pid {holder.pid} on host {socket.gethostname()}" in err, err
 
 
+@pytest.mark.slow  # over ~1.5 s: the fast tier's 3-minute budget
 def test_a_held_lock_refuses_and_lock_wait_waits_for_its_release(base_catalogue, tmp_path):
     out = copy_of(base_catalogue, tmp_path / "out")
     lock = OutputLock(Store(out)).acquire()

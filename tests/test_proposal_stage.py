@@ -42,6 +42,7 @@ def _same(a, b) -> None:
     assert a.rles == b.rles
 
 
+@pytest.mark.slow  # over ~1.5 s: the fast tier's 3-minute budget
 def test_model_parts_in_batches_give_each_frame_its_own_proposals(torch_checkpoint):
     # Three frames in batches of two (the torch proposer's own batch of two inside): the model
     # parts run elsewhere and joined by finish equal the whole proposer on each frame alone.
@@ -81,6 +82,7 @@ class _Counting(LocalModels):
         return super().result(handle)
 
 
+@pytest.mark.slow  # over ~1.5 s: the fast tier's 3-minute budget
 def test_ahead_sends_at_most_queue_batches_ahead_and_keeps_the_order(torch_checkpoint):
     cfg = _cfg(torch_checkpoint)
     src = SyntheticSource(n_frames=7)

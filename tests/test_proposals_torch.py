@@ -256,6 +256,7 @@ def test_bad_settings_are_config_errors(torch_checkpoint):
         TorchProposer(_cfg(torch_checkpoint, unknown_mass="bg"))
 
 
+@pytest.mark.slow  # over ~1.5 s: the fast tier's 3-minute budget
 def test_without_torch_mining_imports_and_the_proposer_names_the_extra():
     # A fresh interpreter in which torch and torchvision cannot be found, as where the extra is not installed.
     code = """

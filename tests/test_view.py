@@ -212,6 +212,7 @@ def test_pictures_outline_the_mask_on_the_real_frame(server, catalogue, kitti_tr
     assert _decode(body).shape[1] == 200
 
 
+@pytest.mark.slow  # over ~1.5 s: the fast tier's 3-minute budget
 def test_pictures_are_cached_on_disk_by_content_and_only_jpegs_are_served(catalogue, tmp_path):
     out, tables = catalogue
     tid = tables["tubes"].column("tube_id")[0].as_py()

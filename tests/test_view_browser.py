@@ -146,6 +146,7 @@ PLAY_VIDEO = """(src => new Promise(done => {
 }))"""
 
 
+@pytest.mark.slow  # over ~1.5 s: the fast tier's 3-minute budget
 def test_rendered_mp4_plays_in_chromium(catalogue, chromium, tmp_path):
     """`mine render`'s MP4 (H.264) plays in Chromium and shows the picture OpenCV reads back; an
     MPEG-4 Part 2 MP4 (what OpenCV alone writes) does not play: the check can fail."""

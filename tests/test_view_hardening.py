@@ -249,6 +249,7 @@ def _threads() -> int:
     return threading.active_count()
 
 
+@pytest.mark.slow  # over ~1.5 s: the fast tier's 3-minute budget
 def test_idle_connections_hold_no_threads_and_do_not_starve_a_request(catalogue, tmp_path):
     out, _ = catalogue
     with serving(out, tmp_path / "cache") as (base, _srv):
@@ -270,6 +271,7 @@ def test_idle_connections_hold_no_threads_and_do_not_starve_a_request(catalogue,
         assert get(base, "/api/facets", timeout=5)[0] == 200
 
 
+@pytest.mark.slow  # over ~1.5 s: the fast tier's 3-minute budget
 def test_idle_connections_are_closed_after_the_idle_timeout(catalogue, tmp_path):
     from mining.view.server import Limits
 
