@@ -102,10 +102,8 @@ def events(tubes: list[tuple[str, str, str]], kind: str, value: str | None, op: 
         raise InputError(f"a label is kind {'/'.join(KINDS)}, op {'/'.join(OPS)}, via {'/'.join(VIA)}; "
                          f"got {kind!r}, {op!r}, {via!r}")
     if kind == "verdict":
-        if op == "set":
-            value = check_verdict(value)
-        elif value is not None:
-            value = check_verdict(value)  # unsetting names the verdict it clears, or none
+        if op == "set" or value is not None:  # unsetting may name the verdict it clears
+            check_verdict(value)
         value = value if op == "set" else None
     else:
         value = check_text(value, "tag", MAX_TAG_CHARS)

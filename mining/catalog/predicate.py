@@ -37,6 +37,12 @@ _EMPTY = {"modifiers": ([], "ORDER BY, LIMIT or DISTINCT"), "group_expressions":
           "qualify": (None, "QUALIFY")}
 
 
+# What a predicate can cause when it runs: unknown names, wrong types, a value that does not convert.
+# The rest (a damaged table, a full disk) is the catalogue's, not the predicate's.
+PREDICATE_ERRORS = (duckdb.ParserException, duckdb.BinderException, duckdb.CatalogException,
+                    duckdb.ConversionException, duckdb.TypeMismatchException, duckdb.OutOfRangeException)
+
+
 class PredicateError(InputError):
     """A ``--where`` that is not one plain SQL expression over the tubes table."""
 

@@ -15,16 +15,11 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import duckdb
-
 from mining.catalog import labels
-from mining.catalog.predicate import tubes_query
+from mining.catalog.predicate import PREDICATE_ERRORS, tubes_query
 from mining.catalog.store import Store
 from mining.catalog.views import connect, execute_read_only
 from mining.errors import MiningError, NothingMatched
-
-PREDICATE_ERRORS = (duckdb.ParserException, duckdb.BinderException, duckdb.CatalogException,
-                    duckdb.ConversionException, duckdb.TypeMismatchException, duckdb.OutOfRangeException)
 
 
 def matching_tubes(out: str | Path, where: str) -> list[tuple[str, str, str]]:

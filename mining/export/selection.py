@@ -27,7 +27,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from mining.catalog.layout import JOB, JobRecord
-from mining.catalog.predicate import tubes_query
+from mining.catalog.predicate import PREDICATE_ERRORS, tubes_query
 from mining.catalog.rows import MASK_TABLE, BadMask, mask_rle
 from mining.catalog.store import Store
 from mining.catalog.views import execute_read_only
@@ -37,10 +37,6 @@ from mining.names import check_name
 from mining.sources.base import Source
 
 MIN_FRAME_DIGITS = 6  # ours: frame numbers in file names are zero-padded to at least this width
-# What a predicate can cause: unknown names, wrong types, a value that does not convert. The rest
-# (a damaged table, a full disk) is the catalogue's, not the predicate's.
-PREDICATE_ERRORS = (duckdb.ParserException, duckdb.BinderException, duckdb.CatalogException,
-                    duckdb.ConversionException, duckdb.TypeMismatchException, duckdb.OutOfRangeException)
 
 
 def read_job(out: str | Path) -> JobConfig | None:

@@ -13,6 +13,7 @@ answered 413), and only the columns it shows: masks are read one frame at a time
 from __future__ import annotations
 
 import math
+import os
 import re
 import shlex
 import threading
@@ -21,7 +22,7 @@ from pathlib import Path
 import duckdb
 
 from mining.catalog import labels
-from mining.catalog.layout import JOB, JobRecord
+from mining.catalog.layout import JOB, LABELS, JobRecord
 from mining.catalog.store import Store
 from mining.catalog.views import connect, refresh_labels, sql_string
 from mining.config import JobConfig
@@ -77,7 +78,7 @@ class CatalogueBrowser:
         self.store = Store(out)
         self.author = labels.check_text(labels.default_author() if author is None else author, "--author",
                                         labels.MAX_AUTHOR_CHARS)
-        self._label_files = labels.label_files(self.store)
+        self._labels_seen = self._labels_stamp()
         self._lock = threading.Lock()
         self.job: JobConfig | None = None  # the typed config of OUT/job.json (None: the catalogue has none)
         self.job_error: str | None = None
@@ -91,12 +92,23 @@ class CatalogueBrowser:
     def close(self) -> None:
         self.con.close()
 
+    def _labels_stamp(self) -> object:
+        """What changes when a label file is added or removed: the folder's mtime locally (one
+        stat), the listing elsewhere."""
+        if self.store.local:
+            try:
+                return os.stat(self.store.full(LABELS)).st_mtime_ns
+            except FileNotFoundError:
+                return None
+        return labels.label_files(self.store)
+
     def _fresh_labels(self) -> None:
-        """Re-read the labels when their files changed (another viewer, `mine label`, a compaction):
-        one folder listing per query. Under ``_lock``."""
-        files = labels.label_files(self.store)
-        if files != self._label_files:
-            self._label_files = refresh_labels(self.con, self.store)
+        """Re-read the labels when their files changed (another viewer, `mine label`, a compaction).
+        Under ``_lock``."""
+        stamp = self._labels_stamp()
+        if stamp != self._labels_seen:
+            refresh_labels(self.con, self.store)
+            self._labels_seen = stamp
 
     def _query(self, sql: str, params: list | None = None) -> list[dict]:
         with self._lock:
