@@ -234,3 +234,21 @@ def test_two_viewers_on_one_catalogue_see_and_keep_each_others_labels(catalogue,
     got = _tube_labels(out)
     for k, tube in enumerate(ids):
         assert {f"a{k}", f"b{k}"} <= set(got[tube][1])
+
+
+def test_a_damaged_label_file_fails_the_label_views_naming_it_and_nothing_else(base_catalogue, tmp_path):
+    import duckdb
+
+    out = copy_of(base_catalogue, tmp_path / "c")
+    labels.append(Store(out), labels.events(_ids(out, n=1), "tag", "kept"))
+    bad = Path(out) / "labels" / "part-20260101T000000000000Z-000000000000.parquet"
+    bad.write_bytes(b"PAR1 not really")
+    con = connect(out)
+    try:
+        assert con.execute("SELECT count(*) FROM tubes").fetchone()[0] > 0  # the mined tables answer
+        with pytest.raises(duckdb.Error, match=bad.name):
+            con.execute("SELECT * FROM tube_labels").fetchall()
+    finally:
+        con.close()
+    assert cli.main(["label", "--out", str(out), "--where", "selected", "--tag", "x"]) == 2  # refused, not written over
+    assert bad.read_bytes() == b"PAR1 not really"

@@ -15,6 +15,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import duckdb
+
 from mining.catalog import labels
 from mining.catalog.predicate import PREDICATE_ERRORS, tubes_query
 from mining.catalog.store import Store
@@ -31,6 +33,8 @@ def matching_tubes(out: str | Path, where: str) -> list[tuple[str, str, str]]:
         return [tuple(r) for r in rel.fetchall()]
     except PREDICATE_ERRORS as e:
         raise MiningError(f"bad --where predicate {where!r}: {e}") from None
+    except duckdb.Error as e:  # a damaged catalogue or labels file: the message names it
+        raise MiningError(str(e).removeprefix("Invalid Input Error: ")) from None
     finally:
         con.close()
 
