@@ -142,6 +142,11 @@ def test_logical_gpus_hold_the_proposal_stage_and_the_tubes_do_not_change(ray_wi
     assert sum(a["frames"] for a in actors) == frames[1] + 2
     assert plain.placement["proposal_actors"] == []
     assert "proposal stage: 2 actor(s) on GPUs" in "\n".join(staged.lines())
+    # Their busy time: inside the job's mining time, each actor worked, and the share is said.
+    busy = staged.stage_busy()
+    assert all(a["busy_s"] > 0 and a["first_t"] >= staged.started_at for a in actors)
+    assert 0 < busy["share"] <= 1 and 0 <= busy["all_busy_after_s"] <= staged.mining_seconds
+    assert "proposal stage busy" in "\n".join(staged.lines()) and plain.stage_busy() is None
 
     cols = "tube_id, selected, known, category, score, n_frames, frame_start, frame_end, mean_position, params_hash"
     a = connect(str(tmp_path / "staged")).execute(f"SELECT {cols} FROM tubes ORDER BY tube_id").fetchall()

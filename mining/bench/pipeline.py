@@ -289,6 +289,7 @@ def measure_run_here(cfg: JobConfig, out: str | Path, workers: int, gpus: int = 
         "object_store_peak_bytes": plasma.peak, "object_store_samples": len(plasma.samples),
         "object_store_error": plasma.error,
         "placement": summary.placement, "ray_version": ray.__version__,
+        "stage_busy": summary.stage_busy(),  # the proposal actors' (GPU) busy share of the mining time
     }
 
 

@@ -310,6 +310,9 @@ def run_scale_bench(cfg: JobConfig, sequence: str, n_frames: int, cluster: Clust
         r = ray_job
         stage = (f"; proposal stage {len(r['placement'].get('proposal_actors', []))} actor(s)"
                  if r["placement"].get("proposal_actors") else "")
+        if b := r.get("stage_busy"):
+            stage += (f", busy {100 * b['share']:.0f} % of the mining time from its first second (every actor "
+                      f"had work {b['all_busy_after_s']:.1f} s in)")
         print(f"On a local Ray of {r['workers']} workers, {r['frames']} frames: object store peak "
               f"{r['object_store_peak_bytes'] / 2**20:.0f} MiB, worker peak memory "
               f"{r['peak_rss_bytes'] / 2**20:.0f} MiB (stitch included), {r['fps']:.2f} frames/s{stage}")

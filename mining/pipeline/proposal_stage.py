@@ -23,6 +23,7 @@ job with the stage writes the same tubes as one without it (tested).
 from __future__ import annotations
 
 import os
+import time
 from collections import deque
 from collections.abc import Iterator, Sequence
 from itertools import islice
@@ -48,6 +49,11 @@ class ProposalWorker:
         self.cfg = cfg
         self.models: dict[tuple[int, int], FrameProposer] = {}
         self.frames = 0  # frames proposed by this actor (a test reads where the work went)
+        # Its busy time: the GPU busy share of a job is the sum over actors over actors × mining time
+        # (``Summary``); first and last call in unix time, so the driver can say when work first reached it.
+        self.busy_s = 0.0
+        self.first_t: float | None = None
+        self.last_t: float | None = None
 
     def propose(self, frame_size: tuple[int, int], frames: Sequence[int],
                 images: Sequence[np.ndarray]) -> list[list[Proposals]] | tuple[str, str | None, int | None]:
@@ -55,9 +61,15 @@ class ProposalWorker:
         Ray error, so the observe step reports it as it would its own."""
         size = (int(frame_size[0]), int(frame_size[1]))
         try:
-            if size not in self.models:
+            if size not in self.models:  # loading the model is not counted as busy: it is no batch's work
                 self.models[size] = FrameProposer(self.cfg, size, frame_parts=False)
-            out = self.models[size].propose_images(frames, images)
+            t0, c0 = time.time(), time.perf_counter()
+            try:
+                out = self.models[size].propose_images(frames, images)
+            finally:
+                self.busy_s += time.perf_counter() - c0
+                self.first_t = t0 if self.first_t is None else self.first_t
+                self.last_t = time.time()
         except InputError as e:
             return (e.reason, e.path, e.frame)
         except MiningError as e:
@@ -66,11 +78,12 @@ class ProposalWorker:
         return out
 
     def where(self) -> dict[str, Any]:
-        """The actor's process, the GPUs Ray gave it and the frames it proposed."""
+        """The actor's process, the GPUs Ray gave it, the frames it proposed and its busy time."""
         import ray
 
         return {"pid": os.getpid(), "gpu_ids": [str(g) for g in ray.get_gpu_ids()], "frames": self.frames,
-                "node": ray.get_runtime_context().get_node_id()}
+                "node": ray.get_runtime_context().get_node_id(), "busy_s": self.busy_s,
+                "first_t": self.first_t, "last_t": self.last_t}
 
 
 class ModelStage(Protocol):

@@ -206,7 +206,7 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
     """
     t0 = time.perf_counter()
     store, dataset = job.store(), job.cfg.source.dataset
-    summary = Summary(windows=len(schedule.windows), skipped=schedule.skipped)
+    summary = Summary(windows=len(schedule.windows), skipped=schedule.skipped, started_at=time.time())
     bar = StepBar(len(schedule.todo), progress, sum(w.core[1] - w.core[0] for w in schedule.todo))
     running: dict[Any, Task] = {}
     started: dict[Any, float] = {}  # when each step in flight was submitted (its time, for the ETA)

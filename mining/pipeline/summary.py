@@ -39,6 +39,7 @@ class Summary:
     unclassified: int = 0
     seconds: float = 0.0  # the whole command: preflight, planning, Ray start, mining
     mining_seconds: float = 0.0  # run_job's: from the first step to the last result (the frames/s denominator)
+    started_at: float = 0.0  # unix time of run_job's first step (when the proposal stage could first be busy)
     sequences_written: int = 0
     classifiers: str = ""  # which proposers classified (proposals.make.classifiers_line)
     recomputed: dict[str, str] = field(default_factory=dict)  # window → why its observation cache did not read back
@@ -68,6 +69,10 @@ class Summary:
             out.append(f"proposal stage: {len(actors)} actor(s) on GPUs [{gpus}] proposed "
                        f"{sum(a['frames'] for a in actors)} frames; {len(self.placement.get('workers', []))} CPU "
                        f"worker(s) did the rest")
+            if (busy := self.stage_busy()) is not None:
+                out.append(f"proposal stage busy {100 * busy['share']:.0f} % of the mining time from its first "
+                           f"second ({busy['busy_s']:.1f} actor-s of {len(actors)} × {self.mining_seconds:.1f} s); "
+                           f"every actor had work {busy['all_busy_after_s']:.1f} s in")
         if self.swept:
             more = f" and {len(self.swept) - 1} more" if len(self.swept) > 1 else ""
             out.append(f"swept {len(self.swept)} temporary file(s) an interrupted run left: {self.swept[0]}{more}")
@@ -83,6 +88,18 @@ class Summary:
         for w, e in sorted(self.recomputed.items()):
             out.append(f"RECOMPUTED {w}: its observation cache did not read back ({e})")
         return out
+
+    def stage_busy(self) -> dict[str, float] | None:
+        """The proposal actors' busy share of the mining time (the GPU busy share where they hold GPUs):
+        their time inside ``propose`` over actors × ``mining_seconds``, and how long after the first step
+        every actor had had its first batch (the ramp-up); None without a proposal stage or its times."""
+        actors = self.placement.get("proposal_actors") or []
+        if not actors or self.mining_seconds <= 0 or any(a.get("busy_s") is None for a in actors):
+            return None
+        firsts = [a.get("first_t") for a in actors]
+        ramp = (max(firsts) - self.started_at) if all(f is not None for f in firsts) and self.started_at else float("nan")
+        busy = sum(a["busy_s"] for a in actors)
+        return {"share": busy / (len(actors) * self.mining_seconds), "busy_s": busy, "all_busy_after_s": ramp}
 
     def count(self, task: Task, result: StepResult, dataset: str) -> None:
         """Add the result of a task."""
