@@ -66,6 +66,9 @@ COMMANDS = (  # in the order --help lists them
     Command("bench", "scale", "mining.bench.scale", "per-stage CPU seconds a frame at 1280×960 (or any source), GPU "
                                                     "rates where CUDA is, and the projection for 806,000 frames on a "
                                                     "stated cluster (--cpus, --gpus), with a chart"),
+    Command("bench", "stages", "mining.bench.stages", "the proposal stage fed two ways (explicit actor queues, Ray "
+                                                      "Data) on logical GPUs: frames/s, GPU busy share, ramp-up, "
+                                                      "object store"),
     Command("bench", "pipeline", "mining.bench.pipeline", "end-to-end frames/s on 1 and 2 workers, Ray overhead, worker "
                                                           "memory, catalogue size and query times (synthetic 1242×375)"),
     Command("bench", "looks", "mining.bench.looks", "recall@20 with the right COCO class (shared ONNX model) on "
