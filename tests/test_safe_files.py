@@ -569,6 +569,7 @@ def test_no_bench_or_eval_module_writes_a_file_by_itself():
 
     private = {("mining/eval/kitti_mot.py", "evaluate_first_frames"),  # a TemporaryDirectory for TrackEval
                ("mining/bench/pipeline.py", "measure_run"), ("mining/bench/pipeline.py", "_main"),  # its tmp folder
+               ("mining/bench/stages.py", "measure"), ("mining/bench/stages.py", "_main"),  # likewise
                ("mining/bench/iou_tracker.py", "write_iou_tracks"),  # into the benches' TemporaryDirectory
                ("mining/bench/scale.py", "chart")}  # savefig into a BytesIO that write_file then writes
     found = []
