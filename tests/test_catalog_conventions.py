@@ -51,7 +51,7 @@ def test_sequence_reads_as_a_string_in_every_reader_by_default(base_catalogue):
             "pyarrow.dataset": ds.dataset(folder).to_table().to_pandas(),
             "pyarrow.parquet": pq.read_table(folder).to_pandas(),
             "polars": pl.read_parquet(glob).to_pandas(),
-            "duckdb": duckdb.sql(f"SELECT * FROM read_parquet('{folder}/*/*/*.parquet')").fetch_arrow_table().to_pandas(),
+            "duckdb": duckdb.sql(f"SELECT * FROM read_parquet('{folder}/*/*/*.parquet')").to_arrow_table().to_pandas(),
         }
         for reader, df in frames.items():
             assert len(df), (table, reader)
