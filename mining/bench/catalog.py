@@ -26,7 +26,7 @@ from pycocotools import mask as mask_utils
 
 from mining.catalog.integrity import sequence_files
 from mining.catalog.records import SequenceMarker
-from mining.catalog.schema import SCHEMA_VERSION, THETA_COLUMNS, file_schema
+from mining.catalog.schema import SCHEMA_VERSION, THETA_COLUMNS, hive_file_schema
 from mining.catalog.store import Store, write_sequence
 from mining.catalog.views import connect
 from mining.formats.coco import CLASS_INDEX
@@ -158,7 +158,7 @@ def _sequence_tables(rng: np.random.Generator, masks, dataset: str, sequence: st
         "n_observations": pa.array(np.full(n_fr, 15, np.int32)),
     })
     for name, tab in (("tubes", tubes), ("tube_frames", tf), ("frames", frames)):
-        assert tab.schema.names == file_schema(name).names, name
+        assert tab.schema.names == hive_file_schema(name).names, name  # write_sequence adds dataset / sequence
     return tubes, tf, frames, k
 
 
