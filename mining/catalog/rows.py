@@ -1,4 +1,4 @@
-"""Mined tubes and observed frames → Arrow tables of catalogue schema v2, and back.
+"""Mined tubes and observed frames → Arrow tables of catalogue schema v3, and back.
 
 Encoders: ``tube_row`` and ``frame_rows`` fill a window's parts (window-local worlds,
 with the part-only columns) and the stitched catalogue (one world per pose segment of
