@@ -474,7 +474,7 @@ class TubeScore:
     """The tube's unary score (paper Eq. 2–8): its three log-likelihood ratios and the total the
     run's unary gives: REFERENCE's weighted sum of them (``model`` "reference"), or the
     calibrated log-odds (``model`` "calibrated"), whose groups of terms (``terms``,
-    ``mining.score.calibrated.GROUPS``) add up to it."""
+    ``mining.score.calibrated.GROUPS``) add up to it; two totals compare only where ``version`` agrees."""
 
     motion: float
     mask: float
@@ -482,6 +482,7 @@ class TubeScore:
     total: float
     model: str = "reference"
     terms: dict[str, float] | None = None
+    version: str = ""  # the model and a hash of every parameter of its total (``score.unary.unary_version``)
 
 
 @dataclass

@@ -56,12 +56,17 @@ def test_the_command_prints_every_stage_and_writes_its_chart_and_json(tmp_path):
 
 
 @pytest.mark.slow  # a job on a local Ray
-def test_the_ray_job_reports_the_object_store_and_worker_memory(tmp_path):
+def test_the_ray_job_reports_the_object_store_worker_memory_and_the_gpu_busy_share(tmp_path, fastsam_model):
     out = tmp_path / "scale.json"
+    model = ["--set", "proposals.proposer='fastsam+stereo'", "--set", f"proposals.fastsam.model_path='{fastsam_model}'",
+             "--set", "proposals.fastsam.input_height=64", "--set", "proposals.fastsam.input_width=64"]
     p = subprocess.run([sys.executable, "-m", "mining.cli", "bench", "scale", "--option", "width=414",
-                        "--option", "height=125", "--frames", "4", "--no-job", "--ray-frames", "30",
-                        "--json", str(out)], cwd=REPO, env=env(), capture_output=True, text=True, timeout=600)
+                        "--option", "height=125", "--frames", "4", "--no-job", "--ray-frames", "30", "--ray-gpus", "2",
+                        *model, "--json", str(out)], cwd=REPO, env=env(), capture_output=True, text=True, timeout=600)
     assert p.returncode == 0, p.stderr
     r = json.loads(out.read_text())["ray_job"]
     assert r["frames"] == 30 and r["object_store_samples"] > 0 and r["peak_rss_bytes"] > 100 * 2**20
     assert "object store peak" in p.stdout and "worker peak memory" in p.stdout
+    # Two logical GPUs: the proposal stage ran there, and its busy share from the first second is said.
+    assert len(r["placement"]["proposal_actors"]) == 2
+    assert 0 < r["stage_busy"]["share"] <= 1 and "busy" in p.stdout and "% of the mining time" in p.stdout

@@ -53,6 +53,8 @@ ALLOWED = {
     ("eval synthetic", "--min-visible-px", "0"): "0 keeps every object",
     ("bench scale", "--gpus", "0"): "a cluster without GPUs (the models on the CPU cores)",
     ("bench scale", "--ray-frames", "0"): "0 skips the job on a local Ray",
+    ("bench scale", "--ray-gpus", "0"): "0: the local Ray announces the GPUs it finds",
+    ("bench stages", "--gpu-ms", "0"): "an emulated GPU that takes no time (the CPU front alone)",
 }
 FRAME_ZERO = "frame 0 is the first frame (A = 0, one frame)"
 # Options that are neither numbers nor paths: why (their values are checked where they are used).

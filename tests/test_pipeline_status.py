@@ -71,6 +71,9 @@ def test_a_stereo_only_job_labels_no_tube_known_or_unknown(tmp_path):
     assert summary.candidates > 0 and summary.tubes > 0
     assert summary.known == summary.unknown == 0 and summary.unclassified == summary.tubes
     assert any("no classifier ran (proposer stereo)" in line for line in summary.lines())
+    # ... and the summary ends with the settings that would classify (the demo's last word).
+    assert any("--set proposals.proposer=onnx+stereo --set proposals.onnx.model_path=" in line
+               for line in summary.lines())
     con = connect(out)
     assert con.sql("SELECT count(*) FROM tubes").fetchone()[0] == summary.candidates
     assert con.sql("SELECT count(*) FROM tubes WHERE known IS NOT NULL OR category IS NOT NULL "
@@ -234,3 +237,15 @@ def test_running_needs_a_live_driver(tmp_path, capsys):
     assert {r.window: r.status for r in job_status(out)}[later[1].name] == "pending"
     live.clear_all()
     assert {r.window: r.status for r in job_status(out)}[later[0].name] == "pending"
+
+
+def test_the_classify_hint_names_settings_that_load_and_only_where_nothing_classified():
+    from mining.proposals.make import CLASSIFYING, classify_hint, proposer_names
+
+    assert classify_hint("onnx+stereo") is None and classify_hint("json") is None
+    for proposer in ("stereo", "fastsam+stereo"):
+        hint = classify_hint(proposer)
+        settings = hint[hint.index("--set"):].replace("--set ", "").split()
+        cfg = load_config(REPO / "jobs" / "synthetic.toml", settings)  # the hinted settings are valid keys and values
+        assert cfg.proposals.proposer == f"onnx+{proposer}"
+        assert set(CLASSIFYING) & set(proposer_names(cfg.proposals.proposer))

@@ -6,6 +6,8 @@ that generated the data, pairwise counts for the AUC, masks from the renderer's 
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from pycocotools import mask as mask_utils
@@ -18,7 +20,10 @@ from mining.masks import rle_box
 from mining.pipeline.mine import judge, unary
 from mining.score.calibrated import FEATURES, TERMS, calibrated_score, tube_evidence
 from mining.score.config import ScoreConfig
-from mining.score.unary import score_tube, unary_weights
+from mining.catalog.layout import JobRecord
+from mining.catalog.store import Store
+from mining.score.config import CALIBRATED
+from mining.score.unary import score_tube, unary_version, unary_weights
 from mining.sources.synthetic import SyntheticSource
 from mining.types import UNKNOWN_CLASS, Tube, TubeFrame
 
@@ -238,9 +243,15 @@ def test_the_catalogue_stores_which_unary_made_the_score_and_the_terms_that_add_
     try:
         rows = con.execute("SELECT score_model, score, score_motion, score_mask, score_objectness, "
                            + ", ".join(f"theta_{g}" for g in GROUPS) + " FROM tubes").fetchall()
+        versions = con.execute("SELECT DISTINCT score_model, score_version FROM tube_scores").fetchall()
     finally:
         con.close()
     assert rows and {r[0] for r in rows} <= {"calibrated", "reference"}
+    # One unary per catalogue, and its version is the hash of the job's own parameters.
+    job = JobRecord.load(Store(out)).job_config()
+    (model, version), = versions
+    assert version == unary_version(job.score, unary_weights(job.score, job.proposals.proposer))
+    assert version.startswith(f"{model}-")
     cfg = ScoreConfig()
     for model, score, motion, mask, obj, *theta in rows:
         if model == "calibrated":
@@ -248,3 +259,19 @@ def test_the_catalogue_stores_which_unary_made_the_score_and_the_terms_that_add_
         else:
             assert theta == [None] * len(GROUPS)
             assert abs(cfg.beta * (cfg.alpha * motion + (1 - cfg.alpha) * mask) + (1 - cfg.beta) * obj - score) < 1e-9
+
+
+def test_the_score_version_changes_with_any_parameter_of_the_total_and_only_those():
+    from mining.score.config import ScoreConfig
+    from mining.score.unary import unary_version
+
+    cfg = ScoreConfig()
+    w = dict(CALIBRATED["stereo"])
+    base, ref = unary_version(cfg, w), unary_version(cfg, None)
+    assert base.startswith("calibrated-") and ref.startswith("reference-") and base[11:] != ref[10:]
+    assert unary_version(cfg, dict(reversed(list(w.items())))) == base  # the order of a table is no parameter
+    assert unary_version(cfg, {**w, "bias": w["bias"] + 1e-6}) != base
+    assert unary_version(dataclasses.replace(cfg, floor=1e-5), w) != base
+    assert unary_version(dataclasses.replace(cfg, alpha=0.4), None) != ref
+    assert unary_version(dataclasses.replace(cfg, alpha=0.4), w) == base  # not a parameter of the calibrated total
+    assert unary_version(dataclasses.replace(cfg, known_log_margin=0.0), None) == ref  # the class call is not the score

@@ -137,9 +137,11 @@ PLASMA_LINE = re.compile(r"Plasma memory usage (\d+) MiB, (\d+) objects")  # Ray
 def object_store_bytes() -> int:
     """Bytes in the object store of the Ray this driver is connected to (all nodes), at MiB
     resolution: Ray's own aggregate (``ray memory --stats-only``)."""
+    import ray
     from ray._private.internal_api import memory_summary  # noqa: PLC2701 - what `ray memory` itself calls
 
-    m = PLASMA_LINE.search(memory_summary(stats_only=True))
+    # This driver's own Ray by address: with none, Ray refuses when another Ray runs on the machine.
+    m = PLASMA_LINE.search(memory_summary(address=ray.get_runtime_context().gcs_address, stats_only=True))
     if m is None:
         raise RuntimeError("Ray's memory summary has no 'Plasma memory usage' line (another Ray version?)")
     return int(m.group(1)) * 2**20
@@ -214,8 +216,10 @@ def window_peaks(out: Path, rows: list[dict[str, Any]], samples: list[tuple[floa
     return peaks
 
 
-def measure_run(cfg: JobConfig, out: str | Path, workers: int, frames: int | None = None) -> dict[str, Any]:
-    """Mine ``cfg`` into a fresh ``out`` on a local Ray of ``workers`` CPUs; time, overhead, memory.
+def measure_run(cfg: JobConfig, out: str | Path, workers: int, frames: int | None = None,
+                gpus: int = 0) -> dict[str, Any]:
+    """Mine ``cfg`` into a fresh ``out`` on a local Ray of ``workers`` CPUs (and ``gpus`` logical
+    GPUs, where a proposal stage runs; 0: the GPUs Ray finds); time, overhead, memory.
 
     Each run is a process of its own (``python -m mining.bench.pipeline``): Ray's core
     worker is made once per process, and a second ``ray.init`` after ``ray.shutdown`` in
@@ -230,7 +234,7 @@ def measure_run(cfg: JobConfig, out: str | Path, workers: int, frames: int | Non
         job_json, result_json = Path(tmp) / "job.json", Path(tmp) / "result.json"
         job_json.write_text(json.dumps(cfg.to_dict()))
         cmd = [sys.executable, "-m", "mining.bench.pipeline", str(job_json), str(out), str(int(workers)), str(result_json),
-               *([str(int(frames))] if frames else [])]
+               str(int(frames or 0)), str(int(gpus))]
         p = subprocess.run(cmd, capture_output=True, text=True)
         if p.returncode != 0 or not result_json.exists():
             tail = "\n".join((p.stdout + p.stderr).splitlines()[-20:])
@@ -390,13 +394,15 @@ def run_pipeline_bench(cfg: JobConfig, frames: int = 200, sequences: list[str] |
 
 
 def _main(argv: list[str]) -> int:
-    """``python -m mining.bench.pipeline JOB.json OUT WORKERS RESULT.json [FRAMES]``: one measured run
-    (``measure_run``'s child); the job is the JSON of ``JobConfig.to_dict``; FRAMES: each sequence's first."""
+    """``python -m mining.bench.pipeline JOB.json OUT WORKERS RESULT.json [FRAMES [GPUS]]``: one measured run
+    (``measure_run``'s child); the job is the JSON of ``JobConfig.to_dict``; FRAMES: each sequence's first
+    (0: all); GPUS: logical GPUs of the local Ray (0: those Ray finds)."""
     from mining.config import JobConfig, section_from_dict
 
-    job_json, out, workers, result_json, *frames = argv
+    job_json, out, workers, result_json, *rest = argv
+    frames, gpus = (int(x) for x in (rest + ["0", "0"])[:2])
     cfg = section_from_dict(JobConfig, json.loads(Path(job_json).read_text()), job_json)
-    result = measure_run_here(cfg, out, int(workers), frames=int(frames[0]) if frames else None)
+    result = measure_run_here(cfg, out, int(workers), gpus=gpus, frames=frames or None)
     Path(result_json).write_text(json.dumps(result, default=float))
     return 0
 

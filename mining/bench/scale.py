@@ -243,7 +243,7 @@ def chart(path: str, rates: StageRates, frames: int, gpu_fps: float, efficiency:
     safe_files.write_file(path, buf.getvalue(), overwrite)
 
 
-def ray_run(cfg: JobConfig, sequence: str, frames: int, workers: int | None = None) -> dict[str, Any]:
+def ray_run(cfg: JobConfig, sequence: str, frames: int, workers: int | None = None, gpus: int = 0) -> dict[str, Any]:
     """A job of ``frames`` frames on a local Ray of this machine's CPUs (``mine bench pipeline``'s
     measured run in a process of its own): object store peak, worker peak memory, frames/s."""
     from mining.bench.pipeline import measure_run
@@ -254,7 +254,7 @@ def ray_run(cfg: JobConfig, sequence: str, frames: int, workers: int | None = No
         cfg.source.options = {**cfg.source.options, "n_frames": max(int(cfg.source.options.get("n_frames", 0)),
                                                                       frames)}
     with tempfile.TemporaryDirectory(prefix="bench-scale-ray-") as tmp:
-        return measure_run(cfg, Path(tmp) / "out", workers or 1, frames)
+        return measure_run(cfg, Path(tmp) / "out", workers or 1, frames, gpus)
 
 
 def _machine() -> str:
@@ -268,7 +268,8 @@ def _machine() -> str:
 
 def run_scale_bench(cfg: JobConfig, sequence: str, n_frames: int, cluster: Cluster, project: int,
                     gpu_fps: float | None, chart_path: str | None, json_path: str | None,
-                    end_to_end: bool = True, overwrite: bool = False, ray_frames: int = 0) -> dict[str, Any]:
+                    end_to_end: bool = True, overwrite: bool = False, ray_frames: int = 0,
+                    ray_gpus: int = 0) -> dict[str, Any]:
     import ray
 
     from mining.bench.geometry import pin_one_core
@@ -285,7 +286,7 @@ def run_scale_bench(cfg: JobConfig, sequence: str, n_frames: int, cluster: Clust
         rates.seconds[CONTEXT_ROW] = rates.seconds["tubes"] * overlap
         rates.end_to_end += rates.seconds[CONTEXT_ROW]
     # Pinned to one core above; the Ray job's own process takes every core this process may use.
-    ray_job = ray_run(cfg, sequence, ray_frames, cores) if ray_frames else None
+    ray_job = ray_run(cfg, sequence, ray_frames, cores, ray_gpus) if ray_frames else None
     measured = gpu_rate(cfg, rates.size) if rates.model else None
     assumed = gpu_fps is None and measured is None
     if gpu_fps is None:
@@ -362,6 +363,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ray-frames", type=count(0, 10**7), default=200,
                    help="frames of a job on a local Ray for the object store and worker memory peaks "
                         "(default 200; 0 skips it)")
+    p.add_argument("--ray-gpus", type=count(0, 1024), default=0,
+                   help="logical GPUs the local Ray job announces, so that its proposal stage runs there and its "
+                        "busy share is measured without a GPU (the model then runs on the CPU; default 0: the "
+                        "GPUs Ray finds)")
     p.add_argument("--chart", type=output_file, default=None, help="PNG of hours against cluster size")
     p.add_argument("--json", type=output_file, default=None, help="every figure as JSON")
     add_overwrite_option(p, "the --chart and --json files")
@@ -375,5 +380,5 @@ def run(args: argparse.Namespace) -> int:
     sequence = args.sequence or (cfg.source.sequences[0] if cfg.source.sequences else "0000")
     run_scale_bench(cfg, sequence, args.frames, Cluster(args.cpus, args.gpus, args.efficiency), args.project_frames,
                     args.gpu_fps, args.chart, args.json, end_to_end=not args.no_job, overwrite=args.overwrite,
-                    ray_frames=args.ray_frames)
+                    ray_frames=args.ray_frames, ray_gpus=args.ray_gpus)
     return 0

@@ -286,7 +286,7 @@ def median_run(runs: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def run_stages_bench(cfg: JobConfig, sequence: str, n_frames: int, gpus: int, workers: int, gpu_ms: float | None,
-                     ways: Sequence[str], rounds: int = 2, json_path: str | None = None,
+                     ways: Sequence[str], rounds: int = 3, json_path: str | None = None,
                      overwrite: bool = False) -> dict[str, Any]:
     from mining.pipeline.proposal_stage import has_models
 
@@ -330,8 +330,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gpu-ms", type=real(0.0, 60_000.0), default=None,
                    help="emulate the model: its actor waits this many ms a frame (default: run the job's proposer)")
     p.add_argument("--ways", nargs="+", choices=WAYS, default=list(WAYS), help="which ways, in this order")
-    p.add_argument("--rounds", type=count(1, 20), default=2,
-                   help="rounds of every way, the order reversed every other round (default 2)")
+    p.add_argument("--rounds", type=count(1, 20), default=3,
+                   help="rounds of every way, the order reversed every other round (default 3)")
     p.add_argument("--json", type=output_file, default=None, help="every figure as JSON")
     add_overwrite_option(p, "the --json file")
 

@@ -131,6 +131,7 @@ def tube_row(mt: MinedTube, tube_id: str, run: RunInfo, n_windows: int = 1) -> d
         "frame_start": int(t.first_frame), "frame_end": int(t.last_frame),
         "n_frames": len(t.frames), "n_observed": t.n_inliers,
         "score": float(mt.score.total), "score_model": mt.score.model,
+        "score_version": mt.score.version or None,
         **{f"theta_{g}": (None if mt.score.terms is None else float(mt.score.terms[g])) for g in THETA_GROUPS},
         "score_motion": float(mt.score.motion),
         "score_mask": float(mt.score.mask), "score_objectness": float(mt.score.objectness),

@@ -26,10 +26,11 @@ import pyarrow as pa
 
 SCHEMA_VERSION = 3  # v3: dataset / sequence inside the compacted files, plain folder names (v2: hive folders)
 # v2: known / category nullable (unclassified), classified_frames, class_evidence
-# Nullable columns added within a version: files written before them read them as null
-# (catalog/views.py), so an older catalogue of the same version stays readable.
+# Nullable columns added since v2: files written before them read them as null (catalog/views.py),
+# so an older catalogue (of v2 or v3) stays readable.
 THETA_COLUMNS = ("theta_prior", "theta_motion", "theta_mask", "theta_objectness", "theta_shape", "theta_class")
-ADDED_COLUMNS = {"tubes": frozenset({"speed_sigma_mps", "path_sigma_m", "moving_speed_mps", "score_model", *THETA_COLUMNS})}
+ADDED_COLUMNS = {"tubes": frozenset({"speed_sigma_mps", "path_sigma_m", "moving_speed_mps", "score_model", "score_version",
+                                  *THETA_COLUMNS})}
 PARTITION = ("dataset", "sequence")  # the folder levels of every table (hive-named before v3 and in the working files)
 
 vec3 = pa.list_(pa.float32(), 3)
@@ -47,6 +48,7 @@ TUBES = pa.schema([
     pa.field("n_observed", pa.int32(), False),
     pa.field("score", pa.float64(), False),  # the unary score_model names: calibrated = natural-log odds that the tube is an object (the theta_* add up to it); reference = β·(α·score_motion + (1−α)·score_mask) + (1−β)·score_objectness
     pa.field("score_model", pa.string()),  # calibrated | reference: which unary made score (null: written before it was stored)
+    pa.field("score_version", pa.string()),  # <score_model>-<12 hex>: a hash of every parameter of score (weights, or K, α, β); scores compare only where it agrees (null: written before it was stored)
     # Under the calibrated unary, score's terms by group (mining/score/calibrated.py GROUPS): null under reference.
     pa.field("theta_prior", pa.float64()),  # log-odds from the tube's constant and its length (bias, frame)
     pa.field("theta_motion", pa.float64()),  # log-odds from the footpoints' motion density

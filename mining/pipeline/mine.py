@@ -13,7 +13,7 @@ import numpy as np
 
 from mining.config import JobConfig
 from mining.score.clutter import object_log_odds
-from mining.score.unary import score_tube, unary_weights
+from mining.score.unary import score_tube, unary_version, unary_weights
 from mining.select.coselect import co_select
 from mining.tubes.category import RowConfidence, tube_category
 from mining.tubes.generate import TubeGenerator
@@ -28,14 +28,16 @@ def unary(cfg: JobConfig, proposer: str | None = None) -> Callable[[Tube], TubeS
     mode: ``mining.pipeline.detections.DETECTIONS``, which has no calibrated weights).
     """
     weights = unary_weights(cfg.score, proposer or cfg.proposals.proposer)
-    return lambda tube: score_tube(tube, cfg.score, weights)
+    version = unary_version(cfg.score, weights)
+    return lambda tube: score_tube(tube, cfg.score, weights, version)
 
 
 def judge(tubes: list[Tube], cfg: JobConfig, proposer: str | None = None) -> list[MinedTube]:
     """Each tube's unary score and category, and the co-selection over all of them (with the
     calibrated unary, at its own price and overlap weight ``select.epsilon1/2_calibrated``)."""
     weights = unary_weights(cfg.score, proposer or cfg.proposals.proposer)
-    scores = [score_tube(t, cfg.score, weights) for t in tubes]
+    version = unary_version(cfg.score, weights)
+    scores = [score_tube(t, cfg.score, weights, version) for t in tubes]
     select = cfg.select
     if weights is not None:
         select = dataclasses.replace(select, epsilon1=select.epsilon1_calibrated, epsilon2=select.epsilon2_calibrated)

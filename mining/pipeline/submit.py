@@ -59,7 +59,7 @@ from mining.pipeline.schedule import Schedule, Step, Task
 from mining.pipeline.steps import Job, StepResult, observed_so_far, write_manifest, write_stitch_failure
 from mining.pipeline.summary import Summary
 from mining.progress import StepBar
-from mining.proposals.make import classifiers_line
+from mining.proposals.make import classifiers_line, classify_hint
 from mining.types import Window
 
 
@@ -294,6 +294,7 @@ def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frame
                 ex.shutdown()
     summary.seconds = time.perf_counter() - t0
     summary.classifiers = classifiers_line(cfg.proposals.proposer)
+    summary.classify_hint = classify_hint(cfg.proposals.proposer) or ""
     summary.swept = swept
     summary.unplanned = {f"{cfg.source.dataset}/{seq}": error for seq, error in unplanned.items()}
     summary.clamped = [pf.clamped[seq] for seq in sorted(pf.clamped)]

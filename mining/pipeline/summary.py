@@ -42,6 +42,7 @@ class Summary:
     started_at: float = 0.0  # unix time of run_job's first step (when the proposal stage could first be busy)
     sequences_written: int = 0
     classifiers: str = ""  # which proposers classified (proposals.make.classifiers_line)
+    classify_hint: str = ""  # how to get classes where no proposer gave any (proposals.make.classify_hint)
     recomputed: dict[str, str] = field(default_factory=dict)  # window → why its observation cache did not read back
     swept: list[str] = field(default_factory=list)  # temporary files an interrupted run left, removed by this one
     # Where the steps ran (executors' ``placement``): "workers" and "proposal_actors", each a
@@ -73,6 +74,8 @@ class Summary:
                 out.append(f"proposal stage busy {100 * busy['share']:.0f} % of the mining time from its first "
                            f"second ({busy['busy_s']:.1f} actor-s of {len(actors)} × {self.mining_seconds:.1f} s); "
                            f"every actor had work {busy['all_busy_after_s']:.1f} s in")
+        if self.classify_hint:
+            out.append(self.classify_hint)
         if self.swept:
             more = f" and {len(self.swept) - 1} more" if len(self.swept) > 1 else ""
             out.append(f"swept {len(self.swept)} temporary file(s) an interrupted run left: {self.swept[0]}{more}")

@@ -54,6 +54,17 @@ def classifiers_line(proposer: str) -> str:
             if len(cls) < len(names) else f"classes: {what} classified (proposer {proposer})")
 
 
+def classify_hint(proposer: str) -> str | None:
+    """Where no proposer classifies: how to mine a catalogue whose tubes are called known or unknown
+    (a summary's closing line); None where one does."""
+    if any(n in CLASSIFYING for n in proposer_names(proposer)):
+        return None
+    return ("to call each tube known (one of COCO's 80 classes, e.g. car) or unknown (the discovery set), mine "
+            "again into a new --out with a COCO instance-segmentation model you provide (a YOLOv8-seg ONNX file; "
+            f"its weights are AGPL-3.0, not bundled): --set proposals.proposer=onnx+{proposer} "
+            "--set proposals.onnx.model_path=/path/to/yolov8n-seg.onnx")
+
+
 def make_one(name: str, cfg: ProposalConfig, frame_size: tuple[int, int]) -> Proposer:
     """One named proposer of a union (``stereo``, ``onnx``, ``torch``, ``json``, ``fastsam``, ``sam``)."""
     if name == "stereo":

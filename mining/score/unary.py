@@ -16,6 +16,8 @@ the three terms above are still reported, for display and the recall funnel.
 
 from __future__ import annotations
 
+import hashlib
+import json
 from collections.abc import Mapping
 
 import numpy as np
@@ -56,18 +58,34 @@ def unary_weights(cfg: ScoreConfig, proposer: str) -> Mapping[str, float] | None
     return weights
 
 
-def score_tube(tube: Tube, cfg: ScoreConfig | None = None, weights: Mapping[str, float] | None = None) -> TubeScore:
-    """The three REFERENCE terms and the total: theirs (``weights`` None) or the calibrated log-odds."""
+def unary_version(cfg: ScoreConfig, weights: Mapping[str, float] | None) -> str:
+    """``<model>-<12 hex>``: the unary and a hash of every parameter its total depends on (the
+    calibrated weights, or REFERENCE's K, α, β; the floor). Stored beside each score, so scores of
+    two catalogues compare only where it agrees (job.json holds the parameters themselves)."""
+    if weights is None:
+        model, params = "reference", {"alpha": cfg.alpha, "beta": cfg.beta, "motion_k": cfg.motion_k,
+                                      "mask_k": cfg.mask_k, "objectness_k": cfg.objectness_k, "floor": cfg.floor}
+    else:
+        model, params = "calibrated", {"weights": {k: float(v) for k, v in weights.items()}, "floor": cfg.floor}
+    text = json.dumps(params, sort_keys=True, allow_nan=False)
+    return f"{model}-{hashlib.sha256(text.encode()).hexdigest()[:12]}"
+
+
+def score_tube(tube: Tube, cfg: ScoreConfig | None = None, weights: Mapping[str, float] | None = None,
+               version: str | None = None) -> TubeScore:
+    """The three REFERENCE terms and the total: theirs (``weights`` None) or the calibrated log-odds;
+    ``version``: ``unary_version(cfg, weights)`` when the caller made it once for many tubes."""
     cfg = cfg or ScoreConfig()
+    version = unary_version(cfg, weights) if version is None else version
     inl = [f for f in tube.frames if f.observed][1:]
     motion = llr([f.motion_density for f in inl], cfg.motion_k, cfg.floor)
     mask = llr([f.mask_iou for f in inl], cfg.mask_k, cfg.floor)
     obj = llr([f.objectness for f in inl], cfg.objectness_k, cfg.floor)
     if weights is None:
         total = cfg.beta * (cfg.alpha * motion + (1 - cfg.alpha) * mask) + (1 - cfg.beta) * obj
-        return TubeScore(motion, mask, obj, total)
+        return TubeScore(motion, mask, obj, total, version=version)
     return TubeScore(motion, mask, obj, calibrated_score(tube, weights, cfg.floor), "calibrated",
-                     grouped_terms(tube, weights, cfg.floor))
+                     grouped_terms(tube, weights, cfg.floor), version)
 
 
 def unary_line(cfg: ScoreConfig, proposer: str) -> str:

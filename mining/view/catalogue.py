@@ -192,11 +192,13 @@ class CatalogueBrowser:
 
     def score_line(self, tube: dict) -> str:
         """What this tube's score is, in words."""
-        model = tube.get("score_model")
+        model, version = tube.get("score_model"), tube.get("score_version")
+        of = f"; version {version}" if version else ""
         if model == "calibrated":
-            return "calibrated log-odds that the tube is an object (the θ terms add up to it; 0 = even odds)"
+            return f"calibrated log-odds that the tube is an object (the θ terms add up to it; 0 = even odds{of})"
         if model == "reference":
-            return "REFERENCE's weighted total β·(α·motion + (1−α)·mask) + (1−β)·objectness (no probability scale)"
+            return ("REFERENCE's weighted total β·(α·motion + (1−α)·mask) + (1−β)·objectness (no probability scale"
+                    f"{of})")
         return "not recorded: the catalogue was written before score_model (job.json's score.model says which unary ran)"
 
     def class_rule(self, tube: dict, posterior: list | None) -> dict | None:

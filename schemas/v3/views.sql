@@ -49,9 +49,10 @@ SELECT * FROM tubes WHERE selected AND known IS NULL;
 --       SELECT tube_id, 0.5 * score_motion + 2 * score_mask + score_objectness AS s
 --       FROM tube_scores ORDER BY s DESC LIMIT 100
 -- score_motion / score_mask / score_objectness are REFERENCE's terms under both models.
+-- score_version (<score_model>-<hash of its parameters>): scores of two catalogues compare only where it agrees.
 CREATE VIEW tube_scores AS
 SELECT tube_id, dataset, sequence, n_frames, n_observed,
-       score, score_model, theta_prior, theta_motion, theta_mask, theta_objectness, theta_shape, theta_class,
+       score, score_model, score_version, theta_prior, theta_motion, theta_mask, theta_objectness, theta_shape, theta_class,
        score_motion, score_mask, score_objectness,
        selected, known, category, category_prob, classified_frames, class_evidence
 FROM tubes;
