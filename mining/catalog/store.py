@@ -290,7 +290,8 @@ def write_sequence(store: Store, table: str, dataset: str, sequence: str, table_
                    rows_per_file: int = ROWS_PER_FILE, row_group_rows: int = ROW_GROUP_ROWS) -> list[str]:
     """Replace the compacted files of one table of one sequence; returns the files written.
 
-    The rows are validated against ``file_schema(table)``, sorted (``SORT_KEYS``) and cut
+    The rows are validated against ``file_schema(table)`` (``dataset`` / ``sequence`` added where
+    they are absent: ``conform``), sorted (``SORT_KEYS``) and cut
     into ``part-<k>.parquet`` files of at most ``rows_per_file`` rows. All new files are
     written under temporary names first, then moved into place, then files of the
     previous compaction that the new one does not overwrite are removed: at every moment

@@ -153,7 +153,7 @@ def _folder_view(con: duckdb.DuckDBPyConnection, store: Store, name: str, folder
             opts = ("hive_partitioning = true, hive_types = {'dataset': 'VARCHAR', 'sequence': 'VARCHAR'}" if hive
                     else "hive_partitioning = false")
             picked = cols
-            if added:  # files of the same table written before a nullable column was added
+            if added:  # files written before a nullable column was added (ADDED_COLUMNS)
                 opts += ", union_by_name = true"
                 have = {r[0] for r in con.execute(f"DESCRIBE SELECT * FROM read_parquet({what}, {opts})").fetchall()}
                 types = {f.name: f.type for f in schema}
