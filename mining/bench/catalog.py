@@ -131,6 +131,7 @@ def _sequence_tables(rng: np.random.Generator, masks, dataset: str, sequence: st
         "frame_start": pa.array(starts_a, pa.int32()), "frame_end": pa.array(starts_a + lengths_a - 1, pa.int32()),
         "n_frames": pa.array(lengths_a, pa.int32()), "n_observed": pa.array(lengths_a, pa.int32()),
         "score": pa.array(0.4 * motion + mask + objn), "score_model": pa.array(["reference"] * m),
+        "score_version": pa.nulls(m, pa.string()),  # synthetic scores: no parameters to hash
         **{c: pa.nulls(m, pa.float64()) for c in THETA_COLUMNS}, "score_motion": pa.array(motion),
         "score_mask": pa.array(mask), "score_objectness": pa.array(objn),
         "selected": pa.array(rng.random(m) > 0.5), "known": pa.array(known),
