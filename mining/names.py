@@ -2,7 +2,7 @@
 
 Names come from users (``--sequences``, a config's ``source.sequences``), from a source's
 own listing (RobotCar traversal folders, MCAP file stems, KITTI calibration files) and
-back from a catalogue (``job.json``, the hive folders, tube ids), and they end up in
+back from a catalogue (``job.json``, the folder names, the files' ``dataset`` / ``sequence``, tube ids), and they end up in
 paths under ``--out`` and an export's DEST. So a name is checked where it enters and
 again where a path is built from it, and a path is never made from anything else.
 

@@ -17,7 +17,7 @@ import pyarrow as pa
 from mining.catalog.layout import manifest_path
 from mining.catalog.rows import RunInfo, tube_row
 from mining.catalog.rows import frame_rows as rows_of_frames
-from mining.catalog.schema import SCHEMAS, file_schema
+from mining.catalog.schema import SCHEMAS, hive_file_schema
 from mining.catalog.store import Store, write_sequence
 from mining.config import load_config
 
@@ -68,7 +68,7 @@ def window_rows(params_hash: str) -> pa.Table:
            "context_start": 0, "context_end": N_FRAMES, "status": "done", "attempts": 1,
            "started": None, "finished": None, "seconds_observe": 1.0, "seconds_tubes": 0.5,
            "n_pieces": 0, "error": None, "params_hash": params_hash}
-    return pa.Table.from_pylist([row], schema=file_schema("windows"))
+    return pa.Table.from_pylist([row], schema=hive_file_schema("windows"))  # a manifest row: hive folders say D and S
 
 
 def build_catalogue(out: Path, kitti_tracking_root: Path) -> dict:

@@ -11,8 +11,11 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
+
+import pyarrow as pa
 
 from conftest import REPO
 from mining.catalog.views import connect
@@ -82,3 +85,45 @@ def files(out: Path) -> dict[str, bytes]:
 def catalogue_files(out: Path) -> dict[str, bytes]:
     """The catalogue's files (not the lock, whose content is the last holder's business)."""
     return {k: v for k, v in files(out).items() if k != ".mine.lock"}
+
+
+def to_hive_layout(out: Path) -> None:
+    """Rewrite ``out``'s compacted tables as schema v2 wrote them: under hive folders
+    ``catalog/<table>/dataset=D/sequence=S/``, without ``dataset`` / ``sequence`` in the files,
+    the tubes rows, job.json and the sequence markers at v2 (each marker's files recorded
+    again at their hive paths, with their sizes and sha256)."""
+    import hashlib
+
+    import pyarrow.parquet as pq
+
+    moved = {}
+    for f in sorted((out / "catalog").glob("*/*/*/*.parquet")):
+        table, d, s = f.relative_to(out / "catalog").parts[:3]
+        if table.startswith("_") or d.startswith("dataset="):
+            continue
+        t = pq.read_table(f)
+        t = t.drop_columns(["dataset", "sequence"])
+        if "schema_version" in t.column_names:
+            i = t.schema.get_field_index("schema_version")
+            t = t.set_column(i, t.schema.field(i), pa.array([2] * len(t), t.schema.field(i).type))
+        dst = out / "catalog" / table / f"dataset={d}" / f"sequence={s}" / f.name
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        pq.write_table(t, dst, compression="zstd")
+        f.unlink()
+        moved[str(f.relative_to(out))] = str(dst.relative_to(out))
+    for p in list((out / "catalog").glob("*/*/*")):
+        if p.is_dir() and not any(p.iterdir()):
+            p.rmdir()
+            if not any(p.parent.iterdir()):
+                p.parent.rmdir()
+    for m in (out / "catalog" / "_sequences").rglob("*.json"):
+        rec = json.loads(m.read_text())
+        rec["files"] = {moved.get(k, k): v for k, v in rec["files"].items()}
+        for rel in rec["files"]:
+            data = (out / rel).read_bytes()
+            rec["files"][rel] = {"size": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+        rec["schema_version"] = 2
+        m.write_text(json.dumps(rec, indent=1))
+    job = json.loads((out / "job.json").read_text())
+    job["schema_version"] = 2
+    (out / "job.json").write_text(json.dumps(job, indent=1))

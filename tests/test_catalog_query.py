@@ -16,7 +16,7 @@ from mining.catalog.schema import SCHEMAS
 from mining.catalog.views import ReadOnlyError, check_read_only, connect
 
 
-def test_tables_carry_hive_columns_as_text(catalogue):
+def test_tables_carry_dataset_and_sequence_as_text(catalogue):
     out, tables = catalogue
     con = connect(out)
     for table in ("tubes", "tube_frames", "frames", "windows"):

@@ -12,7 +12,7 @@ import pytest
 
 from _catalog_data import DATASET, SEQUENCE
 from mining.catalog.layout import JobRecord, catalog_dir
-from mining.catalog.schema import SCHEMAS, file_schema
+from mining.catalog.schema import SCHEMA_VERSION, SCHEMAS, file_schema
 from mining.catalog.store import TMP_MARK, Store, conform, write_sequence
 from mining.catalog.views import connect
 from mining.errors import ConfigError, InputError
@@ -72,7 +72,7 @@ def test_write_sequence_round_trip_sorted_and_split(tmp_path, catalogue):
                        for k in range(-(-tf.num_rows // 20))]
     back = pa.concat_tables([store.read_table(p) for p in written])
     assert back.schema.equals(file_schema("tube_frames"))
-    expect = tf.drop_columns(["dataset", "sequence"]).sort_by([("tube_id", "ascending"), ("frame", "ascending")])
+    expect = tf.sort_by([("tube_id", "ascending"), ("frame", "ascending")])  # dataset / sequence in the file (v3)
     assert back.equals(expect.cast(file_schema("tube_frames")))
     meta = pq.ParquetFile(tmp_path / written[0]).metadata
     assert meta.num_row_groups == 3 and meta.row_group(0).column(0).compression == "ZSTD"
@@ -105,7 +105,7 @@ def test_write_sequence_rejects_schema_mismatch(tmp_path, catalogue):
 
 
 def test_schema_json_is_generated_from_schema_py():
-    """schemas/v2/ cannot drift from the package: the JSON from mining/catalog/schema.py, views.sql
+    """schemas/v<SCHEMA_VERSION>/ cannot drift from the package: the JSON from mining/catalog/schema.py, views.sql
     a copy of mining/catalog/views.sql."""
     r = subprocess.run([sys.executable, str(REPO / "schemas" / "generate.py"), "--check"], capture_output=True, text=True)
     assert r.returncode == 0, r.stdout + r.stderr
@@ -123,7 +123,7 @@ def test_schema_json_is_generated_from_schema_py():
 
 
 def test_the_published_views_run_on_their_own_inside_a_catalogue(base_catalogue, tmp_path, monkeypatch):
-    """schemas/v2/views.sql in a bare DuckDB, from inside the catalogue folder: every view
+    """schemas/v<SCHEMA_VERSION>/views.sql in a bare DuckDB, from inside the catalogue folder: every view
     answers as `mine query`'s do, labels included once loaded."""
     import duckdb
 
@@ -141,7 +141,7 @@ def test_the_published_views_run_on_their_own_inside_a_catalogue(base_catalogue,
     want = {v: ours.execute(f"SELECT count(*) FROM {v}").fetchone()[0] for v in views}
     monkeypatch.chdir(out)
     con = duckdb.connect()
-    con.execute((REPO / "schemas" / "v2" / "views.sql").read_text())
+    con.execute((REPO / "schemas" / f"v{SCHEMA_VERSION}" / "views.sql").read_text())
     con.execute("INSERT INTO labels SELECT * FROM read_parquet('labels/*.parquet')")
     assert {v: con.execute(f"SELECT count(*) FROM {v}").fetchone()[0] for v in views} == want
     assert want["tube_labels"] == 1 and want["selected_tubes"] > 0

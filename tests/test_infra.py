@@ -332,8 +332,9 @@ def test_version_is_one_number_and_mine_prints_it():
     import tomllib
 
     import mining
+    from mining.catalog.schema import SCHEMA_VERSION
 
     root = REPO
     assert tomllib.loads((root / "pyproject.toml").read_text())["project"]["version"] == mining.__version__
     r = subprocess.run([sys.executable, "-m", "mining.cli", "--version"], capture_output=True, text=True, cwd=root)
-    assert r.returncode == 0 and r.stdout.strip() == f"mine (tube-miner) {mining.__version__}, catalogue schema v2"
+    assert r.returncode == 0 and r.stdout.strip() == f"mine (tube-miner) {mining.__version__}, catalogue schema v{SCHEMA_VERSION}"

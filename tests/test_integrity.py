@@ -33,10 +33,11 @@ from mining.catalog.views import connect
 from _jobs import SEQ, copy_of, mine, tables
 from _run import cli, cli_status
 
-D = f"dataset=synthetic/sequence={SEQ}"
-TUBES = f"catalog/tubes/{D}/part-0.parquet"
-TUBE_FRAMES = f"catalog/tube_frames/{D}/part-0.parquet"
-FRAMES = f"catalog/frames/{D}/part-0.parquet"
+D = f"dataset=synthetic/sequence={SEQ}"  # the working folders (manifest, parts, markers)
+C = f"synthetic/{SEQ}"  # the compacted tables' folders (schema v3)
+TUBES = f"catalog/tubes/{C}/part-0.parquet"
+TUBE_FRAMES = f"catalog/tube_frames/{C}/part-0.parquet"
+FRAMES = f"catalog/frames/{C}/part-0.parquet"
 W0, W1 = f"{SEQ}-0000000-0000008", f"{SEQ}-0000008-0000016"
 MARKER = f"catalog/_sequences/{D}.json"
 
@@ -229,7 +230,7 @@ def test_a_half_published_first_stitch_is_not_served(base_catalogue, tmp_path, c
     out = copy_of(base_catalogue, tmp_path / "out")
     (out / MARKER).unlink()
     for table in ("tube_frames", "frames", "windows"):
-        shutil.rmtree(out / "catalog" / table / D)
+        shutil.rmtree(out / "catalog" / table / C)
     assert (out / TUBES).is_file()
 
     for table in ("tubes", "selected_tubes", "tube_frames", "frames", "tube_tracks"):
@@ -243,8 +244,8 @@ def test_a_sequence_folder_no_marker_records_is_not_served(base_catalogue, tmp_p
     out = copy_of(base_catalogue, tmp_path / "out")
     n = {t: len(base_catalogue[1][t]) for t in ("tubes", "tube_frames", "frames")}
     for table in ("tubes", "tube_frames", "frames", "windows"):
-        src = out / "catalog" / table / D
-        shutil.copytree(src, src.with_name("sequence=0001"))  # a stray copy: no marker records it
+        src = out / "catalog" / table / C
+        shutil.copytree(src, src.with_name("0001"))  # a stray copy: no marker records it
 
     for table in n:
         rc, o, e = _query(capsys, out, f"SELECT count(*) AS n, count(DISTINCT sequence) AS s FROM {table}")
@@ -291,7 +292,7 @@ def test_temporary_files_a_kill_left_are_reported_by_status_and_swept_by_the_nex
     exactly such files in the job's own folders, saying so in one line: not a name of another
     pattern, not a link (nor what it points to), nothing outside the job's folders."""
     out = copy_of(base_catalogue, tmp_path / "out")
-    stray = out / f"catalog/tube_frames/{D}/.part-0.parquet.tmp-0123456789ab"
+    stray = out / f"catalog/tube_frames/{C}/.part-0.parquet.tmp-0123456789ab"
     stray.write_bytes((out / TUBE_FRAMES).read_bytes()[:100])
     cache_stray = out / "_cache" / ".x.npz.zst.tmp-abcdefabcdef"
     cache_stray.parent.mkdir(exist_ok=True)
@@ -300,13 +301,13 @@ def test_temporary_files_a_kill_left_are_reported_by_status_and_swept_by_the_nex
     root_stray.write_bytes(b"{")
     elsewhere = tmp_path / "elsewhere.txt"
     elsewhere.write_text("not the catalogue's\n")
-    keep = [out / f"catalog/tube_frames/{D}/.part-0.parquet.tmp-notahexname",  # not the pattern
-            out / f"catalog/tubes/{D}/notes.tmp-0123456789ab",  # no leading dot: not a staged name
+    keep = [out / f"catalog/tube_frames/{C}/.part-0.parquet.tmp-notahexname",  # not the pattern
+            out / f"catalog/tubes/{C}/notes.tmp-0123456789ab",  # no leading dot: not a staged name
             out / "_replaced" / ".part-0.parquet.tmp-0123456789ab"]  # not a folder the job writes
     for p in keep:
         p.parent.mkdir(parents=True, exist_ok=True)
         p.write_bytes(b"keep")
-    link = out / f"catalog/frames/{D}/.part-0.parquet.tmp-ffffffffffff"
+    link = out / f"catalog/frames/{C}/.part-0.parquet.tmp-ffffffffffff"
     link.symlink_to(elsewhere)
 
     rc, text = cli_status(capsys, out)
@@ -351,7 +352,7 @@ def test_file_functions_in_a_query_read_only_the_files_the_markers_vouch_for(bas
     assert rc == 2 and str(out / TUBES) in e and "sha256" in e, o + e
 
     # No other way in: a pattern, a folder no marker records, the job record, a file outside --out.
-    stray = out / "catalog" / "tubes" / "dataset=synthetic" / "sequence=0001" / "part-0.parquet"
+    stray = out / "catalog" / "tubes" / "synthetic" / "0001" / "part-0.parquet"
     stray.parent.mkdir(parents=True)
     shutil.copy(out / TUBES, stray)
     for path in (out / "catalog/tubes/*/*/*.parquet", stray, out / "job.json"):

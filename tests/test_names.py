@@ -275,15 +275,29 @@ def test_the_other_tubes_still_export_and_a_safe_id_keeps_its_folder(catalogue, 
                                                       f"{DATASET}_{SEQUENCE}_renamed.000", "tube_labels.json"]
 
 
-def test_kitti_export_of_an_unsafe_sequence_name(catalogue, tmp_path, capsys):
-    """A hive folder ``sequence=..%2F..%2Fescaped`` reads back (DuckDB and pyarrow decode
-    it) as the sequence ``../../escaped``, which the KITTI export made a file name of."""
+@pytest.mark.parametrize("layout", ["v3 file", "v2 hive folder"])
+def test_kitti_export_of_an_unsafe_sequence_name(catalogue, tmp_path, capsys, layout):
+    """The sequence ``../../escaped``, which the KITTI export made a file name of, read back from a
+    v3 file's ``sequence`` column, or from a v2 hive folder ``sequence=..%2F..%2Fescaped`` (DuckDB
+    and pyarrow decode it)."""
+    import pyarrow.parquet as pq
+
+    from _jobs import to_hive_layout
+
     out, _ = catalogue
     cat = tmp_path / "cat"
     shutil.copytree(out, cat)
-    for table in ("tubes", "tube_frames"):
-        folder = cat / "catalog" / table / f"dataset={DATASET}"
-        (folder / f"sequence={SEQUENCE}").rename(folder / "sequence=..%2F..%2Fescaped")
+    if layout == "v3 file":
+        for table in ("tubes", "tube_frames"):
+            (f,) = (cat / "catalog" / table).rglob("*.parquet")
+            t = pq.read_table(f)
+            i = t.schema.get_field_index("sequence")
+            pq.write_table(t.set_column(i, t.schema.field(i), pa.array(["../../escaped"] * len(t), pa.string())), f)
+    else:
+        to_hive_layout(cat)
+        for table in ("tubes", "tube_frames"):
+            folder = cat / "catalog" / table / f"dataset={DATASET}"
+            (folder / f"sequence={SEQUENCE}").rename(folder / "sequence=..%2F..%2Fescaped")
     dest = tmp_path / "work" / "dest"
     before = {p for p in tmp_path.rglob("*")}
     assert run_export(str(cat), "selected", "kitti", str(dest)) == 2

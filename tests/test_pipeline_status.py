@@ -126,7 +126,7 @@ def test_provisional_views_show_finished_windows_of_sequences_not_stitched_yet(t
     con.close()
     # 0001 as it is before its stitch: windows done, parts written, no compacted files, no marker
     for table in ("tubes", "tube_frames", "frames", "windows"):
-        shutil.rmtree(out / "catalog" / table / "dataset=synthetic" / "sequence=0001", ignore_errors=True)
+        shutil.rmtree(out / "catalog" / table / "synthetic" / "0001", ignore_errors=True)
     (out / "catalog" / "_sequences" / "dataset=synthetic" / "sequence=0001.json").unlink()
     con = connect(out)
     assert con.sql("SELECT count(*) FROM tubes WHERE sequence = '0001'").fetchone()[0] == 0  # final: unchanged

@@ -1,7 +1,7 @@
 """Catalogue schema versions are checked on read (``mining/catalog/versions.py``).
 
 A catalogue written by a newer tube-miner (its rows, its sequence marker or its job.json say
-``schema_version`` 99, or 3 with a column this code does not know) is refused by every reader
+``schema_version`` 99, or the next version with a column this code does not know) is refused by every reader
 (``mine query``, ``export``, ``render``, ``view``, ``status``) and by a resubmission, in one
 line naming the version found, the file and the version this code reads; nothing is written.
 Before: each read it as version 2, exit 0, the unknown column dropped without a word. Rows
@@ -28,8 +28,8 @@ from mining.catalog.schema import SCHEMA_VERSION
 from mining.catalog.store import Store
 
 D = f"dataset=synthetic/sequence={SEQ}"
-TUBES = f"catalog/tubes/{D}/part-0.parquet"
-FRAMES = f"catalog/frames/{D}/part-0.parquet"
+TUBES = f"catalog/tubes/synthetic/{SEQ}/part-0.parquet"  # the compacted tables' folders (schema v3)
+FRAMES = f"catalog/frames/synthetic/{SEQ}/part-0.parquet"
 MARKER = f"catalog/_sequences/{D}.json"
 ROW = f"manifest/{D}/{SEQ}-0000000-0000008.parquet"
 
@@ -96,7 +96,8 @@ NEWER = {
     "rows, marker and job.json at 99": (
         lambda out: (_set_rows(out, 99), _set_record(out, MARKER, 99), _set_record(out, "job.json", 99)),
         ("v99",)),
-    "rows at 3 with a new column": (lambda out: _set_rows(out, 3, extra="speed_3d"), (TUBES, "v3")),
+    "rows at the next version with a new column": (lambda out: _set_rows(out, SCHEMA_VERSION + 1, extra="speed_3d"),
+                                                   (TUBES, f"v{SCHEMA_VERSION + 1}")),
     "job.json at 99": (lambda out: _set_record(out, "job.json", 99), ("job.json", "v99")),
     "the marker at 99": (lambda out: _set_record(out, MARKER, 99), (MARKER, "v99")),
     "a frames file with a new column": (lambda out: _set_rows(out, 0, extra="lux", rel=FRAMES), (FRAMES, "'lux'")),

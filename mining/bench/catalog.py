@@ -26,7 +26,7 @@ from pycocotools import mask as mask_utils
 
 from mining.catalog.integrity import sequence_files
 from mining.catalog.records import SequenceMarker
-from mining.catalog.schema import SCHEMA_VERSION, THETA_COLUMNS, file_schema
+from mining.catalog.schema import SCHEMA_VERSION, THETA_COLUMNS, hive_file_schema
 from mining.catalog.store import Store, write_sequence
 from mining.catalog.views import connect
 from mining.formats.coco import CLASS_INDEX
@@ -131,6 +131,7 @@ def _sequence_tables(rng: np.random.Generator, masks, dataset: str, sequence: st
         "frame_start": pa.array(starts_a, pa.int32()), "frame_end": pa.array(starts_a + lengths_a - 1, pa.int32()),
         "n_frames": pa.array(lengths_a, pa.int32()), "n_observed": pa.array(lengths_a, pa.int32()),
         "score": pa.array(0.4 * motion + mask + objn), "score_model": pa.array(["reference"] * m),
+        "score_version": pa.nulls(m, pa.string()),  # synthetic scores: no parameters to hash
         **{c: pa.nulls(m, pa.float64()) for c in THETA_COLUMNS}, "score_motion": pa.array(motion),
         "score_mask": pa.array(mask), "score_objectness": pa.array(objn),
         "selected": pa.array(rng.random(m) > 0.5), "known": pa.array(known),
@@ -158,7 +159,7 @@ def _sequence_tables(rng: np.random.Generator, masks, dataset: str, sequence: st
         "n_observations": pa.array(np.full(n_fr, 15, np.int32)),
     })
     for name, tab in (("tubes", tubes), ("tube_frames", tf), ("frames", frames)):
-        assert tab.schema.names == file_schema(name).names, name
+        assert tab.schema.names == hive_file_schema(name).names, name  # write_sequence adds dataset / sequence
     return tubes, tf, frames, k
 
 

@@ -6,7 +6,10 @@ Each output a later step or a reader trusts is recorded when it is written (the 
 * a window's parts (``_parts/<table>/…/<window>.part``) in ``manifest/…/<window>.files.json``
   (``WindowFiles``), written after the parts and before the window's manifest row says done;
 * a sequence's compacted files (``catalog/<table>/…/part-<k>.parquet``, all four tables) in
-  its finished marker ``catalog/_sequences/…`` (``SequenceMarker``), written after them.
+  its finished marker ``catalog/_sequences/…`` (``SequenceMarker``), written after them. A
+  marker of a catalogue before schema v3 records its files' hive paths
+  (``catalog/<table>/dataset=D/sequence=S/…``): they are checked the same way, and a file in
+  either layout's folder of a sequence that its marker does not record is a left-over.
 
 A record that does not read vouches for nothing: its window runs again, its sequence is
 stitched again, and ``mine status`` names it with the reason.
@@ -32,7 +35,8 @@ from dataclasses import dataclass
 
 import pyarrow.fs as pafs
 
-from mining.catalog.layout import CATALOG, JOB, MANIFEST, MARKERS, PART_TABLES, catalog_dir, files_path, part_path
+from mining.catalog.layout import (CATALOG, JOB, MANIFEST, MARKERS, PART_TABLES, catalog_dir, catalog_layout, files_path,
+                                   part_path)
 from mining.catalog.records import SequenceMarker, Unreadable, WindowFiles
 from mining.catalog.store import Store, is_temporary
 from mining.catalog.versions import check_file, check_record_version
@@ -137,7 +141,7 @@ def marker_damage(store: Store, marker: SequenceMarker, verify: bool = False) ->
         return [Damage(marker.path, "records no file sizes (written before integrity records)", owner)]
     out = check_files(store, marker.files, owner, verify)
     for table in TABLES:  # a file no finalize recorded is read by every query: a left-over
-        for rel in store.list(catalog_dir(table, marker.dataset, marker.sequence)):
+        for rel in _sequence_files(store, table, marker.dataset, marker.sequence):
             if rel not in marker.files:
                 out.append(Damage(rel, "not recorded by the sequence's last finalize (left over)", owner))
     return out
@@ -214,10 +218,14 @@ class Vouched:
     marked: bool  # False: a catalogue no mining job wrote (no marker, no planned window): served as listed, unchecked
 
 
-def _hive_file(rel: str) -> bool:
-    """``catalog/<table>/dataset=D/sequence=S/<file>``: where a table's files are (the old glob's depth)."""
-    p = rel.split("/")
-    return len(p) == 5 and p[2].startswith("dataset=") and p[3].startswith("sequence=")
+def _sequence_dirs(table: str, dataset: str, sequence: str) -> tuple[str, str]:
+    """The folders of one sequence's compacted files of ``table``, in both layouts (``layout.catalog_layout``)."""
+    return catalog_dir(table, dataset, sequence), catalog_dir(table, dataset, sequence, hive=True)
+
+
+def _sequence_files(store: Store, table: str, dataset: str, sequence: str) -> list[str]:
+    """The finished files in a sequence's folders of ``table`` (both layouts)."""
+    return [r for d in _sequence_dirs(table, dataset, sequence) for r in store.list(d) if not is_temporary(r)]
 
 
 def mined(store: Store) -> bool:
@@ -263,21 +271,20 @@ def vouched_files(store: Store, verify: bool = True) -> Vouched:
     damage: dict[str, dict[str, Damage]] = {}
     if not mined(store):
         for t in TABLES:
-            files[t] = {r for r in store.list(f"{CATALOG}/{t}") if _hive_file(r)}
+            files[t] = {r for r in store.list(f"{CATALOG}/{t}") if catalog_layout(r) is not None}
         return Vouched({t: sorted(v) for t, v in files.items()}, {}, False)
     recorded: dict[str, tuple[Mapping, str]] = {}  # rel → (its record, owner)
     for m in SequenceMarker.load_all(store):
         if not isinstance(m, SequenceMarker) or m.files is None:
             continue  # unreadable, or from before integrity records: vouches for nothing
-        dirs = {t: catalog_dir(t, m.dataset, m.sequence) + "/" for t in TABLES}
+        dirs = [d + "/" for t in TABLES for d in _sequence_dirs(t, m.dataset, m.sequence)]
         owner = f"sequence {m.sequence}"
         for t in TABLES:
-            on_disk = {r for r in store.list(dirs[t].rstrip("/")) if not is_temporary(r)}
-            for rel in on_disk - m.files.keys():
+            for rel in set(_sequence_files(store, t, m.dataset, m.sequence)) - m.files.keys():
                 damage.setdefault(t, {})[rel] = Damage(rel, "not recorded by the sequence's last finalize (left over)",
                                                        owner)
         for rel, want in m.files.items():
-            if any(rel.startswith(d) and "/" not in rel[len(d):] for d in dirs.values()):
+            if any(rel.startswith(d) and "/" not in rel[len(d):] for d in dirs):
                 recorded.setdefault(rel, (want, owner))
     rels = sorted(recorded)
     infos = store.fs.get_file_info([store.full(r) for r in rels]) if rels else []

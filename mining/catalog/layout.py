@@ -5,7 +5,8 @@ draws the same tree); ``store.py`` does the I/O on them::
 
     job.json                                                  the job record (JobRecord)
     .mine.lock                                                the writer's lock (lock.py): who holds it
-    catalog/<table>/dataset=D/sequence=S/part-<k>.parquet     compacted tables (tubes, tube_frames, frames, windows)
+    catalog/<table>/D/S/part-<k>.parquet                      compacted tables (tubes, tube_frames, frames, windows),
+                                                              dataset and sequence inside every file (schema v3)
     catalog/_sequences/dataset=D/sequence=S.json              a finalized sequence: which windows its catalogue holds,
                                                               and the size and sha256 of each of its compacted files
                                                               (SequenceMarker)
@@ -17,6 +18,17 @@ draws the same tree); ``store.py`` does the I/O on them::
     _cache/obs/dataset=D/sequence=S/<window>.npz.zst          a window's observations, until no track needs them
     labels/part-<UTC>-<hex>.parquet                           what people decided about tubes (labels.py): one file
     labels/compact-<UTC>-<hex>.parquet                        per write, merged by `mine label --compact`
+
+The compacted tables are what people read with their own tools, so their folders have plain
+names and their files hold ``dataset`` / ``sequence`` as strings: a default read of
+``catalog/tubes`` in pandas, pyarrow, polars or DuckDB gives ``sequence`` "0005", never 5
+(hive names ``sequence=0005`` are read as integers unless the reader is told otherwise, and
+a file column beside a hive name of another inferred type breaks pandas' read). Before
+schema v3 they lay under ``catalog/<table>/dataset=D/sequence=S/`` without those columns
+(``HIVE_CATALOGUE``): such a catalogue is still read (``catalog_layout``, ``views.py``), and
+resuming or extending it is refused (``check_resumable``). The working folders (manifest,
+parts, running markers, caches, sequence markers) keep their hive names: only this code reads
+them, and a catalogue keeps resuming across this change where nothing was compacted yet.
 
 The records among them are types: ``JobRecord`` here, the others in ``records.py``.
 Every path is built from names checked by ``mining/names.py`` (dataset, sequence, window),
@@ -74,6 +86,9 @@ TABLE_DIRS = {"tubes": f"{CATALOG}/tubes", "tube_frames": f"{CATALOG}/tube_frame
               "windows": MANIFEST}
 
 
+CATALOGUE = f"{CATALOG}/<table>/<dataset>/<sequence>/part-<k>.parquet"  # the compacted tables (schema v3)
+HIVE_CATALOGUE = f"{CATALOG}/<table>/dataset=<dataset>/sequence=<sequence>/part-<k>.parquet"  # before v3
+
 # What a refusal over a lost or unreadable job.json offers: never "move job.json away", which
 # leaves the catalogue without its record (the next submit would then mine over it).
 FRESH_START = (f"mine submit --new-run moves the old catalogue (job.json included) to {REPLACED}/ inside --out "
@@ -85,7 +100,7 @@ class UnreadableRecord(InputError):
 
 
 def _where(dataset: str, sequence: str, window: str | None = None) -> str:
-    """``dataset=D/sequence=S`` (and ``/<window>``) from checked names."""
+    """``dataset=D/sequence=S`` (and ``/<window>``) from checked names: the working folders."""
     origin = "a path under --out"
     where = f"dataset={check_name(dataset, 'dataset', origin)}/sequence={check_name(sequence, 'sequence', origin)}"
     return where if window is None else f"{where}/{check_name(window, 'window', origin)}"
@@ -105,12 +120,12 @@ def manifest_path(dataset: str, sequence: str, window: str) -> str:
 
 def files_path(dataset: str, sequence: str, window: str) -> str:
     """Size and sha256 of a window's parts, written before its manifest row says done."""
-    return f"{MANIFEST}/dataset={dataset}/sequence={sequence}/{window}.files.json"
+    return f"{MANIFEST}/{_where(dataset, sequence, window)}.files.json"
 
 
 def stitch_path(dataset: str, sequence: str) -> str:
     """The manifest row of a sequence whose stitch (finalize) failed; removed when one succeeds."""
-    return f"{MANIFEST}/dataset={dataset}/sequence={sequence}/{STITCH_ROW}.parquet"
+    return f"{MANIFEST}/{_where(dataset, sequence)}/{STITCH_ROW}.parquet"
 
 
 def observed_path(dataset: str, sequence: str, window: str) -> str:
@@ -121,19 +136,54 @@ def observed_path(dataset: str, sequence: str, window: str) -> str:
 
 def running_path(dataset: str, sequence: str, window: str) -> str:
     """The marker of a window a driver has started (its observe or track step) and not finished."""
-    return f"{RUNNING}/dataset={dataset}/sequence={sequence}/{window}.json"
+    return f"{RUNNING}/{_where(dataset, sequence, window)}.json"
 
 
-def catalog_dir(table: str, dataset: str, sequence: str) -> str:
-    """The folder of one sequence's compacted files of ``table``."""
+def catalog_dir(table: str, dataset: str, sequence: str, hive: bool = False) -> str:
+    """The folder of one sequence's compacted files of ``table``: ``catalog/<table>/D/S``
+    (``hive``: where a catalogue before schema v3 kept them, ``catalog/<table>/dataset=D/sequence=S``)."""
     if table not in TABLE_DIRS:
         raise ValueError(f"no catalogue table {table!r}")
-    return f"{CATALOG}/{table}/{_where(dataset, sequence)}"
+    if hive:
+        return f"{CATALOG}/{table}/{_where(dataset, sequence)}"
+    origin = "a path under --out"
+    return f"{CATALOG}/{table}/{check_name(dataset, 'dataset', origin)}/{check_name(sequence, 'sequence', origin)}"
 
 
 def catalog_file(table: str, dataset: str, sequence: str, k: int) -> str:
     """The ``k``-th compacted file of one sequence's ``table``."""
     return f"{catalog_dir(table, dataset, sequence)}/part-{int(k)}.parquet"
+
+
+def catalog_layout(rel: str) -> str | None:
+    """Which layout the compacted file ``rel`` lies in: ``"plain"`` (``catalog/<table>/D/S/<file>``,
+    schema v3), ``"hive"`` (``catalog/<table>/dataset=D/sequence=S/<file>``, before v3), or None
+    (not a table's file at a table file's depth). Checked names hold no ``=``, so the two never meet."""
+    p = rel.split("/")
+    if len(p) != 5 or p[0] != CATALOG or p[1] not in TABLE_DIRS:
+        return None
+    if p[2].startswith("dataset=") and p[3].startswith("sequence="):
+        return "hive"
+    return None if "=" in p[2] + p[3] else "plain"
+
+
+def hive_catalogue(store: Store) -> list[str]:
+    """The compacted files of ``store`` in the layout before schema v3 (``HIVE_CATALOGUE``), sorted."""
+    return [r for t in TABLE_DIRS for r in store.list(f"{CATALOG}/{t}") if catalog_layout(r) == "hive"]
+
+
+def check_resumable(store: Store) -> None:
+    """Refuse to resume or extend a catalogue whose compacted tables lie in the layout before
+    schema v3: stitching its sequences again would leave two layouts side by side, and the
+    markers of the old files vouch for paths this code no longer writes. Naming the fix."""
+    if old := hive_catalogue(store):
+        raise InputError(
+            f"{store.uri} holds a catalogue of schema v2 or older, whose tables lie in hive folders "
+            f"({HIVE_CATALOGUE}); this version writes {CATALOGUE} (dataset and sequence inside the files, so "
+            "every Parquet reader gives them as strings) and can neither resume nor extend it. "
+            "`mine query`, `mine view` and `mine export` still read it as it is. To mine it again: "
+            f"mine submit --new-run moves it (job.json included) to {REPLACED}/ inside --out and starts a new one; "
+            "or use another --out, or the version of the code that made it", store.full(old[0]))
 
 
 def done_path(dataset: str, sequence: str) -> str:

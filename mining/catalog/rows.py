@@ -1,4 +1,4 @@
-"""Mined tubes and observed frames → Arrow tables of catalogue schema v2, and back.
+"""Mined tubes and observed frames → Arrow tables of catalogue schema v3, and back.
 
 Encoders: ``tube_row`` and ``frame_rows`` fill a window's parts (window-local worlds,
 with the part-only columns) and the stitched catalogue (one world per pose segment of
@@ -23,7 +23,7 @@ import numpy as np
 import pyarrow as pa
 from pycocotools import mask as mask_utils
 
-from mining.catalog.schema import SCHEMA_VERSION, THETA_COLUMNS, file_schema, part_schema
+from mining.catalog.schema import SCHEMA_VERSION, THETA_COLUMNS, hive_file_schema, part_schema
 from mining.errors import InputError
 from mining.masks import rle_problem
 from mining.types import MinedTube, TubeFrame
@@ -265,5 +265,8 @@ def frames_row(f: ObservedFrameLike, pose: np.ndarray, segment: int) -> dict:
 
 
 def to_table(rows: Sequence[dict], table: str, part: bool = False) -> pa.Table:
-    schema = part_schema(table) if part else file_schema(table)
+    """``rows`` of ``table`` without ``dataset`` / ``sequence`` (their folder names say them): a
+    manifest row, a window's part (``part``), or one sequence's rows, which ``store.write_sequence``
+    completes with both."""
+    schema = part_schema(table) if part else hive_file_schema(table)
     return pa.Table.from_pylist(list(rows), schema=schema)

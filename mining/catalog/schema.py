@@ -1,13 +1,19 @@
-"""Catalogue schema v2: the Arrow schemas of the four tables (DESIGN.md "Catalogue").
+"""Catalogue schema v3: the Arrow schemas of the four tables (DESIGN.md "Catalogue").
 
-The catalogue is Parquet, hive-partitioned by ``dataset`` and ``sequence``; those two
-columns live in the folder names, not in the files, so the file schemas below leave
-them out and readers add them back (``FILE_SCHEMAS`` vs ``SCHEMAS``). ``schemas/v2/``
-holds the same schemas as JSON and the DuckDB views over them.
+The catalogue is Parquet, one folder per ``dataset`` and ``sequence``
+(``catalog/<table>/<dataset>/<sequence>/part-<k>.parquet``, ``layout.py``). From v3 the
+compacted files hold every column of their table, ``dataset`` and ``sequence`` included,
+as strings, and the folders have plain names: any Parquet reader's default read (pandas,
+pyarrow, polars, DuckDB) gives ``sequence`` as the string "0005". ``file_schema`` is that
+file's schema. Before v3 the folders were hive-named (``dataset=D/sequence=S``) and the files
+left those two columns out, so a default read inferred ``sequence=0005`` as the integer 5;
+such a catalogue is still read (``views.py``), its files by ``hive_file_schema``.
 
-Per-window *parts* (written by each window before stitching) use the same tables plus
-the columns in ``PART_EXTRA``: the stitcher needs each tube piece's frames in the
-window's context, and each observation's class posterior to re-average it.
+The working files stay hive-named without the two columns (``hive_file_schema``): the
+manifest rows, and the per-window *parts* (written by each window before stitching), which
+use the same tables plus the columns in ``PART_EXTRA``: the stitcher needs each tube
+piece's frames in the window's context, and each observation's class posterior to
+re-average it. ``schemas/v3/`` holds the same schemas as JSON and the DuckDB views over them.
 """
 
 from __future__ import annotations
@@ -18,13 +24,14 @@ from pathlib import Path
 
 import pyarrow as pa
 
-SCHEMA_VERSION = 2  # v2: known / category nullable (unclassified), classified_frames, class_evidence
-# Nullable columns added within a version: files written before them read them as null
-# (catalog/views.py), so an older catalogue of the same version stays readable.
+SCHEMA_VERSION = 3  # v3: dataset / sequence inside the compacted files, plain folder names (v2: hive folders)
+# v2: known / category nullable (unclassified), classified_frames, class_evidence
+# Nullable columns added since v2: files written before them read them as null (catalog/views.py),
+# so an older catalogue (of v2 or v3) stays readable.
 THETA_COLUMNS = ("theta_prior", "theta_motion", "theta_mask", "theta_objectness", "theta_shape", "theta_class")
 ADDED_COLUMNS = {"tubes": frozenset({"speed_sigma_mps", "path_sigma_m", "moving_speed_mps", "score_model", "score_version",
                                   *THETA_COLUMNS})}
-PARTITION = ("dataset", "sequence")
+PARTITION = ("dataset", "sequence")  # the folder levels of every table (hive-named before v3 and in the working files)
 
 vec3 = pa.list_(pa.float32(), 3)
 box4 = pa.list_(pa.float32(), 4)
@@ -201,19 +208,27 @@ def documented(table: str, f: pa.Field) -> pa.Field:
 
 
 def file_schema(table: str) -> pa.Schema:
-    """The schema of a catalogue Parquet file: the table without its partition columns."""
-    s = SCHEMAS[table]
-    return pa.schema([documented(table, f) for f in s if f.name not in PARTITION])
+    """The schema of a compacted catalogue file (v3): every column of the table, ``dataset`` and
+    ``sequence`` included, so a reader needs no folder name to know them."""
+    return pa.schema([documented(table, f) for f in SCHEMAS[table]])
+
+
+def hive_file_schema(table: str) -> pa.Schema:
+    """The schema of a file whose hive folder names hold ``dataset`` / ``sequence`` (left out of
+    the file): a manifest row, and a compacted file of a catalogue before v3."""
+    return pa.schema([documented(table, f) for f in SCHEMAS[table] if f.name not in PARTITION])
 
 
 def part_schema(table: str) -> pa.Schema:
-    """The schema of a per-window part (partition columns left out, part-only columns added)."""
-    return pa.schema(list(file_schema(table)) + [documented(table, f) for f in PART_EXTRA[table]])
+    """The schema of a per-window part (hive folders: partition columns left out, part-only columns added)."""
+    return pa.schema(list(hive_file_schema(table)) + [documented(table, f) for f in PART_EXTRA[table]])
 
 
 def partitioning() -> "pyarrow.dataset.Partitioning":  # noqa: F821
-    """The folders' hive partitioning with ``dataset`` / ``sequence`` as strings: without it pandas,
-    pyarrow and polars infer ``sequence=0005`` as the integer 5 (pass it as ``partitioning=``)."""
+    """The hive partitioning of the working folders (manifest, parts) and of a catalogue before v3,
+    with ``dataset`` / ``sequence`` as strings: without it pandas, pyarrow and polars infer
+    ``sequence=0005`` as the integer 5 (pass it as ``partitioning=``). A v3 catalogue's tables need
+    none: their files hold both columns, as strings."""
     import pyarrow.dataset as ds
 
     return ds.partitioning(pa.schema([pa.field(n, pa.string()) for n in PARTITION]), flavor="hive")

@@ -19,8 +19,8 @@ A kill between a write's two halves leaves its temporary file; ``temporaries`` f
 status`` to report and the next ``mine submit`` to remove.
 
 ``write_sequence`` compacts one table of one sequence into few large, sorted Parquet
-files under ``catalog/<table>/dataset=D/sequence=S/part-<k>.parquet``. Which path holds
-what is ``layout.py``'s; this module only reads and writes.
+files under ``catalog/<table>/D/S/part-<k>.parquet``, ``dataset`` and ``sequence`` inside
+every file (schema v3). Which path holds what is ``layout.py``'s; this module only reads and writes.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ import pyarrow.parquet as pq
 from mining.catalog import safe_files
 from mining.catalog.layout import JOB, JOB_ENTRIES, RUNNING, catalog_dir, catalog_file
 from mining.catalog.safe_files import TMP_MARK, write_error
-from mining.catalog.schema import PARTITION, file_schema
+from mining.catalog.schema import PARTITION, SCHEMA_VERSION, file_schema
 from mining.errors import InputError
 
 COMPRESSION = "zstd"  # ours: smaller than snappy at similar decode speed in DuckDB
@@ -251,20 +251,21 @@ class Store:
             pass
 
 
-def conform(table: str, data: pa.Table, dataset: str | None = None, sequence: str | None = None) -> pa.Table:
-    """``data`` as a catalogue file of ``table``: exactly ``file_schema(table)``'s columns,
-    types and non-null fields, in its order. Partition columns, when present, must hold
-    the given ``dataset`` / ``sequence`` and are dropped. Raises ValueError naming every
-    mismatch."""
+def conform(table: str, data: pa.Table, dataset: str, sequence: str) -> pa.Table:
+    """``data`` as a compacted file of ``table`` of one sequence: exactly ``file_schema(table)``'s
+    columns, types and non-null fields, in its order. ``dataset`` / ``sequence``, when present,
+    must hold only the given names; when absent (rows of a part or the manifest), they are
+    added holding them. Raises ValueError naming every mismatch."""
     schema = file_schema(table)
     problems = []
     for name, want in zip(PARTITION, (dataset, sequence)):
         if name in data.column_names:
             col = data.column(name)
             values = set(pc.unique(col).to_pylist()) if len(col) else set()
-            if want is not None and values - {want}:
+            if values - {want}:
                 problems.append(f"column {name} holds {sorted(map(str, values))}, expected only {want!r}")
             data = data.drop_columns([name])
+        data = data.append_column(name, pa.array([want] * len(data), pa.string()))
     names = set(data.column_names)
     missing = [f.name for f in schema if f.name not in names]
     extra = sorted(names - set(schema.names))
@@ -277,11 +278,11 @@ def conform(table: str, data: pa.Table, dataset: str | None = None, sequence: st
             continue
         col = data.column(f.name)
         if col.type != f.type:
-            problems.append(f"column {f.name} has type {col.type}, schema v2 says {f.type}")
+            problems.append(f"column {f.name} has type {col.type}, schema v{SCHEMA_VERSION} says {f.type}")
         elif not f.nullable and col.null_count:
             problems.append(f"column {f.name} has {col.null_count} nulls but is not nullable")
     if problems:
-        raise ValueError(f"{table}: does not match catalogue schema v2: " + "; ".join(problems))
+        raise ValueError(f"{table}: does not match catalogue schema v{SCHEMA_VERSION}: " + "; ".join(problems))
     return data.select(schema.names).cast(schema)
 
 
@@ -289,7 +290,8 @@ def write_sequence(store: Store, table: str, dataset: str, sequence: str, table_
                    rows_per_file: int = ROWS_PER_FILE, row_group_rows: int = ROW_GROUP_ROWS) -> list[str]:
     """Replace the compacted files of one table of one sequence; returns the files written.
 
-    The rows are validated against ``file_schema(table)``, sorted (``SORT_KEYS``) and cut
+    The rows are validated against ``file_schema(table)`` (``dataset`` / ``sequence`` added where
+    they are absent: ``conform``), sorted (``SORT_KEYS``) and cut
     into ``part-<k>.parquet`` files of at most ``rows_per_file`` rows. All new files are
     written under temporary names first, then moved into place, then files of the
     previous compaction that the new one does not overwrite are removed: at every moment

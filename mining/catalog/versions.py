@@ -17,6 +17,14 @@ A reader meets
   checksums, so its sequences are stitched again; ``--new-run`` moves it aside). No JSON
   record of v1 carries a version: an older record does not exist to be refused.
 
+The versions: v1 (no class evidence), v2 (unclassified tubes, class evidence), v3 (the same
+columns; the compacted tables moved from hive folders ``catalog/<table>/dataset=D/sequence=S/``,
+which left ``dataset`` / ``sequence`` out of the files, to ``catalog/<table>/D/S/`` with both
+inside every file, so any Parquet reader's default read gives them as strings: ``layout.py``).
+A v2 catalogue is read as it is (``views.py`` reads each file by its layout) and refused by a
+resubmission or ``--extend`` naming ``--new-run`` (``layout.check_resumable``); v2 code meets a
+v3 catalogue's rows and records as newer and refuses them.
+
 ``SchemaVersionError`` is an ``InputError`` (exit 2, one line), not an ``UnreadableRecord``:
 a catalogue of a newer version is not damage to recompute or move aside.
 """
@@ -31,7 +39,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from mining.catalog.schema import SCHEMA_VERSION, file_schema
+from mining.catalog.schema import SCHEMA_VERSION, SCHEMAS
 from mining.errors import InputError
 
 if TYPE_CHECKING:
@@ -72,8 +80,9 @@ def check_record_version(record: object, path: str | Path) -> None:
 
 
 def unknown_columns(names: list[str], table: str) -> list[str]:
-    """The columns among ``names`` that a file of ``table`` does not have (partition columns aside)."""
-    known = set(file_schema(table).names)
+    """The columns among ``names`` that a file of ``table`` does not have (``dataset`` / ``sequence``
+    are in a v3 compacted file, in the folder names of a manifest row or an older file)."""
+    known = set(SCHEMAS[table].names)
     return [n for n in names if n not in known]
 
 

@@ -1,10 +1,13 @@
-"""A read-only DuckDB over a catalogue: the four tables and the views of schemas/v2.
+"""A read-only DuckDB over a catalogue: the four tables and the views of schemas/v3.
 
-Tables (all columns of ``schema.SCHEMAS``, partition columns ``dataset`` / ``sequence``
-read back from the hive folder names, as VARCHAR so "0005" stays "0005"):
+Tables (all columns of ``schema.SCHEMAS``; ``dataset`` / ``sequence`` as VARCHAR, so "0005"
+stays "0005"):
 
-* ``tubes``, ``tube_frames``, ``frames`` — ``OUT/catalog/<table>/dataset=D/sequence=S/*.parquet``
-* ``windows`` — the manifest, ``OUT/manifest/dataset=D/sequence=S/*.parquet``
+* ``tubes``, ``tube_frames``, ``frames`` — ``OUT/catalog/<table>/D/S/*.parquet``, both columns
+  in the files (schema v3); a catalogue before v3 keeps them in hive folders
+  (``OUT/catalog/<table>/dataset=D/sequence=S/``), read back from the folder names: each file
+  is read by its layout (``layout.catalog_layout``), so old catalogues stay readable
+* ``windows`` — the manifest, ``OUT/manifest/dataset=D/sequence=S/*.parquet`` (hive folders)
 
 The compacted tables read exactly the files the finished markers vouch for
 (``integrity.vouched_files``), never a glob: a sequence whose first stitch has not
@@ -55,8 +58,9 @@ import pyarrow.dataset as ds
 
 from mining.catalog.integrity import Damage, check_versions, unreadable_parquet, vouched_files
 from mining.catalog.labels import LABEL_SCHEMA, label_files, read_labels
-from mining.catalog.layout import MANIFEST, PART_SUFFIX, PARTS, TABLE_DIRS
-from mining.catalog.schema import ADDED_COLUMNS, PARTITION, SCHEMAS, column_doc, file_schema, part_schema
+from mining.catalog.layout import MANIFEST, PART_SUFFIX, PARTS, TABLE_DIRS, catalog_layout
+from mining.catalog.schema import (ADDED_COLUMNS, PARTITION, SCHEMAS, column_doc, file_schema, hive_file_schema,
+                                   part_schema)
 from mining.catalog.store import Store
 from mining.errors import InputError
 
@@ -125,34 +129,49 @@ def _duck_type(con: duckdb.DuckDBPyConnection, t: pa.DataType) -> str:
 
 def _folder_view(con: duckdb.DuckDBPyConnection, store: Store, name: str, folder: str, suffix: str,
                  schema: pa.Schema, cols: str, native: bool, files: list[str] | None = None,
-                 added: frozenset[str] = frozenset()) -> None:
-    """View ``name`` over the hive-partitioned files ``folder/*/*/*<suffix>`` of ``schema``, or
-    over exactly ``files`` (relative paths under ``folder``) when given (partition columns
-    included; empty when there are no files): DuckDB's own Parquet reader, or a registered
-    pyarrow dataset (``native`` False)."""
+                 added: frozenset[str] = frozenset(), plain: pa.Schema | None = None) -> None:
+    """View ``name`` over the hive-named files ``folder/*/*/*<suffix>`` of ``schema`` (partition
+    columns last, read from the folder names), or over exactly ``files`` (relative paths under
+    ``folder``) when given: each by its layout (``layout.catalog_layout``), a hive-named file
+    as above and a plain one (schema v3, ``plain``: its own ``dataset`` / ``sequence``) as it
+    is, both in one view when a catalogue holds both. Empty when there are no files. DuckDB's
+    own Parquet reader, or registered pyarrow datasets (``native`` False)."""
     if not (store.list(folder, suffix) if files is None else files):
         con.register(f"_empty_{name}", _as_read(schema).empty_table())
         con.execute(f"CREATE VIEW {name} AS SELECT {cols} FROM _empty_{name}")
         return
-    hive = "hive_partitioning = true, hive_types = {'dataset': 'VARCHAR', 'sequence': 'VARCHAR'}"
-    if native:
-        what = (sql_string(f"{store.full(folder)}/*/*/*{suffix}") if files is None
-                else "[" + ", ".join(sql_string(store.full(f)) for f in files) + "]")
-        if added:  # files of the same schema version written before a nullable column was added
-            hive += ", union_by_name = true"
-            have = {r[0] for r in con.execute(f"DESCRIBE SELECT * FROM read_parquet({what}, {hive})").fetchall()}
-            types = {f.name: f.type for f in schema}
-            names = [n.strip('"') for n in cols.split(", ")]
-            cols = ", ".join(f'"{n}"' if n in have or n not in added
-                             else f'CAST(NULL AS {_duck_type(con, types[n])}) AS "{n}"' for n in names)
-        con.execute(f"CREATE VIEW {name} AS SELECT {cols} FROM read_parquet({what}, {hive})")
-        return
-    part = pa.schema([pa.field(n, pa.string()) for n in PARTITION])
-    source = store.full(folder) if files is None else [store.full(f) for f in files]
-    dset = ds.dataset(source, filesystem=store.fs, format="parquet", partition_base_dir=store.full(folder),
-                      partitioning=ds.partitioning(part, flavor="hive"), schema=_as_read(schema))
-    con.register(f"_arrow_{name}", dset)
-    con.execute(f"CREATE VIEW {name} AS SELECT {cols} FROM _arrow_{name}")
+    groups: dict[str, list[str] | None] = {"hive": None} if files is None else {}
+    for f in files or []:
+        groups.setdefault("plain" if plain is not None and catalog_layout(f) == "plain" else "hive", []).append(f)
+    selects = []
+    for layout, group in sorted(groups.items()):
+        hive = layout == "hive"
+        if native:
+            what = (sql_string(f"{store.full(folder)}/*/*/*{suffix}") if group is None
+                    else "[" + ", ".join(sql_string(store.full(f)) for f in group) + "]")
+            # Explicit either way: a folder above the catalogue named "k=v" must not add a column.
+            opts = ("hive_partitioning = true, hive_types = {'dataset': 'VARCHAR', 'sequence': 'VARCHAR'}" if hive
+                    else "hive_partitioning = false")
+            picked = cols
+            if added:  # files written before a nullable column was added (ADDED_COLUMNS)
+                opts += ", union_by_name = true"
+                have = {r[0] for r in con.execute(f"DESCRIBE SELECT * FROM read_parquet({what}, {opts})").fetchall()}
+                types = {f.name: f.type for f in schema}
+                names = [n.strip('"') for n in cols.split(", ")]
+                picked = ", ".join(f'"{n}"' if n in have or n not in added
+                                   else f'CAST(NULL AS {_duck_type(con, types[n])}) AS "{n}"' for n in names)
+            selects.append(f"SELECT {picked} FROM read_parquet({what}, {opts})")
+            continue
+        source = store.full(folder) if group is None else [store.full(f) for f in group]
+        if hive:
+            part = pa.schema([pa.field(n, pa.string()) for n in PARTITION])
+            dset = ds.dataset(source, filesystem=store.fs, format="parquet", partition_base_dir=store.full(folder),
+                              partitioning=ds.partitioning(part, flavor="hive"), schema=_as_read(schema))
+        else:
+            dset = ds.dataset(source, filesystem=store.fs, format="parquet", schema=_as_read(plain))
+        con.register(f"_arrow_{name}_{layout}", dset)
+        selects.append(f"SELECT {cols} FROM _arrow_{name}_{layout}")
+    con.execute(f"CREATE VIEW {name} AS " + " UNION ALL ".join(selects))
 
 
 def _with_partition(schema: pa.Schema) -> pa.Schema:
@@ -162,8 +181,8 @@ def _with_partition(schema: pa.Schema) -> pa.Schema:
 def _files_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, native: bool,
                 files: list[str] | None = None) -> None:
     cols = ", ".join(f'"{n}"' for n in SCHEMAS[table].names)
-    _folder_view(con, store, table, TABLE_DIRS[table], ".parquet", _with_partition(file_schema(table)), cols, native,
-                 files, ADDED_COLUMNS.get(table, frozenset()))
+    _folder_view(con, store, table, TABLE_DIRS[table], ".parquet", _with_partition(hive_file_schema(table)), cols,
+                 native, files, ADDED_COLUMNS.get(table, frozenset()), file_schema(table))
 
 
 PROVISIONAL = ("tubes", "tube_frames")  # the part tables the provisional views read

@@ -1,4 +1,4 @@
--- Catalogue schema v2: DuckDB views over the base tables tubes, tube_frames, frames, windows.
+-- Catalogue schema v3: DuckDB views over the base tables tubes, tube_frames, frames, windows.
 -- `mine query` (mining/catalog/views.py) creates the base tables, then runs this file.
 
 -- Tubes chosen by co-selection: the mined result.

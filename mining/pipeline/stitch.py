@@ -29,7 +29,7 @@ import pyarrow as pa
 from scipy.optimize import linear_sum_assignment
 
 from mining.catalog.rows import RunInfo, frame_rows, part_tube_frame, to_table, tube_row
-from mining.catalog.schema import file_schema, part_schema
+from mining.catalog.schema import hive_file_schema, part_schema
 from mining.config import JobConfig
 from mining.errors import InputError
 from mining.geometry.poses import chain_poses
@@ -59,7 +59,7 @@ def chain_sequence(frames: pa.Table) -> tuple[pa.Table, SequencePoses]:
     out = {k: v for k, v in cols.items() if k not in ("T_cur_prev", "segment", "pose")}
     out["segment"] = segments
     out["pose"] = [p.ravel().tolist() for p in poses]
-    table = pa.Table.from_pydict(out, schema=file_schema("frames"))
+    table = pa.Table.from_pydict(out, schema=hive_file_schema("frames"))  # write_sequence adds dataset / sequence
     return table, SequencePoses(dict(zip(cols["frame"], poses)), dict(zip(cols["frame"], segments)),
                                 dict(zip(cols["frame"], cols["position"])))
 

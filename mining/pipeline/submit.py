@@ -43,7 +43,8 @@ import pyarrow.fs as pafs
 
 from mining.catalog.identity import check_resubmit, job_identity
 from mining.catalog.layout import (FRESH_START, JOB, JOB_ENTRIES, LABELS, LEGACY_CACHE_SUFFIX, PART_TABLES, REPLACED,
-                                   JobRecord, UnreadableRecord, cache_path, files_path, manifest_path, part_path)
+                                   JobRecord, UnreadableRecord, cache_path, check_resumable, files_path, manifest_path,
+                                   part_path)
 from mining.catalog.lock import OutputLock
 from mining.catalog.store import Store
 from mining.config import JobConfig
@@ -117,7 +118,8 @@ def record_job(store: Store, cfg: JobConfig, windows: list[Window], identity: di
 
     A folder with catalogue data but no job.json (lost, or moved away) or an unreadable one
     is not an empty folder: mining into it would replace that catalogue, so it is refused
-    unless ``new``, which moves it aside like any other.
+    unless ``new``, which moves it aside like any other. So is a catalogue whose tables lie in
+    the hive folders of schema v2 (``layout.check_resumable``): ``new`` moves it aside too.
     """
     lost = ""  # why the catalogue in --out has no job record, when it has none but holds data
     try:
@@ -137,6 +139,7 @@ def record_job(store: Store, cfg: JobConfig, windows: list[Window], identity: di
         _announce(store, run_id, _move_aside(store, run_id), lost)
         old = None
     if old is not None:
+        check_resumable(store)  # a catalogue before schema v3 (hive folders): read, never resumed or extended
         check_resubmit(old.identity, identity, store.uri, mode)
         old.check(cfg.params_hash, store.uri)  # every config key is in the identity: never reached
         _retire(store, old.windows, windows)
