@@ -342,7 +342,7 @@ class MaskKernels(NamedTuple):
 
     close: np.ndarray  # closing that fills stereo holes
     ring: np.ndarray  # the border ring's width
-    grow: np.ndarray  # one growth step: one row down, one column aside
+    grow: np.ndarray  # one growth step: from the row above, one column aside (the top row of a 3 × 3 window)
     pad: int  # crop margin around a cluster's points, samples
     trim: int  # left-edge trim, samples
 
@@ -354,7 +354,9 @@ def mask_kernels(cfg: StereoProposerConfig) -> MaskKernels:
     close_kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k_close, k_close))
     ring_kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
     pad = k_close // 2 + 3 + cfg.grow_steps
-    return MaskKernels(close_kernel, ring_kernel, np.ones((1, 3), np.uint8), pad, cfg.left_trim_px // s)
+    grow = np.zeros((3, 3), np.uint8)
+    grow[0] = 1  # anchored at the centre: a pixel takes the row above's three, so no shifted copy is made
+    return MaskKernels(close_kernel, ring_kernel, grow, pad, cfg.left_trim_px // s)
 
 
 class Candidate(NamedTuple):
@@ -394,13 +396,13 @@ def build_mask(st: ClusterStats, pts: SamplePoints, kernels: MaskKernels, calib:
     steps = min(cfg.grow_steps, math.ceil(cut_gap * calib.fy / (zq[1] * s)))
     if steps > 0:
         ok = (pts.growable[r0:r1, c0:c1] & (zc >= zq[0] - grow_gap) & (zc <= zq[2] + grow_gap)).astype(np.uint8)
+        n = cv2.countNonZero(points)
         for _ in range(steps):
-            below = np.zeros_like(points)
-            below[1:] = cv2.dilate(points, kernels.grow)[:-1]  # one row down, one column aside
-            new = below & ok & (points == 0)
-            if not new.any():
+            # points ∪ (below ∩ ok): what the row above reaches, one column aside, where growth may go
+            points = cv2.bitwise_or(points, cv2.bitwise_and(cv2.dilate(points, kernels.grow), ok))
+            if (m := cv2.countNonZero(points)) == n:
                 break
-            points |= new
+            n = m
         grown = (points > 0) & (zobj == 0)
         zobj[grown] = zc[grown]
     mask = cv2.morphologyEx(points, cv2.MORPH_CLOSE, kernels.close)
@@ -423,7 +425,8 @@ def build_mask(st: ClusterStats, pts: SamplePoints, kernels: MaskKernels, calib:
     fill = float(np.count_nonzero(mask)) / mask.size
     # Full-resolution crop: each sample stands for an s × s block.
     y0, x0 = (r0 + int(rows[0])) * s, (c0 + int(cols[0])) * s
-    crop = np.repeat(np.repeat(mask.astype(bool), s, axis=0), s, axis=1)[: H - y0, : W - x0]
+    h, w = mask.shape  # mask holds 0 / 1 (morphology of 0 / 1), so its bytes are bools
+    crop = cv2.resize(mask, (w * s, h * s), interpolation=cv2.INTER_NEAREST_EXACT).view(bool)[: H - y0, : W - x0]
     return Candidate(crop, x0, y0, (x0, y0, x0 + crop.shape[1], y0 + crop.shape[0]),
                      (contrast, fill, max(width, length), top, support),
                      (xq[1], float(np.sort(pts.y[pts.pv[sub], pts.pu[sub]])[q[1]]), zq[1]), (width, top, length))
@@ -494,9 +497,10 @@ def _disc(radius: int) -> np.ndarray:
 
 
 def colour_bins(image: np.ndarray, bits: int) -> np.ndarray:
-    """(H, W) int32 colour bin of each pixel: the top ``bits`` bits of each RGB channel."""
-    q = (image >> (8 - bits)).astype(np.int32)
-    return (q[..., 0] << (2 * bits)) | (q[..., 1] << bits) | q[..., 2]
+    """(H, W) colour bin of each pixel (uint16, int32 past 5 bits): the top ``bits`` bits of each RGB channel."""
+    q = image >> (8 - bits)  # uint8; the bins fit 16 bits for bits ≤ 5 (half the memory traffic of int32)
+    dtype = np.uint16 if bits <= 5 else np.int32
+    return (q[..., 0].astype(dtype) << (2 * bits)) | (q[..., 1].astype(dtype) << bits) | q[..., 2]
 
 
 def refine_by_colour(crop: np.ndarray, x0: int, y0: int, bins: np.ndarray,
