@@ -122,8 +122,9 @@ def localise(
         points[i] = pts32[kept[i]:kept[i + 1]]
     obs = _observations(proposals, t_ns, position, size, velocity, n_points, calib, ground, cfg)
     if cfg.point_depth_outlier_units > 0:  # the depth noise floor: the triangulation covariance just computed
-        for i in masks:
-            points[i] = at_median_depth(points[i], math.sqrt(obs.covariance[i, 2, 2]), cfg.point_depth_outlier_units)
+        units = cfg.point_depth_outlier_units
+        for i in _may_move_to_median_depth(pts32[:, 2], kept, masks, obs.covariance[:, 2, 2], units):
+            points[i] = at_median_depth(points[i], math.sqrt(obs.covariance[i, 2, 2]), units)
     obs.points, obs.grid = points, grid
     return obs
 
@@ -185,6 +186,24 @@ def at_median_depth(points: np.ndarray, noise_z: float, units: float) -> np.ndar
     moved = points.copy()
     moved[out] *= (med / z[out])[:, None]  # the same pixel (x/z, y/z kept), at the median depth
     return moved
+
+
+def _may_move_to_median_depth(z: np.ndarray, bounds: np.ndarray, masks: np.ndarray, var_z: np.ndarray,
+                              units: float) -> np.ndarray:
+    """The masks whose points ``at_median_depth`` may move: mask ``i`` of ``masks`` owns depths
+    ``z[bounds[i]:bounds[i + 1]]`` and has depth variance ``var_z[i]``. Left out: masks of fewer
+    than 4 points, and masks whose depths span at most ``units`` noise stds (the median lies
+    between the nearest and the farthest point, so no point can be further from it): at 500
+    proposals a frame that is ~70 % of them, whose medians need not be taken one mask at a time."""
+    n = bounds[masks + 1] - bounds[masks]
+    big = masks[n >= 4]
+    if big.size == 0:
+        return big
+    # Each big mask's [start, end) as consecutive reduceat indices; the odd results are discarded.
+    idx = np.stack([bounds[big], bounds[big + 1]], axis=1).ravel()
+    zz = np.append(z, z.dtype.type(0))  # an end index may be len(z)
+    span = np.maximum.reduceat(zz, idx)[::2] - np.minimum.reduceat(zz, idx)[::2]
+    return big[~(span <= units * np.sqrt(var_z[big]))]
 
 
 def _inliers(points: np.ndarray, median: np.ndarray, bounds: np.ndarray, masks: np.ndarray,
