@@ -16,7 +16,7 @@ import math
 import numpy as np
 
 from mining.localise.config import LocaliseConfig, ProposalFilterConfig
-from mining.masks import batch_mask_pixels
+from mining.masks import batch_mask_runs, grid_run_pixels
 from mining.types import GroundPlane, Observations, Proposals, SceneFlow, StereoCalib
 
 
@@ -87,14 +87,15 @@ def localise(
     h, w = depth.shape
     position = np.full((n, 3), np.nan)
     size = np.full((n, 3), np.nan)
-    seg, rows, cols = batch_mask_pixels(proposals.rles)
-    velocity = _velocities(seg, rows, cols, n, flow, dt_s, w, h, cfg) if dt_s else np.full((n, 3), np.nan)
+    heights = np.array([int(r["size"][0]) for r in proposals.rles], np.int64)
+    if (heights != h).any():
+        raise ValueError(f"masks {sorted(set(heights.tolist()) - {h})} rows high on a depth map of {h} rows")
+    runs = batch_mask_runs(proposals.rles)  # (mask, first pixel, length) of each run of the masks' pixels
+    velocity = _velocities(*runs, n, flow, dt_s, w, h, cfg) if dt_s else np.full((n, 3), np.nan)
     # A regular grid keeps at most ~max_points samples spread over each mask.
-    count = np.bincount(seg, minlength=n)
+    count = np.bincount(runs[0], weights=runs[2], minlength=n).astype(np.int64)
     grid = np.where(count > cfg.max_points, np.ceil(np.sqrt(count / cfg.max_points)), 1).astype(np.int64)
-    g = grid[seg]
-    sel = (rows % g == 0) & (cols % g == 0)
-    seg, rows, cols = seg[sel], rows[sel], cols[sel]
+    seg, rows, cols = grid_run_pixels(*runs, heights, grid)
     z = depth.ravel()[rows * w + cols]
     ok = np.isfinite(z)
     n_points = np.bincount(seg[ok], minlength=n).astype(np.int64)
@@ -129,23 +130,21 @@ def localise(
     return obs
 
 
-def _velocities(seg: np.ndarray, rows: np.ndarray, cols: np.ndarray, n: int, flow: SceneFlow | None, dt_s: float,
-                width: int, height: int, cfg: LocaliseConfig) -> np.ndarray:
-    """(n, 3) median scene-flow motion of the samples inside each mask / dt (NaN with too few)."""
+def _velocities(run_seg: np.ndarray, run_start: np.ndarray, run_len: np.ndarray, n: int, flow: SceneFlow | None,
+                dt_s: float, width: int, height: int, cfg: LocaliseConfig) -> np.ndarray:
+    """(n, 3) median scene-flow motion of the samples inside each mask / dt (NaN with too few); the
+    masks are given as runs of pixels (``batch_mask_runs``)."""
     velocity = np.full((n, 3), np.nan)
     keys = _flow_keys(flow, width, height)
-    if keys is None or seg.size == 0:
+    if keys is None or run_seg.size == 0:
         return velocity
     flow_at, rows_of = keys
-    # Flow samples at each mask pixel: a pixel may hold several, in ``flow_at`` order.
-    has_flow = np.zeros(width * height, bool)
-    has_flow[flow_at] = True
-    pix = cols * height + rows
-    hit = np.flatnonzero(has_flow[pix])
-    start = np.searchsorted(flow_at, pix[hit])
-    k = np.searchsorted(flow_at, pix[hit], side="right") - start
+    # The flow samples inside each run (a pixel may hold several), in ``flow_at`` order: found
+    # from the run's ends, not pixel by pixel.
+    start = np.searchsorted(flow_at, run_start)
+    k = np.searchsorted(flow_at, run_start + run_len) - start
     at = np.repeat(start - np.concatenate([[0], np.cumsum(k)[:-1]]), k) + np.arange(k.sum())
-    samples, owner = rows_of[at], np.repeat(seg[hit], k)  # owner ascends: masks come in order
+    samples, owner = rows_of[at], np.repeat(run_seg, k)  # owner ascends: masks come in order
     n_samples = np.bincount(owner, minlength=n)
     enough = np.flatnonzero(n_samples >= cfg.min_flow_samples)
     if enough.size == 0:
