@@ -134,19 +134,30 @@ def predict_mask(mp: MaskPoints, shift_world: np.ndarray, pose: np.ndarray, cali
     u = np.round(uf).astype(np.int64)
     v = np.round(vf).astype(np.int64)
     inside = (u >= 0) & (u < W) & (v >= 0) & (v < H)
-    if not inside.any():
-        return None
-    u, v = u[inside], v[inside]
+    if not inside.all():
+        if not inside.any():
+            return None
+        u, v = u[inside], v[inside]
     pad = close_px + mp.grid
     x0, y0 = max(0, u.min() - pad), max(0, v.min() - pad)
     x1, y1 = min(W, u.max() + pad + 1), min(H, v.max() + pad + 1)
     crop = np.zeros((y1 - y0, x1 - x0), np.uint8)
     crop[v - y0, u - x0] = 1
     if mp.grid > 1:  # each sample stands for a grid × grid patch
-        crop = cv2.dilate(crop, np.ones((mp.grid, mp.grid), np.uint8))
-    crop = cv2.morphologyEx(crop, cv2.MORPH_CLOSE, np.ones((close_px, close_px), np.uint8))
-    xs, ys = np.flatnonzero(crop.any(axis=0)), np.flatnonzero(crop.any(axis=1))
-    if ys.size == 0:
+        crop = cv2.dilate(crop, _square(mp.grid))
+    crop = cv2.morphologyEx(crop, cv2.MORPH_CLOSE, _square(close_px))
+    bx, by, bw, bh = cv2.boundingRect(crop)  # of the non-zero pixels (a uint8 image, not a point set)
+    if bw == 0:
         return None
-    box = np.array([x0 + xs[0], y0 + ys[0], x0 + xs[-1] + 1, y0 + ys[-1] + 1], np.float64)
+    box = np.array([x0 + bx, y0 + by, x0 + bx + bw, y0 + by + bh], np.float64)
     return crop_rle(crop.astype(bool), x0, y0, H, W), box
+
+
+_SQUARES: dict[int, np.ndarray] = {}
+
+
+def _square(k: int) -> np.ndarray:
+    """A k × k structuring element, made once per size (a mask warp runs hundreds of times a frame)."""
+    if k not in _SQUARES:
+        _SQUARES[k] = np.ones((k, k), np.uint8)
+    return _SQUARES[k]
