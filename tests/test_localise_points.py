@@ -18,7 +18,7 @@ from mining.boxes import box_iou
 from mining.config import load_config
 from mining.eval.synthetic import gt_frame
 from mining.localise.config import LocaliseConfig
-from mining.localise.localise import at_median_depth, triangulation_covariance
+from mining.localise.localise import _may_move_to_median_depth, at_median_depth, triangulation_covariance
 from mining.masks import mask_iou
 from mining.pipeline.frames import FrameLoop
 from mining.sources import open_source
@@ -83,6 +83,25 @@ def test_a_moved_point_keeps_its_pixel():
     np.testing.assert_allclose(out[:200], pts[:200])  # inliers untouched
     assert np.all(np.abs(out[200:, 2] - np.median(pts[:, 2])) < 1e-3)
     np.testing.assert_allclose(calib.project(out[200:].astype(np.float64)), np.c_[u, v][200:], atol=1e-3)
+
+
+def test_masks_left_out_of_the_depth_outlier_step_are_ones_it_leaves_unchanged():
+    """``_may_move_to_median_depth`` skips only masks whose points ``at_median_depth`` returns as they are."""
+    rng = np.random.default_rng(1)
+    sizes = rng.integers(0, 60, 400)
+    bounds = np.concatenate([[0], np.cumsum(sizes)])
+    z = rng.normal(20.0, 1.0, bounds[-1]).astype(np.float32)
+    z[rng.random(z.size) < 0.03] = 9.0  # a few occluder depths
+    var_z = rng.uniform(0.01, 1.0, sizes.size) ** 2
+    masks = np.flatnonzero(rng.random(sizes.size) < 0.8)
+    units = LocaliseConfig().point_depth_outlier_units
+    may = set(_may_move_to_median_depth(z, bounds, masks, var_z, units).tolist())
+    assert 0 < len(may) < masks.size
+    for i in masks:
+        pts = np.zeros((sizes[i], 3), np.float32)
+        pts[:, 2] = z[bounds[i]:bounds[i + 1]]
+        if i not in may:
+            assert at_median_depth(pts, float(np.sqrt(var_z[i])), units) is pts
 
 
 def test_velocity_noise_is_the_configured_multiple_of_the_position_covariance(frames):

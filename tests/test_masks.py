@@ -7,8 +7,8 @@ import pytest
 from pycocotools import mask as mask_utils
 
 from mining.boxes import box_iou, size_similarity
-from mining.masks import (areas, batch_mask_pixels, batch_rle_problems, box_rle, crop_rle, mask_iou, mask_pixels, rle_box,
-                          rle_counts, rle_problem)
+from mining.masks import (areas, batch_mask_pixels, batch_mask_runs, batch_rle_problems, box_rle, crop_rle, grid_run_pixels,
+                          mask_iou, mask_pixels, rle_box, rle_counts, rle_problem)
 
 
 def _random_masks(rng, n, h=60, w=80):
@@ -81,6 +81,23 @@ def test_batch_decoding_matches_per_mask():
         np.testing.assert_array_equal(rows[seg == i], r)
         np.testing.assert_array_equal(cols[seg == i], c)
     assert batch_mask_pixels([])[0].size == 0
+
+
+def test_grid_pixels_from_runs_match_the_filtered_pixels():
+    """``grid_run_pixels`` keeps what ``batch_mask_pixels`` filtered to rows and columns on each
+    mask's grid step keeps, in the same order (runs that cross columns included)."""
+    rng = np.random.default_rng(4)
+    ms = _random_masks(rng, 120)
+    rles = [mask_utils.encode(np.asfortranarray(m.astype(np.uint8))) for m in ms]
+    seg, rows, cols = batch_mask_pixels(rles)
+    heights = np.full(len(rles), 60, np.int64)
+    for step in (np.ones(len(rles), np.int64), rng.integers(1, 5, len(rles))):
+        g = step[seg]
+        sel = (rows % g == 0) & (cols % g == 0)
+        got = grid_run_pixels(*batch_mask_runs(rles), heights, step)
+        for a, b in zip(got, (seg[sel], rows[sel], cols[sel])):
+            np.testing.assert_array_equal(a, b)
+    assert batch_mask_runs([])[0].size == 0
 
 
 def test_crop_rle_is_canonical_when_the_mask_holds_the_last_pixel():

@@ -89,8 +89,10 @@ def detect_corners(gray: np.ndarray, cfg: FlowConfig) -> np.ndarray:
     keypoints = cv2.FastFeatureDetector_create(cfg.fast_threshold, True).detect(gray)
     if not keypoints:
         return np.zeros((0, 2), np.float32)
-    keypoints = sorted(keypoints, key=lambda k: -k.response)
-    pts = np.array([k.pt for k in keypoints], np.float32)
+    # Strongest first (a stable sort: equal responses keep the detector's order), read out in
+    # one call rather than point by point (~4,000 corners a KITTI frame).
+    response = np.fromiter((k.response for k in keypoints), np.float64, len(keypoints))
+    pts = cv2.KeyPoint_convert(keypoints)[np.argsort(-response, kind="stable")]
     pts = pts[bucket_select(pts, cfg.nms_window, 1)]  # strongest corner per NMS cell
     return pts[bucket_select(pts, cfg.bucket_size_px, cfg.detect_bucket_max)]
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from mining.config import JobConfig
 from mining.score.clutter import object_log_odds
-from mining.score.unary import score_tube, unary_version, unary_weights
+from mining.score.unary import score_tube, unary_total, unary_version, unary_weights
 from mining.select.coselect import co_select
 from mining.tubes.category import RowConfidence, tube_category
 from mining.tubes.generate import TubeGenerator
@@ -81,8 +81,8 @@ def object_gate(cfg: JobConfig, proposer: str) -> Callable[[Tube], bool] | None:
 
 def tube_generator(cfg: JobConfig, first_id: int = 0, proposer: str | None = None) -> TubeGenerator:
     """The job's tube generator, ranking tubes for tube NMS by their unary score."""
-    score = unary(cfg, proposer)
-    return TubeGenerator(cfg.tubes, lambda tube: score(tube).total, first_id=first_id)
+    weights = unary_weights(cfg.score, proposer or cfg.proposals.proposer)
+    return TubeGenerator(cfg.tubes, lambda tube: unary_total(tube, cfg.score, weights), first_id=first_id)
 
 
 def mine_tubes(frames: Iterable[TrackingFrame], cfg: JobConfig, first_id: int = 0,

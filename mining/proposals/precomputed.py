@@ -161,9 +161,15 @@ def _read_proposal_json(path: Path, frame: int, category_ids: str, image_size: t
         scores[row] = it["score"]
         bbox = it.get("bbox")
         boxes[row] = bbox if bbox is not None else mask_utils.toBbox(rles[-1])
-        if posterior is not None:
-            posterior[row] = (_second_posterior(it["second_posterior"], bad) if all_post
-                              else _coco_one_hot(it.get("category_id"), it["score"], bad))
+        if posterior is not None and all_post:
+            problem = _fill_second_posterior(it["second_posterior"], posterior[row])
+            if problem:
+                _check_mass(posterior[:row], kept, path, frame)  # an earlier element's error comes first
+                raise bad(problem)
+        elif posterior is not None:
+            posterior[row] = _coco_one_hot(it.get("category_id"), it["score"], bad)
+    if posterior is not None and all_post:
+        posterior /= _check_mass(posterior, kept, path, frame)[:, None]  # each row normalised to sum 1
     boxes[:, 2:] += boxes[:, :2]
     return Proposals(
         frame=frame, rles=rles, boxes=boxes.astype(np.float32), objectness=scores.astype(np.float32),
@@ -215,8 +221,11 @@ def _best_elements(text: str, path: Path, frame: int, max_proposals: int) -> tup
 
 def _well_shaped(seg: object) -> bool:
     """Whether ``seg`` has the shape of a compressed COCO RLE {size: [h, w], counts: str}."""
-    return (isinstance(seg, dict) and isinstance(seg.get("counts"), str) and isinstance(seg.get("size"), list)
-            and len(seg["size"]) == 2 and all(isinstance(v, int) and v > 0 for v in seg["size"]))
+    if not isinstance(seg, dict):
+        return False
+    size = seg.get("size")  # the two sides written out: this runs twice for each of 500 elements a frame
+    return (isinstance(seg.get("counts"), str) and isinstance(size, list) and len(size) == 2
+            and isinstance(size[0], int) and size[0] > 0 and isinstance(size[1], int) and size[1] > 0)
 
 
 def _rle_problems(elements: list[dict]) -> list[str | None]:
@@ -250,8 +259,8 @@ def _check_element(i: int, it: dict, first: tuple[int, dict] | None, image_size:
     if problem is not None:
         raise bad(f"malformed segmentation ({problem})")
     bbox = it.get("bbox")
-    if bbox is not None and (not (isinstance(bbox, list) and len(bbox) == 4 and all(_finite(v) for v in bbox))
-                             or min(bbox[2:]) < 0):
+    if bbox is not None and (not (isinstance(bbox, list) and len(bbox) == 4 and _finite(bbox[0]) and _finite(bbox[1])
+                                  and _finite(bbox[2]) and _finite(bbox[3])) or min(bbox[2:]) < 0):
         raise bad(f"bbox must be [x, y, w, h] with w, h ≥ 0, got {bbox!r}")
 
 
@@ -287,23 +296,40 @@ def _list_elements(text: str, path: Path, frame: int) -> Iterator:
 
 
 def _finite(v) -> bool:
+    if v.__class__ is float or v.__class__ is int:  # what JSON numbers are: the common case first
+        return math.isfinite(v)
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
-def _second_posterior(sp, bad) -> np.ndarray:
-    """Sparse ``{size: 81, values: {"k": p}}`` (0 = background, 1..80 = classes) → our 81 layout."""
+# The file's index keys written plainly ("0".."80") → our columns; other spellings ("07") take the long check.
+_POSTERIOR_COLUMN = {str(k): UNKNOWN_CLASS if k == 0 else k - 1 for k in range(N_CLASSES)}
+
+
+def _fill_second_posterior(sp, row: np.ndarray) -> str | None:
+    """Write sparse ``{size: 81, values: {"k": p}}`` (0 = background, 1..80 = classes) into ``row``
+    (zeros, our 81 layout), unnormalised (``_check_mass`` normalises a frame's rows at once); what is
+    wrong with it, or None."""
     if not (isinstance(sp, dict) and sp.get("size") == N_CLASSES and isinstance(sp.get("values"), dict)):
-        raise bad(f"second_posterior must be {{size: {N_CLASSES}, values: {{index: p}}}}")
-    row = np.zeros(N_CLASSES)
+        return f"second_posterior must be {{size: {N_CLASSES}, values: {{index: p}}}}"
     for key, p in sp["values"].items():
-        if not (key.isdigit() and int(key) < N_CLASSES) or not _finite(p) or p < 0:
-            raise bad(f"second_posterior entry {key!r}: {p!r} is not an index 0..80 with a probability ≥ 0")
-        k = int(key)
-        row[UNKNOWN_CLASS if k == 0 else k - 1] = p
-    total = row.sum()
-    if not total > 0:
-        raise bad("second_posterior has no mass")
-    return row / total
+        col = _POSTERIOR_COLUMN.get(key) if key.__class__ is str else None
+        if col is None:
+            if not (key.isdigit() and int(key) < N_CLASSES):
+                return f"second_posterior entry {key!r}: {p!r} is not an index 0..80 with a probability ≥ 0"
+            col = UNKNOWN_CLASS if int(key) == 0 else int(key) - 1
+        if not _finite(p) or p < 0:
+            return f"second_posterior entry {key!r}: {p!r} is not an index 0..80 with a probability ≥ 0"
+        row[col] = p
+    return None
+
+
+def _check_mass(rows: np.ndarray, kept: list[tuple[int, dict]], path: Path, frame: int) -> np.ndarray:
+    """Each row's total (rows of ``kept``'s elements, in order); the first without mass is an InputError."""
+    total = rows.sum(axis=1)
+    empty = np.flatnonzero(~(total > 0))
+    if empty.size:
+        raise InputError(f"element {kept[int(empty[0])][0]}: second_posterior has no mass", path, frame)
+    return total
 
 
 def _coco_one_hot(category_id, score: float, bad) -> np.ndarray:

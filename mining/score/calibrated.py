@@ -70,9 +70,11 @@ def weight_vector(weights: Mapping[str, float]) -> np.ndarray:
     return np.array([float(weights.get(k, 0.0)) for k in TERMS])
 
 
-def calibrated_score(tube: Tube, weights: Mapping[str, float], floor: float) -> float:
-    """θ(T) = w₀ + Σ_t w · φ_t: the tube's log-odds of being an object."""
-    return float(weight_vector(weights) @ tube_evidence(tube, floor))
+def calibrated_score(tube: Tube, weights: Mapping[str, float], floor: float,
+                     evidence: np.ndarray | None = None) -> float:
+    """θ(T) = w₀ + Σ_t w · φ_t: the tube's log-odds of being an object (``evidence``: the tube's
+    ``tube_evidence``, when the caller has it already)."""
+    return float(weight_vector(weights) @ (tube_evidence(tube, floor) if evidence is None else evidence))
 
 
 # The terms grouped as a reader asks "what carried this tube": each group's share of θ.
@@ -86,7 +88,9 @@ GROUPS = {
 }
 
 
-def grouped_terms(tube: Tube, weights: Mapping[str, float], floor: float) -> dict[str, float]:
-    """θ split by GROUPS: each group's Σ w_k·(Σ_t φ_t)_k; the values add up to θ."""
-    contrib = dict(zip(TERMS, weight_vector(weights) * tube_evidence(tube, floor)))
+def grouped_terms(tube: Tube, weights: Mapping[str, float], floor: float,
+                  evidence: np.ndarray | None = None) -> dict[str, float]:
+    """θ split by GROUPS: each group's Σ w_k·(Σ_t φ_t)_k; the values add up to θ (``evidence`` as in
+    ``calibrated_score``)."""
+    contrib = dict(zip(TERMS, weight_vector(weights) * (tube_evidence(tube, floor) if evidence is None else evidence)))
     return {g: float(sum(contrib[k] for k in keys)) for g, keys in GROUPS.items()}

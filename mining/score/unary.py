@@ -23,7 +23,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from mining.errors import ConfigError
-from mining.score.calibrated import TERMS, calibrated_score, grouped_terms
+from mining.score.calibrated import TERMS, calibrated_score, grouped_terms, tube_evidence
 from mining.score.config import ScoreConfig
 from mining.types import Tube, TubeScore
 
@@ -84,8 +84,17 @@ def score_tube(tube: Tube, cfg: ScoreConfig | None = None, weights: Mapping[str,
     if weights is None:
         total = cfg.beta * (cfg.alpha * motion + (1 - cfg.alpha) * mask) + (1 - cfg.beta) * obj
         return TubeScore(motion, mask, obj, total, version=version)
-    return TubeScore(motion, mask, obj, calibrated_score(tube, weights, cfg.floor), "calibrated",
-                     grouped_terms(tube, weights, cfg.floor), version)
+    evidence = tube_evidence(tube, cfg.floor)  # one pass over the frames for the total and its groups
+    return TubeScore(motion, mask, obj, calibrated_score(tube, weights, cfg.floor, evidence), "calibrated",
+                     grouped_terms(tube, weights, cfg.floor, evidence), version)
+
+
+def unary_total(tube: Tube, cfg: ScoreConfig | None = None, weights: Mapping[str, float] | None = None) -> float:
+    """``score_tube(tube, cfg, weights).total`` alone: tube NMS ranks its tubes by it every frame, and
+    the calibrated total needs neither the three REFERENCE terms nor its groups (nor a version)."""
+    if weights is None:
+        return score_tube(tube, cfg, version="").total
+    return calibrated_score(tube, weights, (cfg or ScoreConfig()).floor)
 
 
 def unary_line(cfg: ScoreConfig, proposer: str) -> str:

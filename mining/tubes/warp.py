@@ -63,6 +63,13 @@ def mask_points(points_cam: np.ndarray | None, grid: int, box: np.ndarray, posit
     return MaskPoints(points_cam.astype(np.float64) @ R.T + t, int(grid), False, sides)
 
 
+def _pixels(cam: np.ndarray, calib: StereoCalib) -> tuple[np.ndarray, np.ndarray]:
+    """``calib.project(cam)``'s two columns, the same arithmetic, as contiguous arrays (the warps
+    reduce each column; a strided column of a stacked (N, 2) array costs more)."""
+    z = cam[:, 2]
+    return calib.fx * cam[:, 0] / z + calib.cx, calib.fy * cam[:, 1] / z + calib.cy
+
+
 def predict_box(mp: MaskPoints, shift_world: np.ndarray, pose: np.ndarray, calib: StereoCalib,
                 min_depth_m: float = 0.1) -> np.ndarray | None:
     """Box around the warped points, clipped to the image (no mask is drawn)."""
@@ -89,17 +96,18 @@ def predict_boxes(mps: list[MaskPoints], shifts_world: np.ndarray, pose: np.ndar
     seg = np.repeat(np.arange(len(mps)), [len(m.points) for m in mps])
     cam = (np.concatenate([m.points for m in mps]) + shifts_world[seg] - t) @ R
     front = cam[:, 2] > min_depth_m
-    cam, seg = cam[front], seg[front]
+    if not front.all():  # (usually all are: no copy then)
+        cam, seg = cam[front], seg[front]
     if seg.size == 0:
         return out
-    uv = calib.project(cam)
+    u, v = _pixels(cam, calib)
     starts = np.flatnonzero(np.concatenate(([True], seg[1:] != seg[:-1])))
     owner = seg[starts]
     pad = np.array([0 if m.boxlike else m.grid / 2 for m in mps])[owner]
-    box = np.stack([np.maximum(np.minimum.reduceat(uv[:, 0], starts) - pad, 0),
-                    np.maximum(np.minimum.reduceat(uv[:, 1], starts) - pad, 0),
-                    np.minimum(np.maximum.reduceat(uv[:, 0], starts) + pad + 1, calib.width),
-                    np.minimum(np.maximum.reduceat(uv[:, 1], starts) + pad + 1, calib.height)], axis=1)
+    box = np.stack([np.maximum(np.minimum.reduceat(u, starts) - pad, 0),
+                    np.maximum(np.minimum.reduceat(v, starts) - pad, 0),
+                    np.minimum(np.maximum.reduceat(u, starts) + pad + 1, calib.width),
+                    np.minimum(np.maximum.reduceat(v, starts) + pad + 1, calib.height)], axis=1)
     good = (box[:, 2] > box[:, 0]) & (box[:, 3] > box[:, 1])
     out[owner[good]] = box[good]
     return out
@@ -110,33 +118,46 @@ def predict_mask(mp: MaskPoints, shift_world: np.ndarray, pose: np.ndarray, cali
     """Predicted (RLE, box) in the camera of ``pose``; None when nothing lands in the image."""
     R, t = pose[:3, :3], pose[:3, 3]
     cam = (mp.points + shift_world - t) @ R  # world → camera: Rᵀ(p − t)
-    cam = cam[cam[:, 2] > min_depth_m]
+    front = cam[:, 2] > min_depth_m
+    if not front.all():
+        cam = cam[front]
     if len(cam) == 0:
         return None
-    uv = calib.project(cam)
+    uf, vf = _pixels(cam, calib)
     W, H = calib.width, calib.height
     if mp.boxlike:
-        box = np.array([uv[:, 0].min(), uv[:, 1].min(), uv[:, 0].max(), uv[:, 1].max()])
+        box = np.array([uf.min(), vf.min(), uf.max(), vf.max()])
         clipped = np.array([max(box[0], 0), max(box[1], 0), min(box[2], W), min(box[3], H)])
         if clipped[2] <= clipped[0] or clipped[3] <= clipped[1]:
             return None
         return box_rle(clipped, H, W), clipped
-    u = np.round(uv[:, 0]).astype(np.int64)
-    v = np.round(uv[:, 1]).astype(np.int64)
+    u = np.round(uf).astype(np.int64)
+    v = np.round(vf).astype(np.int64)
     inside = (u >= 0) & (u < W) & (v >= 0) & (v < H)
-    if not inside.any():
-        return None
-    u, v = u[inside], v[inside]
+    if not inside.all():
+        if not inside.any():
+            return None
+        u, v = u[inside], v[inside]
     pad = close_px + mp.grid
     x0, y0 = max(0, u.min() - pad), max(0, v.min() - pad)
     x1, y1 = min(W, u.max() + pad + 1), min(H, v.max() + pad + 1)
     crop = np.zeros((y1 - y0, x1 - x0), np.uint8)
     crop[v - y0, u - x0] = 1
     if mp.grid > 1:  # each sample stands for a grid × grid patch
-        crop = cv2.dilate(crop, np.ones((mp.grid, mp.grid), np.uint8))
-    crop = cv2.morphologyEx(crop, cv2.MORPH_CLOSE, np.ones((close_px, close_px), np.uint8))
-    xs, ys = np.flatnonzero(crop.any(axis=0)), np.flatnonzero(crop.any(axis=1))
-    if ys.size == 0:
+        crop = cv2.dilate(crop, _square(mp.grid))
+    crop = cv2.morphologyEx(crop, cv2.MORPH_CLOSE, _square(close_px))
+    bx, by, bw, bh = cv2.boundingRect(crop)  # of the non-zero pixels (a uint8 image, not a point set)
+    if bw == 0:
         return None
-    box = np.array([x0 + xs[0], y0 + ys[0], x0 + xs[-1] + 1, y0 + ys[-1] + 1], np.float64)
+    box = np.array([x0 + bx, y0 + by, x0 + bx + bw, y0 + by + bh], np.float64)
     return crop_rle(crop.astype(bool), x0, y0, H, W), box
+
+
+_SQUARES: dict[int, np.ndarray] = {}
+
+
+def _square(k: int) -> np.ndarray:
+    """A k × k structuring element, made once per size (a mask warp runs hundreds of times a frame)."""
+    if k not in _SQUARES:
+        _SQUARES[k] = np.ones((k, k), np.uint8)
+    return _SQUARES[k]
