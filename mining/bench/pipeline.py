@@ -233,13 +233,19 @@ def measure_run(cfg: JobConfig, out: str | Path, workers: int, frames: int | Non
     with tempfile.TemporaryDirectory(prefix="bench-run-", dir=out.parent) as tmp:
         job_json, result_json = Path(tmp) / "job.json", Path(tmp) / "result.json"
         job_json.write_text(json.dumps(cfg.to_dict()))
-        cmd = [sys.executable, "-m", "mining.bench.pipeline", str(job_json), str(out), str(int(workers)), str(result_json),
-               str(int(frames or 0)), str(int(gpus))]
-        p = subprocess.run(cmd, capture_output=True, text=True)
-        if p.returncode != 0 or not result_json.exists():
-            tail = "\n".join((p.stdout + p.stderr).splitlines()[-20:])
-            raise RuntimeError(f"bench run on {workers} worker(s) into {out} ended with {exit_reason(p.returncode)}:\n{tail}")
-        return json.loads(result_json.read_text())
+        return child_result(["mining.bench.pipeline", str(job_json), str(out), str(int(workers)), str(result_json),
+                             str(int(frames or 0)), str(int(gpus))], result_json,
+                            f"bench run on {workers} worker(s) into {out}")
+
+
+def child_result(args: list[str], result_json: Path, what: str) -> dict[str, Any]:
+    """``python -m ARGS`` in a process of its own (a process starts Ray once) and the JSON it left at
+    ``result_json``; RuntimeError naming ``what`` and the child's exit status or signal otherwise."""
+    p = subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True)
+    if p.returncode != 0 or not result_json.exists():
+        tail = "\n".join((p.stdout + p.stderr).splitlines()[-20:])
+        raise RuntimeError(f"{what} ended with {exit_reason(p.returncode)}:\n{tail}")
+    return json.loads(result_json.read_text())
 
 
 def measure_run_here(cfg: JobConfig, out: str | Path, workers: int, gpus: int = 0,

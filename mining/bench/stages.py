@@ -32,7 +32,6 @@ import argparse
 import hashlib
 import json
 import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -42,12 +41,13 @@ from typing import Any
 
 import numpy as np
 
+from mining.bench.pipeline import ObjectStoreSampler, child_result
 from mining.catalog import safe_files
 from mining.checks import count, output_file, real
 from mining.config import JobConfig
 from mining.errors import ConfigError, InputError
 from mining.pipeline.arguments import add_job_options, add_overwrite_option, job_config
-from mining.pipeline.failures import exit_reason
+from mining.pipeline.proposal_stage import ProposalWorker
 from mining.types import Proposals
 
 WAYS = ("actors", "data", "data-autoscale")
@@ -80,13 +80,14 @@ class EmulatedModel:
         return [[] for _ in frames]
 
 
-def _model_worker(cfg: JobConfig, size: tuple[int, int], gpu_ms: float | None):
-    from mining.pipeline.proposal_stage import ProposalWorker
+class ModelWorker(ProposalWorker):
+    """The pipeline's proposal actor, with the emulated model at ``size`` where ``gpu_ms`` is given
+    (ProposalWorker loads a model only for a size it has none for)."""
 
-    worker = ProposalWorker(cfg.proposals)
-    if gpu_ms is not None:  # the size's model is the emulated one: ProposalWorker never loads another
-        worker.models[size] = EmulatedModel(gpu_ms)
-    return worker
+    def __init__(self, cfg: JobConfig, size: tuple[int, int], gpu_ms: float | None):
+        super().__init__(cfg.proposals)
+        if gpu_ms is not None:
+            self.models[size] = EmulatedModel(gpu_ms)
 
 
 def windows_of(n_frames: int, core: int) -> list[tuple[int, int]]:
@@ -144,7 +145,7 @@ class DataModel:
     """The ``data`` way's model actor: a batch of rows' left images through ``ProposalWorker``."""
 
     def __init__(self, cfg: JobConfig, size: tuple[int, int], gpu_ms: float | None):
-        self.size, self.worker = size, _model_worker(cfg, size, gpu_ms)
+        self.size, self.worker = size, ModelWorker(cfg, size, gpu_ms)
 
     def __call__(self, batch: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         frames = [int(f) for f in batch["frame"]]
@@ -161,15 +162,7 @@ def _run_actors(cfg: JobConfig, sequence: str, windows: list[tuple[int, int]], s
                 gpus: int, workers: int, gpu_ms: float | None) -> tuple[dict[int, str], list[dict]]:
     import ray
 
-    from mining.pipeline.proposal_stage import ProposalWorker
-
-    class _Stage(ProposalWorker):  # the pipeline's proposal actor, with the emulated model where asked
-        def __init__(self):
-            super().__init__(cfg.proposals)
-            if gpu_ms is not None:
-                self.models[size] = EmulatedModel(gpu_ms)
-
-    models = [ray.remote(num_gpus=1)(_Stage).remote() for _ in range(gpus)]
+    models = [ray.remote(num_gpus=1)(ModelWorker).remote(cfg, size, gpu_ms) for _ in range(gpus)]
     fronts = [ray.remote(Front).remote(cfg, sequence, models[i % gpus]) for i in range(workers)]
     idle, busy, todo, digests = list(fronts), {}, list(windows), {}
     while todo or busy:
@@ -215,8 +208,6 @@ def measure_here(cfg: JobConfig, sequence: str, n_frames: int, gpus: int, worker
     prepare_local_ray(cfg.run.bind_host)  # before `import ray`: loopback unless run.bind_host says otherwise
     import ray
 
-    from mining.bench.pipeline import ObjectStoreSampler
-
     source = cfg.source.open()
     plan = source.plan(sequence)
     size = (plan.calib.height, plan.calib.width)
@@ -261,12 +252,8 @@ def measure(cfg: JobConfig, sequence: str, n_frames: int, gpus: int, workers: in
         job_json.write_text(json.dumps({"job": cfg.to_dict(), "sequence": sequence, "frames": n_frames,
                                         "gpus": gpus, "workers": workers, "gpu_ms": gpu_ms, "ways": list(ways),
                                         "rounds": rounds}))
-        p = subprocess.run([sys.executable, "-m", "mining.bench.stages", str(job_json), str(result_json)],
-                           capture_output=True, text=True)
-        if p.returncode != 0 or not result_json.exists():
-            tail = "\n".join((p.stdout + p.stderr).splitlines()[-20:])
-            raise RuntimeError(f"bench stages' run ended with {exit_reason(p.returncode)}:\n{tail}")
-        return json.loads(result_json.read_text())
+        return child_result(["mining.bench.stages", str(job_json), str(result_json)], result_json,
+                            "bench stages' run")
 
 
 def agreement(result: dict[str, Any]) -> dict[str, int]:
