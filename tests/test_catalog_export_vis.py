@@ -19,9 +19,9 @@ from mining.catalog.store import Store, write_sequence
 from mining.cli import main
 from mining.export.crops import crop_box
 from mining.export.dest import RECORD
+from mining.export.json_annotations import UNCLASSIFIED_ID, UNKNOWN_ID
 from mining.export.run import LABELS_FILE, run_export
 from mining.export.selection import frame_digits
-from mining.export.video_json import UNCLASSIFIED_ID, UNKNOWN_ID
 from mining.names import tube_folder
 
 H, W = 375, 1242

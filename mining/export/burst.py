@@ -37,9 +37,10 @@ from pathlib import Path
 import pyarrow as pa
 
 from mining.config import JobConfig
-from mining.export.selection import category_label
-from mining.export.video_json import (OWN_SYNSETS, RESULTS_DIR, RESULTS_JSON, TAO_IMAGES, Video, ticking, area,
-                                      category_id, info, video_tubes, videos, write_images, write_json)
+from mining.export.json_annotations import (OWN_SYNSETS, RESULTS_DIR, RESULTS_JSON, TAO_IMAGES, area, category_id,
+                                            info, write_json)
+from mining.export.selection import Video, category_label, video_tubes, videos
+from mining.export.source_frames import ticking, write_images
 from mining.formats.lvis import TAO_MAX_ID, synset, tao_category
 
 BURST_JSON = "burst.json"  # ours (BURST's own files are named by task: all_classes.json, …)
@@ -53,7 +54,7 @@ assert TAO_MAX_ID < OUTSIDE_TAO_BASE and OUTSIDE_TAO_BASE + 90 < UNKNOWN_ID < UN
 
 
 def burst_category(tube: dict) -> tuple[int, str, str]:
-    """(id, name, synset) of a tube's BURST category (``video_json.category_id`` checks the class)."""
+    """(id, name, synset) of a tube's BURST category (``json_annotations.category_id`` checks the class)."""
     label = category_label(tube)
     if label == "unknown":
         return UNKNOWN_ID, label, OWN_SYNSETS[label]

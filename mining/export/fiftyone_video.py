@@ -48,10 +48,9 @@ import pyarrow as pa
 from mining.catalog import safe_files
 from mining.catalog.rows import decode_mask
 from mining.config import JobConfig
-from mining.export.selection import category_label, export_settings, frames_by_tube
+from mining.export.selection import Video, category_label, export_settings, frames_by_tube, videos
 from mining.export.source_frames import even_size, frame_rate, pad_even, read_frames
 from mining.export.video import check_video, open_video
-from mining.export.video_json import Video, videos
 from mining.progress import Ticker
 
 MANIFEST, LABELS, DATA = "manifest.json", "labels", "data"  # REFERENCE: FiftyOneVideoLabelsDataset's layout

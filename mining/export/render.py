@@ -9,7 +9,7 @@ the tube is only predicted (a gap between observations) get the outline and labe
 the fill.
 
 ``--depth`` puts a depth panel beside each frame: the stereo depth of the job's own
-geometry stage (its disparity step with the job's ``[geometry]``: ``stereo_depth``), colour-mapped with
+geometry stage (its disparity step with the job's ``[geometry]``: ``depth.stereo_depth``), colour-mapped with
 OpenCV's turbo map on a fixed logarithmic range (near red, far blue; no depth black) with
 its legend, and the tubes' outlines. The video is then twice as wide.
 
@@ -45,8 +45,9 @@ from mining.catalog import safe_files
 from mining.catalog.rows import decode_mask
 from mining.catalog.views import connect, sql_string
 from mining.checks import clamped_note
-from mining.draw import FONT, Drawn, caption, draw_tubes, tube_colours
+from mining.draw import Drawn, caption, draw_tubes, tube_colours
 from mining.errors import InputError, MiningError, NothingMatched
+from mining.export.depth import depth_colours, depth_legend, stereo_depth
 from mining.export.dest import check_file, publish_file
 from mining.export.selection import (category_label, job_source, left_out_line, read_job, selected_rows,
                                      without_bad_masks)
@@ -58,8 +59,6 @@ DEFAULT_FPS = 10.0  # ours: frame rate when the plan's timestamps give none (KIT
 MAX_FPS = 1000.0  # ours: `mine render --fps` at most (video containers store a rational rate)
 DIM = 0.5  # ours: a candidate's colour is this far from its own hue towards DIM_GREY (dimmed, still told apart)
 DIM_GREY = 128  # ours: mid grey, the dimmed colours' end
-DEPTH_NEAR_M = 2.0  # ours: the depth colour map's near end (red); KITTI's 128 px search reaches ≈ 3 m
-DEPTH_TICKS_M = (2, 5, 10, 20, 50, 90)  # ours: legend ticks (the far end is the job's geometry.stereo.max_depth_m)
 
 
 _TUBE_NAME = re.compile(r"(?P<frame>[0-9]+)\.(?P<obs>[0-9]+)(?:-(?P<dup>[0-9]+))?")  # stitch.py's FRAME.OBS[-k]
@@ -83,43 +82,6 @@ def tube_caption(t: dict) -> str:
     p = t.get("category_prob")
     prob = "" if t.get("known") is None or p is None or p != p else f" {p:.2f}"
     return f"{short_id(t['tube_id'])} {name}{prob}"
-
-
-def depth_colours(depth_m: np.ndarray, far_m: float) -> np.ndarray:
-    """(H, W, 3) BGR turbo colours of depth on the fixed log range [DEPTH_NEAR_M, far_m]:
-    near red, far blue, no depth (NaN) black."""
-    valid = np.isfinite(depth_m)
-    z = np.clip(np.where(valid, depth_m, far_m), DEPTH_NEAR_M, far_m)
-    t = (np.log(z) - np.log(DEPTH_NEAR_M)) / (np.log(far_m) - np.log(DEPTH_NEAR_M))
-    out = cv2.applyColorMap(np.round((1.0 - t) * 255).astype(np.uint8), cv2.COLORMAP_TURBO)
-    out[~valid] = 0
-    return out
-
-
-def stereo_depth(matcher, frame, far_m: float) -> np.ndarray:
-    """The geometry stage's depth of ``frame`` (``GeometryStage.run``'s disparity step: SGBM
-    with the job's settings, NaN where invalid or beyond ``far_m``), without its flow,
-    egomotion and ground steps, which the panel does not show (they would double its cost)."""
-    depth = frame.calib.depth_from_disparity(matcher.compute(frame.left, frame.right))
-    depth[depth > far_m] = np.nan
-    return depth
-
-
-def _depth_legend(img: np.ndarray, far_m: float) -> None:
-    """The colour bar of ``depth_colours`` with its ticks, in the panel's bottom-left corner."""
-    h, w = img.shape[:2]
-    bar_w, bar_h, pad = min(300, w - 40), 12, 6
-    x0, y0 = 10, h - bar_h - 34
-    cv2.rectangle(img, (x0 - pad, y0 - 22), (x0 + bar_w + pad + 24, h - 4), (0, 0, 0), cv2.FILLED)
-    z = np.exp(np.linspace(np.log(DEPTH_NEAR_M), np.log(far_m), bar_w, dtype=np.float32))
-    img[y0:y0 + bar_h, x0:x0 + bar_w] = depth_colours(np.tile(z, (bar_h, 1)), far_m)
-    cv2.putText(img, "depth (m), stereo", (x0, y0 - 7), FONT, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
-    span = np.log(far_m) - np.log(DEPTH_NEAR_M)
-    for tick in (t for t in DEPTH_TICKS_M if DEPTH_NEAR_M <= t <= far_m):
-        x = x0 + int(round((np.log(tick) - np.log(DEPTH_NEAR_M)) / span * (bar_w - 1)))
-        cv2.line(img, (x, y0 + bar_h), (x, y0 + bar_h + 3), (255, 255, 255), 1)
-        (tw, _), _ = cv2.getTextSize(str(tick), FONT, 0.4, 1)
-        cv2.putText(img, str(tick), (x - tw // 2, y0 + bar_h + 15), FONT, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
 
 
 def dimmed(colour: tuple[int, int, int]) -> tuple[int, int, int]:
@@ -266,7 +228,7 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
                 caption(left, f"{dataset}/{sequence} frame {frame.index}  {n_sel} tubes{more}")
                 if matcher is not None:
                     panel = paint(depth_colours(stereo_depth(matcher, frame, far), far), items, fill=False)
-                    _depth_legend(panel, far)
+                    depth_legend(panel, far)
                     left = np.hstack([left, panel])
                 writer.write(cv2.copyMakeBorder(left, 0, size[1] - left.shape[0], 0, size[0] - left.shape[1],
                                                 cv2.BORDER_CONSTANT, value=(0, 0, 0)))

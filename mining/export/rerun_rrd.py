@@ -47,9 +47,9 @@ from mining.catalog import safe_files
 from mining.catalog.rows import decode_mask
 from mining.config import JobConfig
 from mining.errors import InputError
-from mining.export.selection import category_label, export_settings, frames_by_tube
+from mining.export.depth import stereo_depth
+from mining.export.selection import Video, category_label, export_settings, frames_by_tube, videos
 from mining.export.source_frames import read_frames
-from mining.export.video_json import Video, videos
 from mining.progress import Ticker
 
 APPLICATION_ID = "tube_miner"  # ours: the recordings' application id (the viewer groups recordings by it)
@@ -147,7 +147,6 @@ def _quaternion(r: np.ndarray) -> list[float]:
 def _log_images(rr, rec, job: JobConfig, v: Video) -> Callable[[int], None]:
     """Log the pinhole once; returns a function logging frame ``k``'s rgb and depth (the
     frames are read in order, one at a time)."""
-    from mining.export.render import stereo_depth
     from mining.geometry.disparity import StereoMatcher
 
     plan, pairs = read_frames(job, v.sequence, v.frames, (v.height, v.width), "--images")

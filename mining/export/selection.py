@@ -14,11 +14,13 @@ selects, and the groupings the formats share.
   is bad, nothing is written.
 * ``by_sequence``, ``frames_by_tube``, ``category_label``, ``frame_digits`` — the groupings
   and names the formats share.
+* ``Video``, ``videos``, ``video_tubes`` — the tubes grouped as videos, one per sequence, its
+  frames the ones the catalogue mined (YouTube-VIS, TAO, BURST, FiftyOne, Rerun).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import duckdb
@@ -226,3 +228,56 @@ def frame_digits(frames) -> int:
     """Width of zero-padded frame numbers in file names: the largest frame's digits, at least
     MIN_FRAME_DIGITS (so names sort in frame order)."""
     return max(MIN_FRAME_DIGITS, len(str(max(frames, default=0))))
+
+
+def video_name(dataset: str, sequence: str) -> str:
+    """``<dataset>_<sequence>``: both are checked names (``by_sequence``), so this is one."""
+    return f"{dataset}_{sequence}"
+
+
+class Video:
+    """One sequence as a video: its frames (the catalogue's, in frame order), size and tubes."""
+
+    def __init__(self, vid: int, dataset: str, sequence: str, frames: list[int], tubes: list[dict],
+                 per_tube: dict[str, list[dict]]):
+        self.id, self.dataset, self.sequence, self.tubes = vid, dataset, sequence, tubes
+        self.name = video_name(dataset, sequence)
+        sizes = {(f["rle_h"], f["rle_w"]) for t in tubes for f in per_tube.get(t["tube_id"], [])}
+        if len(sizes) != 1:
+            raise InputError(f"{dataset}/{sequence}: the tubes' masks have {len(sizes)} sizes {sorted(sizes)}; "
+                             "a video has one")
+        self.height, self.width = sizes.pop()
+        seen = {f["frame"] for t in tubes for f in per_tube.get(t["tube_id"], [])}
+        self.frames = sorted(set(frames) | seen)
+        self.digits = frame_digits(self.frames)
+
+    def image_name(self, frame: int) -> str:
+        """``<frame, zero-padded>.jpg``."""
+        return f"{frame:0{self.digits}d}.jpg"
+
+    def file_name(self, frame: int) -> str:
+        return f"{self.name}/{self.image_name(frame)}"
+
+
+def videos(tubes: pa.Table, frames: pa.Table, video_frames: dict[tuple[str, str], list[int]]) -> list[Video]:
+    """One Video per sequence of ``tubes``, numbered from 1; a sequence the ``frames`` table
+    lacks spans its tubes' frames."""
+    per_tube = frames_by_tube(frames)
+    out = []
+    for vid, ((dataset, sequence), seq_tubes) in enumerate(by_sequence(tubes).items(), start=1):
+        out.append(Video(vid, dataset, sequence, video_frames.get((dataset, sequence), []), seq_tubes, per_tube))
+    return out
+
+
+def annotated(frames: list[dict], observed_only: bool) -> dict[int, dict]:
+    """A tube's rows by frame, the frames it is annotated on (observed ones, or all)."""
+    return {f["frame"]: f for f in frames if f["observed"] or not observed_only}
+
+
+def video_tubes(vids: list[Video], frames: pa.Table, job: JobConfig | None) -> Iterator[tuple[Video, dict, dict[int, dict]]]:
+    """(video, tube, its annotated rows by frame) of every tube, video by video."""
+    observed_only = export_settings(job).observed_only
+    per_tube = frames_by_tube(frames)
+    for v in vids:
+        for t in v.tubes:
+            yield v, t, annotated(per_tube.get(t["tube_id"], []), observed_only)

@@ -43,58 +43,28 @@ tube's score (its weighted total, not a probability) and tube id.
 
 from __future__ import annotations
 
-import json
-from collections.abc import Callable, Iterator
-from pathlib import Path
-
-import cv2
 import numpy as np
 import pyarrow as pa
 from pycocotools import mask as mask_utils
 
 from mining.catalog.rows import mask_rle
 from mining.config import JobConfig
-from mining.errors import InputError
-from mining.export.selection import by_sequence, category_label, export_settings, frame_digits, frames_by_tube, job_source
+from mining.export.json_annotations import (OWN_SYNSETS, RESULTS_DIR, RESULTS_JSON, TAO_IMAGES, UNCLASSIFIED_ID,
+                                            UNKNOWN_ID, area, category_id, info, write_json)
+from mining.export.selection import video_tubes, videos
+from mining.export.source_frames import ticking, write_images
 from mining.formats.coco import CLASS_INDEX, COCO_CATEGORY_IDS
 from mining.formats.lvis import synset
-from mining.names import inside
-from mining.progress import Ticker
 
-UNKNOWN_ID = 1000  # ours: category id of unknown tubes, outside COCO's 1..90
-UNCLASSIFIED_ID = 1001  # ours: category id of unclassified tubes
-# ours: the synsets of the two own categories; not WordNet names (no sense is known for them)
-OWN_SYNSETS = {"unknown": "tube_miner.unknown", "unclassified": "tube_miner.unclassified"}
 BOX_DECIMALS = 3  # ours: JSON boxes to 1/1000 px (the catalogue stores float32)
-JPEG_QUALITY = 95  # ours: --images JPEG quality
 YTVIS_JSON, YTVIS_IMAGES = "instances.json", "JPEGImages"  # the YouTube-VIS 2021 split layout
-TAO_JSON, TAO_IMAGES = "tao.json", "frames"
-# ours: the results (tracker) file of every video format, in a folder of its own: evaluators
-# want one JSON in the ground-truth folder and one in the tracker's
-RESULTS_DIR, RESULTS_JSON = "results", "results.json"
-
-
-def video_name(dataset: str, sequence: str) -> str:
-    """``<dataset>_<sequence>``: both are checked names (``selection.by_sequence``), so this is one."""
-    return f"{dataset}_{sequence}"
+TAO_JSON = "tao.json"  # TAO's images folder: json_annotations.TAO_IMAGES
 
 
 def xywh(bbox) -> list[float]:
     """COCO ``[x, y, width, height]`` of the catalogue's ``x1, y1, x2, y2``."""
     x1, y1, x2, y2 = (float(v) for v in bbox)
     return [round(x1, BOX_DECIMALS), round(y1, BOX_DECIMALS), round(x2 - x1, BOX_DECIMALS), round(y2 - y1, BOX_DECIMALS)]
-
-
-def category_id(tube: dict) -> int:
-    """The COCO id of a known tube's class; UNKNOWN_ID / UNCLASSIFIED_ID otherwise."""
-    label = category_label(tube)
-    if label == "unknown":
-        return UNKNOWN_ID
-    if label == "unclassified":
-        return UNCLASSIFIED_ID
-    if label not in CLASS_INDEX:
-        raise InputError(f"tube {tube['tube_id']} is known as {label!r}, which is not a COCO class")
-    return COCO_CATEGORY_IDS[CLASS_INDEX[label]]
 
 
 def categories(used: set[int], tao: bool = False) -> list[dict]:
@@ -106,55 +76,6 @@ def categories(used: set[int], tao: bool = False) -> list[dict]:
     if tao:
         return [{"id": c, "name": n, "synset": OWN_SYNSETS[n] if g == "mined" else synset(n)} for c, n, g in rows]
     return [{"id": c, "name": n, "supercategory": g} for c, n, g in rows]
-
-
-
-class Video:
-    """One sequence as a video: its frames (the catalogue's, in frame order), size and tubes."""
-
-    def __init__(self, vid: int, dataset: str, sequence: str, frames: list[int], tubes: list[dict],
-                 per_tube: dict[str, list[dict]]):
-        self.id, self.dataset, self.sequence, self.tubes = vid, dataset, sequence, tubes
-        self.name = video_name(dataset, sequence)
-        sizes = {(f["rle_h"], f["rle_w"]) for t in tubes for f in per_tube.get(t["tube_id"], [])}
-        if len(sizes) != 1:
-            raise InputError(f"{dataset}/{sequence}: the tubes' masks have {len(sizes)} sizes {sorted(sizes)}; "
-                             "a video has one")
-        self.height, self.width = sizes.pop()
-        seen = {f["frame"] for t in tubes for f in per_tube.get(t["tube_id"], [])}
-        self.frames = sorted(set(frames) | seen)
-        self.digits = frame_digits(self.frames)
-
-    def image_name(self, frame: int) -> str:
-        """``<frame, zero-padded>.jpg``."""
-        return f"{frame:0{self.digits}d}.jpg"
-
-    def file_name(self, frame: int) -> str:
-        return f"{self.name}/{self.image_name(frame)}"
-
-
-def videos(tubes: pa.Table, frames: pa.Table, video_frames: dict[tuple[str, str], list[int]]) -> list[Video]:
-    """One Video per sequence of ``tubes``, numbered from 1; a sequence the ``frames`` table
-    lacks spans its tubes' frames."""
-    per_tube = frames_by_tube(frames)
-    out = []
-    for vid, ((dataset, sequence), seq_tubes) in enumerate(by_sequence(tubes).items(), start=1):
-        out.append(Video(vid, dataset, sequence, video_frames.get((dataset, sequence), []), seq_tubes, per_tube))
-    return out
-
-
-def annotated(frames: list[dict], observed_only: bool) -> dict[int, dict]:
-    """A tube's rows by frame, the frames it is annotated on (observed ones, or all)."""
-    return {f["frame"]: f for f in frames if f["observed"] or not observed_only}
-
-
-def video_tubes(vids: list[Video], frames: pa.Table, job: JobConfig | None) -> Iterator[tuple[Video, dict, dict[int, dict]]]:
-    """(video, tube, its annotated rows by frame) of every tube, video by video."""
-    observed_only = export_settings(job).observed_only
-    per_tube = frames_by_tube(frames)
-    for v in vids:
-        for t in v.tubes:
-            yield v, t, annotated(per_tube.get(t["tube_id"], []), observed_only)
 
 
 def rle(f: dict) -> dict:
@@ -171,68 +92,6 @@ def uncompressed_rle(f: dict) -> dict:
     if pixels.size and pixels[0]:
         runs = np.concatenate(([0], runs))
     return {"size": [f["rle_h"], f["rle_w"]], "counts": [int(r) for r in runs]}
-
-
-def area(f: dict) -> float:
-    """The pixel count of the row's mask, checked (``rows.mask_rle``): a malformed one stops the export."""
-    return float(mask_utils.area(mask_rle(f)))
-
-
-def write_json(path: Path, doc) -> None:
-    """One JSON document and a newline (``path`` lies in the writer's private folder)."""
-    path.parent.mkdir(exist_ok=True)
-    path.write_text(json.dumps(doc) + "\n")
-
-
-def ticking(label: str) -> Callable[[int, int], None]:
-    """A ``write_images`` progress hook on a ``Ticker`` made at the first call (the total known then)."""
-    state: dict = {}
-
-    def hook(done: int, total: int) -> None:
-        t = state.setdefault("t", Ticker(label, total))
-        t.tick(done)
-        if done >= total:
-            t.close()
-    return hook
-
-
-def write_images(job: JobConfig | None, vids: list[Video], folder: Path,
-                 progress: Callable[[int, int], None] | None = None,
-                 path_of: Callable[[Video, int], str] = Video.file_name) -> int:
-    """The rectified left frame of every video frame as ``folder/<path_of(video, frame)>``
-    (``<file_name>`` by default); the count."""
-    source = job_source(job, "--images")
-    root = job.source.root
-    total, done = sum(len(v.frames) for v in vids), 0
-    for v in vids:
-        survey = source.survey(v.sequence)
-        position = {f: p for p, f in enumerate(survey.frames)}
-        missing = [f for f in v.frames if f not in position]
-        if missing:
-            raise InputError(f"frame {missing[0]} of the catalogue is not in the source's sequence {v.sequence!r}",
-                             root, missing[0])
-        # only the video's frames need to read (problems elsewhere in the sequence do not matter)
-        plan = source.plan(v.sequence, min(position[f] for f in v.frames), max(position[f] for f in v.frames) + 1)
-        for frame in v.frames:
-            image = source.read_frame(plan, position[frame]).left
-            if image.shape[:2] != (v.height, v.width):
-                raise InputError(f"image of {image.shape[1]}×{image.shape[0]}, masks of {v.width}×{v.height}",
-                                 root, frame)
-            path = inside(folder, path_of(v, frame))
-            path.parent.mkdir(parents=True, exist_ok=True)
-            if not cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY]):
-                raise InputError("cannot write JPEG", path)
-            done += 1
-            if progress is not None:
-                progress(done, total)
-    return done
-
-
-def info(job: JobConfig | None, fmt: str) -> dict:
-    # "run_id" has always been null: it was read from job.json's config, which does not hold it
-    # (the record does, beside the config); kept so that exports stay as they were.
-    return {"description": f"Tube Miner tubes ({fmt} export)", "run_id": None,
-            "source": None if job is None else job.source.dataset}
 
 
 def export_youtube_vis(tubes: pa.Table, frames: pa.Table, job: JobConfig | None, dest: Path,

@@ -1,0 +1,60 @@
+"""What the JSON annotation formats share (YouTube-VIS and TAO: ``video_json.py``; BURST:
+``burst.py``): the two own categories beside COCO's (``category_id``), the results file's
+place, the ``info`` block, the checked mask area and the writing of one JSON document.
+
+Each of these formats writes a **dataset** file and, in ``DEST/results/``, a **results**
+file (the same tubes as a tracker's output): ``RESULTS_DIR`` / ``RESULTS_JSON``.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from pycocotools import mask as mask_utils
+
+from mining.catalog.rows import mask_rle
+from mining.config import JobConfig
+from mining.errors import InputError
+from mining.export.selection import category_label
+from mining.formats.coco import CLASS_INDEX, COCO_CATEGORY_IDS
+
+UNKNOWN_ID = 1000  # ours: category id of unknown tubes, outside COCO's 1..90
+UNCLASSIFIED_ID = 1001  # ours: category id of unclassified tubes
+# ours: the synsets of the two own categories; not WordNet names (no sense is known for them)
+OWN_SYNSETS = {"unknown": "tube_miner.unknown", "unclassified": "tube_miner.unclassified"}
+TAO_IMAGES = "frames"  # TAO's image folder; BURST's --images uses it too
+# ours: the results (tracker) file of every video format, in a folder of its own: evaluators
+# want one JSON in the ground-truth folder and one in the tracker's
+RESULTS_DIR, RESULTS_JSON = "results", "results.json"
+
+
+def category_id(tube: dict) -> int:
+    """The COCO id of a known tube's class; UNKNOWN_ID / UNCLASSIFIED_ID otherwise."""
+    label = category_label(tube)
+    if label == "unknown":
+        return UNKNOWN_ID
+    if label == "unclassified":
+        return UNCLASSIFIED_ID
+    if label not in CLASS_INDEX:
+        raise InputError(f"tube {tube['tube_id']} is known as {label!r}, which is not a COCO class")
+    return COCO_CATEGORY_IDS[CLASS_INDEX[label]]
+
+
+def area(f: dict) -> float:
+    """The pixel count of the row's mask, checked (``rows.mask_rle``): a malformed one stops the export."""
+    return float(mask_utils.area(mask_rle(f)))
+
+
+def write_json(path: Path, doc) -> None:
+    """One JSON document and a newline (``path`` lies in the writer's private folder)."""
+    path.parent.mkdir(exist_ok=True)
+    path.write_text(json.dumps(doc) + "\n")
+
+
+def info(job: JobConfig | None, fmt: str) -> dict:
+    """The ``info`` block of a dataset file: the format and the job's dataset."""
+    # "run_id" has always been null: it was read from job.json's config, which does not hold it
+    # (the record does, beside the config); kept so that exports stay as they were.
+    return {"description": f"Tube Miner tubes ({fmt} export)", "run_id": None,
+            "source": None if job is None else job.source.dataset}
