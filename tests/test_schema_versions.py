@@ -74,7 +74,7 @@ def _readers(out: Path, tmp_path: Path) -> dict[str, list[str]]:
 
 def _refused_by_every_reader(capsys, monkeypatch, out: Path, tmp_path: Path, *named: str) -> None:
     """Each reader exits 2 with one line naming everything in ``named``; nothing is written."""
-    from mining.view.http import ViewServer
+    from mining.view.httpd import ViewServer
 
     def serve_forever(self, *a, **k):  # the old code served a newer catalogue: stop at once, rc 0
         raise KeyboardInterrupt

@@ -218,7 +218,7 @@ def test_the_names_of_the_bound_address_are_answered(server):
 
 
 def test_every_interface_answers_the_machines_names_and_addresses():
-    from mining.view.http import HostRule
+    from mining.view.httpd import HostRule
 
     rule = HostRule("0.0.0.0")
     for host in (socket.gethostname(), "localhost:8765", "10.1.2.3:8765", "[::1]:8765", "192.168.0.7"):
@@ -273,7 +273,7 @@ def test_idle_connections_hold_no_threads_and_do_not_starve_a_request(catalogue,
 
 @pytest.mark.slow  # over ~1.5 s: the fast tier's 3-minute budget
 def test_idle_connections_are_closed_after_the_idle_timeout(catalogue, tmp_path):
-    from mining.view.http import Limits
+    from mining.view.httpd import Limits
 
     out, _ = catalogue
     with serving(out, tmp_path / "cache", limits=Limits(idle_timeout_s=1.0)) as (base, srv):

@@ -19,7 +19,7 @@ import duckdb
 
 from mining.errors import InputError
 from mining.view.api import ViewApp
-from mining.view.http import Handler, HostRule, Limits, ViewServer, printable
+from mining.view.httpd import Handler, HostRule, Limits, ViewServer, printable
 from mining.view.images import default_cache_dir
 
 DEFAULT_PORT = 8765  # ours
