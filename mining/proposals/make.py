@@ -159,7 +159,8 @@ def _model(name: str, cfg: ProposalConfig, frame_size: tuple[int, int], generic:
     generic candidates beside its own when ``generic``: one network run serves both)."""
     if name == "onnx":
         from mining.proposals.onnx_generic import generic_candidates
-        from mining.proposals.onnx_yolo import OnnxProposer, decode_predictions
+        from mining.proposals.onnx_yolo import OnnxProposer
+        from mining.proposals.yolo_seg import decode_predictions
 
         model = OnnxProposer(cfg.onnx, frame_size=frame_size)
 

@@ -1,7 +1,7 @@
 """Generic candidates from what the COCO ONNX model already computes (issue 29, scope item 1).
 
-The YOLO-seg decoder (``onnx_yolo``) keeps anchors whose best class score is ≥
-``onnx.score_threshold``; an object of no COCO class often scores below it everywhere,
+The YOLO-seg decoder (``yolo_seg``, as the ``onnx`` proposer runs it) keeps anchors whose
+best class score is ≥ ``onnx.score_threshold``; an object of no COCO class often scores below it everywhere,
 yet the anchor's box and mask coefficients still describe *something*. These candidates
 are the anchors below that cut, down to ``onnx_generic.min_score``, decoded with the very
 same rules (class-agnostic NMS, masks from the prototypes) by ``decode_predictions``
@@ -22,12 +22,16 @@ objects no other proposer found, and the network runs once for both ONNX parts.
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from mining.proposals.config import OnnxConfig, OnnxGenericConfig
-from mining.proposals.onnx_yolo import N_COCO, Letterbox, OnnxProposer, decode_predictions
+from mining.proposals.yolo_seg import N_COCO, Letterbox, decode_predictions
 from mining.types import Proposals
+
+if TYPE_CHECKING:  # the proposer whose network run the candidates share; onnx_yolo imports no part of this
+    from mining.proposals.onnx_yolo import OnnxProposer
 
 PROPOSER_NAME = "onnx_generic"
 
