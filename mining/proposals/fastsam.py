@@ -41,10 +41,11 @@ from pathlib import Path
 import numpy as np
 
 from mining.errors import InputError
-from mining.proposals.config import FastSamConfig
+from mining.proposals.config import FastSamConfig, ProposalConfig
 from mining.proposals.onnx_convert import converted_model
 from mining.proposals.yolo_seg import (N_COEFFS, Letterbox, cache_folder, check_image, decode_predictions,
                                        letterbox_image, model_file, new_session, plan_letterbox)
+from mining.proposals.registry import ModelBatch
 from mining.types import Proposals
 
 PROPOSER_NAME = "fastsam"
@@ -132,3 +133,9 @@ class FastSamProposer:
             out.posterior = None
         self.last_timings_ms = {"network": 1e3 * (t1 - t0), "decode": 1e3 * (time.perf_counter() - t1)}
         return out
+
+
+def fastsam_model(cfg: ProposalConfig, frame_size: tuple[int, int]) -> ModelBatch:
+    """The registry's factory of ``fastsam`` (``proposals.fastsam``): one network run a frame."""
+    fastsam = FastSamProposer(cfg.fastsam, frame_size=frame_size)
+    return lambda frames, images: [[fastsam(f, im)] for f, im in zip(frames, images)]

@@ -15,8 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from mining.proposals.config import OnnxConfig
+from mining.proposals.config import OnnxConfig, ProposalConfig
 from mining.proposals.onnx_convert import converted_model
+from mining.proposals.onnx_generic import generic_candidates
+from mining.proposals.registry import ModelBatch
 from mining.proposals.yolo_seg import (Letterbox, cache_folder, check_image, decode_predictions, execution_providers,
                                        letterbox_image, model_file, new_session, plan_letterbox)
 from mining.types import Proposals
@@ -85,3 +87,20 @@ class OnnxProposer:
         out = decode_predictions(frame, pred, protos, lb, image.shape[:2], self.cfg, name=PROPOSER_NAME)
         self.last_timings_ms = {"network": 1e3 * (t1 - t0), "decode": 1e3 * (time.perf_counter() - t1)}
         return out
+
+
+def onnx_model(cfg: ProposalConfig, frame_size: tuple[int, int]) -> ModelBatch:
+    """The registry's factory of ``onnx`` (``proposals.onnx``): per frame its proposals, and beside them
+    the generic candidates of the same network run where ``proposals.onnx_generic.enabled``."""
+    model = OnnxProposer(cfg.onnx, frame_size=frame_size)
+    generic = cfg.onnx_generic.enabled
+
+    def onnx(frames: list[int], images: list[np.ndarray]) -> list[list[Proposals]]:
+        out = []
+        for frame, image, (pred, protos, lb) in zip(frames, images, model.raw_outputs_batch(frames, images)):
+            hw = image.shape[:2]
+            own = decode_predictions(frame, pred, protos, lb, hw, cfg.onnx)
+            out.append([own, generic_candidates(frame, pred, protos, lb, hw, cfg.onnx, cfg.onnx_generic)]
+                       if generic else [own])
+        return out
+    return onnx
