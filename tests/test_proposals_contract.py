@@ -26,7 +26,7 @@ from pycocotools import mask as mask_utils
 from conftest import MODEL, TINY_SAM_SIZE, TORCH_SMALL
 from mining.config import load_config
 from mining.geometry.stage import GeometryStage
-from mining.proposals.make import make_proposer
+from mining.proposals.make import FrameProposer, make_proposer
 from mining.proposals.precomputed import KittiDetections
 from mining.proposals.registry import CLASSIFYING as CLASSIFIERS, NAMES, PROPOSERS as REGISTRY
 from mining.sources import open_source
@@ -109,6 +109,9 @@ def test_every_proposer_keeps_the_output_contract(proposer, kitti):
     for frame, geometry in kitti:
         p = propose(frame, geometry)
         h, w = frame.calib.height, frame.calib.width
+        if isinstance(propose, FrameProposer):  # each model result is the part it stands for (the union's order)
+            models = propose.propose_images([frame.index], [frame.left])[0]
+            assert [set(m.proposer) <= {n} for m, n in zip(models, propose.model_names)] == [True] * len(models)
         assert isinstance(p, Proposals) and p.frame == frame.index
         n = len(p)
         assert n > 0, f"{name} proposed nothing on frame {frame.index}"

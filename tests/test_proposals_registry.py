@@ -136,3 +136,15 @@ def test_a_new_entry_is_a_proposer_of_the_config_the_union_and_the_model_stage(p
     assert make_one("planted_model", cfg, (H, W))(_frame(3), geometry).proposer == ["planted_model"]
     off = dataclasses.replace(cfg, onnx_generic=dataclasses.replace(cfg.onnx_generic, enabled=False))
     assert FrameProposer(off, (H, W)).names == ["planted_model", "planted_frame"]
+
+
+def test_each_model_result_lands_in_its_own_part_where_two_models_run_and_one_has_an_extra(planted):
+    # The extra's proposals come from the first model's run, beside its own: each slot of a frame's
+    # model results holds the part model_names names there, and the union takes the extra last.
+    cfg = ProposalConfig(proposer="planted_model+planted_other+planted_frame")
+    whole = FrameProposer(cfg, (H, W))
+    assert whole.names == ["planted_model", "planted_other", "planted_frame", "onnx_generic"]
+    models = whole.propose_images([5], [_frame(5).left])[0]
+    assert [set(p.proposer) for p in models] == [{n} for n in whole.model_names]
+    p = whole(_frame(5), types.SimpleNamespace(disparity=None, depth=None))
+    assert sorted(p.proposer) == ["onnx_generic", "planted_frame", "planted_model", "planted_other"]

@@ -16,8 +16,8 @@ import numpy as np
 
 from mining.errors import ConfigError
 from mining.proposals.config import ProposalConfig
-from mining.proposals.registry import (CLASSIFYING, MODEL, MODELS, PROPOSERS, ModelBatch, Proposer, entry,
-                                       extra_parts, proposer_names)
+from mining.proposals.registry import (CLASSIFYING, MODEL, MODELS, ModelBatch, Proposer, entry, extra_parts,
+                                       proposer_names)
 from mining.proposals.union import union
 from mining.types import FrameGeometry, Proposals, StereoFrame
 
@@ -28,7 +28,7 @@ def classifiers_line(proposer: str) -> str:
     cls = [n for n in names if n in CLASSIFYING]
     if not cls:
         return f"classes: no classifier ran (proposer {proposer}): every tube is unclassified (known is null)"
-    only_if = PROPOSERS[cls[0]].classifies_if if len(cls) == 1 else ""
+    only_if = entry(cls[0]).classifies_if if len(cls) == 1 else ""
     what = " and ".join(cls) + (f" ({only_if})" if only_if else "")
     return (f"classes: {what} classified (proposer {proposer}); the other proposers' proposals it did not cover "
             f"count toward unknown, by how likely it would have found a COCO object that size"
@@ -76,14 +76,15 @@ class FrameProposer:
         if not names:
             raise ConfigError("proposals.proposer is empty")
         self.cfg, self.frame_size = cfg, frame_size
-        kinds = {n: entry(n).kind for n in names}
+        model_parts = [n for n in names if entry(n).kind == MODEL]
         extras = extra_parts(cfg)
         # The extra parts come last, so the union keeps them only where no other part proposed.
         self.names = names + extras
-        self.model_names = [n for n in self.names if n in extras or kinds[n] == MODEL]
+        # In the order the models give their results: each model's own, then its extras that are on.
+        self.model_names = [p for n in model_parts for p in [n, *(x for x in entry(n).extras if x in extras)]]
         self._frame_parts = {n: make_one(n, cfg, frame_size) for n in self.names
                              if frame_parts and n not in self.model_names}
-        self._models = [model_batch(n, cfg, frame_size) for n in names if models and kinds[n] == MODEL]
+        self._models = [model_batch(n, cfg, frame_size) for n in model_parts] if models else []
 
     def propose_images(self, frames: Sequence[int], images: Sequence[np.ndarray]) -> list[list[Proposals]]:
         """The model parts of each frame (in ``model_names`` order), batched where a model takes batches."""
