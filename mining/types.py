@@ -242,7 +242,7 @@ UNKNOWN_CLASS = 80  # index of "unknown" in a class posterior
 
 def max_class_score(posterior: np.ndarray) -> float:
     """The classifier's max class score p* recovered from its row's posterior: the row is
-    [p_1..p_80, 1 − p*] / Z (``mining.proposals.onnx_yolo.class_posterior``), so
+    [p_1..p_80, 1 − p*] / Z (``mining.proposals.yolo_seg.class_posterior``), so
     P[k*] / P[unknown] = p* / (1 − p*). 0 for a class-agnostic row (all "unknown")."""
     pk, pu = float(np.max(posterior[:UNKNOWN_CLASS])), float(posterior[UNKNOWN_CLASS])
     if pk <= 0:

@@ -33,9 +33,10 @@ from mining.eval.funnel import StageFrame, evaluate_funnel, stage_frame
 from mining.eval.synthetic import GtFrame, gt_frame
 from mining.geometry.disparity import StereoMatcher
 from mining.geometry.ground import estimate_ground
-from mining.proposals.make import proposer_names
-from mining.proposals.onnx_yolo import N_COCO, OnnxProposer, decode_predictions, plan_letterbox
+from mining.proposals.onnx_yolo import OnnxProposer
+from mining.proposals.registry import proposer_names
 from mining.proposals.union import union
+from mining.proposals.yolo_seg import N_COCO, decode_predictions, plan_letterbox
 from mining.sources import open_source
 from mining.types import FrameGeometry, StereoCalib, StereoFrame
 

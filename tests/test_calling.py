@@ -17,7 +17,7 @@ from mining.config import load_config
 from mining.errors import InputError
 from mining.eval.synthetic import GtFrame
 from mining.pipeline.mine import judge
-from mining.proposals.onnx_yolo import class_posterior
+from mining.proposals.yolo_seg import class_posterior
 from mining.score.clutter import OBJECT_FEATURES, OBJECT_TERMS, object_evidence, object_log_odds
 from mining.tubes.category import ROW_FEATURES, RowConfidence, frame_class_evidence, row_features, tube_category
 from mining.types import UNKNOWN_CLASS, Tube, TubeFrame, max_class_score

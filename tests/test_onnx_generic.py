@@ -10,7 +10,7 @@ from pycocotools import mask as mask_utils
 from mining.config import load_config
 from mining.proposals.config import OnnxConfig, OnnxGenericConfig
 from mining.proposals.onnx_generic import PROPOSER_NAME, generic_candidates
-from mining.proposals.onnx_yolo import N_COCO, N_COEFFS, decode_predictions, plan_letterbox
+from mining.proposals.yolo_seg import N_COCO, N_COEFFS, decode_predictions, plan_letterbox
 
 H, W = 96, 160  # a small frame; the model input is the same size (no scaling, no padding)
 

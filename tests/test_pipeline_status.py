@@ -240,7 +240,8 @@ def test_running_needs_a_live_driver(tmp_path, capsys):
 
 
 def test_the_classify_hint_names_settings_that_load_and_only_where_nothing_classified():
-    from mining.proposals.make import CLASSIFYING, classify_hint, proposer_names
+    from mining.proposals.make import classify_hint
+    from mining.proposals.registry import CLASSIFYING, proposer_names
 
     assert classify_hint("onnx+stereo") is None and classify_hint("json") is None
     for proposer in ("stereo", "fastsam+stereo"):

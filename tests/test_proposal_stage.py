@@ -160,7 +160,8 @@ def test_logical_gpus_hold_the_proposal_stage_and_the_tubes_do_not_change(ray_wi
 def test_an_onnx_model_with_a_batch_axis_runs_a_batch_at_once_with_the_same_outputs(tmp_path):
     from _tiny_models import fastsam_onnx
     from mining.proposals.config import OnnxConfig
-    from mining.proposals.onnx_yolo import OnnxProposer, decode_predictions
+    from mining.proposals.onnx_yolo import OnnxProposer
+    from mining.proposals.yolo_seg import decode_predictions
 
     path = fastsam_onnx(tmp_path / "yolo_batch.onnx", height=64, width=96, n_classes=80, batch=None)
     cfg = OnnxConfig(model_path=str(path), cache_dir=str(tmp_path / "cache"), input_height=64, input_width=96,

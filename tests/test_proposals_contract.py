@@ -1,8 +1,9 @@
 """Every proposer keeps the one output contract of ``mining.types.Proposals``, on real KITTI 0005 frames.
 
-The proposers are built as the pipeline builds them (``make_proposer`` from a job config; the
-KITTI detection files as detections-only mode reads them) and called on the same two frames with
-their geometry. Whatever a proposer measures or not, its rows obey one contract: one COCO RLE of
+Every proposer of the registry (``mining/proposals/registry.py``) is tested alone, and so are the
+KITTI detection files as detections-only mode reads them and unions with a classifier. They are
+built as the pipeline builds them (``make_proposer`` from a job config) and called on the same two
+frames with their geometry. Whatever a proposer measures or not, its rows obey one contract: one COCO RLE of
 the frame's size per row, canonical (what ``pycocotools.mask.encode`` makes of the mask); float32
 boxes inside the frame and objectness in [0, 1], best first; a posterior of 81 classes whose rows
 sum to 1 where a classifier looked and are NaN where none did (None when no proposer classifies);
@@ -25,17 +26,18 @@ from pycocotools import mask as mask_utils
 from conftest import MODEL, TINY_SAM_SIZE, TORCH_SMALL
 from mining.config import load_config
 from mining.geometry.stage import GeometryStage
-from mining.proposals.make import make_proposer
+from mining.proposals.make import FrameProposer, make_proposer
 from mining.proposals.precomputed import KittiDetections
+from mining.proposals.registry import CLASSIFYING as CLASSIFIERS, NAMES, PROPOSERS as REGISTRY
 from mining.sources import open_source
 from mining.sources.kitti import KittiTrackingSource
 from mining.types import N_CLASSES, Proposals
 
 N_FRAMES = 2  # KITTI 0005 frames 0 and 1
-CLASSIFYING = {"onnx", "torch", "json", "kitti_detections"}  # proposers whose rows carry an 81-way posterior
+CLASSIFYING = {*CLASSIFIERS, "kitti_detections"}  # proposers whose rows carry an 81-way posterior
 IN_3D = {"stereo", "kitti_detections"}  # proposers whose rows carry a position and a size
-PROPOSERS = ["stereo", "onnx", "torch", "json", "kitti_detections", "onnx+stereo", "fastsam", "sam", "onnx+fastsam",
-             "onnx+fastsam+stereo"]
+# Each registry entry alone, detections-only mode's reader and the unions with a classifier.
+PROPOSERS = [*NAMES, "kitti_detections", "onnx+stereo", "onnx+fastsam", "onnx+fastsam+stereo"]
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +50,8 @@ def kitti(kitti_tracking_root):
 
 
 def _settings(name: str, request, tmp_path_factory) -> list[str]:
-    """The job settings that make proposer ``name`` (a union names its parts)."""
+    """The job settings that make proposer ``name`` (a union names its parts): the files of the proposers
+    that need a model file or a folder (a new entry of that kind gets its settings here)."""
     settings = [f'proposals.proposer="{name}"']
     parts = name.split("+")
     if "onnx" in parts:
@@ -102,10 +105,13 @@ def _rows_finite_or_nan(a: np.ndarray) -> np.ndarray:
 def test_every_proposer_keeps_the_output_contract(proposer, kitti):
     name, propose = proposer
     parts = set(name.split("+"))
-    named = parts | ({"onnx_generic"} if "onnx" in parts else set())  # the model's generic candidates ride with it
+    named = parts | {x for n in parts if n in REGISTRY for x in REGISTRY[n].extras}  # e.g. the generic candidates
     for frame, geometry in kitti:
         p = propose(frame, geometry)
         h, w = frame.calib.height, frame.calib.width
+        if isinstance(propose, FrameProposer):  # each model result is the part it stands for (the union's order)
+            models = propose.propose_images([frame.index], [frame.left])[0]
+            assert [set(m.proposer) <= {n} for m, n in zip(models, propose.model_names)] == [True] * len(models)
         assert isinstance(p, Proposals) and p.frame == frame.index
         n = len(p)
         assert n > 0, f"{name} proposed nothing on frame {frame.index}"

@@ -19,7 +19,8 @@ from mining.formats.kitti_tracking import read_kitti_tracking
 from mining.masks import crop_rle
 from mining.proposals.config import OnnxConfig
 from mining.proposals.onnx_convert import anchor_grid, converted_model, convert_to_float
-from mining.proposals.onnx_yolo import OnnxProposer, decode_predictions, letterbox_image, plan_letterbox
+from mining.proposals.onnx_yolo import OnnxProposer
+from mining.proposals.yolo_seg import decode_predictions, letterbox_image, plan_letterbox
 
 onnx = pytest.importorskip("onnx")
 ort = pytest.importorskip("onnxruntime")

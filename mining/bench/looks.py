@@ -43,7 +43,8 @@ from mining.errors import MiningError
 from mining.formats.coco import COCO_CLASSES
 from mining.formats.kitti_tracking import read_kitti_tracking
 from mining.pipeline.arguments import add_data_option, add_job_options, add_overwrite_option, default_data, job_config
-from mining.proposals.onnx_yolo import N_COCO, OnnxProposer
+from mining.proposals.onnx_yolo import OnnxProposer
+from mining.proposals.yolo_seg import N_COCO
 from mining.sources import open_source
 
 TOP_K = 20  # the issue: recall among the 20 best proposals by objectness

@@ -25,7 +25,7 @@ from mining.errors import ConfigError
 from mining.pipeline.proposal_stage import ProposalWorker, RemoteModels, has_models
 from mining.pipeline.schedule import Step
 from mining.pipeline.steps import Finalize, Job, Observe, StepResult, Track
-from mining.proposals.make import MODELS
+from mining.proposals.registry import MODELS
 
 
 PLACEMENT_TIMEOUT_S = 10.0  # ours: how long the end-of-job placement report waits on an actor

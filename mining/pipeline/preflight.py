@@ -165,7 +165,8 @@ def plan_sequences(cfg: JobConfig, sequences: list[str] | None = None,
 
 def check_proposer(cfg: JobConfig, plans: dict[str, SequencePlan]) -> None:
     """Make the configured proposer once (loads an ONNX model, finds a JSON folder)."""
-    from mining.proposals.make import make_proposer, proposer_names
+    from mining.proposals.make import make_proposer
+    from mining.proposals.registry import proposer_names
 
     calib = next(iter(plans.values())).calib
     try:

@@ -36,7 +36,8 @@ import numpy as np
 
 from mining.errors import InputError, MiningError
 from mining.proposals.config import ProposalConfig
-from mining.proposals.make import FrameProposer, proposer_names, MODELS
+from mining.proposals.make import FrameProposer
+from mining.proposals.registry import MODELS, proposer_names
 from mining.types import Proposals, StereoFrame
 
 

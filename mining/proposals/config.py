@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 from typing import Annotated
 
 from mining.checks import Count, Fraction, OneOf, Positive, Range, Satisfies, Signed
+from mining.proposals.registry import unknown_proposers
 from mining.proposals.stereo_config import StereoProposerConfig
 
 
@@ -13,12 +14,6 @@ def _input_side(v: int | str) -> str | None:
     if v == "auto" or (isinstance(v, int) and v > 0 and v % 32 == 0):
         return None
     return "must be 'auto' or a positive multiple of 32 (the YOLO family's largest stride)"
-
-
-def _proposer_names(v: str) -> str | None:
-    from mining.proposals.make import unknown_proposers  # the names live beside the code that makes them
-
-    return unknown_proposers(v)
 
 
 @dataclass
@@ -182,7 +177,7 @@ class UnionConfig:
 
 @dataclass
 class ProposalConfig:
-    proposer: Annotated[str, Satisfies(_proposer_names)] = "stereo"  # ours: "stereo" (weight-free default), "onnx", "torch", "json", "fastsam", "sam", or a union: "onnx+stereo"
+    proposer: Annotated[str, Satisfies(unknown_proposers)] = "stereo"  # ours: "stereo" (weight-free default), "onnx", "torch", "json", "fastsam", "sam", or a union: "onnx+stereo"
     onnx: OnnxConfig = field(default_factory=OnnxConfig)
     onnx_generic: OnnxGenericConfig = field(default_factory=OnnxGenericConfig)
     fastsam: FastSamConfig = field(default_factory=FastSamConfig)

@@ -17,7 +17,7 @@ output 0   (1, 4 + K + 32, N)      per anchor: cx, cy, w, h in input pixels; K c
 output 1   (1, 32, h/4, w/4)       mask prototypes
 =========  ======================  ===========================================================
 
-Decoding is the COCO model's (mining/proposals/onnx_yolo.py: letterbox, class-agnostic NMS in
+Decoding is the YOLO-seg family's (mining/proposals/yolo_seg.py: letterbox, class-agnostic NMS in
 frame pixels, masks from coefficients · prototypes inside the box), with:
 
 * objectness = the model's own score (the best of the K class scores: FastSAM's one score);
@@ -40,10 +40,12 @@ from pathlib import Path
 
 import numpy as np
 
-from mining.errors import ConfigError, InputError
-from mining.proposals.config import FastSamConfig
+from mining.errors import InputError
+from mining.proposals.config import FastSamConfig, ProposalConfig
 from mining.proposals.onnx_convert import converted_model
-from mining.proposals.onnx_yolo import N_COEFFS, Letterbox, decode_predictions, default_cache_dir, letterbox_image, plan_letterbox
+from mining.proposals.yolo_seg import (N_COEFFS, Letterbox, cache_folder, check_image, decode_predictions,
+                                       letterbox_image, model_file, new_session, plan_letterbox)
+from mining.proposals.registry import ModelBatch
 from mining.types import Proposals
 
 PROPOSER_NAME = "fastsam"
@@ -84,14 +86,9 @@ class FastSamProposer:
     """Loads the model once (a long-lived worker) and turns frames into class-agnostic ``Proposals``."""
 
     def __init__(self, cfg: FastSamConfig, frame_size: tuple[int, int] | None = None):
-        if not cfg.model_path:
-            raise ConfigError("proposals.fastsam.model_path is empty: give the path of a FastSAM ONNX export "
-                              "(weights are not bundled)")
+        self.model_path = model_file(cfg.model_path, "fastsam", "a FastSAM ONNX export", "FastSAM ONNX model")
         self.cfg = cfg
-        self.model_path = Path(cfg.model_path).expanduser()
-        if not self.model_path.is_file():
-            raise InputError("FastSAM ONNX model not found (proposals.fastsam.model_path)", self.model_path)
-        self.cache_dir = Path(cfg.cache_dir).expanduser() if cfg.cache_dir else default_cache_dir()
+        self.cache_dir = cache_folder(cfg.cache_dir)
         self.declared_hw = declared_input_hw(self.model_path)
         self._sessions: dict[tuple[int, int], tuple] = {}
         self.model_files: dict[tuple[int, int], Path] = {}  # input size → the file run (the user's or a resized copy)
@@ -103,18 +100,12 @@ class FastSamProposer:
 
     def _session(self, input_hw: tuple[int, int]):
         if input_hw not in self._sessions:
-            import onnxruntime as ort
-
             dynamic = None in self.declared_hw
             path = self.model_path if dynamic or self.declared_hw == input_hw else \
                 converted_model(self.model_path, self.cache_dir, *input_hw)
             self.model_files[input_hw] = path
-            opts = ort.SessionOptions()
-            opts.intra_op_num_threads = self.cfg.intra_op_num_threads
-            opts.inter_op_num_threads = 1
-            opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
             try:
-                sess = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+                sess = new_session(path, self.cfg.intra_op_num_threads, ["CPUExecutionProvider"])
             except Exception as e:  # onnxruntime's own errors: not a model it can run
                 raise InputError(f"onnxruntime cannot load it: {e}", self.model_path) from None
             if len(sess.get_outputs()) < 2:
@@ -131,10 +122,7 @@ class FastSamProposer:
         return out0[0], out1[0], lb
 
     def __call__(self, frame: int, image: np.ndarray) -> Proposals:
-        if not (isinstance(image, np.ndarray) and image.ndim == 3 and image.shape[2] == 3 and image.dtype == np.uint8):
-            shape = getattr(image, "shape", None)
-            raise InputError(f"expected an (H, W, 3) uint8 RGB image, got {shape} {getattr(image, 'dtype', '')}",
-                             frame=frame)
+        check_image(frame, image)
         t0 = time.perf_counter()
         pred, protos, lb = self.raw_outputs(image)
         t1 = time.perf_counter()
@@ -145,3 +133,9 @@ class FastSamProposer:
             out.posterior = None
         self.last_timings_ms = {"network": 1e3 * (t1 - t0), "decode": 1e3 * (time.perf_counter() - t1)}
         return out
+
+
+def fastsam_model(cfg: ProposalConfig, frame_size: tuple[int, int]) -> ModelBatch:
+    """The registry's factory of ``fastsam`` (``proposals.fastsam``): one network run a frame."""
+    fastsam = FastSamProposer(cfg.fastsam, frame_size=frame_size)
+    return lambda frames, images: [[fastsam(f, im)] for f, im in zip(frames, images)]

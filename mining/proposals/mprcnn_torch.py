@@ -84,7 +84,8 @@ import numpy as np
 from mining.errors import ConfigError, InputError
 from mining.formats.coco import COCO_CATEGORY_IDS
 from mining.masks import crop_rle
-from mining.proposals.config import TorchConfig
+from mining.proposals.config import ProposalConfig, TorchConfig
+from mining.proposals.registry import ModelBatch
 from mining.types import N_CLASSES, Proposals
 
 try:
@@ -413,3 +414,8 @@ def _encode(masks: torch.Tensor, boxes: torch.Tensor, frame_hw: tuple[int, int],
     return rles, np.asarray(ok, np.int64)
 
 
+def torch_model(cfg: ProposalConfig, frame_size: tuple[int, int]) -> ModelBatch:
+    """The registry's factory of ``torch`` (``proposals.torch``; the frame size plays no part):
+    ``batch_size`` frames per forward pass."""
+    mprcnn = TorchProposer(cfg.torch)
+    return lambda frames, images: [[p] for p in mprcnn.propose_batch(frames, images)]

@@ -1,7 +1,7 @@
 """Generic candidates from what the COCO ONNX model already computes (issue 29, scope item 1).
 
-The YOLO-seg decoder (``onnx_yolo``) keeps anchors whose best class score is ≥
-``onnx.score_threshold``; an object of no COCO class often scores below it everywhere,
+The YOLO-seg decoder (``yolo_seg``, as the ``onnx`` proposer runs it) keeps anchors whose
+best class score is ≥ ``onnx.score_threshold``; an object of no COCO class often scores below it everywhere,
 yet the anchor's box and mask coefficients still describe *something*. These candidates
 are the anchors below that cut, down to ``onnx_generic.min_score``, decoded with the very
 same rules (class-agnostic NMS, masks from the prototypes) by ``decode_predictions``
@@ -16,7 +16,8 @@ itself, and then **marked as generic**:
 
 They are built only when ``proposals.onnx_generic.enabled`` (off: today's behaviour,
 nothing computed). In a union they come last (after ``stereo``), so they only add
-objects no other proposer found, and the network runs once for both ONNX parts.
+objects no other proposer found, and the network runs once for both ONNX parts
+(``onnx_yolo.onnx_model``).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from dataclasses import replace
 import numpy as np
 
 from mining.proposals.config import OnnxConfig, OnnxGenericConfig
-from mining.proposals.onnx_yolo import N_COCO, Letterbox, OnnxProposer, decode_predictions
+from mining.proposals.yolo_seg import N_COCO, Letterbox, decode_predictions
 from mining.types import Proposals
 
 PROPOSER_NAME = "onnx_generic"
@@ -43,22 +44,3 @@ def generic_candidates(frame: int, pred: np.ndarray, protos: np.ndarray, lb: Let
     out.posterior = None
     out.proposer = [PROPOSER_NAME] * len(out)
     return out
-
-
-class SharedOnnxRun:
-    """One network run per frame for the ``onnx`` proposer and its generic candidates."""
-
-    def __init__(self, model: OnnxProposer):
-        self.model = model
-        self._frame: int | None = None
-        self._out: tuple | None = None
-
-    def outputs(self, frame: int, image: np.ndarray) -> tuple[np.ndarray, np.ndarray, Letterbox]:
-        """(116, N) predictions, prototypes and letterbox of ``image``, computed once per frame index."""
-        if self._frame != frame or self._out is None:
-            self._out, self._frame = self.model.raw_outputs(image), frame
-        return self._out
-
-    def generic(self, frame: int, image: np.ndarray, cfg: OnnxGenericConfig) -> Proposals:
-        pred, protos, lb = self.outputs(frame, image)
-        return generic_candidates(frame, pred, protos, lb, image.shape[:2], self.model.cfg, cfg)

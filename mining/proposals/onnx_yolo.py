@@ -1,98 +1,29 @@
 """Image-level mask proposals from a YOLO-seg-family ONNX model (onnxruntime, CPU).
 
 The model runs at the frame's own aspect ratio (letterboxed to multiples of 32), after a
-one-off conversion to float at that size (``onnx_convert``). Decoding follows the model
-card (../shared/models/SOURCES.md, "Decoding"):
-
-* objectness = max class probability (the 80 outputs are already sigmoids; there is no
-  separate objectness), class = argmax;
-* low-confidence predictions are kept on purpose: generic proposals live on recall;
-* class-agnostic NMS, at most ``max_proposals`` kept, sorted by score;
-* mask = sigmoid(coefficients · prototypes), computed only inside the box, mapped from the
-  prototype grid (1/4 of the input) to frame pixels in one affine warp (upsampling, padding
-  removal and resizing at once), thresholded, and run-length encoded straight from the crop.
-
-Class posterior over the 80 COCO classes + unknown: the sigmoid scores p_1..p_80 are
-independent "is it class k" probabilities, not a distribution. The model's confidence that
-the object is *some* known class is max p, so u = 1 − max p is the mass left for "none of
-the 80", i.e. unknown. posterior = [p_1..p_80, u] / (Σp + u) keeps the ranking and ratios
-between known classes, grows the unknown share as the detector grows unsure, and sums to 1.
+one-off conversion to float at that size (``onnx_convert``). Its outputs are decoded as the
+family's (``yolo_seg``: the model card's rules, class-agnostic NMS, masks inside the box) with
+the 80 COCO classes: each proposal carries an 81-way class posterior, the unknown mass
+1 − max p (``yolo_seg.class_posterior``).
 """
 
 from __future__ import annotations
 
-import math
-import os
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from mining.boxes import nms_keep
-from mining.errors import ConfigError, InputError
-from mining.masks import crop_rle
-from mining.proposals.config import OnnxConfig
+from mining.proposals.config import OnnxConfig, ProposalConfig
 from mining.proposals.onnx_convert import converted_model
-from mining.types import N_CLASSES, Proposals
+from mining.proposals.onnx_generic import generic_candidates
+from mining.proposals.registry import ModelBatch
+from mining.proposals.yolo_seg import (Letterbox, cache_folder, check_image, decode_predictions, execution_providers,
+                                       letterbox_image, model_file, new_session, plan_letterbox)
+from mining.types import Proposals
 
 PROPOSER_NAME = "onnx"
-N_COCO = 80  # class scores in the model output (rows 4..83)
-N_COEFFS = 32  # mask coefficients per anchor (rows 84..115)
-SIZE_MULTIPLE = 32  # largest model stride: input sides must be multiples of it
-
-
-def default_cache_dir() -> Path:
-    return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "tube_miner" / "onnx"
-
-
-@dataclass(frozen=True)
-class Letterbox:
-    """Where a frame lands in the model input: resized by ``scale``, offset by the padding."""
-
-    input_hw: tuple[int, int]
-    scale: float
-    resized_hw: tuple[int, int]
-    pad_x: int
-    pad_y: int
-
-
-def plan_letterbox(cfg: OnnxConfig, frame_hw: tuple[int, int]) -> Letterbox:
-    """Model input size and letterbox placement for frames of size ``frame_hw``."""
-    H, W = frame_hw
-    size = (cfg.input_height, cfg.input_width)
-    if size == ("auto", "auto"):
-        scale = min(1.0, cfg.auto_max_side / max(H, W))  # never upsample, cap the long side
-        h_in = math.ceil(round(H * scale) / SIZE_MULTIPLE) * SIZE_MULTIPLE
-        w_in = math.ceil(round(W * scale) / SIZE_MULTIPLE) * SIZE_MULTIPLE
-    elif all(isinstance(s, int) and not isinstance(s, bool) and s > 0 and s % SIZE_MULTIPLE == 0 for s in size):
-        h_in, w_in = size
-        scale = min(h_in / H, w_in / W)
-    else:
-        raise ConfigError(f"proposals.onnx input_height/input_width: both 'auto' or both positive multiples of "
-                          f"{SIZE_MULTIPLE}, got {size!r}")
-    nh, nw = min(h_in, round(H * scale)), min(w_in, round(W * scale))
-    return Letterbox((h_in, w_in), scale, (nh, nw), (w_in - nw) // 2, (h_in - nh) // 2)
-
-
-def letterbox_image(image: np.ndarray, lb: Letterbox, pad_value: int) -> np.ndarray:
-    """(H, W, 3) uint8 RGB → (1, 3, h, w) float32 in [0, 1], as the model expects."""
-    h_in, w_in = lb.input_hw
-    nh, nw = lb.resized_hw
-    canvas = np.full((h_in, w_in, 3), pad_value, np.uint8)
-    resized = image if image.shape[:2] == (nh, nw) else cv2.resize(image, (nw, nh), interpolation=cv2.INTER_LINEAR)
-    canvas[lb.pad_y:lb.pad_y + nh, lb.pad_x:lb.pad_x + nw] = resized
-    return (canvas.transpose(2, 0, 1)[None].astype(np.float32)) * np.float32(1.0 / 255.0)
-
-
-def class_posterior(probs: np.ndarray) -> np.ndarray:
-    """(N, 80) sigmoid class scores → (N, 81) distribution with unknown mass 1 − max p (see module doc)."""
-    p = np.asarray(probs, np.float64)
-    u = 1.0 - p.max(axis=1, keepdims=True)
-    full = np.concatenate([p, u], axis=1)
-    return (full / full.sum(axis=1, keepdims=True)).astype(np.float32)
 
 
 class OnnxProposer:
@@ -103,14 +34,9 @@ class OnnxProposer:
     """
 
     def __init__(self, cfg: OnnxConfig, frame_size: tuple[int, int] | None = None):
-        if not cfg.model_path:
-            raise ConfigError("proposals.onnx.model_path is empty: give the path of a YOLO-seg ONNX model "
-                              "(weights are not bundled)")
+        self.model_path = model_file(cfg.model_path, "onnx", "a YOLO-seg ONNX model", "ONNX model")
         self.cfg = cfg
-        self.model_path = Path(cfg.model_path).expanduser()
-        if not self.model_path.is_file():
-            raise InputError("ONNX model not found (proposals.onnx.model_path)", self.model_path)
-        self.cache_dir = Path(cfg.cache_dir).expanduser() if cfg.cache_dir else default_cache_dir()
+        self.cache_dir = cache_folder(cfg.cache_dir)
         self._sessions: dict[tuple[int, int], object] = {}
         self.converted_paths: dict[tuple[int, int], Path] = {}  # input size → converted float model
         self.last_timings_ms: dict[str, float] = {}
@@ -120,15 +46,9 @@ class OnnxProposer:
 
     def _session(self, input_hw: tuple[int, int]):
         if input_hw not in self._sessions:
-            import onnxruntime as ort
-
             path = converted_model(self.model_path, self.cache_dir, *input_hw)
             self.converted_paths[input_hw] = path
-            opts = ort.SessionOptions()
-            opts.intra_op_num_threads = self.cfg.intra_op_num_threads
-            opts.inter_op_num_threads = 1
-            opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-            sess = ort.InferenceSession(str(path), opts, providers=execution_providers(self.cfg.device))
+            sess = new_session(path, self.cfg.intra_op_num_threads, execution_providers(self.cfg.device))
             self._sessions[input_hw] = (sess, sess.get_inputs()[0].name)
         return self._sessions[input_hw]
 
@@ -150,7 +70,7 @@ class OnnxProposer:
         """``raw_outputs`` of each image: one run for all where the model has a batch axis and the
         images share a size, else one run per image (the same outputs either way, tested)."""
         for frame, image in zip(frames, images):
-            _check_image(frame, image)
+            check_image(frame, image)
         lbs = [plan_letterbox(self.cfg, im.shape[:2]) for im in images]
         if len(images) > 1 and len({lb.input_hw for lb in lbs}) == 1 and self.batch_axis(lbs[0].input_hw):
             sess, name = self._session(lbs[0].input_hw)
@@ -160,103 +80,27 @@ class OnnxProposer:
         return [self.raw_outputs(im) for im in images]
 
     def __call__(self, frame: int, image: np.ndarray) -> Proposals:
-        _check_image(frame, image)
+        check_image(frame, image)
         t0 = time.perf_counter()
         pred, protos, lb = self.raw_outputs(image)
         t1 = time.perf_counter()
-        out = decode_predictions(frame, pred, protos, lb, image.shape[:2], self.cfg)
+        out = decode_predictions(frame, pred, protos, lb, image.shape[:2], self.cfg, name=PROPOSER_NAME)
         self.last_timings_ms = {"network": 1e3 * (t1 - t0), "decode": 1e3 * (time.perf_counter() - t1)}
         return out
 
 
-def _check_image(frame: int, image: np.ndarray) -> None:
-    if not (isinstance(image, np.ndarray) and image.ndim == 3 and image.shape[2] == 3 and image.dtype == np.uint8):
-        shape = getattr(image, "shape", None)
-        raise InputError(f"expected an (H, W, 3) uint8 RGB image, got {shape} {getattr(image, 'dtype', '')}",
-                         frame=frame)
+def onnx_model(cfg: ProposalConfig, frame_size: tuple[int, int]) -> ModelBatch:
+    """The registry's factory of ``onnx`` (``proposals.onnx``): per frame its proposals, and beside them
+    the generic candidates of the same network run where ``proposals.onnx_generic.enabled``."""
+    model = OnnxProposer(cfg.onnx, frame_size=frame_size)
+    generic = cfg.onnx_generic.enabled
 
-
-def execution_providers(device: str) -> list[str]:
-    """onnxruntime's providers for ``proposals.onnx.device``: "cpu"; "cuda" (refused by name where
-    this onnxruntime has no CUDA provider); "auto" = CUDA where it has one, else the CPU."""
-    import onnxruntime as ort
-
-    have = ort.get_available_providers()
-    if device == "cpu":
-        return ["CPUExecutionProvider"]
-    if device == "cuda" and "CUDAExecutionProvider" not in have:
-        raise ConfigError("proposals.onnx.device='cuda', but this onnxruntime has no CUDA provider "
-                          f"(it has {', '.join(have)}): install onnxruntime-gpu")
-    if device in ("cuda", "auto"):
-        return (["CUDAExecutionProvider"] if "CUDAExecutionProvider" in have else []) + ["CPUExecutionProvider"]
-    raise ConfigError(f"proposals.onnx.device: 'cpu', 'cuda' or 'auto', got {device!r}")
-
-
-def decode_predictions(frame: int, pred: np.ndarray, protos: np.ndarray, lb: Letterbox,
-                       frame_hw: tuple[int, int], cfg: OnnxConfig, n_classes: int = N_COCO,
-                       name: str = PROPOSER_NAME) -> Proposals:
-    """Network outputs → Proposals in frame pixels: threshold, class-agnostic NMS, masks, posterior.
-
-    ``pred`` has 4 box rows, ``n_classes`` class-score rows and 32 coefficient rows. The 81-way
-    posterior needs the 80 COCO classes; with any other class count (FastSAM's one "object" class)
-    the rows are class-agnostic: objectness the best class score, posterior None.
-    """
-    H, W = frame_hw
-    probs = pred[4:4 + n_classes].T  # (N, n_classes)
-    score = probs.max(axis=1)
-    cand = np.nonzero(score >= cfg.score_threshold)[0]
-    cxcywh = pred[:4, cand].T.astype(np.float64)
-    boxes = np.column_stack([cxcywh[:, :2] - cxcywh[:, 2:] / 2, cxcywh[:, :2] + cxcywh[:, 2:] / 2])
-    boxes -= [lb.pad_x, lb.pad_y, lb.pad_x, lb.pad_y]
-    boxes /= lb.scale
-    boxes = np.clip(boxes, 0, [W, H, W, H])
-    # NMS on the clipped frame boxes, so the kept set satisfies the IoU bound as stored.
-    keep = nms_keep(boxes, score[cand], cfg.nms_iou, cfg.max_proposals)
-    idx, boxes = cand[keep], boxes[keep]
-    coeffs = pred[4 + n_classes:4 + n_classes + N_COEFFS, idx].T
-    rles, kept = _masks(coeffs, protos, boxes, lb, frame_hw, cfg.mask_threshold)
-    idx, boxes = idx[kept], boxes[kept]
-    return Proposals(
-        frame=frame,
-        rles=rles,
-        boxes=boxes.astype(np.float32).reshape(-1, 4),
-        objectness=score[idx].astype(np.float32),
-        posterior=None if n_classes != N_COCO else
-        class_posterior(probs[idx]) if len(idx) else np.zeros((0, N_CLASSES), np.float32),
-        proposer=[name] * len(idx),
-    )
-
-
-def _masks(coeffs: np.ndarray, protos: np.ndarray, boxes: np.ndarray, lb: Letterbox,
-           frame_hw: tuple[int, int], mask_threshold: float) -> tuple[list[dict], np.ndarray]:
-    """RLE masks of the kept boxes; proposals whose mask comes out empty are dropped (they
-    cannot be localised in 3D)."""
-    H, W = frame_hw
-    c, hp, wp = protos.shape
-    ps = lb.input_hw[0] / hp  # prototype stride in input pixels (4)
-    # Frame pixel centre u → prototype coordinate a·u + b (pixel-centre convention throughout).
-    a = lb.scale / ps
-    bx = (0.5 * lb.scale + lb.pad_x) / ps - 0.5
-    by = (0.5 * lb.scale + lb.pad_y) / ps - 0.5
-    cut = math.log(mask_threshold / (1.0 - mask_threshold))  # threshold on logits
-    rles, kept = [], []
-    for i, (x1, y1, x2, y2) in enumerate(boxes):
-        # Pixels whose centres lie inside the box.
-        X1, Y1 = max(0, math.ceil(x1 - 0.5)), max(0, math.ceil(y1 - 0.5))
-        X2, Y2 = min(W, math.floor(x2 - 0.5) + 1), min(H, math.floor(y2 - 0.5) + 1)
-        if X2 <= X1 or Y2 <= Y1:
-            continue
-        px0 = max(0, math.floor(a * X1 + bx))
-        px1 = min(wp, math.ceil(a * (X2 - 1) + bx) + 2)
-        py0 = max(0, math.floor(a * Y1 + by))
-        py1 = min(hp, math.ceil(a * (Y2 - 1) + by) + 2)
-        logits = (coeffs[i] @ protos[:, py0:py1, px0:px1].reshape(c, -1)).reshape(py1 - py0, px1 - px0)
-        warp = np.array([[a, 0.0, a * X1 + bx - px0], [0.0, a, a * Y1 + by - py0]])
-        up = cv2.warpAffine(logits, warp, (X2 - X1, Y2 - Y1), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                            borderMode=cv2.BORDER_REPLICATE)
-        crop = up > cut
-        if not crop.any():
-            continue
-        rles.append(crop_rle(crop, X1, Y1, H, W))
-        kept.append(i)
-    return rles, np.asarray(kept, np.int64)
+    def onnx(frames: list[int], images: list[np.ndarray]) -> list[list[Proposals]]:
+        out = []
+        for frame, image, (pred, protos, lb) in zip(frames, images, model.raw_outputs_batch(frames, images)):
+            hw = image.shape[:2]
+            own = decode_predictions(frame, pred, protos, lb, hw, cfg.onnx)
+            out.append([own, generic_candidates(frame, pred, protos, lb, hw, cfg.onnx, cfg.onnx_generic)]
+                       if generic else [own])
+        return out
+    return onnx

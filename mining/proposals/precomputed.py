@@ -54,7 +54,8 @@ from mining.formats.coco import CATEGORY_ID_TO_INDEX, CLASS_INDEX
 from mining.formats.kitti_calib import KittiCalib
 from mining.formats.kitti_detections import read_kitti_detections
 from mining.masks import batch_rle_problems
-from mining.proposals.config import JsonProposalsConfig, KittiDetectionsConfig
+from mining.proposals.config import JsonProposalsConfig, KittiDetectionsConfig, ProposalConfig
+from mining.proposals.registry import Proposer
 from mining.types import N_CLASSES, UNKNOWN_CLASS, Proposals
 
 JSON_PROPOSER = "json"
@@ -110,6 +111,12 @@ class JsonProposals:
         size = self.image_size if image is None else (image.shape[1], image.shape[0])
         return read_proposal_json(self.path(frame), frame, self.cfg.category_ids, size, self.name,
                                   max_proposals=self.cfg.max_proposals, max_file_bytes=self.cfg.max_file_bytes)
+
+
+def json_proposer(cfg: ProposalConfig, frame_size: tuple[int, int]) -> Proposer:
+    """The registry's factory of ``json``: the files of ``proposals.json.folder``, read by frame index."""
+    reader = JsonProposals(cfg.json.folder, cfg.json, image_size=(frame_size[1], frame_size[0]))
+    return lambda frame, geometry: reader(frame.index, frame.left)
 
 
 def read_proposal_json(path: str | Path, frame: int, category_ids: str = "agnostic",

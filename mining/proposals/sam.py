@@ -63,7 +63,8 @@ import numpy as np
 from mining.boxes import nms_keep
 from mining.errors import ConfigError, InputError
 from mining.masks import crop_rle
-from mining.proposals.config import SamConfig
+from mining.proposals.config import ProposalConfig, SamConfig
+from mining.proposals.registry import ModelBatch
 from mining.types import Proposals
 
 PROPOSER_NAME = "sam"
@@ -311,3 +312,9 @@ def _tight_box(mask: np.ndarray) -> tuple[int, int, int, int] | None:
 def _rle(mask: np.ndarray, box: tuple[int, int, int, int]) -> dict:
     x0, y0, x1, y1 = box
     return crop_rle(mask[y0:y1, x0:x1], x0, y0, *mask.shape)
+
+
+def sam_model(cfg: ProposalConfig, frame_size: tuple[int, int]) -> ModelBatch:
+    """The registry's factory of ``sam`` (``proposals.sam``; the frame size plays no part): one frame at a time."""
+    sam = SamProposer(cfg.sam)
+    return lambda frames, images: [[sam(f, im)] for f, im in zip(frames, images)]

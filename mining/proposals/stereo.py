@@ -75,6 +75,7 @@ import numpy as np
 from mining.boxes import nms_keep
 from mining.errors import InputError
 from mining.masks import crop_rle
+from mining.proposals.config import ProposalConfig
 from mining.proposals.stereo_config import StereoProposerConfig
 from mining.types import FrameGeometry, GroundPlane, Proposals, StereoCalib, StereoFrame
 
@@ -616,3 +617,8 @@ class StereoProposer:
         timings = {"points": 1e3 * (t1 - t0), "cluster": 1e3 * (t2 - t1), "stats": 1e3 * (t3 - t2),
                    "masks": 1e3 * (t4 - t3), "encode": 1e3 * (time.perf_counter() - t4)}
         return StereoResult(proposals, cues, "", timings)
+
+
+def stereo_proposer(cfg: ProposalConfig, frame_size: tuple[int, int]) -> StereoProposer:
+    """The registry's factory of ``stereo`` (``proposals.stereo``; each frame brings its own size)."""
+    return StereoProposer(cfg.stereo)
