@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from pycocotools import mask as mask_utils
 
-from mining.bench.calibrate import calibrated_config, fit_log_odds, roc_auc
+from mining.bench.calibrate import calibrated_config
+from mining.bench.fit import fit_log_odds, roc_auc
 from mining.config import JobConfig, load_config
 from mining.errors import ConfigError
 from mining.eval.tube_labels import label_tubes
@@ -211,7 +212,7 @@ def test_the_calibrated_unary_is_priced_by_its_own_epsilon1():
 
 
 def test_balance_gives_unknown_objects_the_known_objects_weight():
-    from mining.bench.calibrate import balance_weights
+    from mining.bench.fit import balance_weights
 
     y = np.array([1, 1, 1, 1, 1, 1, 0, 0], bool)
     unknown = np.array([0, 0, 0, 0, 1, 1, 0, 1], bool)  # the last is not an object: it keeps weight 1

@@ -45,14 +45,14 @@ from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
-from scipy.optimize import minimize
-from scipy.stats import rankdata
 
+from mining.bench.calling import run_calling_bench
+from mining.bench.fit import L2, balance_weights, check_seeds, fit_log_odds, roc_auc
 from mining.bench.synthetic import run_synthetic
 from mining.catalog import safe_files
 from mining.checks import count, finite_float, output_file, output_folder, positive_float, real, worker_count
 from mining.config import JobConfig, validate
-from mining.errors import ConfigError, MiningError
+from mining.errors import MiningError
 from mining.eval.synthetic import evaluate_synthetic
 from mining.eval.tube_labels import label_tubes
 from mining.pipeline.arguments import add_job_options, add_overwrite_option, job_config
@@ -60,55 +60,8 @@ from mining.pipeline.mine import judge, unary
 from mining.score.calibrated import TERMS, tube_evidence
 from mining.types import Tube
 
-L2 = 1.0  # ours: penalty on the standardised evidence (a prior of unit variance per standardised weight)
 EPSILON1 = 0.0  # ours: log-odds 0 — a tube alone is selected when it is more likely an object than not
 EPSILON2 = 3.0  # ours: the calibrated unary's overlap weight (select.epsilon2_calibrated)
-
-
-def fit_log_odds(x: np.ndarray, y: np.ndarray, l2: float = L2, sample_weight: np.ndarray | None = None) -> np.ndarray:
-    """Weights w (in ``x``'s own units) of P(y=1) = σ(w·x), maximum a-posteriori.
-
-    ``x``'s first column is the constant 1 (w₀, not penalised); the other columns are
-    standardised for the fit and the weights mapped back, so the penalty does not depend on
-    the terms' units. ``sample_weight`` weighs each row's log-likelihood (default 1).
-    """
-    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
-    sw = np.ones(len(y)) if sample_weight is None else np.asarray(sample_weight, np.float64)
-    mu, sd = x[:, 1:].mean(axis=0), x[:, 1:].std(axis=0)
-    sd = np.where(sd > 1e-12, sd, 1.0)
-    z = np.column_stack([np.ones(len(x)), (x[:, 1:] - mu) / sd])
-
-    def loss(w):
-        s = z @ w
-        nll = np.sum(sw * (np.logaddexp(0.0, s) - y * s))
-        grad = z.T @ (sw * (1.0 / (1.0 + np.exp(-s)) - y))
-        return nll + 0.5 * l2 * w[1:] @ w[1:], grad + l2 * np.concatenate([[0.0], w[1:]])
-
-    w = minimize(loss, np.zeros(z.shape[1]), jac=True, method="L-BFGS-B").x
-    out = np.concatenate([[w[0] - np.sum(w[1:] * mu / sd)], w[1:] / sd])
-    return out
-
-
-def balance_weights(y: np.ndarray, unknown: np.ndarray) -> np.ndarray:
-    """Row weights giving the unknown objects among the positives the same total weight as the
-    known ones (1 elsewhere): the unary is to find objects, known or not, while the training
-    seeds' objects are mostly known (a fit on them alone learns "object = a COCO class")."""
-    y, unknown = np.asarray(y, bool), np.asarray(unknown, bool) & np.asarray(y, bool)
-    w = np.ones(len(y))
-    n_known, n_unknown = int((y & ~unknown).sum()), int(unknown.sum())
-    if n_known and n_unknown:
-        w[unknown] = n_known / n_unknown
-    return w
-
-
-def roc_auc(score: np.ndarray, y: np.ndarray) -> float:
-    """P(score of a random positive > that of a random negative), ties half (Mann–Whitney)."""
-    score, y = np.asarray(score, np.float64), np.asarray(y, bool)
-    n1, n0 = int(y.sum()), int((~y).sum())
-    if not n1 or not n0:
-        return float("nan")
-    ranks = rankdata(score)  # average ranks over ties
-    return float((ranks[y].sum() - n1 * (n1 + 1) / 2.0) / (n1 * n0))
 
 
 def _mine_seed(args) -> tuple[str, list[Tube], dict, float]:
@@ -136,13 +89,6 @@ def calibrated_config(cfg: JobConfig, weights: dict[str, float], epsilon1: float
     out.select.epsilon2_calibrated = float(epsilon2)
     validate(out, "calibrated config")
     return out
-
-
-def check_seeds(seeds: Sequence[str]) -> None:
-    """ConfigError unless ``seeds`` holds at least two distinct seeds: one is held out in
-    each fold, and the others are the fold's training data."""
-    if len(set(seeds)) < 2:
-        raise ConfigError(f"--seeds {' '.join(seeds)}: leave-one-seed-out needs at least two distinct seeds")
 
 
 def check_fit_data(data: dict[str, dict], train: Sequence[str], n_frames: int, held_out: str | None = None) -> None:
@@ -274,8 +220,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """``mine bench calibrate``."""
     if args.calling:
-        from mining.bench.calling import run_calling_bench
-
         check_seeds(args.seeds)
         return run_calling_bench(job_config(args), args.seeds, args.frames, cache=args.cache, l2=args.l2,
                                  json_out=args.json, overwrite=args.overwrite)

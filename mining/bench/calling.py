@@ -12,7 +12,7 @@ kept with its frames' truth):
    fit on them as they come calls every unsure row known).
 2. **The object evidence** of a tube (``mining.score.clutter``): a logistic on the candidate
    tubes labelled object against part or clutter (``mining.eval.tube_labels``), unknown
-   objects weighted up likewise (``calibrate.balance_weights``).
+   objects weighted up likewise (``fit.balance_weights``).
 
 The known margin with calibrated rows is the one of ``MARGIN_GRID`` with the best balanced
 accuracy (mean of known-called-known and unknown-called-unknown) over the training tubes on
@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mining.bench.calibrate import balance_weights, fit_log_odds, roc_auc
+from mining.bench.fit import balance_weights, fit_log_odds, roc_auc
 from mining.bench.synthetic import run_synthetic
 from mining.catalog import safe_files
 from mining.config import JobConfig
