@@ -19,7 +19,7 @@ from mining.eval.synthetic import GtFrame
 from mining.pipeline.mine import judge
 from mining.proposals.onnx_yolo import class_posterior
 from mining.score.clutter import OBJECT_FEATURES, OBJECT_TERMS, object_evidence, object_log_odds
-from mining.tubes.category import ROW_FEATURES, RowConfidence, frame_class_evidence, row_features, tube_category
+from mining.score.category import ROW_FEATURES, RowConfidence, frame_class_evidence, row_features, tube_category
 from mining.types import UNKNOWN_CLASS, Tube, TubeFrame, max_class_score
 
 H, W = 40, 60

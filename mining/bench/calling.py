@@ -3,7 +3,7 @@
 Two fits on the synthetic training seeds (mined with the job's config, every candidate tube
 kept with its frames' truth):
 
-1. **The classifier's rows** (``mining.tubes.category.RowConfidence``). Each observed tube
+1. **The classifier's rows** (``mining.score.category.RowConfidence``). Each observed tube
    frame whose posterior is a classifier's own row (max class score s > 0) is labelled by the
    truth its mask overlaps with IoU ≥ 0.5: a known object, an unknown object, or nothing. Two
    logistics in ``row_features(s, box height px, depth m)``: P(on an object) on all rows, and
@@ -50,7 +50,7 @@ from mining.eval.tube_labels import label_tubes
 from mining.masks import mask_iou
 from mining.pipeline.mine import judge
 from mining.score.clutter import OBJECT_TERMS, object_evidence
-from mining.tubes.category import ROW_FEATURES, RowConfidence, accumulate_posterior, decide, row_features
+from mining.score.category import ROW_FEATURES, RowConfidence, accumulate_posterior, decide, row_features
 from mining.types import Tube, TubeFrame, max_class_score
 
 MARGIN_GRID = tuple(np.round(np.arange(-3.0, 3.01, 0.5), 2))  # ln-ratio margins tried with calibrated rows

@@ -44,7 +44,7 @@ from mining.pipeline.mine import mine_tubes
 from mining.proposals.onnx_yolo import OnnxProposer
 from mining.sources import open_source
 from mining.sources.kitti import KittiTrackingSource
-from mining.tubes.category import decide
+from mining.score.category import decide
 from mining.types import MinedTube
 
 KITTI_COCO_TYPES = ("Car", "Van", "Truck", "Pedestrian", "Person_sitting", "Cyclist", "Tram")  # COCO: car, truck, person, bicycle, train

@@ -15,7 +15,7 @@ from mining.config import JobConfig
 from mining.score.clutter import object_log_odds
 from mining.score.unary import score_tube, unary_total, unary_version, unary_weights
 from mining.select.coselect import co_select
-from mining.tubes.category import RowConfidence, tube_category
+from mining.score.category import RowConfidence, tube_category
 from mining.tubes.generate import TubeGenerator
 from mining.tubes.link import link_fragments
 from mining.types import MinedTube, TrackingFrame, Tube, TubeCategory, TubeScore

@@ -25,7 +25,7 @@ CALIBRATED: dict[str, dict[str, float]] = {
 }
 
 
-# The calibrated confidence of the classifier's own rows (mining/tubes/category.py, RowConfidence): two logistics in
+# The calibrated confidence of the classifier's own rows (mining/score/category.py, RowConfidence): two logistics in
 # (1, logit s, ln h, ln z, logit s·ln h, logit s·ln z) of a row's max class score s, box height h (px) and depth z (m),
 # fit by `mine bench calibrate --calling` on the observed tube frames of synthetic seeds 0000–0006 (100 frames each,
 # onnx+stereo with the COCO YOLOv8n-seg int8 model, its generic candidates and the colour-refined stereo masks: issue 29)
@@ -68,7 +68,7 @@ class ScoreConfig:
     # changes the terms it names and keeps CALIBRATED's others (to drop a proposer's weights: model = "reference")
     calibrated: dict[str, dict[str, Signed]] = field(default_factory=dict)
 
-    # Known / unknown / unclassified (mining/tubes/category.py).
+    # Known / unknown / unclassified (mining/score/category.py).
     known_log_margin: Signed = -1.0  # paper: argmax over the 81 entries is 0; ours: −1, calibrated by `mine bench classify` on synthetic training seeds 0000–0002 (docs/RESULTS.md)
     min_class_evidence: float = 1.0  # ours: classified only with ≥ one frame-equivalent of classifier evidence
     # "calibrated" = ours (issue 29): a classifier's own row is read through ROW_ON_OBJECT / ROW_KNOWN before the
@@ -76,7 +76,7 @@ class ScoreConfig:
     # decided at known_log_margin_calibrated; "reference" = the paper's row as the classifier gives it (unknown mass
     # 1 − max p), decided at known_log_margin
     class_confidence: Annotated[str, OneOf(("reference", "calibrated"))] = "calibrated"
-    row_on_object: dict[str, Signed] = field(default_factory=lambda: dict(ROW_ON_OBJECT))  # weights of P(row on an object), by mining.tubes.category.ROW_FEATURES
+    row_on_object: dict[str, Signed] = field(default_factory=lambda: dict(ROW_ON_OBJECT))  # weights of P(row on an object), by mining.score.category.ROW_FEATURES
     row_known: dict[str, Signed] = field(default_factory=lambda: dict(ROW_KNOWN))  # weights of P(known | on an object), likewise
     row_proposers: tuple[str, ...] = ("onnx", "onnx+stereo")  # ours: the jobs whose classifier rows these weights were fit on (the ONNX YOLO-seg decoder's); other classifiers (torch, detections) keep their rows as given
     known_log_margin_calibrated: Signed = -1.0  # ours: the margin with calibrated rows, best balanced accuracy of tubes on objects (0.919) on seeds 0000–0006 (`mine bench calibrate --calling`; −1 in every fold)

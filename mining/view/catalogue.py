@@ -202,7 +202,7 @@ class CatalogueBrowser:
         return "not recorded: the catalogue was written before score_model (job.json's score.model says which unary ran)"
 
     def class_rule(self, tube: dict, posterior: list | None) -> dict | None:
-        """The known / unknown decision as the run made it (mining/tubes/category.py): the margin
+        """The known / unknown decision as the run made it (mining/score/category.py): the margin
         and evidence bound of its job, and this tube's ln P[best known] − ln P[unknown]."""
         if self.job is None:
             return None
