@@ -57,7 +57,7 @@ class RowConfidence:
     """The calibrated confidence of a classifier's own row (issue 29), two logistics in
     ``row_features``: ``on_object`` = P(the row lies on an object, known or not) and ``known``
     = P(that object is one of the 80 classes | it is an object). Weights by ROW_FEATURES name
-    (a missing name weighs 0); fitted by ``mine bench calibrate --rows``."""
+    (a missing name weighs 0); fitted by ``mine bench calibrate --calling``."""
 
     on_object: Mapping[str, float]
     known: Mapping[str, float]
