@@ -21,7 +21,7 @@ likelihood ratio on synthetic truth and chosen by leave-seeds-out cross-validati
 4. **Leave one seed out.** For each training seed, the weights are fit on the others and the
    held-out seed's tubes are judged again (co-selection with ε1 = ``epsilon1``, 0 by default:
    selected alone when more likely an object than not, and overlap weight ε2 = ``epsilon2``,
-   3 by default: ``select.epsilon2_calibrated``), then scored by the synthetic
+   3 by default: ``select.overlap_weight.calibrated``), then scored by the synthetic
    protocol beside the job's own judgement of the same tubes: HOTA, frame recall (known /
    unknown), clutter share of the selected tubes, and the ranking quality of the unary on
    all candidates (ROC AUC of object vs the rest) for both.
@@ -61,7 +61,7 @@ from mining.score.calibrated import TERMS, tube_evidence
 from mining.types import Tube
 
 EPSILON1 = 0.0  # ours: log-odds 0 — a tube alone is selected when it is more likely an object than not
-EPSILON2 = 3.0  # ours: the calibrated unary's overlap weight (select.epsilon2_calibrated)
+EPSILON2 = 3.0  # ours: the calibrated unary's overlap weight (select.overlap_weight.calibrated)
 
 
 def _mine_seed(args) -> tuple[str, list[Tube], dict, float]:
@@ -85,8 +85,8 @@ def calibrated_config(cfg: JobConfig, weights: dict[str, float], epsilon1: float
     out = copy.deepcopy(cfg)
     out.score.model = "calibrated"
     out.score.calibrated = {**out.score.calibrated, cfg.proposals.proposer: weights}
-    out.select.epsilon1_calibrated = float(epsilon1)
-    out.select.epsilon2_calibrated = float(epsilon2)
+    out.select.price.calibrated = float(epsilon1)
+    out.select.overlap_weight.calibrated = float(epsilon2)
     validate(out, "calibrated config")
     return out
 

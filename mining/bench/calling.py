@@ -155,7 +155,7 @@ def calling_config(cfg: JobConfig, fit: dict | None, gate: float | None) -> JobC
         return out
     out.score.class_confidence = "calibrated"
     out.score.row_on_object, out.score.row_known = dict(fit["row_on_object"]), dict(fit["row_known"])
-    out.score.known_log_margin_calibrated = fit["margin"]
+    out.score.known_margin.calibrated = fit["margin"]
     out.score.object_evidence = {**out.score.object_evidence, cfg.proposals.proposer: dict(fit["object_evidence"])}
     action = cfg.score.unknown_gate if cfg.score.unknown_gate != "off" else "unclassified"
     out.score.unknown_gate = "off" if gate is None else action

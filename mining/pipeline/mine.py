@@ -6,7 +6,6 @@ window judges its own tubes and the stitcher judges a sequence's stitched tubes 
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable, Iterable
 
 import numpy as np
@@ -33,19 +32,17 @@ def unary(cfg: JobConfig, proposer: str | None = None) -> Callable[[Tube], TubeS
 
 def judge(tubes: list[Tube], cfg: JobConfig, proposer: str | None = None) -> list[MinedTube]:
     """Each tube's unary score and call (``mining.score.call``: known, unknown, unclassified, or
-    clutter not offered), and the co-selection over the tubes offered (with the calibrated
-    unary, at its own price and overlap weight ``select.epsilon1/2_calibrated``)."""
+    clutter not offered), and the co-selection over the tubes offered, at the price and overlap
+    weight of the unary that scored them (``select.price`` and ``select.overlap_weight``)."""
     weights = unary_weights(cfg.score, proposer or cfg.proposals.proposer)
     version = unary_version(cfg.score, weights)
     scores = [score_tube(t, cfg.score, weights, version) for t in tubes]
-    select = cfg.select
-    if weights is not None:
-        select = dataclasses.replace(select, epsilon1=select.epsilon1_calibrated, epsilon2=select.epsilon2_calibrated)
     cats, offered = call_tubes(tubes, cfg.score, proposer or cfg.proposals.proposer)
     selected = np.zeros(len(tubes), bool)
     idx = np.flatnonzero(offered)
     if len(idx):
-        selected[idx] = co_select([tubes[i] for i in idx], np.array([scores[i].total for i in idx]), select)
+        selected[idx] = co_select([tubes[i] for i in idx], np.array([scores[i].total for i in idx]),
+                                 cfg.select, "reference" if weights is None else "calibrated")
     return [MinedTube(t, s, c, bool(m)) for t, s, c, m in zip(tubes, scores, cats, selected)]
 
 

@@ -7,11 +7,11 @@ evidence it carries (its rows' confidence and its object evidence were fit per p
    looked are accumulated over the tube. With ``class_confidence = "calibrated"`` and a
    proposer in ``row_proposers`` (the jobs whose classifier rows the weights were fit on), a
    classifier's own row is first read through ``RowConfidence(row_on_object, row_known)`` and
-   the decision is made at the calibrated known margin; otherwise the rows count as the
-   classifier gives them, at the reference margin (the two margins of the known-margin setting,
-   ``class_mode`` says which). A tube with less evidence than ``min_class_evidence`` is
-   *unclassified* (known None); else it is *known* as its best class k* when
-   ln P[k*] − ln P[unknown] exceeds the margin, *unknown* otherwise.
+   the decision is made at ``known_margin.calibrated``; otherwise the rows count as the
+   classifier gives them, at ``known_margin.reference`` (``class_mode`` says which). A tube
+   with less evidence than ``min_class_evidence`` is *unclassified* (known None); else it is
+   *known* as its best class k* when ln P[k*] − ln P[unknown] exceeds the margin, *unknown*
+   otherwise.
 2. **The object gate** (``mining.score.clutter``), before the unknown set: where the proposer
    has ``object_evidence`` weights and ``unknown_gate`` is not "off", a tube called unknown
    whose object evidence gives P(object) < ``unknown_min_object`` is clutter. With
@@ -38,16 +38,15 @@ from mining.types import Tube, TubeCategory
 def class_mode(cfg: ScoreConfig, proposer: str) -> str:
     """"calibrated" when the classifier's rows are read through the calibrated confidence for
     this proposer (``class_confidence`` "calibrated" and the proposer in ``row_proposers``),
-    else "reference": which known margin decides."""
+    else "reference": the entry of ``known_margin`` that decides."""
     return "calibrated" if cfg.class_confidence == "calibrated" and proposer in cfg.row_proposers else "reference"
 
 
 def categories(tubes: list[Tube], cfg: ScoreConfig, proposer: str) -> list[TubeCategory]:
     """Each tube's known / unknown / unclassified call (step 1 of the module docstring)."""
-    if class_mode(cfg, proposer) == "calibrated":
-        conf, margin = RowConfidence(cfg.row_on_object, cfg.row_known), cfg.known_log_margin_calibrated
-    else:
-        conf, margin = None, cfg.known_log_margin
+    mode = class_mode(cfg, proposer)
+    conf = RowConfidence(cfg.row_on_object, cfg.row_known) if mode == "calibrated" else None
+    margin = getattr(cfg.known_margin, mode)
     return [tube_category(t, margin, cfg.min_class_evidence, conf) for t in tubes]
 
 

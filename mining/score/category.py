@@ -28,9 +28,10 @@ Decision. A tube with evidence below ``min_class_evidence`` (one frame-equivalen
 classifier's own rows by default) is unclassified: known = None, category None. Otherwise,
 with k* the most probable of the 80 classes, the tube is known as k* when
 
-    ln P[k*] − ln P[unknown] > known_log_margin,
+    ln P[k*] − ln P[unknown] > margin,
 
-and unknown otherwise. ``known_log_margin`` = 0 is the paper's argmax over the 81 entries;
+and unknown otherwise (the margin: ``score.known_margin``'s entry for the rows' reading,
+``mining.score.call``). A margin of 0 is the paper's argmax over the 81 entries;
 ``mine bench classify`` measures whether another margin separates known from unknown
 objects better on training data.
 """

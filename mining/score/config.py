@@ -52,6 +52,15 @@ OBJECT_EVIDENCE: dict[str, dict[str, float]] = {
 
 
 @dataclass
+class KnownMargin:
+    """The margin ln P[best known] − ln P[unknown] a tube's posterior must exceed to be called
+    known, by ``score.class_confidence`` (the classifier's rows as given, or calibrated)."""
+
+    reference: Signed = -1.0  # paper: argmax over the 81 entries is 0; ours: −1, calibrated by `mine bench classify` on synthetic training seeds 0000–0002 (docs/RESULTS.md)
+    calibrated: Signed = -1.0  # ours: the margin with calibrated rows, best balanced accuracy of tubes on objects (0.919) on seeds 0000–0006 (`mine bench calibrate --calling`; −1 in every fold)
+
+
+@dataclass
 class ScoreConfig:
     objectness_k: Positive = 10.0  # REFERENCE: objectness LLR ln(x) − ln(1/K), K = 10 (paper's β)
     motion_k: Positive = 1000.0  # REFERENCE: motion LLR, K = 1000 (paper's 1/A_GP)
@@ -68,18 +77,17 @@ class ScoreConfig:
     # changes the terms it names and keeps CALIBRATED's others (to drop a proposer's weights: model = "reference")
     calibrated: dict[str, dict[str, Signed]] = field(default_factory=dict)
 
-    # Known / unknown / unclassified (mining/score/category.py).
-    known_log_margin: Signed = -1.0  # paper: argmax over the 81 entries is 0; ours: −1, calibrated by `mine bench classify` on synthetic training seeds 0000–0002 (docs/RESULTS.md)
+    # Known / unknown / unclassified (mining/score/category.py, the rule in mining/score/call.py).
+    known_margin: KnownMargin = field(default_factory=KnownMargin)  # was score.known_log_margin and score.known_log_margin_calibrated (issue 38)
     min_class_evidence: float = 1.0  # ours: classified only with ≥ one frame-equivalent of classifier evidence
     # "calibrated" = ours (issue 29): a classifier's own row is read through ROW_ON_OBJECT / ROW_KNOWN before the
     # posterior accumulates (a far small pedestrian at 0.25 is a known object the detector is unsure of, not unknown),
-    # decided at known_log_margin_calibrated; "reference" = the paper's row as the classifier gives it (unknown mass
-    # 1 − max p), decided at known_log_margin
+    # decided at known_margin.calibrated; "reference" = the paper's row as the classifier gives it (unknown mass
+    # 1 − max p), decided at known_margin.reference
     class_confidence: Annotated[str, OneOf(("reference", "calibrated"))] = "calibrated"
     row_on_object: dict[str, Signed] = field(default_factory=lambda: dict(ROW_ON_OBJECT))  # weights of P(row on an object), by mining.score.category.ROW_FEATURES
     row_known: dict[str, Signed] = field(default_factory=lambda: dict(ROW_KNOWN))  # weights of P(known | on an object), likewise
     row_proposers: tuple[str, ...] = ("onnx", "onnx+stereo")  # ours: the jobs whose classifier rows these weights were fit on (the ONNX YOLO-seg decoder's); other classifiers (torch, detections) keep their rows as given
-    known_log_margin_calibrated: Signed = -1.0  # ours: the margin with calibrated rows, best balanced accuracy of tubes on objects (0.919) on seeds 0000–0006 (`mine bench calibrate --calling`; −1 in every fold)
     # Object or clutter before the unknown set (issue 29; mining/score/clutter.py): a tube called unknown whose object
     # evidence gives P(object) < unknown_min_object is "unclassified" = ours, the default: it stays selected but is not
     # called unknown (selection is the unary's judgement; the unknown set is what researchers export, and dropping

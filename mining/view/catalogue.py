@@ -208,8 +208,8 @@ class CatalogueBrowser:
             return None
         s = self.job.score
         calibrated = s.class_confidence == "calibrated" and self.job.proposals.proposer in s.row_proposers
-        rule = {"margin": s.known_log_margin_calibrated if calibrated else s.known_log_margin,
-                "margin_key": "score.known_log_margin_calibrated" if calibrated else "score.known_log_margin",
+        rule = {"margin": s.known_margin.calibrated if calibrated else s.known_margin.reference,
+                "margin_key": "score.known_margin.calibrated" if calibrated else "score.known_margin.reference",
                 "min_evidence": s.min_class_evidence, "evidence": tube.get("class_evidence"), "log_ratio": None}
         if posterior and len(posterior) == len(CLASS_NAMES):
             known = [p or 0.0 for p in posterior[:UNKNOWN_CLASS]]
