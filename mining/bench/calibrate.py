@@ -27,6 +27,8 @@ likelihood ratio on synthetic truth and chosen by leave-seeds-out cross-validati
    all candidates (ROC AUC of object vs the rest) for both.
 5. **Weights** fit on all training seeds, printed as the TOML table for
    ``score.calibrated."<proposer>"``; the held-out seeds of ``mine eval synthetic`` are the test.
+   ``--write`` records them, with how they were made (``unary_fit``), as the proposer's default:
+   the ``[unary]`` table of ``mining/score/fits/<proposer>.toml`` (``mining.score.fits``).
 
 The tubes come from the job's tube generation with REFERENCE's unary ranking tube NMS
 (``score.model`` is set to "reference" for it, so a fit never depends on the weights it is to
@@ -43,11 +45,12 @@ import json
 import time
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 
 import numpy as np
 
 from mining.bench.calling import run_calling_bench
-from mining.bench.fit import L2, balance_weights, check_seeds, fit_log_odds, roc_auc
+from mining.bench.fit import L2, balance_weights, check_seeds, command_line, fit_log_odds, provenance, roc_auc, write_fit
 from mining.bench.synthetic import run_synthetic
 from mining.catalog import safe_files
 from mining.checks import count, finite_float, output_file, output_folder, positive_float, real, worker_count
@@ -58,6 +61,7 @@ from mining.eval.tube_labels import label_tubes
 from mining.pipeline.arguments import add_job_options, add_overwrite_option, job_config
 from mining.pipeline.mine import judge, unary
 from mining.score.calibrated import TERMS, tube_evidence
+from mining.score.fits import FITS_DIR, UNARY_FIT
 from mining.types import Tube
 
 EPSILON1 = 0.0  # ours: log-odds 0 — a tube alone is selected when it is more likely an object than not
@@ -107,7 +111,10 @@ def check_fit_data(data: dict[str, dict], train: Sequence[str], n_frames: int, h
 
 def run_calibrate_bench(cfg: JobConfig, seeds: Sequence[str], n_frames: int, workers: int = 1,
                         l2: float = L2, epsilon1: float = EPSILON1, epsilon2: float = EPSILON2, balance: bool = True,
-                        json_out: str | None = None, overwrite: bool = False) -> int:
+                        json_out: str | None = None, overwrite: bool = False, write: str | Path | None = None,
+                        command: str = "") -> int:
+    """Mine, fit and report (module docstring); ``write``: the folder of fit files whose
+    ``<proposer>.toml`` takes the weights fit on all seeds (``command``: what was run, recorded with them)."""
     check_seeds(seeds)
     t0 = time.perf_counter()
     print(f"calibrate: mining {len(seeds)} seed(s) × {n_frames} frames, proposer {cfg.proposals.proposer}, "
@@ -163,7 +170,28 @@ def run_calibrate_bench(cfg: JobConfig, seeds: Sequence[str], n_frames: int, wor
                "epsilon1": epsilon1, "epsilon2": epsilon2, "balance": balance, "folds": rows, "weights": final,
                "tubes": {"object": int(y.sum()), "part_or_clutter": int((~y).sum())}}
         safe_files.write_file(json_out, json.dumps(doc, indent=1).encode(), overwrite)
+    if write is not None:
+        table = unary_fit(final, rows, y, np.concatenate([data[s]["unknown"] for s in seeds]), cfg.proposals.proposer,
+                          seeds, n_frames, command, l2, balance, epsilon1, epsilon2)
+        print(f"calibrate: wrote {write_fit(cfg.proposals.proposer, UNARY_FIT, table, write)}")
     return 0
+
+
+def unary_fit(final: dict[str, float], rows: Sequence[dict], y: np.ndarray, unknown: np.ndarray, proposer: str,
+              seeds: Sequence[str], n_frames: int, command: str, l2: float = L2, balance: bool = True,
+              epsilon1: float = EPSILON1, epsilon2: float = EPSILON2) -> dict:
+    """The ``[unary]`` fit table ``--write`` records: provenance, the tubes it was fit on (``y``:
+    object or not; ``unknown``: on an unknown object), the folds' mean AUC (calibrated and the job's
+    REFERENCE unary on the same tubes) and the weights fit on all seeds."""
+    y = np.asarray(y, bool)
+    note = (f"l2 {l2:g}; unknown objects' tubes {'weighted up to the known ones' if balance else 'as they come'}; "
+            f"folds judged at ε1 {epsilon1:g}, ε2 {epsilon2:g}")
+    return {**provenance(command, proposer, seeds, n_frames, note),
+            "samples": {"object": int(y.sum()), "object_on_unknown": int((y & np.asarray(unknown, bool)).sum()),
+                        "part_or_clutter": int((~y).sum())},
+            "auc": {"mean": round(float(np.nanmean([r["auc"]["calibrated"] for r in rows])), 3),
+                    "reference_mean": round(float(np.nanmean([r["auc"]["job"] for r in rows])), 3)},
+            "weights": {k: float(final[k]) for k in TERMS}}
 
 
 def _print(rows: list[dict], final: dict, cfg: JobConfig, seeds: Sequence[str], n_pos: int, n_neg: int,
@@ -213,6 +241,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cache", type=output_folder, metavar="DIR", default=None,
                    help="with --calling: keep each mined seed here as NPZ and read it back on the next run with the "
                         "same proposer, seed and frames (delete it after changing the pipeline)")
+    p.add_argument("--write", type=output_folder, nargs="?", const=FITS_DIR, default=None, metavar="DIR",
+                   help="record the weights fit on all seeds, with how they were made, as the proposer's defaults: "
+                        "mining/score/fits/<proposer>.toml (with --calling: its object evidence, and rows.toml), "
+                        "or the fit files in DIR")
     p.add_argument("--json", type=output_file, help="also write the results as JSON here")
     add_overwrite_option(p, "the --json file")
 
@@ -222,7 +254,8 @@ def run(args: argparse.Namespace) -> int:
     if args.calling:
         check_seeds(args.seeds)
         return run_calling_bench(job_config(args), args.seeds, args.frames, cache=args.cache, l2=args.l2,
-                                 json_out=args.json, overwrite=args.overwrite)
+                                 json_out=args.json, overwrite=args.overwrite, write=args.write,
+                                 command=command_line())
     return run_calibrate_bench(job_config(args), args.seeds, args.frames, workers=args.workers, l2=args.l2,
                                epsilon1=args.epsilon1, epsilon2=args.epsilon2, balance=not args.no_balance,
-                               json_out=args.json, overwrite=args.overwrite)
+                               json_out=args.json, overwrite=args.overwrite, write=args.write, command=command_line())

@@ -1,16 +1,24 @@
 """Fitting helpers shared by ``mine bench calibrate`` and its ``--calling`` fit: a penalised
-logistic fit, the weights that balance unknown objects against known ones, ROC AUC, and the
-leave-one-seed-out check on the seeds given."""
+logistic fit, the weights that balance unknown objects against known ones, ROC AUC, the
+leave-one-seed-out check on the seeds given, and ``--write``: a fit table with its provenance
+into the fit files (``mining.score.fits``)."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import shlex
+import subprocess
+import sys
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.optimize import minimize
 from scipy.stats import rankdata
 
+from mining.catalog import safe_files
 from mining.errors import ConfigError
+from mining.score.fits import updated_fit
 
 L2 = 1.0  # ours: penalty on the standardised evidence (a prior of unit variance per standardised weight)
 
@@ -66,3 +74,38 @@ def check_seeds(seeds: Sequence[str]) -> None:
     each fold, and the others are the fold's training data."""
     if len(set(seeds)) < 2:
         raise ConfigError(f"--seeds {' '.join(seeds)}: leave-one-seed-out needs at least two distinct seeds")
+
+
+def command_line() -> str:
+    """The ``mine`` command this process runs, as typed (a fit's provenance)."""
+    return shlex.join(["mine", *sys.argv[1:]])
+
+
+def code_commit() -> str:
+    """The commit of the code running (``-dirty`` with uncommitted changes), or "unknown" outside a
+    git checkout: a fit's provenance."""
+    try:
+        done = subprocess.run(["git", "-C", str(Path(__file__).resolve().parent), "describe", "--always", "--dirty"],
+                              capture_output=True, text=True, timeout=30)
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return done.stdout.strip() if done.returncode == 0 and done.stdout.strip() else "unknown"
+
+
+def provenance(command: str, proposer: str, seeds: Sequence[str], n_frames: int, note: str) -> dict[str, Any]:
+    """The provenance keys every fit table starts with (``mining.score.fits``)."""
+    return {"command": command, "commit": code_commit(), "proposer": proposer, "seeds": list(seeds),
+            "frames": int(n_frames), "note": note}
+
+
+def fold_range(values: Sequence[float]) -> list[float]:
+    """[min, max] of a per-fold figure, to three decimals (a fit's AUC over its folds)."""
+    return [round(float(np.nanmin(values)), 3), round(float(np.nanmax(values)), 3)]
+
+
+def write_fit(name: str, fit: str, table: Mapping[str, Any], folder: str | Path) -> Path:
+    """Replace the fit table ``fit`` of fit file ``name`` in ``folder`` (``mining.score.fits.updated_fit``),
+    the file's other tables kept; returns the file written."""
+    path, text = updated_fit(name, fit, table, folder)
+    safe_files.write_file(path, text.encode("utf-8"), overwrite=True)
+    return path
