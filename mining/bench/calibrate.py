@@ -50,7 +50,8 @@ from pathlib import Path
 import numpy as np
 
 from mining.bench.calling import run_calling_bench
-from mining.bench.fit import L2, balance_weights, check_seeds, command_line, fit_log_odds, provenance, roc_auc, write_fit
+from mining.bench.fit import (L2, balance_weights, check_seeds, command_line, fit_log_odds, provenance, roc_auc,
+                              write_fit)
 from mining.bench.synthetic import run_synthetic
 from mining.catalog import safe_files
 from mining.checks import count, finite_float, output_file, output_folder, positive_float, real, worker_count
