@@ -7,6 +7,7 @@ configuration is hashed into ``params_hash`` so that a catalogue records what ma
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import difflib
 import hashlib
@@ -102,6 +103,16 @@ class JobConfig:
         return hashlib.sha256(blob).hexdigest()[:16]
 
 
+# The settings whose value depends on a mode, each a table keyed by that mode's values (no mode twins such as
+# a ``*_calibrated`` field beside its plain one): dotted table → the setting that names the mode.
+BY_MODE: dict[str, str] = {
+    "select.price": "score.model",  # by the unary the scores come from ("auto" resolves to one of the two)
+    "select.overlap_weight": "score.model",  # likewise
+    "tubes.association_floor": "tubes.association",
+    "score.known_margin": "score.class_confidence",
+}
+
+
 def _build(cls: type, data: dict[str, Any], where: str, prefix: str = "") -> Any:
     """Instantiate dataclass ``cls`` from a nested dict, rejecting unknown keys and values
     that break a field's type or rules (``mining.checks``)."""
@@ -139,12 +150,28 @@ def section_from_dict(cls: type, data: dict[str, Any], where: str) -> Any:
 
 
 # Keys a recorded job (``job.json``'s ``config``) may hold from an older version of the code:
-# old dotted key → its new dotted key, or None where the setting is gone (it changed nothing).
-# A key moved here is refused in a job file or ``--set`` with a hint naming its new place.
-RENAMED_KEYS: dict[str, str | None] = {
+# old dotted key → its new dotted key (a tuple: every place it now fills), or None where the
+# setting is gone (it changed nothing). A key moved here is refused in a job file or ``--set``
+# with a hint naming its new place.
+RENAMED_KEYS: dict[str, str | tuple[str, ...] | None] = {
     "tubes.kalman.velocity_noise_factor": "localise.velocity_noise_factor",  # moved at da118f8
     "proposals.filters": "localise.filters",  # the geometric proposal filter, a localisation setting (issue 27)
+    # mode twins became tables keyed by their mode (issue 38, BY_MODE)
+    "select.epsilon1": "select.price.reference",
+    "select.epsilon1_calibrated": "select.price.calibrated",
+    "select.epsilon2": "select.overlap_weight.reference",
+    "select.epsilon2_calibrated": "select.overlap_weight.calibrated",
+    "tubes.min_association": "tubes.association_floor.reference",
+    # one floor served both rules relative to the density's peak
+    "tubes.min_association_normalised": ("tubes.association_floor.normalised", "tubes.association_floor.innovation"),
+    "score.known_log_margin": "score.known_margin.reference",
+    "score.known_log_margin_calibrated": "score.known_margin.calibrated",
 }
+
+
+def renamed_to(new: str | tuple[str, ...] | None) -> tuple[str, ...]:
+    """The new places of a ``RENAMED_KEYS`` entry (none for a removed key)."""
+    return () if new is None else (new,) if isinstance(new, str) else tuple(new)
 
 
 def moved_key(key: str) -> str | None:
@@ -153,7 +180,9 @@ def moved_key(key: str) -> str | None:
     ``proposals.filters.noise_sigmas`` is now ``localise.filters.noise_sigmas``."""
     for old, new in RENAMED_KEYS.items():
         if key == old or key.startswith(old + "."):
-            return "was removed (it changed nothing)" if new is None else f"is now {new}{key[len(old):]}"
+            if new is None:
+                return "was removed (it changed nothing)"
+            return "is now " + " and ".join(f"{n}{key[len(old):]}" for n in renamed_to(new))
     return None
 
 
@@ -167,12 +196,12 @@ def _renamed(data: dict[str, Any]) -> dict[str, Any]:
         if not isinstance(node, dict) or leaf not in node:
             continue
         value = node.pop(leaf)
-        if new is not None:
-            *npath, nleaf = new.split(".")
+        for place in renamed_to(new):
+            *npath, nleaf = place.split(".")
             dst = out
             for p in npath:
                 dst = dst.setdefault(p, {})
-            dst.setdefault(nleaf, value)
+            dst.setdefault(nleaf, copy.deepcopy(value))
     return out
 
 

@@ -487,7 +487,7 @@ class TubeScore:
 
 @dataclass
 class TubeCategory:
-    """What the tube is, from the frames where a classifier looked (``mining.tubes.category``).
+    """What the tube is, from the frames where a classifier looked (``mining.score.category``).
 
     ``known`` is True (one of the 80 COCO classes), False (classified, and none of them:
     *unknown*) or None (*unclassified*: no classifier looked, or too little evidence);

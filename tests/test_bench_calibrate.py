@@ -19,8 +19,10 @@ SMALL = ["--option", "width=621", "--option", "height=188", "--option", "fx=360.
 @pytest.mark.slow
 def test_calibrate_prints_weights_a_job_config_takes(tmp_path):
     out = tmp_path / "cal.json"
+    fits = tmp_path / "fits"
     p = subprocess.run([sys.executable, "-m", "mining.cli", "bench", "calibrate", "--seeds", "0000", "0001",
-                        "--frames", "16", *SMALL, "--json", str(out)], capture_output=True, text=True, timeout=900)
+                        "--frames", "16", *SMALL, "--json", str(out), "--write", str(fits)],
+                       capture_output=True, text=True, timeout=900)
     assert p.returncode == 0, p.stdout + p.stderr
     doc = json.loads(out.read_text())
     assert [f["held_out"] for f in doc["folds"]] == ["0000", "0001"]
@@ -31,6 +33,10 @@ def test_calibrate_prints_weights_a_job_config_takes(tmp_path):
     table = p.stdout[start:p.stdout.index("\ncalibrate: ", start)]
     parsed = tomllib.loads(table)["score"]["calibrated"]["stereo"]
     assert parsed == pytest.approx(doc["weights"], rel=1e-5)
+    # --write recorded the same weights, float for float, with how they were made
+    written = tomllib.loads((fits / "stereo.toml").read_text())["unary"]
+    assert written["weights"] == doc["weights"] and written["seeds"] == ["0000", "0001"] and written["frames"] == 16
+    assert written["command"].startswith("mine bench calibrate --seeds 0000 0001") and written["commit"]
     for fold in doc["folds"]:  # both unaries judged the same held-out tubes
         assert fold["job"]["selected"] >= 0 and fold["calibrated"]["selected"] >= 0
         assert 0.0 <= fold["auc"]["calibrated"] <= 1.0

@@ -40,13 +40,13 @@ def test_folds_partition_the_sequences(kitti_tracking_root):
 
 
 def test_grid_is_every_combination_reference_first():
-    grid = parse_grid(["tubes.max_gap_frames=5,10,20", "select.epsilon2=30.0,2.0"])
+    grid = parse_grid(["tubes.max_gap_frames=5,10,20", "select.overlap_weight.reference=30.0,2.0"])
     settings = grid_settings(grid)
     assert len(settings) == 6 and len(set(settings)) == 6
-    assert settings[0] == Setting(("tubes.max_gap_frames=5", "select.epsilon2=30.0"))
-    assert settings[0].label == "gap≤0.5s epsilon2=30.0"
+    assert settings[0] == Setting(("tubes.max_gap_frames=5", "select.overlap_weight.reference=30.0"))
+    assert settings[0].label == "gap≤0.5s overlap_weight.reference=30.0"
     cfg = load_config(None, list(settings[-1].overrides))
-    assert cfg.tubes.max_gap_frames == 20 and cfg.select.epsilon2 == 2.0
+    assert cfg.tubes.max_gap_frames == 20 and cfg.select.overlap_weight.reference == 2.0
 
 
 # --- selection on hand-made ground truth and results (fast) -------------------------------
@@ -168,7 +168,7 @@ def test_crossval_on_real_sequences_matches_track_detections(shared_data, tmp_pa
     seqmap = train / "seqmaps" / "train.seqmap"
     config = REPO / "jobs" / "kitti-detections.toml"
     sequences = ["0012", "0003", "0000"]
-    settings = grid_settings(parse_grid(["tubes.max_gap_frames=1,10", "select.epsilon2=30.0,2.0"]))
+    settings = grid_settings(parse_grid(["tubes.max_gap_frames=1,10", "select.overlap_weight.reference=30.0,2.0"]))
     scores, baseline = score_grid(shared_data, config, [], sequences, settings, log=lambda _: None)
     for i, s in enumerate(settings):
         cfg = load_config(config, list(s.overrides))

@@ -11,7 +11,7 @@ import pytest
 
 from mining.bench.classify import balanced_accuracy, fit_detectability
 from mining.bench.looks import ClassTally, format_tallies, tally_rows
-from mining.tubes.category import UNKNOWN_CLASS
+from mining.score.category import UNKNOWN_CLASS
 
 
 def test_detectability_fit_recovers_the_curve_it_samples():

@@ -19,7 +19,7 @@ from mining.eval.synthetic import GtFrame
 from mining.pipeline.mine import judge
 from mining.proposals.yolo_seg import class_posterior
 from mining.score.clutter import OBJECT_FEATURES, OBJECT_TERMS, object_evidence, object_log_odds
-from mining.tubes.category import ROW_FEATURES, RowConfidence, frame_class_evidence, row_features, tube_category
+from mining.score.category import ROW_FEATURES, RowConfidence, frame_class_evidence, row_features, tube_category
 from mining.types import UNKNOWN_CLASS, Tube, TubeFrame, max_class_score
 
 H, W = 40, 60
@@ -156,7 +156,7 @@ def test_the_gate_keeps_a_clutter_like_unknown_tube_out_of_the_unknown_set(actio
     ragged_mask[::2] = False
     ragged = _unknown_tube(2, ragged_mask)
     cfg = load_config(None, ["proposals.proposer=stereo", f"score.unknown_gate={action}",
-                             "score.unknown_min_object=0.5", "select.epsilon1_calibrated=-100",
+                             "score.unknown_min_object=0.5", "select.price.calibrated=-100",
                              "score.object_evidence.stereo.bias=-3", "score.object_evidence.stereo.mean_fill=4"])
     mined = {m.tube.tube_id: m for m in judge([solid, ragged], cfg)}
     assert mined[1].category.known is False and mined[1].selected
@@ -188,8 +188,8 @@ def test_the_calibrated_rows_apply_to_the_jobs_whose_classifier_they_were_fit_on
     tube = Tube(1, 0, [frame(k, rect(0, 0, 6, 14), person_row(0.25), depth=45.0) for k in range(6)])
     calls = {}
     for proposer in ("onnx", "stereo"):
-        cfg = load_config(None, [f"proposals.proposer={proposer}", "select.epsilon1_calibrated=-100",
-                                 "select.epsilon1=-100"])
+        cfg = load_config(None, [f"proposals.proposer={proposer}", "select.price.calibrated=-100",
+                                 "select.price.reference=-100"])
         calls[proposer] = judge([tube], cfg)[0].category.known
     assert calls == {"onnx": True, "stereo": False}
     ref = load_config(None, ["proposals.proposer=onnx", "score.class_confidence=reference"])

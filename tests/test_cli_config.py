@@ -34,7 +34,7 @@ def test_every_key_is_listed_with_its_default_source_and_comment(capsys):
     assert listed and sorted(listed) == sorted(keys)
     # the defaults: nothing differs, so no "(default …)"
     assert not any("(default " in ln for ln in lines[1:] if not ln.startswith(" "))
-    assert "select.epsilon1 = 20.0  [REFERENCE]" in lines
+    assert "select.price.reference = 20.0  [REFERENCE]" in lines
     jitter = lines.index("tubes.gate_jitter_px = 2.0  [ours]")
     assert lines[jitter + 1].startswith("    ours: δ px of jitter")
     rc, out, _ = cli(capsys, "config", "--format", "json")
@@ -46,25 +46,26 @@ def test_every_key_is_listed_with_its_default_source_and_comment(capsys):
 
 def test_a_job_files_values_show_beside_the_defaults(tmp_path, capsys):
     job = tmp_path / "x.toml"
-    job.write_text('[source]\ndataset = "synthetic"\n\n[tubes]\nmin_association = 0.05\n')
-    rc, out, err = cli(capsys, "config", "--config", str(job), "--set", "select.epsilon1=7.5", "tubes.min_association")
+    job.write_text('[source]\ndataset = "synthetic"\n\n[tubes]\nassociation_floor.reference = 0.05\n')
+    rc, out, err = cli(capsys, "config", "--config", str(job), "--set", "select.price.reference=7.5",
+                       "tubes.association_floor.")
     assert rc == 0, err
     lines = out.splitlines()
-    assert lines[0].startswith(f"2 of {len(_dataclass_keys(JobConfig))} job config keys, values of {job} + the "
+    assert lines[0].startswith(f"3 of {len(_dataclass_keys(JobConfig))} job config keys, values of {job} + the "
                                "options given")
-    assert lines[1] == "tubes.min_association = 0.05  (default 0.02)  [REFERENCE]"
-    rc, out, _ = cli(capsys, "config", "--config", str(job), "--set", "select.epsilon1=7.5", "select.epsilon1",
-                     "--format", "json")
+    assert lines[1] == "tubes.association_floor.reference = 0.05  (default 0.02)  [REFERENCE]"
+    rc, out, _ = cli(capsys, "config", "--config", str(job), "--set", "select.price.reference=7.5",
+                     "select.price.reference", "--format", "json")
     assert rc == 0 and [(r["key"], r["value"], r["default"]) for r in json.loads(out)][0] == \
-        ("select.epsilon1", 7.5, "20.0")
+        ("select.price.reference", 7.5, "20.0")
 
 
 def test_a_filter_narrows_and_a_wrong_one_says_what_is_near(capsys):
     rc, out, _ = cli(capsys, "config", "tubes.")
     listed = [ln.split(" = ", 1)[0] for ln in out.splitlines()[1:] if not ln.startswith(" ")]
     assert rc == 0 and sorted(listed) == sorted(k for k in _dataclass_keys(JobConfig) if k.startswith("tubes."))
-    rc, out, _ = cli(capsys, "config", "epsilon")  # no key starts with it: those holding it
+    rc, out, _ = cli(capsys, "config", "price")  # no key starts with it: those holding it
     assert rc == 0 and {ln.split(" = ")[0] for ln in out.splitlines()[1:] if not ln.startswith(" ")} >= \
-        {"select.epsilon1", "select.epsilon2"}
+        {"select.price.reference", "select.price.calibrated"}
     rc, out, err = cli(capsys, "config", "tubs.")
     assert rc == 2 and out == "" and "no config key matches 'tubs.'; did you mean 'tubes.'" in err, err

@@ -33,7 +33,7 @@ def test_every_job_config_key_is_listed():
 
     listed = [k.path for s in configdoc.sections() for k in s.keys]
     assert sorted(listed) == sorted(keys(configdoc.JobConfig)) and len(set(listed)) == len(listed)
-    assert "select.epsilon1" in listed and "geometry.stereo.num_disparities" in listed
+    assert "select.price.reference" in listed and "geometry.stereo.num_disparities" in listed
 
 
 @dataclass
@@ -91,5 +91,5 @@ def test_check_mode_reports_a_stale_file(tmp_path):
     assert configdoc.main(["--check", "--output", str(out)]) == 1  # missing
     assert configdoc.main(["--output", str(out)]) == 0
     assert configdoc.main(["--check", "--output", str(out)]) == 0
-    out.write_text(out.read_text().replace("`select.epsilon1`", "`select.epsilon_one`"))
+    out.write_text(out.read_text().replace("`select.price.reference`", "`select.price.reference_one`"))
     assert configdoc.main(["--check", "--output", str(out)]) == 1

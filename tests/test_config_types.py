@@ -79,7 +79,7 @@ def test_a_recorded_job_reads_back_as_the_typed_config_it_was_made_from():
     from mining.config import JobConfig
 
     cfg = JobConfig()
-    cfg.select.epsilon1 = 7.5
+    cfg.select.price.reference = 7.5
     record = JobRecord("r", cfg.params_hash, cfg.to_dict(), [])
     assert record.job_config() == cfg
 
@@ -114,6 +114,87 @@ def test_a_moved_key_in_a_job_file_or_set_is_refused_saying_where_it_lives_now(t
     with pytest.raises(ConfigError, match=r"tubes\.kalman\.velocity_noise_factor is now localise\.velocity_noise_factor"):
         load_config(overrides=["tubes.kalman.velocity_noise_factor=2.0"])
     assert load_config(REPO_JOBS / "kitti-detections.toml").localise.filters.min_objectness == 0.3
+
+
+def test_a_recorded_job_from_before_the_mode_tables_reads_its_twins_into_them():
+    from mining.catalog.layout import JobRecord
+    from mining.config import JobConfig
+
+    old = JobConfig().to_dict()
+    del old["select"]["price"], old["tubes"]["association_floor"], old["score"]["known_margin"]
+    old["select"] |= {"epsilon1": 7.5, "epsilon1_calibrated": 0.5}  # where they were before issue 38
+    old["select"]["overlap_weight"] = {"calibrated": 3.0}
+    old["select"]["epsilon2"] = 2.0
+    old["tubes"] |= {"min_association": 0.03, "min_association_normalised": 0.1}
+    old["score"] |= {"known_log_margin": -0.5, "known_log_margin_calibrated": -2.0}
+    cfg = JobRecord("r", "h", old, []).job_config()
+    assert (cfg.select.price.reference, cfg.select.price.calibrated) == (7.5, 0.5)
+    assert (cfg.select.overlap_weight.reference, cfg.select.overlap_weight.calibrated) == (2.0, 3.0)
+    assert (cfg.tubes.association_floor.reference, cfg.tubes.association_floor.normalised,
+            cfg.tubes.association_floor.innovation) == (0.03, 0.1, 0.1)
+    assert (cfg.score.known_margin.reference, cfg.score.known_margin.calibrated) == (-0.5, -2.0)
+
+
+@pytest.mark.parametrize("old, new", [
+    ("select.epsilon1=5.0", r"select\.epsilon1 is now select\.price\.reference"),
+    ("select.epsilon2_calibrated=1.0", r"select\.epsilon2_calibrated is now select\.overlap_weight\.calibrated"),
+    ("tubes.min_association_normalised=0.1",
+     r"tubes\.min_association_normalised is now tubes\.association_floor\.normalised and "
+     r"tubes\.association_floor\.innovation"),
+    ("score.known_log_margin_calibrated=0.0", r"score\.known_log_margin_calibrated is now score\.known_margin\.calibrated"),
+])
+def test_a_mode_twin_in_a_job_file_or_set_is_refused_naming_its_table_entry(old, new, tmp_path):
+    with pytest.raises(ConfigError, match=r"unknown key.*" + new):
+        load_config(overrides=[old])
+    section, rest = old.split(".", 1)
+    job = tmp_path / "old.toml"
+    job.write_text(f"[{section}]\n{rest.replace('=', ' = ')}\n")
+    with pytest.raises(ConfigError, match=r"old\.toml: unknown key.*" + new):
+        load_config(job)
+
+
+def test_a_table_by_mode_checks_each_entry_and_refuses_a_mode_it_does_not_have():
+    cfg = load_config(overrides=["select.price.calibrated=-1.5", "tubes.association_floor.innovation=0.1"])
+    assert cfg.select.price.calibrated == -1.5 and cfg.select.price.reference == 20.0  # the other entry keeps its default
+    assert cfg.tubes.association_floor.innovation == 0.1 and cfg.tubes.association_floor.normalised == 0.068
+    with pytest.raises(ConfigError, match=r"--set select\.price\.auto: unknown key\(s\) \['select\.price\.auto'\]; known: \['calibrated', 'reference'\]"):
+        load_config(overrides=["select.price.auto=1.0"])
+    with pytest.raises(ConfigError, match=r"select\.overlap_weight\.calibrated = -1\.0: must be ≥ 0"):
+        load_config(overrides=["select.overlap_weight.calibrated=-1.0"])
+    with pytest.raises(ConfigError, match=r"tubes\.association_floor\.normalised = 2\.0: must be in \[0, 1\]"):
+        load_config(overrides=["tubes.association_floor.normalised=2.0"])
+    with pytest.raises(ConfigError, match=r"select\.price: expected a table"):
+        load_config(overrides=["select.price=1.0"])
+
+
+def test_every_table_by_mode_has_exactly_its_modes_and_no_field_is_a_mode_twin():
+    import dataclasses
+    import typing
+
+    from mining.checks import OneOf, split_hint
+    from mining.config import BY_MODE, JobConfig
+
+    def field_of(path: str):
+        cls, hint = JobConfig, None
+        for name in path.split("."):
+            hint = typing.get_type_hints(cls, include_extras=True)[name]
+            cls = split_hint(hint)[0]
+        return hint
+
+    for table, mode in BY_MODE.items():
+        keys = {f.name for f in dataclasses.fields(split_hint(field_of(table))[0])}
+        choices = next(r.choices for r in split_hint(field_of(mode))[1] if isinstance(r, OneOf))
+        assert keys == set(choices) - {"auto"}, (table, mode)  # score.model "auto" resolves to one of the two
+
+    def names(cls: type, prefix: str = ""):
+        for f in dataclasses.fields(cls):
+            yield prefix + f.name
+            sub = split_hint(typing.get_type_hints(cls, include_extras=True)[f.name])[0]
+            if dataclasses.is_dataclass(sub):
+                yield from names(sub, f"{prefix}{f.name}.")
+
+    twins = [k for k in names(JobConfig) if k.rsplit(".", 1)[-1].endswith(("_calibrated", "_normalised", "_reference"))]
+    assert not twins
 
 
 def test_a_recorded_job_with_a_key_no_version_had_is_refused_naming_the_key():

@@ -143,6 +143,20 @@ def test_a_part_tube_is_reported_with_the_term_that_carried_it():
     assert (x["category"], x["known_call"]) == ("unknown", False)
 
 
+def test_under_the_calibrated_unary_the_caller_names_the_groups_and_each_score_gives_its_split():
+    """The funnel does not know the unary (eval imports only the shared floor): the caller passes the
+    groups (``mining.score.unary.unary_groups``), each tube's score carries its split (``TubeScore.terms``)."""
+    truths = {t: gt((7, "car", True, CAR, 10.0)) for t in range(3)}
+    part = tube(5, [(t, PART) for t in range(3)])
+    part.score.total, part.score.terms = 2.5, {"prior": -1.0, "shape": 3.5}
+    c = funnel(truths, [part], groups=("prior", "shape"))["carried"]
+    assert c["tubes"][0]["terms"] == {"prior": -1.0, "shape": 3.5} and c["tubes"][0]["carried_by"] == "shape"
+    assert c["carried_by"] == {"prior": 0, "shape": 1, "none": 0}
+    part.score.terms = None  # a REFERENCE score has no split
+    with pytest.raises(InputError, match="tube 5: its score has no groups of terms"):
+        funnel(truths, [part], groups=("prior", "shape"))
+
+
 def test_clutter_is_reported_and_unselected_tubes_are_not():
     truths = {t: gt((1, "car", True, CAR, 10.0)) for t in range(2)}
     mined = [tube(3, [(0, EMPTY), (1, EMPTY)], score=(40.0, 2.0, -1.0), known=None),

@@ -189,6 +189,32 @@ def test_a_catalogue_made_before_the_filters_moved_is_refused_saying_why(base_ca
     assert catalogue_files(out) == before, "the refused job wrote into the catalogue"
 
 
+def test_a_catalogue_made_before_the_mode_twins_became_tables_is_refused_saying_why():
+    """Issue 38: select.epsilon1 … score.known_log_margin_calibrated became tables keyed by their mode; an
+    identity recorded before is refused naming the moves, and nothing else differs once they are undone
+    (tubes.min_association_normalised fills both association_floor.normalised and .innovation)."""
+    from mining.catalog.identity import check_resubmit, job_identity
+
+    new = job_identity(load_config(), {}, (0, None))
+    old_names = {"select.price.reference": "select.epsilon1", "select.price.calibrated": "select.epsilon1_calibrated",
+                 "select.overlap_weight.reference": "select.epsilon2",
+                 "select.overlap_weight.calibrated": "select.epsilon2_calibrated",
+                 "tubes.association_floor.reference": "tubes.min_association",
+                 "tubes.association_floor.normalised": "tubes.min_association_normalised",
+                 "score.known_margin.reference": "score.known_log_margin",
+                 "score.known_margin.calibrated": "score.known_log_margin_calibrated"}
+    old = {f"config.{old_names.get(k[len('config.'):], k[len('config.'):])}" if k.startswith("config.") else k: v
+           for k, v in new.items() if k != "config.tubes.association_floor.innovation"}
+    assert "config.select.epsilon1" in old and not any(".price." in k for k in old)
+    for mode in ("resume", "extend"):
+        with pytest.raises(ConfigError, match=r"made before select\.epsilon1 moved to select\.price\.reference; ") as e:
+            check_resubmit(old, new, "out", mode)
+        assert ("tubes.min_association_normalised moved to tubes.association_floor.normalised and "
+                "tubes.association_floor.innovation") in str(e.value)
+        assert "also differs" not in str(e.value) and "--new-run" in str(e.value), str(e.value)
+    check_resubmit(new, new, "out")  # today's identity is not mistaken for an old one
+
+
 # -- a catalogue without a readable job.json ---------------------------------------------
 
 

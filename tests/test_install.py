@@ -1,5 +1,6 @@
 """A non-editable install (what `pip install tube-miner` gives a user) carries what `mine` reads at
-run time: the catalogue's views and `mine view`'s pages, so it opens a catalogue from anywhere."""
+run time: the catalogue's views, `mine view`'s pages and the fitted weights, so it opens a catalogue
+from anywhere."""
 
 from __future__ import annotations
 
@@ -28,6 +29,7 @@ def test_installed_package_queries_a_catalogue(catalogue, tmp_path):
                     str(site), str(src)], check=True, capture_output=True, timeout=300)
     assert (site / "mining" / "catalog" / "views.sql").is_file()
     assert (site / "mining" / "view" / "static" / "index.html").is_file()
+    assert (site / "mining" / "score" / "fits" / "rows.toml").is_file()
     code = ("import mining, sys; from mining.cli import main; "
             "assert mining.__file__.startswith(sys.argv[1]), mining.__file__; "
             "sys.exit(main(['query', '--out', sys.argv[2], '--format', 'csv', "

@@ -12,14 +12,15 @@ import numpy as np
 import pytest
 from pycocotools import mask as mask_utils
 
-from mining.bench.calibrate import calibrated_config, fit_log_odds, roc_auc
+from mining.bench.calibrate import calibrated_config
+from mining.bench.fit import fit_log_odds, roc_auc
 from mining.config import JobConfig, load_config
 from mining.errors import ConfigError
 from mining.eval.tube_labels import label_tubes
 from mining.masks import rle_box
 from mining.pipeline.mine import judge, unary
 from mining.score.calibrated import FEATURES, TERMS, calibrated_score, tube_evidence
-from mining.score.config import ScoreConfig
+from mining.score.config import KnownMargin, ScoreConfig
 from mining.catalog.layout import JobRecord
 from mining.catalog.store import Store
 from mining.score.config import CALIBRATED
@@ -198,20 +199,20 @@ def test_auto_falls_back_to_the_reference_and_says_so():
 
 
 def test_the_calibrated_unary_is_priced_by_its_own_epsilon1():
-    """ε1 = 20 is the REFERENCE's price on its own scale; a log-odds is priced by epsilon1_calibrated."""
+    """ε1 = 20 is the REFERENCE's price on its own scale; a log-odds is priced by select.price.calibrated."""
     rng = np.random.default_rng(6)
     t = _random_tube(rng, 6)
     for f in t.frames[1:]:
         f.mask_iou = 0.9
     cfg = calibrated_config(JobConfig(), {"frame": 0.5, "ln_mask_iou": 2.0})  # θ ≈ 1.45
-    assert cfg.select.epsilon1 == 20.0 and cfg.select.epsilon1_calibrated == 0.0
+    assert cfg.select.price.reference == 20.0 and cfg.select.price.calibrated == 0.0
     assert judge([t], cfg)[0].selected
-    cfg.select.epsilon1_calibrated = 2.0
+    cfg.select.price.calibrated = 2.0
     assert not judge([t], cfg)[0].selected
 
 
 def test_balance_gives_unknown_objects_the_known_objects_weight():
-    from mining.bench.calibrate import balance_weights
+    from mining.bench.fit import balance_weights
 
     y = np.array([1, 1, 1, 1, 1, 1, 0, 0], bool)
     unknown = np.array([0, 0, 0, 0, 1, 1, 0, 1], bool)  # the last is not an object: it keeps weight 1
@@ -235,7 +236,7 @@ def test_the_catalogue_stores_which_unary_made_the_score_and_the_terms_that_add_
     from mining.catalog.rows import THETA_GROUPS
     from mining.catalog.views import connect
     from mining.score.calibrated import GROUPS
-    from mining.score.config import ScoreConfig
+    from mining.score.config import KnownMargin, ScoreConfig
 
     assert THETA_GROUPS == tuple(GROUPS)
     out, _ = base_catalogue
@@ -262,7 +263,7 @@ def test_the_catalogue_stores_which_unary_made_the_score_and_the_terms_that_add_
 
 
 def test_the_score_version_changes_with_any_parameter_of_the_total_and_only_those():
-    from mining.score.config import ScoreConfig
+    from mining.score.config import KnownMargin, ScoreConfig
     from mining.score.unary import unary_version
 
     cfg = ScoreConfig()
@@ -274,4 +275,4 @@ def test_the_score_version_changes_with_any_parameter_of_the_total_and_only_thos
     assert unary_version(dataclasses.replace(cfg, floor=1e-5), w) != base
     assert unary_version(dataclasses.replace(cfg, alpha=0.4), None) != ref
     assert unary_version(dataclasses.replace(cfg, alpha=0.4), w) == base  # not a parameter of the calibrated total
-    assert unary_version(dataclasses.replace(cfg, known_log_margin=0.0), None) == ref  # the class call is not the score
+    assert unary_version(dataclasses.replace(cfg, known_margin=KnownMargin(reference=0.0)), None) == ref  # the class call is not the score

@@ -15,7 +15,7 @@ import pytest
 from conftest import coco_rle
 
 from mining.masks import mask_ioa, mask_overlap_min, rle_box
-from mining.select.config import SelectConfig
+from mining.select.config import OverlapWeight, Price, SelectConfig
 from mining.select.coselect import co_select, pairwise_overlap
 from mining.sources.synthetic import SyntheticSource
 from mining.types import Tube, TubeFrame
@@ -151,8 +151,8 @@ def test_overlap_floor_frees_neighbours_whose_masks_bleed_into_each_other():
     far = _tube(1, _moving(190, 100, 300, 175))  # 30 × 65 px in common: IoU 1950 / 15900
     dup = _tube(2, _moving(102, 111, 222, 191))
     scores = np.array([6.0, 3.0, 5.0])
-    ref = SelectConfig(epsilon1=0.0, epsilon2=3.0)
-    floored = SelectConfig(epsilon1=0.0, epsilon2=3.0, overlap_floor=0.15)
+    ref = SelectConfig(price=Price(reference=0.0), overlap_weight=OverlapWeight(reference=3.0))
+    floored = SelectConfig(price=Price(reference=0.0), overlap_weight=OverlapWeight(reference=3.0), overlap_floor=0.15)
     assert pairwise_overlap([near, far], 0.1)[0, 1] == pytest.approx(10 * 1950 / 15900)
     assert pairwise_overlap([near, far], 0.1, floor=0.15)[0, 1] == 0.0
     iou_dup = pairwise_overlap([near, dup], 0.1)[0, 1]

@@ -373,9 +373,9 @@ def test_build_qubo():
     unary = np.array([25.0, 18.0, 40.0])
     overlap = np.array([[0.0, 2.0, 0.0], [2.0, 0.0, 0.5], [0.0, 0.5, 0.0]])
     Q = build_qubo(unary, overlap, CFG)
-    assert np.allclose(np.diagonal(Q), unary - CFG.epsilon1)
-    assert Q[0, 1] == Q[1, 0] == -0.5 * CFG.epsilon2 * 2.0
-    assert Q[1, 2] == -0.5 * CFG.epsilon2 * 0.5 and Q[0, 2] == 0.0
+    assert np.allclose(np.diagonal(Q), unary - CFG.price.reference)
+    assert Q[0, 1] == Q[1, 0] == -0.5 * CFG.overlap_weight.reference * 2.0
+    assert Q[1, 2] == -0.5 * CFG.overlap_weight.reference * 0.5 and Q[0, 2] == 0.0
     # both 0 and 2 pay off and do not overlap; 1 is below ε1
     assert solve(Q, CFG)[0].tolist() == [True, False, True]
     with pytest.raises(InputError, match="symmetric"):

@@ -14,7 +14,7 @@ from mining.score.config import ScoreConfig
 from mining.score.unary import score_tube
 from mining.select.config import SelectConfig
 from mining.select.coselect import co_select, pairwise_overlap
-from mining.tubes.category import tube_category
+from mining.score.category import tube_category
 from mining.tubes.config import KalmanConfig, TubeConfig
 from mining.tubes.generate import TubeGenerator
 from mining.tubes.kalman import TubeFilter

@@ -83,7 +83,7 @@ def test_normalised_floor_matches_the_reference_at_10_m():
         foot[:, G] += ms[:, None] * (np.linalg.cholesky(c) @ np.array([0.0, 1.0]))[None]
         n = ms.size
         score = association_scores(np.full(n, 0.8), foot, np.tile(mean, (n, 1)), np.tile(cov, (n, 1, 1)), cfg)[0]
-        floor = cfg.min_association if cfg.association == "reference" else cfg.min_association_normalised
+        floor = getattr(cfg.association_floor, cfg.association)
         edge[cfg.association] = ms[np.argmax(score <= floor)]  # the first distance the rule rejects
     assert 1.0 < edge["reference"] < 3.0
     assert edge["normalised"] == pytest.approx(edge["reference"], abs=0.02)

@@ -21,12 +21,14 @@ likelihood ratio on synthetic truth and chosen by leave-seeds-out cross-validati
 4. **Leave one seed out.** For each training seed, the weights are fit on the others and the
    held-out seed's tubes are judged again (co-selection with ε1 = ``epsilon1``, 0 by default:
    selected alone when more likely an object than not, and overlap weight ε2 = ``epsilon2``,
-   3 by default: ``select.epsilon2_calibrated``), then scored by the synthetic
+   3 by default: ``select.overlap_weight.calibrated``), then scored by the synthetic
    protocol beside the job's own judgement of the same tubes: HOTA, frame recall (known /
    unknown), clutter share of the selected tubes, and the ranking quality of the unary on
    all candidates (ROC AUC of object vs the rest) for both.
 5. **Weights** fit on all training seeds, printed as the TOML table for
    ``score.calibrated."<proposer>"``; the held-out seeds of ``mine eval synthetic`` are the test.
+   ``--write`` records them, with how they were made (``unary_fit``), as the proposer's default:
+   the ``[unary]`` table of ``mining/score/fits/<proposer>.toml`` (``mining.score.fits``).
 
 The tubes come from the job's tube generation with REFERENCE's unary ranking tube NMS
 (``score.model`` is set to "reference" for it, so a fit never depends on the weights it is to
@@ -43,72 +45,28 @@ import json
 import time
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 
 import numpy as np
-from scipy.optimize import minimize
-from scipy.stats import rankdata
 
+from mining.bench.calling import run_calling_bench
+from mining.bench.fit import (L2, balance_weights, check_seeds, command_line, fit_log_odds, provenance, roc_auc,
+                              write_fit)
 from mining.bench.synthetic import run_synthetic
 from mining.catalog import safe_files
 from mining.checks import count, finite_float, output_file, output_folder, positive_float, real, worker_count
 from mining.config import JobConfig, validate
-from mining.errors import ConfigError, MiningError
+from mining.errors import MiningError
 from mining.eval.synthetic import evaluate_synthetic
 from mining.eval.tube_labels import label_tubes
 from mining.pipeline.arguments import add_job_options, add_overwrite_option, job_config
 from mining.pipeline.mine import judge, unary
 from mining.score.calibrated import TERMS, tube_evidence
+from mining.score.fits import FITS_DIR, UNARY_FIT
 from mining.types import Tube
 
-L2 = 1.0  # ours: penalty on the standardised evidence (a prior of unit variance per standardised weight)
 EPSILON1 = 0.0  # ours: log-odds 0 — a tube alone is selected when it is more likely an object than not
-EPSILON2 = 3.0  # ours: the calibrated unary's overlap weight (select.epsilon2_calibrated)
-
-
-def fit_log_odds(x: np.ndarray, y: np.ndarray, l2: float = L2, sample_weight: np.ndarray | None = None) -> np.ndarray:
-    """Weights w (in ``x``'s own units) of P(y=1) = σ(w·x), maximum a-posteriori.
-
-    ``x``'s first column is the constant 1 (w₀, not penalised); the other columns are
-    standardised for the fit and the weights mapped back, so the penalty does not depend on
-    the terms' units. ``sample_weight`` weighs each row's log-likelihood (default 1).
-    """
-    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
-    sw = np.ones(len(y)) if sample_weight is None else np.asarray(sample_weight, np.float64)
-    mu, sd = x[:, 1:].mean(axis=0), x[:, 1:].std(axis=0)
-    sd = np.where(sd > 1e-12, sd, 1.0)
-    z = np.column_stack([np.ones(len(x)), (x[:, 1:] - mu) / sd])
-
-    def loss(w):
-        s = z @ w
-        nll = np.sum(sw * (np.logaddexp(0.0, s) - y * s))
-        grad = z.T @ (sw * (1.0 / (1.0 + np.exp(-s)) - y))
-        return nll + 0.5 * l2 * w[1:] @ w[1:], grad + l2 * np.concatenate([[0.0], w[1:]])
-
-    w = minimize(loss, np.zeros(z.shape[1]), jac=True, method="L-BFGS-B").x
-    out = np.concatenate([[w[0] - np.sum(w[1:] * mu / sd)], w[1:] / sd])
-    return out
-
-
-def balance_weights(y: np.ndarray, unknown: np.ndarray) -> np.ndarray:
-    """Row weights giving the unknown objects among the positives the same total weight as the
-    known ones (1 elsewhere): the unary is to find objects, known or not, while the training
-    seeds' objects are mostly known (a fit on them alone learns "object = a COCO class")."""
-    y, unknown = np.asarray(y, bool), np.asarray(unknown, bool) & np.asarray(y, bool)
-    w = np.ones(len(y))
-    n_known, n_unknown = int((y & ~unknown).sum()), int(unknown.sum())
-    if n_known and n_unknown:
-        w[unknown] = n_known / n_unknown
-    return w
-
-
-def roc_auc(score: np.ndarray, y: np.ndarray) -> float:
-    """P(score of a random positive > that of a random negative), ties half (Mann–Whitney)."""
-    score, y = np.asarray(score, np.float64), np.asarray(y, bool)
-    n1, n0 = int(y.sum()), int((~y).sum())
-    if not n1 or not n0:
-        return float("nan")
-    ranks = rankdata(score)  # average ranks over ties
-    return float((ranks[y].sum() - n1 * (n1 + 1) / 2.0) / (n1 * n0))
+EPSILON2 = 3.0  # ours: the calibrated unary's overlap weight (select.overlap_weight.calibrated)
 
 
 def _mine_seed(args) -> tuple[str, list[Tube], dict, float]:
@@ -132,17 +90,10 @@ def calibrated_config(cfg: JobConfig, weights: dict[str, float], epsilon1: float
     out = copy.deepcopy(cfg)
     out.score.model = "calibrated"
     out.score.calibrated = {**out.score.calibrated, cfg.proposals.proposer: weights}
-    out.select.epsilon1_calibrated = float(epsilon1)
-    out.select.epsilon2_calibrated = float(epsilon2)
+    out.select.price.calibrated = float(epsilon1)
+    out.select.overlap_weight.calibrated = float(epsilon2)
     validate(out, "calibrated config")
     return out
-
-
-def check_seeds(seeds: Sequence[str]) -> None:
-    """ConfigError unless ``seeds`` holds at least two distinct seeds: one is held out in
-    each fold, and the others are the fold's training data."""
-    if len(set(seeds)) < 2:
-        raise ConfigError(f"--seeds {' '.join(seeds)}: leave-one-seed-out needs at least two distinct seeds")
 
 
 def check_fit_data(data: dict[str, dict], train: Sequence[str], n_frames: int, held_out: str | None = None) -> None:
@@ -161,7 +112,10 @@ def check_fit_data(data: dict[str, dict], train: Sequence[str], n_frames: int, h
 
 def run_calibrate_bench(cfg: JobConfig, seeds: Sequence[str], n_frames: int, workers: int = 1,
                         l2: float = L2, epsilon1: float = EPSILON1, epsilon2: float = EPSILON2, balance: bool = True,
-                        json_out: str | None = None, overwrite: bool = False) -> int:
+                        json_out: str | None = None, overwrite: bool = False, write: str | Path | None = None,
+                        command: str = "") -> int:
+    """Mine, fit and report (module docstring); ``write``: the folder of fit files whose
+    ``<proposer>.toml`` takes the weights fit on all seeds (``command``: what was run, recorded with them)."""
     check_seeds(seeds)
     t0 = time.perf_counter()
     print(f"calibrate: mining {len(seeds)} seed(s) × {n_frames} frames, proposer {cfg.proposals.proposer}, "
@@ -217,7 +171,28 @@ def run_calibrate_bench(cfg: JobConfig, seeds: Sequence[str], n_frames: int, wor
                "epsilon1": epsilon1, "epsilon2": epsilon2, "balance": balance, "folds": rows, "weights": final,
                "tubes": {"object": int(y.sum()), "part_or_clutter": int((~y).sum())}}
         safe_files.write_file(json_out, json.dumps(doc, indent=1).encode(), overwrite)
+    if write is not None:
+        table = unary_fit(final, rows, y, np.concatenate([data[s]["unknown"] for s in seeds]), cfg.proposals.proposer,
+                          seeds, n_frames, command, l2, balance, epsilon1, epsilon2)
+        print(f"calibrate: wrote {write_fit(cfg.proposals.proposer, UNARY_FIT, table, write)}")
     return 0
+
+
+def unary_fit(final: dict[str, float], rows: Sequence[dict], y: np.ndarray, unknown: np.ndarray, proposer: str,
+              seeds: Sequence[str], n_frames: int, command: str, l2: float = L2, balance: bool = True,
+              epsilon1: float = EPSILON1, epsilon2: float = EPSILON2) -> dict:
+    """The ``[unary]`` fit table ``--write`` records: provenance, the tubes it was fit on (``y``:
+    object or not; ``unknown``: on an unknown object), the folds' mean AUC (calibrated and the job's
+    REFERENCE unary on the same tubes) and the weights fit on all seeds."""
+    y = np.asarray(y, bool)
+    note = (f"l2 {l2:g}; unknown objects' tubes {'weighted up to the known ones' if balance else 'as they come'}; "
+            f"folds judged at ε1 {epsilon1:g}, ε2 {epsilon2:g}")
+    return {**provenance(command, proposer, seeds, n_frames, note),
+            "samples": {"object": int(y.sum()), "object_on_unknown": int((y & np.asarray(unknown, bool)).sum()),
+                        "part_or_clutter": int((~y).sum())},
+            "auc": {"mean": round(float(np.nanmean([r["auc"]["calibrated"] for r in rows])), 3),
+                    "reference_mean": round(float(np.nanmean([r["auc"]["job"] for r in rows])), 3)},
+            "weights": {k: float(final[k]) for k in TERMS}}
 
 
 def _print(rows: list[dict], final: dict, cfg: JobConfig, seeds: Sequence[str], n_pos: int, n_neg: int,
@@ -267,6 +242,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cache", type=output_folder, metavar="DIR", default=None,
                    help="with --calling: keep each mined seed here as NPZ and read it back on the next run with the "
                         "same proposer, seed and frames (delete it after changing the pipeline)")
+    p.add_argument("--write", type=output_folder, nargs="?", const=FITS_DIR, default=None, metavar="DIR",
+                   help="record the weights fit on all seeds, with how they were made, as the proposer's defaults: "
+                        "mining/score/fits/<proposer>.toml (with --calling: its object evidence, and rows.toml), "
+                        "or the fit files in DIR")
     p.add_argument("--json", type=output_file, help="also write the results as JSON here")
     add_overwrite_option(p, "the --json file")
 
@@ -274,11 +253,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """``mine bench calibrate``."""
     if args.calling:
-        from mining.bench.calling import run_calling_bench
-
         check_seeds(args.seeds)
         return run_calling_bench(job_config(args), args.seeds, args.frames, cache=args.cache, l2=args.l2,
-                                 json_out=args.json, overwrite=args.overwrite)
+                                 json_out=args.json, overwrite=args.overwrite, write=args.write,
+                                 command=command_line())
     return run_calibrate_bench(job_config(args), args.seeds, args.frames, workers=args.workers, l2=args.l2,
                                epsilon1=args.epsilon1, epsilon2=args.epsilon2, balance=not args.no_balance,
-                               json_out=args.json, overwrite=args.overwrite)
+                               json_out=args.json, overwrite=args.overwrite, write=args.write, command=command_line())

@@ -3,7 +3,7 @@
 Two fits on the synthetic training seeds (mined with the job's config, every candidate tube
 kept with its frames' truth):
 
-1. **The classifier's rows** (``mining.tubes.category.RowConfidence``). Each observed tube
+1. **The classifier's rows** (``mining.score.category.RowConfidence``). Each observed tube
    frame whose posterior is a classifier's own row (max class score s > 0) is labelled by the
    truth its mask overlaps with IoU ≥ 0.5: a known object, an unknown object, or nothing. Two
    logistics in ``row_features(s, box height px, depth m)``: P(on an object) on all rows, and
@@ -12,7 +12,7 @@ kept with its frames' truth):
    fit on them as they come calls every unsure row known).
 2. **The object evidence** of a tube (``mining.score.clutter``): a logistic on the candidate
    tubes labelled object against part or clutter (``mining.eval.tube_labels``), unknown
-   objects weighted up likewise (``calibrate.balance_weights``).
+   objects weighted up likewise (``fit.balance_weights``).
 
 The known margin with calibrated rows is the one of ``MARGIN_GRID`` with the best balanced
 accuracy (mean of known-called-known and unknown-called-unknown) over the training tubes on
@@ -24,7 +24,9 @@ held-out seed's tubes are judged three ways: as the job's config says with REFER
 and no gate ("reference"), with the calibrated rows ("rows"), and with the gate too ("rows +
 gate"); the synthetic protocol scores each (precision of the unknown set, known called known,
 clutter share, known and unknown frame recall, HOTA). The weights fit on all seeds are
-printed as the config defaults (``mining/score/config.py``).
+printed; ``--write`` records them, with how they were made (``calling_fits``), as the defaults:
+the ``[object_evidence]`` table of ``mining/score/fits/<proposer>.toml`` and ``rows.toml``
+(``mining.score.fits``). The margin and the gate's threshold are printed for the config.
 
 ``--cache DIR`` keeps each mined seed as an NPZ (arrays only, no pickle) and reads it back on
 the next run with the same seeds and frames, so a refit costs seconds, not a mining.
@@ -40,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mining.bench.calibrate import balance_weights, fit_log_odds, roc_auc
+from mining.bench.fit import balance_weights, fit_log_odds, fold_range, provenance, roc_auc, write_fit
 from mining.bench.synthetic import run_synthetic
 from mining.catalog import safe_files
 from mining.config import JobConfig
@@ -50,7 +52,8 @@ from mining.eval.tube_labels import label_tubes
 from mining.masks import mask_iou
 from mining.pipeline.mine import judge
 from mining.score.clutter import OBJECT_TERMS, object_evidence
-from mining.tubes.category import ROW_FEATURES, RowConfidence, accumulate_posterior, decide, row_features
+from mining.score.fits import OBJECT_FIT, ROWS
+from mining.score.category import ROW_FEATURES, RowConfidence, accumulate_posterior, decide, row_features
 from mining.types import Tube, TubeFrame, max_class_score
 
 MARGIN_GRID = tuple(np.round(np.arange(-3.0, 3.01, 0.5), 2))  # ln-ratio margins tried with calibrated rows
@@ -155,7 +158,7 @@ def calling_config(cfg: JobConfig, fit: dict | None, gate: float | None) -> JobC
         return out
     out.score.class_confidence = "calibrated"
     out.score.row_on_object, out.score.row_known = dict(fit["row_on_object"]), dict(fit["row_known"])
-    out.score.known_log_margin_calibrated = fit["margin"]
+    out.score.known_margin.calibrated = fit["margin"]
     out.score.object_evidence = {**out.score.object_evidence, cfg.proposals.proposer: dict(fit["object_evidence"])}
     action = cfg.score.unknown_gate if cfg.score.unknown_gate != "off" else "unclassified"
     out.score.unknown_gate = "off" if gate is None else action
@@ -278,7 +281,10 @@ def mined_seed(seed: str, n_frames: int, cfg: JobConfig, cache: Path | None) -> 
 
 
 def run_calling_bench(cfg: JobConfig, seeds: Sequence[str], n_frames: int, cache: str | None = None,
-                      l2: float = 1.0, json_out: str | None = None, overwrite: bool = False) -> int:
+                      l2: float = 1.0, json_out: str | None = None, overwrite: bool = False,
+                      write: str | Path | None = None, command: str = "") -> int:
+    """Mine, fit and report (module docstring); ``write``: the folder of fit files that takes the
+    fits on all seeds (``command``: what was run, recorded with them)."""
     t0 = time.perf_counter()
     print(f"calibrate --calling: {len(seeds)} seed(s) × {n_frames} frames, proposer {cfg.proposals.proposer}")
     data = {}
@@ -321,7 +327,40 @@ def run_calling_bench(cfg: JobConfig, seeds: Sequence[str], n_frames: int, cache
         doc = {"proposer": cfg.proposals.proposer, "seeds": list(seeds), "n_frames": n_frames, "l2": l2,
                "folds": folds, "fit": final}
         safe_files.write_file(json_out, json.dumps(doc, indent=1, default=float).encode(), overwrite)
+    if write is not None:
+        rows_fit, object_fit = calling_fits(final, folds, list(data.values()), cfg.proposals.proposer, seeds,
+                                            n_frames, command, l2)
+        for name, fit, table in ((cfg.proposals.proposer, OBJECT_FIT, object_fit), (ROWS, ROWS, rows_fit)):
+            print(f"calibrate --calling: wrote {write_fit(name, fit, table, write)}")
     return 0
+
+
+def calling_fits(final: dict, folds: Sequence[dict], data: Sequence[dict], proposer: str, seeds: Sequence[str],
+                 n_frames: int, command: str, l2: float = 1.0) -> tuple[dict, dict]:
+    """The ``[rows]`` and ``[object_evidence]`` fit tables ``--write`` records: provenance, what each
+    was fit on (``seed_data`` of every seed), the range of its AUC over the folds, its weights."""
+    labels = np.concatenate([d["rows"][:, 3] for d in data]).astype(int)
+    y = np.concatenate([d["y"] for d in data])
+    unknown = np.concatenate([d["unknown"] for d in data])
+    auc = {k: fold_range([f["auc"][k] for f in folds]) for k in ("row_on_object", "row_known",
+                                                                 "row_known_score_alone", "object_evidence")}
+    rows = {**provenance(command, proposer, seeds, n_frames,
+                         f"l2 {l2:g}; known | on an object at equal priors (unknown objects' rows weighted up); "
+                         f"known margin {final['margin']:+g} (balanced accuracy {final['balanced_accuracy']:.3f})"),
+            "samples": {"rows": len(labels), "on_known": int((labels == KNOWN).sum()),
+                        "on_unknown": int((labels == UNKNOWN).sum()), "on_nothing": int((labels == NOTHING).sum())},
+            "auc": {"on_object": auc["row_on_object"], "known": auc["row_known"],
+                    "known_score_alone": auc["row_known_score_alone"]},
+            "on_object": {k: float(final["row_on_object"][k]) for k in ROW_FEATURES},
+            "known": {k: float(final["row_known"][k]) for k in ROW_FEATURES}}
+    obj = {**provenance(command, proposer, seeds, n_frames,
+                        f"l2 {l2:g}; object against part or clutter, unknown objects weighted up; the gate's "
+                        f"threshold by the folds: unknown_min_object {final['unknown_min_object']:g}"),
+           "samples": {"object": int(y.sum()), "object_on_unknown": int((y & unknown).sum()),
+                       "part_or_clutter": int((~y).sum())},
+           "auc": {"min": auc["object_evidence"][0], "max": auc["object_evidence"][1]},
+           "weights": {k: float(final["object_evidence"][k]) for k in OBJECT_TERMS}}
+    return rows, obj
 
 
 def _print(folds: list[dict], final: dict, seeds: Sequence[str], n_frames: int) -> None:

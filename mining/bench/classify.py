@@ -9,7 +9,7 @@ Three steps, each on data named for it, so nothing is tuned on what it is scored
    proposer alone, at its own low score threshold), against the object's box height. A
    maximum-likelihood logistic in ln(height) is the weight a class-agnostic proposal that no
    learned proposal covers gives to "unknown" (``mining.proposals.union``).
-2. **Known margin** (``score.known_log_margin``): the training seeds mined with the job's
+2. **Known margin** (``score.known_margin.reference``): the training seeds mined with the job's
    proposer (``onnx+stereo``); every selected tube on a known or unknown object (the
    renderer's truth, ``evaluate_synthetic``'s tube split) is decided again for each margin
    of a grid; the margin with the best balanced accuracy (mean of the known-called-known and
@@ -44,7 +44,7 @@ from mining.pipeline.mine import mine_tubes
 from mining.proposals.onnx_yolo import OnnxProposer
 from mining.sources import open_source
 from mining.sources.kitti import KittiTrackingSource
-from mining.tubes.category import decide
+from mining.score.category import decide
 from mining.types import MinedTube
 
 KITTI_COCO_TYPES = ("Car", "Van", "Truck", "Pedestrian", "Person_sitting", "Cyclist", "Tram")  # COCO: car, truck, person, bicycle, train
@@ -263,7 +263,7 @@ def run_classify_bench(data: Path, cfg: JobConfig, train_seeds: Sequence[str] = 
     doc["mask_choice"] = mc
 
     print(f"\n3. Held out: synthetic seed {test_seed}, {n_frames} frames; KITTI 0005 frames 0–15 "
-          f"(config margin {cfg.score.known_log_margin:+.2f})")
+          f"(config margin {cfg.score.known_margin.reference:+.2f})")
     mined, res = run_synthetic(test_seed, n_frames, cfg)
     t = res["tubes"]
     ev = t["evaluated"]

@@ -39,7 +39,7 @@ from typing import Any
 from mining.bench.iou_tracker import iou_track, write_iou_tracks
 from mining.catalog import safe_files
 from mining.checks import count, input_file, output_file
-from mining.config import JobConfig, load_config, parse_override
+from mining.config import BY_MODE, JobConfig, load_config, parse_override
 from mining.eval.kitti_mot import combine_kitti_mot, evaluate_kitti_mot
 from mining.formats.kitti_tracking import read_seqmap
 from mining.formats.poses import read_poses
@@ -70,7 +70,7 @@ DEFAULT_GRID = {
     "tubes.max_gap_frames": ("5", "10", "20"),  # REFERENCE 5; the longest occlusion a tube bridges (frames at 10 Hz)
     "tubes.gap_inlier_factor": ("0.2", "0.5"),  # REFERENCE 0.2; gap allowed per observed frame (gap ≤ factor × inliers)
     "tubes.backward_required": ("3", "1"),  # REFERENCE 3; backward inliers needed to start a tube (confirmation)
-    "select.epsilon2": ("30.0", "2.0"),  # REFERENCE 30; weight of the overlap penalty between co-selected tubes
+    "select.overlap_weight.reference": ("30.0", "2.0"),  # REFERENCE 30; weight of the overlap penalty between co-selected tubes
 }
 
 SequenceSums = dict[str, dict]  # KittiMotResults.sums[seq]: class → summable counts
@@ -87,7 +87,9 @@ class Setting:
         parts = []
         for o in self.overrides:
             key, value = o.split("=", 1)
-            name = key.rsplit(".", 1)[-1]
+            table, _, name = key.rpartition(".")
+            if table in BY_MODE:  # "overlap_weight.reference", not a bare "reference"
+                name = f"{table.rsplit('.', 1)[-1]}.{name}"
             if name == "max_gap_frames":
                 parts.append(f"gap≤{int(value) * FRAME_INTERVAL_NS / 1e9:g}s")
             else:

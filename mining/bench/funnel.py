@@ -18,7 +18,7 @@ from mining.formats.kitti_tracking import KittiTrackingRows
 from mining.pipeline.frames import frame_records
 from mining.pipeline.mine import mine_tubes
 from mining.progress import Ticker
-from mining.score.unary import unary_weights
+from mining.score.unary import unary_groups
 from mining.sources.base import Source
 from mining.types import MinedTube, Proposals, SequencePlan, TrackingFrame
 
@@ -49,6 +49,5 @@ def run_kitti_funnel(source: Source, plan: SequencePlan, start: int, stop: int, 
     ticker.close()
     truths = kitti_truths(rows, frames, (plan.calib.height, plan.calib.width))
     funnel = evaluate_funnel(truths, mined, stages, alpha=cfg.score.alpha, beta=cfg.score.beta,
-                             weights=unary_weights(cfg.score, cfg.proposals.proposer), floor=cfg.score.floor,
-                             **({"similarity": "box"} | protocol))
+                             groups=unary_groups(cfg.score, cfg.proposals.proposer), **({"similarity": "box"} | protocol))
     return props, frames, mined, funnel

@@ -27,7 +27,7 @@ from mining.pipeline.frames import frame_records
 from mining.pipeline.mine import mine_tubes
 from mining.progress import Ticker
 from mining.proposals.make import classifiers_line
-from mining.score.unary import unary_line, unary_weights
+from mining.score.unary import unary_groups, unary_line
 from mining.sources import open_source
 from mining.types import MinedTube, TrackingFrame
 
@@ -70,7 +70,7 @@ def run_synthetic(sequence: str, n_frames: int, cfg: JobConfig, start: int = 0, 
     results = evaluate_synthetic(mined, truths, **protocol)
     shared = ("iou_threshold", "similarity", "min_visible_px", "max_depth_m", "track_cover")
     results["funnel"] = evaluate_funnel(truths, mined, stages, alpha=cfg.score.alpha, beta=cfg.score.beta,
-                             weights=unary_weights(cfg.score, cfg.proposals.proposer), floor=cfg.score.floor,
+                                        groups=unary_groups(cfg.score, cfg.proposals.proposer),
                                         tube_split=results["tube_split"],
                                         **{k: v for k, v in protocol.items() if k in shared})
     results["seconds"] = {"mine": t1 - t0, "eval": time.perf_counter() - t1}

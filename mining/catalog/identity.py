@@ -33,7 +33,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from mining.config import RENAMED_KEYS, JobConfig
+from mining.config import RENAMED_KEYS, JobConfig, renamed_to
 from mining.errors import ConfigError
 from mining.types import SequencePlan
 
@@ -151,9 +151,10 @@ def _under(key: str, table: str) -> bool:
     return key == table or key.startswith(table + ".")
 
 
-def moved_since(identity: Mapping[str, Any]) -> list[tuple[str, str | None]]:
-    """The config moves (``config.RENAMED_KEYS``: old key → new, None = removed) made after the
-    job of this identity was recorded: its config keys still sit at their old places."""
+def moved_since(identity: Mapping[str, Any]) -> list[tuple[str, str | tuple[str, ...] | None]]:
+    """The config moves (``config.RENAMED_KEYS``: old key → new, a tuple of new places, None =
+    removed) made after the job of this identity was recorded: its config keys still sit at
+    their old places."""
     return [(o, n) for o, n in RENAMED_KEYS.items() if any(_under(k, f"config.{o}") for k in identity)]
 
 
@@ -163,8 +164,8 @@ def _renamed_identity(identity: Mapping[str, Any]) -> dict[str, Any]:
     for o, n in moved_since(identity):
         for k in [k for k in out if _under(k, f"config.{o}")]:
             v = out.pop(k)
-            if n is not None:
-                out[f"config.{n}{k[len(f'config.{o}'):]}"] = v
+            for place in renamed_to(n):
+                out[f"config.{place}{k[len(f'config.{o}'):]}"] = v
     return out
 
 
@@ -190,7 +191,7 @@ def check_resubmit(old: Mapping[str, Any], new: Mapping[str, Any], out: str, mod
              if (complete or o != ABSENT) and not _repaired(k, o, n, old)]
     lines = "\n".join(f"  {k}: {_show(o)} → {_show(n)}" for k, o, n in diffs)
     if moves:
-        what = "; ".join(f"{o} moved to {n}" if n else f"{o} was removed" for o, n in moves)
+        what = "; ".join(f"{o} moved to {' and '.join(renamed_to(n))}" if n else f"{o} was removed" for o, n in moves)
         rest = f" Beyond the move, this job also differs in {len(diffs)} key(s):\n{lines}\n" if diffs else " "
         raise ConfigError(
             f"{out} holds a catalogue made before {what}: its job.json records the old keys and its rows carry "

@@ -60,7 +60,7 @@ TUBES = pa.schema([
     pa.field("score_mask", pa.float64(), False),  # REFERENCE's mask LLR Σ ln(IoU·score.mask_k): part of score only under reference
     pa.field("score_objectness", pa.float64(), False),  # REFERENCE's objectness LLR Σ ln(o·score.objectness_k): part of score only under reference
     pa.field("selected", pa.bool_(), False),  # chosen by co-selection
-    # Known / unknown / unclassified (mining/tubes/category.py): known is null where no classifier
+    # Known / unknown / unclassified (mining/score/category.py): known is null where no classifier
     # looked (or too little evidence); category is then null too.
     pa.field("known", pa.bool_()),  # true: a COCO class; false: classified and none of the 80 (unknown); null: unclassified
     pa.field("category", pa.string()),  # COCO class, "unknown", or null (unclassified)

@@ -63,7 +63,6 @@ from mining.boxes import box_ioa, box_iou
 from mining.errors import InputError
 from mining.eval.synthetic import GtFrame, SyntheticEvalProtocol
 from mining.masks import mask_ioa, mask_iou
-from mining.score.calibrated import GROUPS, grouped_terms
 from mining.types import MinedTube
 
 SPLITS = ("all", "known", "unknown")
@@ -134,12 +133,14 @@ def _rates(row: np.ndarray, stages: Sequence[str]) -> dict:
     return out
 
 
-def weighted_terms(m: MinedTube, alpha: float, beta: float, weights: Mapping[str, float] | None = None,
-                   floor: float = 1e-6) -> dict[str, float]:
-    """The score's terms as they enter the total (``mining/score/unary.py``); with the calibrated
-    model's ``weights``, its groups of terms (``mining.score.calibrated.GROUPS``)."""
-    if weights is not None:
-        return grouped_terms(m.tube, weights, floor)
+def weighted_terms(m: MinedTube, alpha: float, beta: float, groups: Sequence[str] | None = None) -> dict[str, float]:
+    """The score's terms as they enter the total (``mining/score/unary.py``); with ``groups`` (the
+    calibrated unary's groups of terms, ``mining.score.calibrated.GROUPS``), the split of its total
+    the score recorded (``TubeScore.terms``)."""
+    if groups is not None:
+        if m.score.terms is None:
+            raise InputError(f"tube {m.tube.tube_id}: its score has no groups of terms (not the calibrated unary's)")
+        return {g: float(m.score.terms[g]) for g in groups}
     return {"motion": float(beta * alpha * m.score.motion), "mask": float(beta * (1 - alpha) * m.score.mask),
             "objectness": float((1 - beta) * m.score.objectness)}
 
@@ -152,7 +153,7 @@ def carried_by(terms: Mapping[str, float]) -> str:
 
 def evaluate_funnel(truths: Mapping[int, GtFrame], mined: Sequence[MinedTube],
                     stages: Mapping[str, Mapping[int, StageFrame]] | None = None, *, alpha: float, beta: float,
-                    weights: Mapping[str, float] | None = None, floor: float = 1e-6,
+                    groups: Sequence[str] | None = None,
                     iou_threshold: float = FunnelProtocol.iou_threshold,
                     similarity: str = FunnelProtocol.similarity,
                     min_visible_px: int = FunnelProtocol.min_visible_px,
@@ -164,8 +165,9 @@ def evaluate_funnel(truths: Mapping[int, GtFrame], mined: Sequence[MinedTube],
 
     ``stages`` maps a proposal stage's name to its masks per frame (a frame it lacks has no
     masks), in pipeline order; ``mined`` holds every candidate tube, ``selected`` set on the
-    chosen ones; ``alpha`` and ``beta`` are the run's score weights (ScoreConfig), ``weights`` the
-    calibrated unary's when the run used it (``mining.score.unary.unary_weights``). Returns a
+    chosen ones; ``alpha`` and ``beta`` are the run's score weights (ScoreConfig), ``groups`` the
+    calibrated unary's groups of terms when the run used it (``mining.score.calibrated.GROUPS``;
+    the caller knows the unary, the funnel only reads each score's split). Returns a
     plain-JSON dict: ``stages``, ``bins``, ``protocol``, ``frames`` (per split: ``total``,
     ``distance``, ``height`` and ``cells`` ``"<distance> | <height>"``, each ``{"gt": n,
     <stage>: covered, "recall": {<stage>: share}}``), ``tracks`` (per split, the same shape)
@@ -263,7 +265,7 @@ def evaluate_funnel(truths: Mapping[int, GtFrame], mined: Sequence[MinedTube],
                                  "height_edges_px": list(p.height_edges_px)},
         "frames": frames,
         "tracks": _tracks(p, names, stages, visible, track_known, stage_hits, tube_hits, mined),
-        "carried": _carried(mined, explain, covers_object, alpha, beta, weights, floor),
+        "carried": _carried(mined, explain, covers_object, alpha, beta, groups),
     } | ({} if tube_split is None else {"calls": _calls(p, mined, tube_split, where)})
 
 
@@ -357,11 +359,11 @@ def _tracks(p: FunnelProtocol, names: list[str], stages: Mapping, visible: dict[
 
 
 def _carried(mined: Sequence[MinedTube], explain: dict[int, list], covers_object: set[int],
-             alpha: float, beta: float, weights: Mapping[str, float] | None, floor: float) -> dict:
+             alpha: float, beta: float, groups: Sequence[str] | None) -> dict:
     """The part and clutter tubes among the selected ones, with the score term that carried each."""
     summary = {"selected": 0, "on objects": 0, "on ignored objects": 0, "part": 0, "clutter": 0,
                "outside the evaluated frames": 0}
-    by_term = {k: 0 for k in (*(TERMS if weights is None else GROUPS), "none")}
+    by_term = {k: 0 for k in (*(TERMS if groups is None else groups), "none")}
     called_unknown = {kind: dict.fromkeys(by_term, 0) for kind in ("part", "clutter")}
     tubes = []
     for m in mined:
@@ -383,7 +385,7 @@ def _carried(mined: Sequence[MinedTube], explain: dict[int, list], covers_object
             summary["on ignored objects"] += 1
             continue
         summary[kind] += 1
-        terms = weighted_terms(m, alpha, beta, weights, floor)
+        terms = weighted_terms(m, alpha, beta, groups)
         by = carried_by(terms)
         by_term[by] += 1
         if m.category.known is False:

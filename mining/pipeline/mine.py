@@ -6,19 +6,17 @@ window judges its own tubes and the stitcher judges a sequence's stitched tubes 
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable, Iterable
 
 import numpy as np
 
 from mining.config import JobConfig
-from mining.score.clutter import object_log_odds
+from mining.score.call import call_tubes
 from mining.score.unary import score_tube, unary_total, unary_version, unary_weights
 from mining.select.coselect import co_select
-from mining.tubes.category import RowConfidence, tube_category
 from mining.tubes.generate import TubeGenerator
 from mining.tubes.link import link_fragments
-from mining.types import MinedTube, TrackingFrame, Tube, TubeCategory, TubeScore
+from mining.types import MinedTube, TrackingFrame, Tube, TubeScore
 
 
 def unary(cfg: JobConfig, proposer: str | None = None) -> Callable[[Tube], TubeScore]:
@@ -33,50 +31,19 @@ def unary(cfg: JobConfig, proposer: str | None = None) -> Callable[[Tube], TubeS
 
 
 def judge(tubes: list[Tube], cfg: JobConfig, proposer: str | None = None) -> list[MinedTube]:
-    """Each tube's unary score and category, and the co-selection over all of them (with the
-    calibrated unary, at its own price and overlap weight ``select.epsilon1/2_calibrated``)."""
+    """Each tube's unary score and call (``mining.score.call``: known, unknown, unclassified, or
+    clutter not offered), and the co-selection over the tubes offered, at the price and overlap
+    weight of the unary that scored them (``select.price`` and ``select.overlap_weight``)."""
     weights = unary_weights(cfg.score, proposer or cfg.proposals.proposer)
     version = unary_version(cfg.score, weights)
     scores = [score_tube(t, cfg.score, weights, version) for t in tubes]
-    select = cfg.select
-    if weights is not None:
-        select = dataclasses.replace(select, epsilon1=select.epsilon1_calibrated, epsilon2=select.epsilon2_calibrated)
-    cats = categories(tubes, cfg, proposer or cfg.proposals.proposer)
-    offered = np.ones(len(tubes), bool)
-    gate = object_gate(cfg, proposer or cfg.proposals.proposer)
-    if gate is not None:
-        clutter = np.array([c.known is False and not gate(t) for t, c in zip(tubes, cats)], bool)
-        if cfg.score.unknown_gate == "drop":
-            offered &= ~clutter  # never offered to co-selection: it cannot suppress an overlapping object
-        else:
-            cats = [dataclasses.replace(c, category=None, probability=float("nan"), known=None) if x else c
-                    for c, x in zip(cats, clutter)]
+    cats, offered = call_tubes(tubes, cfg.score, proposer or cfg.proposals.proposer)
     selected = np.zeros(len(tubes), bool)
     idx = np.flatnonzero(offered)
     if len(idx):
-        selected[idx] = co_select([tubes[i] for i in idx], np.array([scores[i].total for i in idx]), select)
+        selected[idx] = co_select([tubes[i] for i in idx], np.array([scores[i].total for i in idx]),
+                                 cfg.select, "reference" if weights is None else "calibrated")
     return [MinedTube(t, s, c, bool(m)) for t, s, c, m in zip(tubes, scores, cats, selected)]
-
-
-def categories(tubes: list[Tube], cfg: JobConfig, proposer: str) -> list[TubeCategory]:
-    """Each tube's known / unknown / unclassified call (``score.class_confidence``, for the
-    proposers ``score.row_proposers`` whose rows it was fit on)."""
-    s = cfg.score
-    if s.class_confidence == "calibrated" and proposer in s.row_proposers:
-        conf, margin = RowConfidence(s.row_on_object, s.row_known), s.known_log_margin_calibrated
-    else:
-        conf, margin = None, s.known_log_margin
-    return [tube_category(t, margin, s.min_class_evidence, conf) for t in tubes]
-
-
-def object_gate(cfg: JobConfig, proposer: str) -> Callable[[Tube], bool] | None:
-    """Whether a tube is likely an object (``score.unknown_gate``; None: no gate for this proposer)."""
-    weights = cfg.score.object_evidence.get(proposer)
-    if cfg.score.unknown_gate == "off" or not weights:
-        return None
-    p = cfg.score.unknown_min_object
-    cut = np.log(p / (1.0 - p)) if 0 < p < 1 else (-np.inf if p <= 0 else np.inf)
-    return lambda tube: object_log_odds(tube, weights) >= cut
 
 
 def tube_generator(cfg: JobConfig, first_id: int = 0, proposer: str | None = None) -> TubeGenerator:

@@ -15,7 +15,7 @@ It gets the posterior "unknown" with evidence weight
 
 h the proposal's box height in pixels (``DetectabilityConfig``: fitted by ``mine bench
 classify`` on labelled objects of training data), so a tiny far region the detector could
-not have resolved says little and a large one says much (``mining.tubes.category``
+not have resolved says little and a large one says much (``mining.score.category``
 accumulates the weights). A covered one takes the covering learned row's posterior.
 
 Better mask. When a merged pair's later (class-agnostic) mask is the better one, the

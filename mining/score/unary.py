@@ -23,7 +23,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from mining.errors import ConfigError
-from mining.score.calibrated import TERMS, calibrated_score, grouped_terms, tube_evidence
+from mining.score.calibrated import GROUPS, TERMS, calibrated_score, grouped_terms, tube_evidence
 from mining.score.config import ScoreConfig
 from mining.types import Tube, TubeScore
 
@@ -56,6 +56,12 @@ def unary_weights(cfg: ScoreConfig, proposer: str) -> Mapping[str, float] | None
     if unknown:
         raise ConfigError(f"score.calibrated.{proposer}: unknown term(s) {unknown}; known: {list(TERMS)}")
     return weights
+
+
+def unary_groups(cfg: ScoreConfig, proposer: str) -> tuple[str, ...] | None:
+    """The groups of terms the run's scores split their total by (``TubeScore.terms``: the calibrated
+    unary's ``GROUPS``), or None under REFERENCE's (its three terms)."""
+    return None if unary_weights(cfg, proposer) is None else tuple(GROUPS)
 
 
 def unary_version(cfg: ScoreConfig, weights: Mapping[str, float] | None) -> str:

@@ -107,8 +107,9 @@ def pairwise_overlap(tubes: list[Tube], box_iou_gate: float, overlap: str = "iou
     return overlap_pairs(tubes, box_iou_gate, overlap, floor).toarray()
 
 
-def co_select(tubes: list[Tube], scores: np.ndarray, cfg: SelectConfig) -> np.ndarray:
-    """Boolean selection of the tubes that maximise mᵀQm.
+def co_select(tubes: list[Tube], scores: np.ndarray, cfg: SelectConfig, model: str = "reference") -> np.ndarray:
+    """Boolean selection of the tubes that maximise mᵀQm (``model``: the unary the scores come
+    from, "reference" or "calibrated": it picks the price and overlap weight, ``build_qubo``).
 
     Tubes that share no overlap do not interact, so each connected group of the overlap
     graph is its own QUBO: the same optimum, without an N × N matrix.
@@ -120,11 +121,11 @@ def co_select(tubes: list[Tube], scores: np.ndarray, cfg: SelectConfig) -> np.nd
     overlap = overlap_pairs(tubes, cfg.box_iou_gate, cfg.overlap, cfg.overlap_floor)
     if n <= DENSE_MAX:  # small: one dense QUBO (the solver splits it into groups itself)
         dense = overlap.toarray()
-        return np.asarray(solve(build_qubo(scores, 0.5 * (dense + dense.T), cfg), cfg)[0], bool)
+        return np.asarray(solve(build_qubo(scores, 0.5 * (dense + dense.T), cfg, model), cfg)[0], bool)
     m = np.zeros(n, bool)
     for members in connected_groups(overlap):
         sub = overlap[members][:, members].toarray()
         sub = 0.5 * (sub + sub.T)  # exact symmetry despite summation order
-        Q = build_qubo(scores[members], sub, cfg)
+        Q = build_qubo(scores[members], sub, cfg, model)
         m[members] = np.asarray(solve(Q, cfg)[0], bool)
     return m

@@ -54,15 +54,18 @@ _TOL = 1e-9  # ours: improvements smaller than this (relative to |Q|) are roundi
 # --------------------------------------------------------------------------- the energy
 
 
-def build_qubo(unary: np.ndarray, overlap: np.ndarray, cfg: SelectConfig | None = None) -> np.ndarray:
+def build_qubo(unary: np.ndarray, overlap: np.ndarray, cfg: SelectConfig | None = None,
+               model: str = "reference") -> np.ndarray:
     """Q from tube scores and summed pairwise overlaps.
 
     ``unary[i]`` is tube i's score θ(T_i); ``overlap[i, j]`` is Σ over the frames both
     tubes share in the window of their per-frame overlap o (mask IoU, or intersection over
     the smaller mask; gated frames already left out: ``mining.select.coselect``). Returns Q
-    with Q_ii = θ_i − ε1 and Q_ij = −½·ε2·overlap_ij.
+    with Q_ii = θ_i − ε1 and Q_ij = −½·ε2·overlap_ij, ε1 and ε2 those of the unary ``model``
+    the scores come from (``SelectConfig.energy_weights``).
     """
     cfg = cfg or SelectConfig()
+    epsilon1, epsilon2 = cfg.energy_weights(model)
     unary = np.asarray(unary, dtype=np.float64)
     overlap = np.asarray(overlap, dtype=np.float64)
     n = unary.shape[0] if unary.ndim == 1 else -1
@@ -78,8 +81,8 @@ def build_qubo(unary: np.ndarray, overlap: np.ndarray, cfg: SelectConfig | None 
         raise InputError("co-selection: overlap matrix must be symmetric")
     if np.any(np.diagonal(overlap) != 0):
         raise InputError("co-selection: overlap of a tube with itself must be 0 (it is not a pair)")
-    Q = -0.5 * cfg.epsilon2 * overlap
-    Q[np.diag_indices(n)] = unary - cfg.epsilon1
+    Q = -0.5 * epsilon2 * overlap
+    Q[np.diag_indices(n)] = unary - epsilon1
     return Q
 
 

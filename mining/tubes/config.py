@@ -22,6 +22,16 @@ class KalmanConfig:
 
 
 @dataclass
+class AssociationFloor:
+    """The association score a tube's best gated observation must exceed, by ``tubes.association``
+    (the rules' scores live on different scales: a density per m², or a share of the density's peak)."""
+
+    reference: float = 0.02  # REFERENCE: a tube takes its best gated observation if score > 0.02
+    normalised: Fraction = 0.068  # ours: 0.02 / 0.296 = the reference's floor over the density's peak at 10 m on KITTI (f 721 px, b 0.54 m, 0.5 px: σx 0.71, σz 0.46 m, +0.2·I → 1/(2π·0.84·0.64)), so both rules accept the same pairs there (at 50 m, σz 4.6 m, the reference's floor is 0.48 in these units)
+    innovation: Fraction = 0.068  # ours: as normalised (a share of the density's peak too; one value for both before issue 38)
+
+
+@dataclass
 class TubeConfig:
     kalman: KalmanConfig = field(default_factory=KalmanConfig)
     # Gating.
@@ -32,11 +42,10 @@ class TubeConfig:
     gate_jitter_px: float = 2.0  # ours: δ px of jitter the IoU gates tolerate (gate × shifted_iou(w, h, δ): 20 px box 0.68, 200 px 0.96; sizes compared +δ); 2 = ±1 px mask-boundary quantisation + ~1 px warp error; 0 = REFERENCE
     # Association.
     density_extra_var: float = 0.2  # REFERENCE: Gaussian density with observation covariance + 0.2·I
-    min_association: float = 0.02  # REFERENCE: a tube takes its best gated observation if score > 0.02
     # default "innovation" + 2 px jitter: HOTA up on synthetic training seeds and KITTI 0005 (docs/RESULTS.md,
     # "Association"); detections-only keeps "reference" (jobs/kitti-detections.toml: `mine bench crossval` chose it)
-    association: Annotated[str, OneOf(("reference", "normalised", "innovation"))] = "innovation"  # "reference" = REFERENCE: IoU × Gaussian density > min_association; "normalised" = ours: the density is replaced by its value relative to its peak, exp(−½·m²), so the score means the same at every depth (the Mahalanobis gate already bounds the distance in σ), threshold min_association_normalised; "innovation" = ours: the same with m under the Kalman innovation covariance (prediction + observation + 0.2·I, the gate's), the textbook normalised innovation
-    min_association_normalised: Fraction = 0.068  # ours: 0.02 / 0.296 = the reference's floor over the density's peak at 10 m on KITTI (f 721 px, b 0.54 m, 0.5 px: σx 0.71, σz 0.46 m, +0.2·I → 1/(2π·0.84·0.64)), so both rules accept the same pairs there (at 50 m, σz 4.6 m, the reference's floor is 0.48 in these units)
+    association: Annotated[str, OneOf(("reference", "normalised", "innovation"))] = "innovation"  # "reference" = REFERENCE: IoU × Gaussian density > association_floor.reference; "normalised" = ours: the density is replaced by its value relative to its peak, exp(−½·m²), so the score means the same at every depth (the Mahalanobis gate already bounds the distance in σ), threshold association_floor.normalised; "innovation" = ours: the same with m under the Kalman innovation covariance (prediction + observation + 0.2·I, the gate's), the textbook normalised innovation, threshold association_floor.innovation
+    association_floor: AssociationFloor = field(default_factory=AssociationFloor)  # was tubes.min_association and tubes.min_association_normalised (issue 38)
     # Mask prediction by 3D warping.
     warp_close_px: Count = 9  # REFERENCE: holes closed with a 9×9 box
     min_predicted_mask_px: int = 100  # REFERENCE: a predicted mask ≤ 100 px ends the tube

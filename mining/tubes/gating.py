@@ -4,12 +4,12 @@ Gates: box IoU and 2D size similarity of the predicted and observed boxes
 (``mining.boxes.jittered_box_gates``), mask IoU (box IoU for box-only predictions) and the
 footpoint's Mahalanobis distance on the ground plane. Score (``TubeConfig.association``):
 
-* "reference": mask IoU × Gaussian density of the footpoint, > ``min_association``. The
-  density's peak falls with the stereo covariance (∝ depth² along the ray), so the same
+* "reference": mask IoU × Gaussian density of the footpoint, > ``association_floor.reference``.
+  The density's peak falls with the stereo covariance (∝ depth² along the ray), so the same
   match, equally many σ off, scores ~7× lower at 50 m than at 10 m and a far object's
   tube breaks apart.
 * "normalised": mask IoU × exp(−½·m²), the density relative to its peak (a likelihood
-  ratio against the perfect match), > ``min_association_normalised``: the same at every
+  ratio against the perfect match), > ``association_floor.normalised``: the same at every
   depth for the same distance in σ.
 
 With ``gate_jitter_px`` = δ > 0 the IoU gates are relaxed to gate × the IoU a perfect
@@ -76,8 +76,8 @@ def association_scores(iou: np.ndarray, foot: np.ndarray, mean: np.ndarray, cov:
 
 
 def association_floor(cfg: TubeConfig) -> float:
-    """The score a pair must exceed under ``cfg.association``'s rule."""
-    return cfg.min_association if cfg.association == "reference" else cfg.min_association_normalised
+    """The score a pair must exceed under ``cfg.association``'s rule (its entry of ``cfg.association_floor``)."""
+    return getattr(cfg.association_floor, cfg.association)
 
 
 def iou_gate(pred_box: np.ndarray, cfg: TubeConfig, gate: float) -> np.ndarray | float:

@@ -202,14 +202,14 @@ class CatalogueBrowser:
         return "not recorded: the catalogue was written before score_model (job.json's score.model says which unary ran)"
 
     def class_rule(self, tube: dict, posterior: list | None) -> dict | None:
-        """The known / unknown decision as the run made it (mining/tubes/category.py): the margin
+        """The known / unknown decision as the run made it (mining/score/category.py): the margin
         and evidence bound of its job, and this tube's ln P[best known] − ln P[unknown]."""
         if self.job is None:
             return None
         s = self.job.score
         calibrated = s.class_confidence == "calibrated" and self.job.proposals.proposer in s.row_proposers
-        rule = {"margin": s.known_log_margin_calibrated if calibrated else s.known_log_margin,
-                "margin_key": "score.known_log_margin_calibrated" if calibrated else "score.known_log_margin",
+        rule = {"margin": s.known_margin.calibrated if calibrated else s.known_margin.reference,
+                "margin_key": "score.known_margin.calibrated" if calibrated else "score.known_margin.reference",
                 "min_evidence": s.min_class_evidence, "evidence": tube.get("class_evidence"), "log_ratio": None}
         if posterior and len(posterior) == len(CLASS_NAMES):
             known = [p or 0.0 for p in posterior[:UNKNOWN_CLASS]]

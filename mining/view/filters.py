@@ -42,7 +42,7 @@ KNOWN_VALUES = {"true": "known = true", "false": "known = false", "null": "known
 DEFAULT_LIMIT = 48  # ours: tubes per gallery page (a 6 × 8 grid)
 MAX_LIMIT = 500  # ours: the most one request may ask for
 MAX_OFFSET = 1_000_000_000  # ours: far past any catalogue, and inside DuckDB's BIGINT OFFSET
-# What tube_category writes into the category column (mining/tubes/category.py).
+# What tube_category writes into the category column (mining/score/category.py).
 CATEGORIES = frozenset((*COCO_CLASSES, "unknown"))
 # The columns a gallery card shows (the whole row is one `mine query` away).
 CARD_COLUMNS = ("tube_id", "dataset", "sequence", "frame_start", "frame_end", "n_frames", "n_observed", "score",

@@ -28,9 +28,10 @@ Decision. A tube with evidence below ``min_class_evidence`` (one frame-equivalen
 classifier's own rows by default) is unclassified: known = None, category None. Otherwise,
 with k* the most probable of the 80 classes, the tube is known as k* when
 
-    ln P[k*] − ln P[unknown] > known_log_margin,
+    ln P[k*] − ln P[unknown] > margin,
 
-and unknown otherwise. ``known_log_margin`` = 0 is the paper's argmax over the 81 entries;
+and unknown otherwise (the margin: ``score.known_margin``'s entry for the rows' reading,
+``mining.score.call``). A margin of 0 is the paper's argmax over the 81 entries;
 ``mine bench classify`` measures whether another margin separates known from unknown
 objects better on training data.
 """
@@ -57,7 +58,7 @@ class RowConfidence:
     """The calibrated confidence of a classifier's own row (issue 29), two logistics in
     ``row_features``: ``on_object`` = P(the row lies on an object, known or not) and ``known``
     = P(that object is one of the 80 classes | it is an object). Weights by ROW_FEATURES name
-    (a missing name weighs 0); fitted by ``mine bench calibrate --rows``."""
+    (a missing name weighs 0); fitted by ``mine bench calibrate --calling``."""
 
     on_object: Mapping[str, float]
     known: Mapping[str, float]
