@@ -17,6 +17,7 @@ from mining.catalog.store import Store, write_sequence
 from mining.cli import main
 from mining.export.crops import crop_box
 from mining.export.kitti import disjoint_masks
+from mining.errors import MiningError
 from mining.export.run import run_export
 from mining.formats.kitti_tracking import read_kitti_tracking
 from mining.names import tube_folder
@@ -148,7 +149,8 @@ def test_crops_of_frames_the_source_lacks_fail_clearly(catalogue, tmp_path):
     write_sequence(store, "tubes", DATASET, SEQUENCE, tables["tubes"])
     write_sequence(store, "tube_frames", DATASET, SEQUENCE, late)
     store.write_bytes("job.json", Store(out).read_bytes("job.json"))
-    assert run_export(str(cat), "selected", "crops", str(tmp_path / "c")) == 2
+    with pytest.raises(MiningError, match="frame 400 of the catalogue is not in the source's sequence"):
+        run_export(str(cat), "selected", "crops", str(tmp_path / "c"))
 
 
 HUGE = 5700  # a 5700 × 5700 mask: 32.5 MP, under the viewer's 8K bound, but not the size of KITTI's frames
@@ -182,11 +184,10 @@ def _with_a_bad_mask(catalogue, cat, damage: str):
 
 
 def _product(cat, fmt: str, dest, where: str = "selected") -> int:
-    from mining.export.render import run_render
-
+    """The exit status of ``mine export`` (or ``mine render``) of ``where``; its lines on capsys."""
     if fmt == "render":
-        return run_render(str(cat), SEQUENCE, str(dest), where)
-    return run_export(str(cat), where, fmt, str(dest))
+        return main(["render", str(dest), "--out", str(cat), "--sequence", SEQUENCE, "--where", where])
+    return main(["export", str(dest), "--out", str(cat), "--where", where, "--format", fmt])
 
 
 def _files(dest) -> dict[str, bytes]:
@@ -244,9 +245,10 @@ def test_a_mask_larger_than_any_frame_is_refused_before_decoding():
 
 def test_bad_predicates(catalogue, tmp_path, capsys):
     out, _ = catalogue
-    assert run_export(str(out), "no_such_column > 1", "kitti", str(tmp_path / "a")) == 2
-    assert "no_such_column" in capsys.readouterr().err
-    assert run_export(str(out), f"selected) TO '{out}/x.csv'; COPY (SELECT 1", "kitti", str(tmp_path / "b")) == 2
+    with pytest.raises(MiningError, match="no_such_column"):
+        run_export(str(out), "no_such_column > 1", "kitti", str(tmp_path / "a"))
+    with pytest.raises(MiningError, match="not one SQL expression"):
+        run_export(str(out), f"selected) TO '{out}/x.csv'; COPY (SELECT 1", "kitti", str(tmp_path / "b"))
     assert not (out / "x.csv").exists()
     capsys.readouterr()
     # Nothing matched: exit 1 (cli.main maps NothingMatched), nothing written.

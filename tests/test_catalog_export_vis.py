@@ -5,6 +5,7 @@ matched exits 1), on the real KITTI 0005 catalogue."""
 from __future__ import annotations
 
 import json
+import re
 
 import cv2
 import numpy as np
@@ -19,6 +20,7 @@ from mining.catalog.store import Store, write_sequence
 from mining.cli import main
 from mining.export.crops import crop_box
 from mining.export.dest import RECORD
+from mining.errors import MiningError
 from mining.export.json_annotations import UNCLASSIFIED_ID, UNKNOWN_ID
 from mining.export.run import LABELS_FILE, run_export
 from mining.export.selection import frame_digits
@@ -182,7 +184,8 @@ def test_crops_margin_widens_the_context(catalogue, tmp_path):
     x0, x1, y0, y1 = crop_box(f["bbox"], W, H, 0.5)
     assert wide.shape[:2] == (y1 - y0, x1 - x0)
     assert wide.shape[0] > tight.shape[0] and wide.shape[1] > tight.shape[1]
-    assert run_export(str(out), where, "kitti", str(tmp_path / "k"), margin=0.5) == 2, "--margin is for crops"
+    with pytest.raises(MiningError, match="^--margin applies to --format crops only$"):
+        run_export(str(out), where, "kitti", str(tmp_path / "k"), margin=0.5)
 
 
 def test_crops_index_has_the_box_and_position_of_every_frame(catalogue, tmp_path):
@@ -216,8 +219,8 @@ def test_non_empty_dest_is_refused(catalogue, tmp_path, capsys):
     dest = tmp_path / "d"
     dest.mkdir()
     (dest / "notes.txt").write_text("mine")
-    assert run_export(str(out), "selected", "kitti", str(dest)) == 2
-    assert "not empty" in capsys.readouterr().err
+    with pytest.raises(MiningError, match="not empty"):
+        run_export(str(out), "selected", "kitti", str(dest))
     assert [p.name for p in dest.iterdir()] == ["notes.txt"]
 
 
@@ -244,8 +247,9 @@ def test_overwrite_needs_an_export_record(catalogue, tmp_path, capsys):
     dest = tmp_path / "d"
     dest.mkdir()
     (dest / "photo.png").write_bytes(b"x")
-    assert run_export(str(out), "selected", "kitti", str(dest), overwrite=True) == 2
-    assert RECORD in capsys.readouterr().err and [p.name for p in dest.iterdir()] == ["photo.png"]
+    with pytest.raises(MiningError, match=re.escape(RECORD)):
+        run_export(str(out), "selected", "kitti", str(dest), overwrite=True)
+    assert [p.name for p in dest.iterdir()] == ["photo.png"]
 
 
 def test_nothing_matched_exits_1_and_keeps_the_old_export(catalogue, tmp_path, capsys):

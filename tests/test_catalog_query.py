@@ -11,9 +11,10 @@ import pyarrow.parquet as pq
 import pytest
 
 from _catalog_data import DATASET, SEQUENCE
-from mining.catalog.query import run_query
 from mining.catalog.schema import SCHEMAS
 from mining.catalog.views import ReadOnlyError, check_read_only, connect
+from mining.commands.query import run_query
+from mining.errors import ConfigError, MiningError
 
 
 def test_tables_carry_dataset_and_sequence_as_text(catalogue):
@@ -98,8 +99,8 @@ def test_read_only(catalogue, capsys):
                 "SELECT 1; DROP VIEW tubes"):
         with pytest.raises(ReadOnlyError):
             check_read_only(sql)
-        assert run_query(sql, str(out), "table", None) == 2
-        assert "read-only" in capsys.readouterr().err
+        with pytest.raises(MiningError, match="read-only"):
+            run_query(sql, str(out), "table", None)
     for sql in ("SELECT 1", "WITH a AS (SELECT 1) SELECT * FROM a", "DESCRIBE tubes", "SUMMARIZE tubes", "SHOW TABLES",
                 "EXPLAIN SELECT * FROM tubes", "FROM tubes"):
         check_read_only(sql)
@@ -138,8 +139,8 @@ def test_formats(catalogue, capsys, tmp_path):
     recs = json.loads(dest.read_text())
     assert [(r["tube_id"], r["n_frames"]) for r in recs] == [(r[0], r[1]) for r in ref]
 
-    assert run_query(sql, str(out), "parquet", None) == 2, "parquet needs --output"
-    assert "--output" in capsys.readouterr().err
+    with pytest.raises(ConfigError, match="^--format parquet needs --output FILE$"):
+        run_query(sql, str(out), "parquet", None)
     pq_dest = tmp_path / "q.parquet"
     assert run_query(sql, str(out), "parquet", str(pq_dest)) == 0
     t = pq.read_table(pq_dest)
@@ -151,12 +152,23 @@ def test_formats(catalogue, capsys, tmp_path):
 
 def test_errors(catalogue, tmp_path, capsys):
     out, _ = catalogue
-    assert run_query("SELEC nonsense", str(out), "table", None) == 2
-    assert "parse" in capsys.readouterr().err.lower()
-    assert run_query("SELECT no_such_column FROM tubes", str(out), "table", None) == 2
-    assert "no_such_column" in capsys.readouterr().err
-    assert run_query("SELECT 1", str(tmp_path / "missing"), "table", None) == 2
-    assert "catalogue folder not found" in capsys.readouterr().err
+    with pytest.raises(MiningError, match="(?i)parse"):
+        run_query("SELEC nonsense", str(out), "table", None)
+    with pytest.raises(MiningError, match="no_such_column"):
+        run_query("SELECT no_such_column FROM tubes", str(out), "table", None)
+    with pytest.raises(MiningError, match="catalogue folder not found"):
+        run_query("SELECT 1", str(tmp_path / "missing"), "table", None)
+    # … and on the command line each is one line in the command's name, exit status 2
+    from mining.cli import main
+
+    capsys.readouterr()
+    assert main(["query", "SELECT no_such_column FROM tubes", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("mine query: Binder Error: ") and "no_such_column" in err, err
+    for options, said in (([], "--threads must be ≥ 1 and --timeout > 0, got 0 and 60.0"),
+                          (["fmt"], "unknown format 'xml'; one of table, csv, json, parquet")):
+        with pytest.raises(ConfigError, match=f"^{said}$"):
+            run_query("SELECT 1", str(out), "xml", threads=2) if options else run_query("SELECT 1", str(out), threads=0)
 
 
 def test_bench_catalog_small(tmp_path, shared_data):
@@ -194,4 +206,6 @@ def test_table_output_shows_at_most_limit_rows_with_the_total(catalogue, capsys)
     assert len(capsys.readouterr().out.splitlines()) == n + 1
     from mining.catalog.query import LIMIT
 
-    assert LIMIT == 50 and run_query("SELECT 1", str(out), limit=-1) == 2
+    assert LIMIT == 50
+    with pytest.raises(ConfigError, match=r"^--limit must be ≥ 0 \(0 = all rows\), got -1$"):
+        run_query("SELECT 1", str(out), limit=-1)

@@ -1,5 +1,6 @@
 """The records under ``--out`` as types (``mining/catalog/records.py``): each loads tolerantly
-(a damaged record is an ``Unreadable`` naming the file and why, never an exception), saves as
+(a damaged record is an ``Unreadable`` naming the file and why, never an exception; job.json's
+is raised, as an ``UnreadableRecord``), saves as
 the pipeline always wrote it, and ``mine status`` names a record that does not read; a
 resubmission then recomputes what it vouched for. The catalogue cases use the small synthetic
 job of ``conftest.base_catalogue`` (mined once, copied).
@@ -14,7 +15,8 @@ import pytest
 
 from _jobs import SEQ, copy_of, mine, tables
 from mining.catalog.layout import done_path, files_path, stitch_path
-from mining.catalog.records import ManifestRow, SequenceMarker, Unreadable, WindowFiles
+from mining.catalog.records import (FRESH_START, JobRecord, ManifestRow, SequenceMarker, Unreadable,
+                                    UnreadableRecord, WindowFiles)
 from mining.catalog.store import Store
 from mining.cli import main
 from mining.types import Window
@@ -105,6 +107,43 @@ def test_a_manifest_row_round_trips_and_a_damaged_one_is_unreadable(tmp_path):
     (tmp_path / stitch_path("d", "s")).write_bytes(b"not parquet")
     got = ManifestRow.load(store, "d", "s", "stitch")
     assert isinstance(got, Unreadable) and got.path == stitch_path("d", "s") and "Parquet" in got.reason
+
+
+JOB_OK = {"run_id": "r", "params_hash": "p", "config": {}, "windows": []}
+WIN = {"dataset": "d", "sequence": "s", "core": [0, 8], "context": [0, 12]}
+
+
+@pytest.mark.parametrize("content, reason", [
+    (b'{"run_id": "r", "par', "not valid JSON"),
+    (b"[]", "expected a JSON object, got an array"),
+    (b'{"run_id": "r"}', "key 'params_hash' is missing"),
+    (json.dumps({**JOB_OK, "run_id": 1}).encode(), "key 'run_id' holds a number, expected a run id"),
+    (json.dumps({**JOB_OK, "windows": {}}).encode(), "key 'windows' holds an object, expected a list of windows"),
+    (json.dumps({**JOB_OK, "windows": [WIN, {**WIN, "core": [8, 0]}]}).encode(),
+     "windows[1]: key 'core' holds an array, expected [start, end] frame positions"),
+    (json.dumps({**JOB_OK, "windows": [{**WIN, "sequence": None}]}).encode(),
+     "windows[0]: key 'sequence' holds null, expected a name"),
+    (json.dumps({**JOB_OK, "unplanned": {"s": 1}}).encode(), "key 'unplanned' holds an object, expected {sequence: reason}"),
+    (json.dumps({**JOB_OK, "identity": []}).encode(), "key 'identity' holds an array, expected {key: value}"),
+])
+def test_a_job_record_that_does_not_read_is_raised_naming_why_and_the_fresh_start(tmp_path, content, reason):
+    (tmp_path / "job.json").write_bytes(content)
+    with pytest.raises(UnreadableRecord) as e:
+        JobRecord.load(Store(tmp_path))
+    assert str(e.value).startswith(f"file {tmp_path / 'job.json'}: job.json is not a job record: {reason}"), e.value
+    assert str(e.value).endswith(f"; {FRESH_START}"), e.value
+
+
+def test_a_job_record_with_a_window_name_that_is_a_path_is_unreadable(tmp_path):
+    (tmp_path / "job.json").write_text(json.dumps({**JOB_OK, "windows": [{**WIN, "dataset": "../x"}]}))
+    with pytest.raises(UnreadableRecord, match=r"dataset name '\.\./x' from job\.json is not a safe name"):
+        JobRecord.load(Store(tmp_path))
+
+
+def test_a_job_record_without_identity_or_unplanned_reads_as_older_versions_wrote_it(tmp_path):
+    (tmp_path / "job.json").write_text(json.dumps({**JOB_OK, "windows": [WIN]}))
+    got = JobRecord.load(Store(tmp_path))
+    assert got.windows == [Window("d", "s", (0, 8), (0, 12))] and got.unplanned == {} and isinstance(got.identity, dict)
 
 
 # -- mine status and resume over a damaged record ---------------------------------------------

@@ -14,6 +14,7 @@ from conftest import REPO
 
 from _catalog_data import N_FRAMES, SEQUENCE
 from _run import cli, clean_error
+from mining.errors import MiningError
 from mining.export.render import run_render
 
 W, H = 1242, 375
@@ -159,10 +160,10 @@ def test_nothing_matched_writes_nothing(catalogue, tmp_path, capsys):
 
 def test_unknown_sequence_and_container_are_refused(catalogue, tmp_path, capsys):
     out, _ = catalogue
-    assert run_render(str(out), "9999", str(tmp_path / "a.mp4")) == 2
-    assert "'9999'" in capsys.readouterr().err
-    assert run_render(str(out), SEQUENCE, str(tmp_path / "a.avi")) == 2
-    assert ".webm" in capsys.readouterr().err
+    with pytest.raises(MiningError, match="'9999'"):
+        run_render(str(out), "9999", str(tmp_path / "a.mp4"))
+    with pytest.raises(MiningError, match=r"\.webm"):
+        run_render(str(out), SEQUENCE, str(tmp_path / "a.avi"))
     assert not list(tmp_path.iterdir())
 
 
@@ -175,8 +176,8 @@ def test_fps_must_be_a_positive_finite_rate(catalogue, tmp_path, capsys, fps):
     assert rc == 2 and "--fps" in clean_error(e) and len(e.strip().splitlines()) == 1 and not o, (rc, o, e)
     assert not list(tmp_path.iterdir())
     for value in (float(fps), float("nan")):  # the function refuses them too (never "0 means the default")
-        assert run_render(str(out), SEQUENCE, str(dest), fps=value, frames=(0, 2)) == 2
-        assert "--fps" in capsys.readouterr().err
+        with pytest.raises(MiningError, match="--fps"):
+            run_render(str(out), SEQUENCE, str(dest), fps=value, frames=(0, 2))
     assert not list(tmp_path.iterdir())
 
 

@@ -11,7 +11,8 @@ import pyarrow.parquet as pq
 import pytest
 
 from _catalog_data import DATASET, SEQUENCE
-from mining.catalog.layout import JobRecord, catalog_dir
+from mining.catalog.layout import catalog_dir
+from mining.catalog.records import JobRecord
 from mining.catalog.schema import SCHEMA_VERSION, SCHEMAS, file_schema
 from mining.catalog.store import TMP_MARK, Store, conform, write_sequence
 from mining.catalog.views import connect

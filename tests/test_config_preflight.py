@@ -112,9 +112,9 @@ def test_output_under_a_file_is_a_clear_error(tmp_path, capsys):
 @pytest.mark.parametrize("content, expected", [
     (b'{"run_id": "abc", "params_hash": "0123", "windows": [', "not valid JSON"),
     (b"\x89PNG\r\n\x1a\n\x00\x00", "not valid JSON"),
-    (b'{"run_id": "abc", "params_hash": "0123", "config": [], "windows": []}', "'config' holds list"),
+    (b'{"run_id": "abc", "params_hash": "0123", "config": [], "windows": []}', "key 'config' holds an array, expected a job config"),
     (b'{"run_id": "abc", "params_hash": "0123", "config": {}, "windows": [{"dataset": "synthetic", '
-     b'"sequence": "0000", "core": "ab", "context": [0, 8]}]}', "windows[0].core"),
+     b'"sequence": "0000", "core": "ab", "context": [0, 8]}]}', "windows[0]: key 'core' holds a string"),
 ], ids=["truncated", "binary", "config-not-a-table", "bad-window"])
 def test_corrupt_job_json_is_a_clear_error_for_submit_status_and_export(tmp_path, capsys, content, expected):
     out = tmp_path / "out"

@@ -75,7 +75,7 @@ def test_input_error_names_file_and_frame():
 
 
 def test_a_recorded_job_reads_back_as_the_typed_config_it_was_made_from():
-    from mining.catalog.layout import JobRecord
+    from mining.catalog.records import JobRecord
     from mining.config import JobConfig
 
     cfg = JobConfig()
@@ -85,7 +85,7 @@ def test_a_recorded_job_reads_back_as_the_typed_config_it_was_made_from():
 
 
 def test_a_recorded_job_of_older_code_has_its_moved_keys_renamed():
-    from mining.catalog.layout import JobRecord
+    from mining.catalog.records import JobRecord
     from mining.config import JobConfig
 
     old = JobConfig().to_dict()
@@ -95,7 +95,7 @@ def test_a_recorded_job_of_older_code_has_its_moved_keys_renamed():
 
 
 def test_a_recorded_job_from_before_the_filters_moved_reads_them_under_localise():
-    from mining.catalog.layout import JobRecord
+    from mining.catalog.records import JobRecord
     from mining.config import JobConfig
 
     old = JobConfig().to_dict()
@@ -198,7 +198,7 @@ def test_every_table_by_mode_has_exactly_its_modes_and_no_field_is_a_mode_twin()
 
 
 def test_a_recorded_job_with_a_key_no_version_had_is_refused_naming_the_key():
-    from mining.catalog.layout import JobRecord, UnreadableRecord
+    from mining.catalog.records import JobRecord, UnreadableRecord
     from mining.config import JobConfig
 
     d = JobConfig().to_dict()

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import pytest
 
-from mining.catalog.layout import UnreadableRecord
+from mining.catalog.records import UnreadableRecord
 from mining.catalog.safe_files import LinkError
 from mining.catalog.views import connect
 from mining.config import load_config
@@ -169,7 +169,7 @@ def _before_the_filters_moved(out: Path) -> None:
 
 
 def test_a_catalogue_made_before_the_filters_moved_is_refused_saying_why(base_catalogue, tmp_path):
-    from mining.catalog.layout import JobRecord
+    from mining.catalog.records import JobRecord
     from mining.catalog.store import Store
 
     out = copy_of(base_catalogue, tmp_path / "out")

@@ -19,6 +19,8 @@ from mining.catalog import labels
 from mining.catalog.lock import LockedError, OutputLock
 from mining.catalog.store import Store
 from mining.catalog.views import connect
+from mining.commands import export as export_command
+from mining.commands import label as label_command
 from mining.errors import InputError
 from mining.export import kitti
 
@@ -40,10 +42,10 @@ def _tube_labels(out: Path) -> dict[str, tuple]:
         con.close()
 
 
-def test_the_cli_copies_of_label_and_export_constants_are_their_sources():
-    assert cli.VERDICTS == labels.VERDICTS
-    assert cli.MAX_TAG_CHARS == labels.MAX_TAG_CHARS
-    assert cli.MOTS_MAX_CLASS == kitti.MOTS_MAX_CLASS
+def test_the_commands_copies_of_label_and_export_constants_are_their_sources():
+    assert label_command.VERDICTS == labels.VERDICTS
+    assert label_command.MAX_TAG_CHARS == labels.MAX_TAG_CHARS
+    assert export_command.MOTS_MAX_CLASS == kitti.MOTS_MAX_CLASS
 
 
 def test_tube_labels_replays_the_events_in_time_order(base_catalogue, tmp_path):

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from mining.catalog.layout import JobRecord
+from mining.catalog.records import JobRecord
 from mining.catalog.store import Store
 from mining.config import load_config
 from mining.errors import InputError

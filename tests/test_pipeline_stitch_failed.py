@@ -112,7 +112,8 @@ def test_a_part_of_another_schema_fails_the_stitch_alone_naming_the_file_and_the
     from _run import cli_status
 
     from mining.catalog.integrity import window_files
-    from mining.catalog.layout import JobRecord, done_path
+    from mining.catalog.layout import done_path
+    from mining.catalog.records import JobRecord
 
     out = copy_of(base_catalogue, tmp_path / "cat")
     store = Store(str(out))

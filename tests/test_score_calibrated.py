@@ -21,7 +21,7 @@ from mining.masks import rle_box
 from mining.pipeline.mine import judge, unary
 from mining.score.calibrated import FEATURES, TERMS, calibrated_score, tube_evidence
 from mining.score.config import KnownMargin, ScoreConfig
-from mining.catalog.layout import JobRecord
+from mining.catalog.records import JobRecord
 from mining.catalog.store import Store
 from mining.score.config import CALIBRATED
 from mining.score.unary import score_tube, unary_version, unary_weights

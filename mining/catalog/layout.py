@@ -1,4 +1,5 @@
-"""Where everything of a catalogue lives under ``--out``, and the job record ``job.json``.
+"""Where everything of a catalogue lives under ``--out``: paths only (the records, ``job.json``
+among them, are types in ``records.py``).
 
 One owner for every relative path a mining job reads or writes (``schemas/README.md``
 draws the same tree); ``store.py`` does the I/O on them::
@@ -30,29 +31,18 @@ resuming or extending it is refused (``check_resumable``). The working folders (
 parts, running markers, caches, sequence markers) keep their hive names: only this code reads
 them, and a catalogue keeps resuming across this change where nothing was compacted yet.
 
-The records among them are types: ``JobRecord`` here, the others in ``records.py``.
-Every path is built from names checked by ``mining/names.py`` (dataset, sequence, window),
-so no name can leave ``--out`` or make two tables share a file; ``job.json``'s names are
-checked when it is read.
-
-``job.json`` records the resolved config, its ``params_hash``, the job's identity
-(``identity.py``: config, source root, recording fingerprint, sequences, frame ranges),
-the run id and the windows of the job; a resubmission of another identity is refused
-(``identity.check_resubmit``). ``REPLACED`` holds catalogues a ``--new-run`` moved aside.
-A job.json that does not read as a job record is an ``UnreadableRecord``: the catalogue
-beside it is kept, and ``mine submit --new-run`` moves both aside (the message says so).
+The records among them are types (``records.py``: ``JobRecord``, ``ManifestRow``,
+``WindowFiles``, ``SequenceMarker``). Every path is built from names checked by
+``mining/names.py`` (dataset, sequence, window), so no name can leave ``--out`` or make two
+tables share a file; ``job.json``'s names are checked when it is read.
+``REPLACED`` holds catalogues a ``--new-run`` moved aside (``pipeline/resume.py``).
 """
 
 from __future__ import annotations
 
-import json
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
-from mining.catalog.identity import legacy_identity
-from mining.catalog.schema import SCHEMA_VERSION
-from mining.catalog.versions import RECORD_KEY, check_record_version
-from mining.errors import ConfigError, InputError
+from mining.errors import InputError
 from mining.names import check_name
 from mining.types import Window
 
@@ -88,16 +78,6 @@ TABLE_DIRS = {"tubes": f"{CATALOG}/tubes", "tube_frames": f"{CATALOG}/tube_frame
 
 CATALOGUE = f"{CATALOG}/<table>/<dataset>/<sequence>/part-<k>.parquet"  # the compacted tables (schema v3)
 HIVE_CATALOGUE = f"{CATALOG}/<table>/dataset=<dataset>/sequence=<sequence>/part-<k>.parquet"  # before v3
-
-# What a refusal over a lost or unreadable job.json offers: never "move job.json away", which
-# leaves the catalogue without its record (the next submit would then mine over it).
-FRESH_START = (f"mine submit --new-run moves the old catalogue (job.json included) to {REPLACED}/ inside --out "
-               "and starts a new one; or use another --out")
-
-
-class UnreadableRecord(InputError):
-    """OUT/job.json exists but is not a job record."""
-
 
 def _where(dataset: str, sequence: str, window: str | None = None) -> str:
     """``dataset=D/sequence=S`` (and ``/<window>``) from checked names: the working folders."""
@@ -194,97 +174,3 @@ def done_path(dataset: str, sequence: str) -> str:
 def cache_path(w: Window, suffix: str = CACHE_SUFFIX) -> str:
     """A window's observation cache (its core frames' observations; ``pipeline/cache.py``)."""
     return f"{CACHE}/{_where(w.dataset, w.sequence, w.name)}{suffix}"
-
-
-def _window_entry(w: Window) -> dict:
-    return {"dataset": w.dataset, "sequence": w.sequence, "window": w.name, "core": list(w.core),
-            "context": list(w.context)}
-
-
-def _record_problem(d: object) -> str | None:
-    """What makes parsed JSON not a job record (the key and what it holds), or None."""
-    if not isinstance(d, dict):
-        return f"expected a JSON object, got {type(d).__name__}"
-    for key, kind in (("run_id", str), ("params_hash", str), ("config", dict), ("windows", list)):
-        if key not in d:
-            return f"key {key!r} is missing"
-        if not isinstance(d[key], kind):
-            return f"key {key!r} holds {type(d[key]).__name__}, expected {kind.__name__}"
-    for i, w in enumerate(d["windows"]):
-        if not isinstance(w, dict):
-            return f"windows[{i}] holds {type(w).__name__}, expected an object"
-        for key in ("dataset", "sequence"):
-            if not isinstance(w.get(key), str):
-                return f"windows[{i}].{key} is {w.get(key)!r}, expected a name"
-        for key in ("core", "context"):
-            v = w.get(key)
-            if not (isinstance(v, list) and len(v) == 2 and all(isinstance(x, int) and not isinstance(x, bool)
-                                                                  and x >= 0 for x in v) and v[0] < v[1]):
-                return f"windows[{i}].{key} is {v!r}, expected [start, end] frame positions"
-    unplanned = d.get("unplanned", {})
-    if not (isinstance(unplanned, dict) and all(isinstance(v, str) for v in unplanned.values())):
-        return "key 'unplanned' is not a mapping of sequence to reason"
-    return None
-
-
-@dataclass
-class JobRecord:
-    """``job.json``: the job a catalogue belongs to."""
-
-    run_id: str
-    params_hash: str
-    config: dict  # the resolved JobConfig, as JobConfig.to_dict()
-    windows: list[Window]  # the job's windows, in planning order
-    identity: dict[str, Any] = field(default_factory=dict)  # identity.job_identity; legacy_identity for old records
-    unplanned: dict[str, str] = field(default_factory=dict)  # sequence asked for → why it could not be planned (last submit)
-
-    @classmethod
-    def load(cls, store: Store) -> JobRecord | None:
-        """The record in ``store``, or None when it has none."""
-        if not store.exists(JOB):
-            return None
-        try:
-            d = json.loads(store.read_bytes(JOB))
-        except ValueError as e:  # not UTF-8, not JSON (a truncated or overwritten file)
-            raise UnreadableRecord(f"job.json is not a job record: not valid JSON ({e}); {FRESH_START}",
-                                   store.full(JOB)) from None
-        check_record_version(d, store.full(JOB))  # a newer version's record is refused, not set aside
-        if (problem := _record_problem(d)) is not None:
-            raise UnreadableRecord(f"job.json is not a job record: {problem}; {FRESH_START}", store.full(JOB))
-        identity = d["identity"] if "identity" in d else legacy_identity(d["config"])
-        if not isinstance(identity, dict):
-            raise UnreadableRecord(f"job.json is not a job record: key 'identity' is not a mapping; {FRESH_START}",
-                                   store.full(JOB))
-        windows = [Window(w["dataset"], w["sequence"], tuple(w["core"]), tuple(w["context"])) for w in d["windows"]]
-        try:
-            for w in windows:
-                check_name(w.dataset, "dataset", "job.json", store.full(JOB))
-                check_name(w.sequence, "sequence", "job.json", store.full(JOB))
-        except InputError as e:
-            raise UnreadableRecord(f"{e.reason}; {FRESH_START}", store.full(JOB)) from None
-        return cls(d["run_id"], d["params_hash"], d["config"], windows, identity, d.get("unplanned") or {})
-
-    def job_config(self, where: str = JOB):
-        """The recorded config as a typed ``JobConfig`` (``config.job_config_from_record``: keys of
-        older versions renamed); ``UnreadableRecord`` naming the key when it does not fit."""
-        from mining.config import job_config_from_record
-
-        try:
-            return job_config_from_record(self.config, where)
-        except ConfigError as e:
-            raise UnreadableRecord(f"job.json's config does not read as a job config: {e}", where) from None
-
-    def check(self, params_hash: str, out: str) -> None:
-        """Refuse a job of other params than the catalogue at ``out`` was made with (the
-        identity names the keys: ``identity.check_resubmit``; this is the last guard)."""
-        if self.params_hash != params_hash:
-            raise ConfigError(f"{out} holds a catalogue made with params {self.params_hash}; this job has "
-                              f"{params_hash}. Use another --out, or the same config to resume.")
-
-    def save(self, store: Store) -> None:
-        record = {"run_id": self.run_id, "params_hash": self.params_hash, "identity": self.identity,
-                  "config": self.config, "windows": [_window_entry(w) for w in self.windows]}
-        if self.unplanned:
-            record["unplanned"] = self.unplanned
-        record[RECORD_KEY] = SCHEMA_VERSION
-        store.write_bytes(JOB, json.dumps(record, indent=1, default=str).encode())

@@ -1,4 +1,5 @@
-"""`mine query`: read-only SQL over the catalogue, as a table, CSV, JSON or Parquet.
+"""Read-only SQL over the catalogue (``mine query``, ``commands/query.py``), as a table, CSV,
+JSON or Parquet.
 
 One query may take at most ``memory_limit`` of memory (DuckDB spills the rest to its
 private temporary folder), ``threads`` threads and ``timeout_s`` seconds: a timer
@@ -133,35 +134,3 @@ def write_result(t: pa.Table, fmt: str, output: str | Path | None, limit: int = 
         sys.stdout.write(text)
     else:
         safe_files.write_file(output, text.encode(), overwrite)
-
-
-def run_query(sql: str, out: str | Path, fmt: str = "table", output: str | Path | None = None,
-              memory_limit: str = MEMORY_LIMIT, threads: int = THREADS, timeout_s: float = TIMEOUT_S,
-              limit: int = LIMIT, overwrite: bool = False) -> int:
-    """`mine query`: 0 on success; 2 with a message on standard error for bad SQL, a
-    missing catalogue, a statement that would write, a query past its limits or an
-    ``output`` that may not be written (checked before the query runs)."""
-    if limit < 0:
-        print(f"mine query: --limit must be ≥ 0 (0 = all rows), got {limit}", file=sys.stderr)
-        return 2
-    if threads < 1 or not timeout_s > 0:
-        print(f"mine query: --threads must be ≥ 1 and --timeout > 0, got {threads} and {timeout_s}", file=sys.stderr)
-        return 2
-    if fmt not in FORMATS:
-        print(f"mine query: unknown format {fmt!r}; one of {', '.join(FORMATS)}", file=sys.stderr)
-        return 2
-    if fmt == "parquet" and not output:
-        print("mine query: --format parquet needs --output FILE", file=sys.stderr)
-        return 2
-    try:
-        if output is not None:
-            safe_files.check_output_file(output, overwrite, "--output")
-        t = query_table(sql, out, memory_limit, threads, timeout_s)
-        write_result(t, fmt, output, limit, overwrite)
-    except (MiningError, duckdb.Error) as e:
-        print(f"mine query: {e}", file=sys.stderr)
-        return 2
-    except OSError as e:
-        print(f"mine query: cannot write {output}: {e}", file=sys.stderr)
-        return 2
-    return 0

@@ -1,5 +1,9 @@
-"""The records a mining job writes under ``--out`` beside ``job.json`` (``layout.JobRecord``), as types.
+"""The records a mining job writes under ``--out`` (``layout.py`` says where), as types.
 
+* ``JobRecord``: the job a catalogue belongs to (``job.json``): the resolved config, its
+  ``params_hash``, the job's identity (``identity.py``: config, source root, recording
+  fingerprint, sequences, frame ranges), the run id and the windows of the job; a
+  resubmission of another identity is refused (``identity.check_resubmit``);
 * ``ManifestRow``: a window's row of the ``windows`` table (``manifest/…/<window>.parquet``),
   and a sequence's failed-stitch row (``manifest/…/stitch.parquet``, window ``STITCH_ROW``);
 * ``WindowFiles``: the size and sha256 of a window's parts (``manifest/…/<window>.files.json``),
@@ -12,7 +16,10 @@ Every ``load`` is tolerant: a record that is not there is None, and one that is 
 not read as its record (unreadable, truncated, not JSON, of another shape, another window's or
 sequence's) is an ``Unreadable`` naming the file and why. It never raises for damage: a damaged
 record proves nothing, and what reads it (resume, ``mine status``, the query views) decides what
-that means. A record of a newer catalogue schema than this code reads is not damage (recomputing
+that means. ``job.json`` alone is the exception, read by the same helpers: without it a
+catalogue's job is unknown and nothing can go on, so ``JobRecord.load`` raises the
+``Unreadable`` as an ``UnreadableRecord`` (an InputError naming the file and why); the catalogue
+beside it is kept, and ``mine submit --new-run`` moves both aside (the message says so). A record of a newer catalogue schema than this code reads is not damage (recomputing
 it would overwrite a newer version's work): ``load`` raises ``versions.SchemaVersionError``. ``save`` writes through the ``Store`` (atomic, never through a link: ``safe_files.py``).
 
 Each record has the predicate resume (``pipeline/resume.py``), ``mine status`` and the
@@ -24,16 +31,19 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime
 from typing import TYPE_CHECKING, Any
 
-from mining.catalog.layout import (MARKERS, PART_TABLES, STITCH_ROW, done_path, files_path, manifest_path, part_path,
-                                   stitch_path)
+from mining.catalog.identity import legacy_identity
+from mining.catalog.layout import (JOB, MARKERS, PART_TABLES, REPLACED, STITCH_ROW, done_path, files_path,
+                                   manifest_path, part_path, stitch_path)
 from mining.catalog.rows import to_table
 from mining.catalog.schema import SCHEMA_VERSION
 from mining.catalog.versions import RECORD_KEY, check_columns, check_record_version
-from mining.errors import InputError
+from mining.config import JobConfig, job_config_from_record
+from mining.errors import ConfigError, InputError
+from mining.names import check_name
 from mining.types import Window
 
 if TYPE_CHECKING:
@@ -118,6 +128,119 @@ def _object(d: object) -> dict:
     if not isinstance(d, dict):
         raise _Shape(f"expected a JSON object, got {_kind(d)}")
     return d
+
+
+# -- the job record ---------------------------------------------------------------------------
+
+# What a refusal over a lost or unreadable job.json offers: never "move job.json away", which
+# leaves the catalogue without its record (the next submit would then mine over it).
+FRESH_START = (f"mine submit --new-run moves the old catalogue (job.json included) to {REPLACED}/ inside --out "
+               "and starts a new one; or use another --out")
+
+
+class UnreadableRecord(InputError):
+    """OUT/job.json exists but is not a job record."""
+
+
+def _is_span(v: object) -> bool:
+    """[start, end] frame positions, 0 ≤ start < end."""
+    return isinstance(v, list) and len(v) == 2 and all(_is_int(x) and x >= 0 for x in v) and v[0] < v[1]
+
+
+def _is_reasons(v: object) -> bool:
+    return isinstance(v, dict) and all(isinstance(r, str) for r in v.values())
+
+
+def _is_object(v: object) -> bool:
+    return isinstance(v, dict)
+
+
+def _is_list(v: object) -> bool:
+    return isinstance(v, list)
+
+
+def _job_window(d: object) -> Window:
+    d = _object(d)
+    return Window(_key(d, "dataset", _is_str, "a name", required=True),
+                  _key(d, "sequence", _is_str, "a name", required=True),
+                  tuple(_key(d, "core", _is_span, "[start, end] frame positions", required=True)),
+                  tuple(_key(d, "context", _is_span, "[start, end] frame positions", required=True)))
+
+
+def _window_entry(w: Window) -> dict:
+    return {"dataset": w.dataset, "sequence": w.sequence, "window": w.name, "core": list(w.core),
+            "context": list(w.context)}
+
+
+@dataclass
+class JobRecord:
+    """``job.json``: the job a catalogue belongs to."""
+
+    run_id: str
+    params_hash: str
+    config: dict  # the resolved JobConfig, as JobConfig.to_dict()
+    windows: list[Window]  # the job's windows, in planning order
+    identity: dict[str, Any] = field(default_factory=dict)  # identity.job_identity; legacy_identity for old records
+    unplanned: dict[str, str] = field(default_factory=dict)  # sequence asked for → why it could not be planned (last submit)
+
+    @classmethod
+    def load(cls, store: Store) -> JobRecord | None:
+        """The record in ``store``, or None when it has none; ``UnreadableRecord`` (naming the
+        file, why, and ``FRESH_START``) when job.json is there but does not read as one."""
+        if not store.exists(JOB):
+            return None
+        d = _read_json(store, JOB)
+        if d is None:  # removed since it was seen
+            return None
+        if isinstance(d, Unreadable):
+            raise UnreadableRecord(f"job.json is not a job record: {d.reason}; {FRESH_START}", store.full(JOB))
+        check_record_version(d, store.full(JOB))  # a newer version's record is refused, not set aside
+        try:
+            d = _object(d)
+            run_id = _key(d, "run_id", _is_str, "a run id", required=True)
+            params_hash = _key(d, "params_hash", _is_str, "a params hash", required=True)
+            config = _key(d, "config", _is_object, "a job config", required=True)
+            windows = []
+            for i, w in enumerate(_key(d, "windows", _is_list, "a list of windows", required=True)):
+                try:
+                    windows.append(_job_window(w))
+                except _Shape as e:
+                    raise _Shape(f"windows[{i}]: {e}") from None
+            unplanned = _key(d, "unplanned", _is_reasons, "{sequence: reason}")
+            identity = _key(d, "identity", _is_object, "{key: value}")
+        except _Shape as e:
+            raise UnreadableRecord(f"job.json is not a job record: {e}; {FRESH_START}", store.full(JOB)) from None
+        try:
+            for w in windows:
+                check_name(w.dataset, "dataset", "job.json", store.full(JOB))
+                check_name(w.sequence, "sequence", "job.json", store.full(JOB))
+        except InputError as e:
+            raise UnreadableRecord(f"{e.reason}; {FRESH_START}", store.full(JOB)) from None
+        return cls(run_id, params_hash, config, windows, legacy_identity(config) if identity is None else identity,
+                   unplanned or {})
+
+    def job_config(self, where: str = JOB) -> JobConfig:
+        """The recorded config as a typed ``JobConfig`` (``config.job_config_from_record``: keys of
+        older versions renamed); ``UnreadableRecord`` naming the key when it does not fit."""
+        try:
+            return job_config_from_record(self.config, where)
+        except ConfigError as e:
+            raise UnreadableRecord(f"job.json's config does not read as a job config: {e}", where) from None
+
+    def check(self, params_hash: str, out: str) -> None:
+        """Refuse a job of other params than the catalogue at ``out`` was made with (the
+        identity names the keys: ``identity.check_resubmit``; this is the last guard)."""
+        if self.params_hash != params_hash:
+            raise ConfigError(f"{out} holds a catalogue made with params {self.params_hash}; this job has "
+                              f"{params_hash}. Use another --out, or the same config to resume.")
+
+    def save(self, store: Store) -> None:
+        record = {"run_id": self.run_id, "params_hash": self.params_hash, "identity": self.identity,
+                  "config": self.config, "windows": [_window_entry(w) for w in self.windows]}
+        if self.unplanned:
+            record["unplanned"] = self.unplanned
+        record[RECORD_KEY] = SCHEMA_VERSION
+        store.write_bytes(JOB, json.dumps(record, indent=1, default=str).encode())
 
 
 # -- the window's files record ----------------------------------------------------------------

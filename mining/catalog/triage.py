@@ -1,27 +1,20 @@
-"""`mine label`: scripted triage — one decision for every tube a predicate selects.
-
-    mine label --out OUT --where "known = false AND n_frames < 5" --verdict not_object
-    mine label --out OUT --where "tube_id IN ('kitti/0005/0000012.003')" --tag barrier
-    mine label --out OUT --compact
+"""Scripted triage (``mine label``, ``commands/label.py``): the tubes a predicate selects, and
+the one decision a command line gives.
 
 The predicate is ``mine export``'s (``predicate.tubes_query``: one SQL expression over the
 tubes and their labels, parsed, never pasted), run on the read-only catalogue; the decision
-is appended as one new labels part (``labels.append``), so it never waits for, or is lost
-beside, a viewer or a running job. ``--compact`` merges the label files under the writer lock.
+becomes label events (``labels.events``) appended as one new labels part (``labels.append``).
 """
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import duckdb
 
-from mining.catalog import labels
 from mining.catalog.predicate import PREDICATE_ERRORS, tubes_query
-from mining.catalog.store import Store
 from mining.catalog.views import connect, execute_read_only
-from mining.errors import MiningError, NothingMatched
+from mining.errors import MiningError
 
 
 def matching_tubes(out: str | Path, where: str) -> list[tuple[str, str, str]]:
@@ -53,42 +46,3 @@ def decision(verdict: str | None, clear_verdict: bool, tag: str | None, untag: s
     if tag is not None:
         return "tag", tag, "set"
     return "tag", untag, "unset"
-
-
-def run_label(out: str, where: str | None, verdict: str | None = None, clear_verdict: bool = False,
-              tag: str | None = None, untag: str | None = None, author: str | None = None,
-              dry_run: bool = False, compact: bool = False, lock_wait_s: float = 0.0) -> int:
-    """`mine label`: 0 when labelled (or compacted); NothingMatched (exit 1) when no tube
-    matches; 2 with one line on standard error otherwise."""
-    try:
-        store = Store(out)
-        if not store.root_exists():
-            raise MiningError(f"--out {out}: catalogue folder not found")
-        if compact:
-            if where is not None or verdict or clear_verdict or tag or untag:
-                raise MiningError("--compact takes no --where and no decision")
-            merged, kept = labels.compact(store, lock_wait_s)
-            print(f"mine label: {out}: merged {merged} label files into one ({kept} events)" if merged
-                  else f"mine label: {out}: nothing to compact ({kept} events in at most one file)")
-            return 0
-        if where is None:
-            raise MiningError("give --where PREDICATE (the tubes to label), e.g. --where \"known = false\"")
-        kind, value, op = decision(verdict, clear_verdict, tag, untag)
-        tubes = matching_tubes(out, where)
-        if not tubes:
-            raise NothingMatched(f"no tube matches --where {where!r}; nothing labelled")
-        table = labels.events(tubes, kind, value, op, author, via="cli")
-        value = table["value"][0].as_py()
-        what = ((f"verdict {value}" if op == "set" else "verdict cleared") if kind == "verdict"
-                else f"tag {value!r} " + ("added" if op == "set" else "removed"))
-        if dry_run:
-            print(f"mine label: would label {len(tubes)} tubes: {what} (nothing written: --dry-run)")
-            return 0
-        rel = labels.append(store, table)
-        print(f"mine label: {len(tubes)} tubes: {what} by {table['author'][0].as_py()} → {store.full(rel)}")
-        return 0
-    except NothingMatched:
-        raise
-    except MiningError as e:
-        print(f"mine label: {e}", file=sys.stderr)
-        return 2

@@ -256,16 +256,16 @@ def run_render(out: str | Path, sequence: str, dest: str | Path, where: str | No
                fps: float | None = None, frames: tuple[int, int | None] | None = None, overwrite: bool = False,
                all_candidates: bool = False) -> int:
     """`mine render`: 0 on success; 1 when tubes with a bad mask were left out (one line on
-    standard error names them); NothingMatched (``cli.main``: exit 1) when no tube matches; 2
-    with a message otherwise."""
+    standard error names them); NothingMatched (``cli.main``: exit 1) when no tube matches; a
+    MiningError otherwise (``cli.main``: one line, exit status 2)."""
     try:
         r = render(out, sequence, dest, where, depth, fps, frames, overwrite=overwrite, all_candidates=all_candidates)
-    except (MiningError, duckdb.Error) as e:
-        print(f"mine render: {e}", file=sys.stderr)
-        return 2
+    except MiningError:
+        raise
+    except duckdb.Error as e:  # a damaged catalogue: DuckDB's message names it
+        raise MiningError(str(e)) from None
     except OSError as e:  # the system's error from a writer (a full disk…): one line naming the file
-        print(f"mine render: {safe_files.write_error(e, e.filename or dest)}", file=sys.stderr)
-        return 2
+        raise safe_files.write_error(e, e.filename or dest) from None
     if r.clamped:
         print(f"mine render: {r.clamped}")
     cands = f" and {r.candidates} unselected candidates" if all_candidates else ""

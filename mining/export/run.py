@@ -140,16 +140,16 @@ def run_export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: 
                category_from: str = "category") -> int:
     """`mine export`: 0 on success; LEFT_OUT (1) when tubes with a bad mask were left out (one
     line on standard error names them); NothingMatched (``cli.main``: exit 1) when no tube
-    matches; 2 with a message on standard error otherwise."""
+    matches; a MiningError otherwise (``cli.main``: one line, exit status 2)."""
     try:
         n_tubes, n_items, left_out = export(out, where, fmt, dest, margin, images, overwrite, unknown_class,
                                             category_from)
-    except (MiningError, duckdb.Error) as e:
-        print(f"mine export: {e}", file=sys.stderr)
-        return 2
+    except MiningError:
+        raise
+    except duckdb.Error as e:  # a damaged catalogue: DuckDB's message names it
+        raise MiningError(str(e)) from None
     except OSError as e:  # a writer that raised the system's error (a full disk…): one line naming the file
-        print(f"mine export: {safe_files.write_error(e, e.filename or dest)}", file=sys.stderr)
-        return 2
+        raise safe_files.write_error(e, e.filename or dest) from None
     print(f"mine export: {n_tubes} tubes, {n_items} {FORMATS[fmt].items} → {dest}")
     if left_out:
         print(f"mine export: {left_out_line(left_out, str(dest))}", file=sys.stderr)

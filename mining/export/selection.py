@@ -28,8 +28,9 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from mining.catalog.layout import JOB, JobRecord
+from mining.catalog.layout import JOB
 from mining.catalog.predicate import PREDICATE_ERRORS, tubes_query
+from mining.catalog.records import JobRecord
 from mining.catalog.rows import MASK_TABLE, BadMask, mask_rle
 from mining.catalog.store import Store
 from mining.catalog.views import execute_read_only

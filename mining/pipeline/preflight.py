@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from mining.catalog.integrity import check_versions
-from mining.catalog.layout import JobRecord
+from mining.catalog.records import JobRecord
 from mining.catalog.store import Store
 from mining.checks import clamped_note
 from mining.config import JobConfig, validate

@@ -25,8 +25,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from mining.catalog.integrity import Damage, check_versions, sequence_damage, unreadable_damage, window_damage
-from mining.catalog.layout import JOB, STITCH_ROW, JobRecord, UnreadableRecord, manifest_path
-from mining.catalog.records import ManifestRow, SequenceMarker, Unreadable
+from mining.catalog.layout import JOB, STITCH_ROW, manifest_path
+from mining.catalog.records import JobRecord, ManifestRow, SequenceMarker, Unreadable, UnreadableRecord
 from mining.catalog.lock import current_writer, describe
 from mining.catalog.store import Store
 from mining.errors import InputError

@@ -3,7 +3,8 @@
 ``open_job`` runs the preflight (``preflight.py``: config, frame range, output, every
 sequence's plan and calibration, the proposer — all before job.json is written or Ray
 starts; a sequence that cannot be planned is reported and the others run), records the
-job (``job.json``) and reads what earlier runs left; the ``Schedule`` (``schedule.py``) orders the steps; ``run_job`` is the loop
+job (``job.json``: ``resume.record_job``) and reads what earlier runs left
+(``resume.read_resume``); the ``Schedule`` (``schedule.py``) orders the steps; ``run_job`` is the loop
 that hands them to an executor (``executors.py``: this process, or Ray) and writes what
 a step that could not run leaves behind: the window's manifest row, or the sequence's
 ``stitch`` row, with why (``failures.py``); it also keeps the running-window markers
@@ -21,9 +22,10 @@ nothing; a damaged file is recomputed by what owns it. What the run did is count
 
 One writer: ``mine_job`` holds the catalogue's lock (``catalog/lock.py``) from planning to
 the last result. Holding it, it first removes the temporary files a killed run's writes
-left (``sweep_temporaries``: only the names those writes make, only in the job's own
+left (``resume.sweep_temporaries``: only the names those writes make, only in the job's own
 folders, no link followed), counted in the summary. A resubmission must be the same job (``catalog/identity.py``), an
-extension of it (``mode="extend"``) or a new run (``mode="new"``).
+extension of it (``mode="extend"``) or a new run (``mode="new"``): the job's lifecycle
+(record, retire, set aside, sweep) is ``resume.py``'s; this module is the loop.
 
 ``mine_on_ray`` is ``mine submit`` without a Ray Jobs address (that one is
 ``rayjobs.py``): the scheduler runs here and the steps run on a Ray of its own, or on
@@ -35,144 +37,26 @@ from __future__ import annotations
 import os
 import sys
 import time
-import uuid
 from collections.abc import Callable
 from typing import Any
 
-import pyarrow.fs as pafs
-
-from mining.catalog.identity import check_resubmit, job_identity
-from mining.catalog.layout import (FRESH_START, JOB, JOB_ENTRIES, LABELS, LEGACY_CACHE_SUFFIX, PART_TABLES, REPLACED,
-                                   JobRecord, UnreadableRecord, cache_path, check_resumable, files_path, manifest_path,
-                                   part_path)
+from mining.catalog.identity import job_identity
+from mining.catalog.layout import LEGACY_CACHE_SUFFIX, cache_path
 from mining.catalog.lock import OutputLock
+from mining.catalog.records import UnreadableRecord
 from mining.catalog.store import Store
 from mining.config import JobConfig
-from mining.errors import ConfigError, InputError
 from mining.pipeline.executors import Executor, RayExecutor
 from mining.pipeline.failures import describe
 from mining.pipeline.localray import exposure_line, init_local_ray, prepare_local_ray
 from mining.pipeline.preflight import Preflight, preflight
 from mining.pipeline.running import RunningMarkers
-from mining.pipeline.resume import read_resume
+from mining.pipeline.resume import read_resume, record_job, set_aside_unreadable, sweep_temporaries
 from mining.pipeline.schedule import Schedule, Step, Task
 from mining.pipeline.steps import Job, StepResult, observed_so_far, write_manifest, write_stitch_failure
 from mining.pipeline.summary import Summary
 from mining.progress import StepBar
 from mining.proposals.make import classifiers_line, classify_hint
-from mining.types import Window
-
-
-def _retire(store: Store, prior: list[Window], windows: list[Window]) -> None:
-    """Remove what the windows of ``prior`` that are no longer the job's left behind (an
-    extension re-cuts the windows at the old range's end): their manifest rows, parts,
-    integrity records and caches. A window of the same name stays (it is resumed or, when
-    its context changed, runs again and overwrites them)."""
-    names = {w.name for w in windows}
-    for w in prior:
-        if w.name in names:
-            continue
-        d, q = w.dataset, w.sequence
-        for rel in (manifest_path(d, q, w.name), files_path(d, q, w.name), cache_path(w),
-                    *(part_path(t, d, q, w.name) for t in PART_TABLES)):
-            store.remove(rel)
-
-
-def _move_aside(store: Store, run_id: str | None) -> str:
-    """``--new-run``: move the old catalogue's files into ``REPLACED/<run id>-<UTC time>/``
-    inside ``--out`` (a rename each; readers never look there); ``unknown-run`` stands for
-    the run id of a catalogue whose job.json is lost or unreadable. Only a local folder can:
-    object stores have no rename, so there the old catalogue must be removed by hand."""
-    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
-    name = f"{run_id or 'unknown-run'}-{stamp}"
-    # The labels go too: the new run's tube ids may name other objects.
-    present = [e for e in (*JOB_ENTRIES, LABELS) if store.fs.get_file_info(store.full(e)).type != pafs.FileType.NotFound]
-    if not store.local:
-        raise ConfigError(f"{store.uri}: --new-run cannot move the old catalogue (run {run_id or 'unknown'}) aside on "
-                          f"this filesystem (no rename); delete {', '.join(present)} there, or use another --out")
-    taken = {info.base_name for info in store.fs.get_file_info(
-        pafs.FileSelector(store.full(REPLACED), allow_not_found=True))}
-    k = 1
-    while (dest := f"{REPLACED}/{name}" + (f"-{k}" if k > 1 else "")).rsplit("/", 1)[1] in taken:
-        k += 1  # two new runs in one second: never move into a folder that holds an older catalogue
-    store.make_dir(dest)  # never through a link planted at OUT/_replaced (safe_files)
-    for e in present:
-        store.move(e, f"{dest}/{e}")
-    return dest
-
-
-def catalogue_data(store: Store) -> list[str]:
-    """The entries of a job's catalogue (``JOB_ENTRIES`` but job.json) that hold files."""
-    return [f"{e}/" for e in JOB_ENTRIES if e != JOB and store.list(e, suffix="")]
-
-
-def record_job(store: Store, cfg: JobConfig, windows: list[Window], identity: dict, mode: str = "resume",
-               unplanned: dict[str, str] | None = None) -> JobRecord:
-    """Write (or check and update) ``job.json``; ``unplanned``: the sequences this submit could
-    not plan and why (``mine status`` shows them).
-
-    ``mode`` (``identity.MODES``): ``resume`` refuses another identity, naming every
-    differing key; ``extend`` admits wider frame ranges and added sequences, and retires
-    the old windows the new cut does not have; ``new`` moves an old catalogue aside and
-    starts a new run. The run id is kept across resumes and extensions.
-
-    A folder with catalogue data but no job.json (lost, or moved away) or an unreadable one
-    is not an empty folder: mining into it would replace that catalogue, so it is refused
-    unless ``new``, which moves it aside like any other. So is a catalogue whose tables lie in
-    the hive folders of schema v2 (``layout.check_resumable``): ``new`` moves it aside too.
-    """
-    lost = ""  # why the catalogue in --out has no job record, when it has none but holds data
-    try:
-        old = JobRecord.load(store)
-    except UnreadableRecord:
-        if mode != "new":
-            raise
-        old, lost = None, "its job.json did not read as a job record"
-    if old is None and not lost and (data := catalogue_data(store)):
-        if mode != "new":
-            raise InputError(f"missing, but {store.uri} holds catalogue data ({', '.join(data)}), whose job is then "
-                             "unknown: it can be neither resumed nor extended, and mining there would replace it; "
-                             f"{FRESH_START}", store.full(JOB))
-        lost = "it had no job.json"
-    if mode == "new" and (old is not None or lost):
-        run_id = old.run_id if old is not None else None
-        _announce(store, run_id, _move_aside(store, run_id), lost)
-        old = None
-    if old is not None:
-        check_resumable(store)  # a catalogue before schema v3 (hive folders): read, never resumed or extended
-        check_resubmit(old.identity, identity, store.uri, mode)
-        old.check(cfg.params_hash, store.uri)  # every config key is in the identity: never reached
-        _retire(store, old.windows, windows)
-    record = JobRecord(old.run_id if old is not None else uuid.uuid4().hex[:12], cfg.params_hash, cfg.to_dict(),
-                       list(windows), identity, dict(unplanned or {}))
-    if (old is None or record.windows != old.windows or record.identity != old.identity
-            or record.unplanned != old.unplanned):
-        record.save(store)  # a resubmission of the same job changes nothing
-    return record
-
-
-def _announce(store: Store, run_id: str | None, dest: str, why: str = "") -> None:
-    what = f"run {run_id}" if run_id else f"run unknown: {why}"
-    print(f"mine: --new-run: the old catalogue ({what}) is now {store.full(dest)}; "
-          "delete it when it is no longer needed", file=sys.stderr)
-
-
-def set_aside_unreadable(store: Store) -> None:
-    """``--new-run`` over an unreadable job.json, before the preflight that would refuse it:
-    the old catalogue goes to ``REPLACED`` as ``record_job`` would move it."""
-    try:
-        JobRecord.load(store)
-    except UnreadableRecord:
-        _announce(store, None, _move_aside(store, None), "its job.json did not read as a job record")
-
-
-def sweep_temporaries(store: Store) -> list[str]:
-    """Remove the temporary files unfinished writes left under ``store`` (``Store.temporaries``);
-    their full paths. Call it holding the catalogue's lock: then no write is in flight."""
-    swept = store.temporaries()
-    for rel in swept:
-        store.remove(rel)  # the entry itself, its folders entered without following a link
-    return [store.full(rel) for rel in swept]
 
 
 def open_job(cfg: JobConfig, out: str, sequences: list[str] | None = None,

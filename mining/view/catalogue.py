@@ -22,7 +22,8 @@ from pathlib import Path
 import duckdb
 
 from mining.catalog import labels
-from mining.catalog.layout import JOB, LABELS, JobRecord
+from mining.catalog.layout import JOB, LABELS
+from mining.catalog.records import JobRecord
 from mining.catalog.store import Store
 from mining.catalog.views import connect, refresh_labels, sql_string
 from mining.config import JobConfig
