@@ -2,11 +2,14 @@
 
 Each rule is a function over an import graph, so every rule is also tested on a small planted
 tree that breaks it (the ``test_*_catches_*`` tests): a rule that cannot fail keeps nothing.
+An import inside a function counts like one at the top (it runs too, only later); one under
+``if TYPE_CHECKING:`` does not (it never runs).
 """
 
 from __future__ import annotations
 
 import ast
+import functools
 from collections import defaultdict
 from pathlib import Path
 
@@ -16,16 +19,29 @@ from conftest import REPO
 STAGES = ("sources", "geometry", "proposals", "localise", "tubes", "score", "select")
 # The shared floor every stage may use: words, not work.
 SHARED_FLOOR = ("types", "errors", "names", "masks", "boxes", "checks", "progress", "draw", "formats")
+# The export wing's shared modules; every other module of export/ is a format (export/registry.py),
+# and a format imports only these, never another format (as TrackEval's datasets import only their base).
+EXPORT_SHARED = ("registry", "selection", "source_frames", "depth", "dest", "video")
 # What the catalogue may import: the shared floor and the job config.
 CATALOG_MAY_IMPORT = (*SHARED_FLOOR, "config")
 BELOW_PIPELINE = (*STAGES, *SHARED_FLOOR, "catalog", "config")
 # The floors above the catalogue: nothing below the pipeline imports them.
-ABOVE = ("pipeline", "export", "view", "bench", "cli", "testing")
+ABOVE = ("pipeline", "export", "view", "bench", "commands", "cli", "testing")
 
 
 def _modules(root: Path):
     """(package, module path, parsed tree) of every module under ``root/mining``; a module at
     the top (``mining/boxes.py``) is its own package."""
+    return _parsed(root) if root == REPO else _parse(root)
+
+
+@functools.cache
+def _parsed(root: Path) -> tuple:
+    """The repository's modules, parsed once for all the rules."""
+    return tuple(_parse(root))
+
+
+def _parse(root: Path):
     for path in sorted((root / "mining").rglob("*.py")):
         parts = path.relative_to(root).with_suffix("").parts
         yield parts[1], path, ast.parse(path.read_text())
@@ -43,6 +59,78 @@ def _imported(node: ast.AST, path: Path, root: Path) -> list[tuple[str, list[str
         base = path.relative_to(root).with_suffix("").parts[: -node.level]
         module = ".".join([*base, *([node.module] if node.module else [])])
     return [(module, [a.name for a in node.names])]
+
+
+def _runtime_nodes(tree: ast.AST):
+    """Every node of ``tree`` except those under ``if TYPE_CHECKING:`` (never run)."""
+    skip: set[int] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            skip.update(id(n) for stmt in node.body for n in ast.walk(stmt))
+    return (n for n in ast.walk(tree) if id(n) not in skip)
+
+
+def _module_name(path: Path, root: Path) -> str:
+    parts = path.relative_to(root).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def module_graph(root: Path = REPO) -> dict[str, set[str]]:
+    """Module → the other ``mining`` modules (files) it imports, at the top or inside a function.
+    ``from mining.a import b`` imports ``mining.a.b`` where that is a module, else ``mining.a``."""
+    files = {_module_name(path, root): (path, tree) for _, path, tree in _modules(root)}
+    out: dict[str, set[str]] = defaultdict(set)
+    for name, (path, tree) in files.items():
+        for node in _runtime_nodes(tree):
+            for module, names in _imported(node, path, root):
+                for target in [f"{module}.{n}" for n in names if f"{module}.{n}" in files] or [module]:
+                    if target in files and target != name:
+                        out[name].add(target)
+    return out
+
+
+def module_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The import cycles between files: each strongly connected group of two or more modules,
+    sorted (Tarjan's algorithm)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    groups: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            group = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                group.append(w)
+                if w == v:
+                    break
+            if len(group) > 1:
+                groups.append(sorted(group))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return sorted(groups)
+
+
+def export_format_imports(graph: dict[str, set[str]], formats: set[str]) -> list[str]:
+    """Every import of one export format (or of ``render``, a product) by another format: a
+    format imports only the wing's shared modules."""
+    return sorted(f"{a} → {b}" for a in graph if a.startswith("mining.export.")
+                  for b in graph[a] if b.startswith("mining.export.") and b.split(".")[2] not in EXPORT_SHARED
+                  and a.split(".")[2] in formats | {"render"})
 
 
 def import_graph(root: Path = REPO) -> dict[str, set[str]]:
@@ -84,7 +172,12 @@ def upward_imports(deps: dict[str, set[str]]) -> list[str]:
 
 
 def eval_importers(deps: dict[str, set[str]]) -> list[str]:
-    return sorted(p for p in deps if "eval" in deps[p] and p not in ("bench", "cli"))
+    return sorted(p for p in deps if "eval" in deps[p] and p not in ("bench", "cli", "commands"))
+
+
+def eval_imports(deps: dict[str, set[str]]) -> list[str]:
+    """What eval/ imports beyond the shared floor (it measures; the callers hand it what to measure)."""
+    return sorted(f"eval → {q}" for q in deps.get("eval", ()) if q not in SHARED_FLOOR)
 
 
 def cycles(deps: dict[str, set[str]]) -> list[str]:
@@ -112,8 +205,24 @@ def test_only_bench_and_the_cli_import_eval():
     assert not eval_importers(import_graph())
 
 
+def test_eval_imports_only_the_shared_floor():
+    assert not eval_imports(import_graph())
+
+
 def test_no_import_cycle_between_packages():
     assert not cycles(import_graph())
+
+
+def test_no_import_cycle_between_files():
+    assert not module_cycles(module_graph())
+
+
+def test_no_export_format_imports_another():
+    from mining.export.registry import FORMATS
+
+    formats = {f.module for f in FORMATS.values()}
+    assert formats and not formats & set(EXPORT_SHARED)
+    assert not export_format_imports(module_graph(), formats)
 
 
 def test_no_private_name_is_imported_across_files():
@@ -165,3 +274,32 @@ def test_the_private_name_rule_catches_absolute_and_relative_imports(tmp_path):
                              "mining/export/b.py": "from mining import __doc__\n"})
     assert private_imports(root) == ["mining/export/a.py: mining.export.b._by_sequence",
                                      "mining/export/c.py: mining.export.b._frames_by_tube"]
+
+
+def test_the_eval_floor_rule_catches_eval_importing_a_stage(tmp_path):
+    root = _plant(tmp_path, {"mining/eval/funnel.py": "from mining.score.calibrated import GROUPS\n",
+                             "mining/eval/hota.py": "from mining.types import Tube\nfrom mining.formats import coco\n"})
+    assert eval_imports(import_graph(root)) == ["eval → score"]
+
+
+def test_the_file_cycle_rule_catches_a_lazy_import_loop_and_spares_type_checking(tmp_path):
+    root = _plant(tmp_path, {
+        "mining/proposals/__init__.py": "",
+        "mining/proposals/config.py": "def check():\n    from mining.proposals.make import names\n",
+        "mining/proposals/make.py": "from mining.proposals import stereo\n",
+        "mining/proposals/stereo.py": "from mining.proposals.config import Config\n",
+        "mining/bench/__init__.py": "",
+        "mining/bench/a.py": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from mining.bench.b import X\n",
+        "mining/bench/b.py": "from mining.bench import a\n"})
+    assert module_cycles(module_graph(root)) == [
+        ["mining.proposals.config", "mining.proposals.make", "mining.proposals.stereo"]]
+
+
+def test_the_format_rule_catches_a_format_importing_another(tmp_path):
+    root = _plant(tmp_path, {"mining/export/__init__.py": "",
+                             "mining/export/tao.py": "from mining.export.vis import frames\n",
+                             "mining/export/vis.py": "from mining.export.selection import rows\n",
+                             "mining/export/selection.py": "",
+                             "mining/export/render.py": "def f():\n    from mining.export import tao\n"})
+    assert export_format_imports(module_graph(root), {"tao", "vis"}) == [
+        "mining.export.render → mining.export.tao", "mining.export.tao → mining.export.vis"]
