@@ -18,9 +18,9 @@ from _catalog_data import DATASET, N_FRAMES, SEQUENCE
 from mining.catalog.schema import SCHEMAS
 from mining.catalog.store import Store, write_sequence
 from mining.cli import main
+from mining.errors import MiningError
 from mining.export.crops import crop_box
 from mining.export.dest import RECORD
-from mining.errors import MiningError
 from mining.export.json_annotations import UNCLASSIFIED_ID, UNKNOWN_ID
 from mining.export.run import LABELS_FILE, run_export
 from mining.export.selection import frame_digits

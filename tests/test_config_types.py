@@ -117,7 +117,7 @@ def test_a_moved_key_in_a_job_file_or_set_is_refused_saying_where_it_lives_now(t
 
 
 def test_a_recorded_job_from_before_the_mode_tables_reads_its_twins_into_them():
-    from mining.catalog.layout import JobRecord
+    from mining.catalog.records import JobRecord
     from mining.config import JobConfig
 
     old = JobConfig().to_dict()

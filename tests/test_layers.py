@@ -21,7 +21,7 @@ STAGES = ("sources", "geometry", "proposals", "localise", "tubes", "score", "sel
 SHARED_FLOOR = ("types", "errors", "names", "masks", "boxes", "checks", "progress", "draw", "formats")
 # The export wing's shared modules; every other module of export/ is a format (export/registry.py),
 # and a format imports only these, never another format (as TrackEval's datasets import only their base).
-EXPORT_SHARED = ("registry", "selection", "source_frames", "depth", "dest", "video")
+EXPORT_SHARED = ("registry", "selection", "source_frames", "json_annotations", "depth", "dest", "video")
 # What the catalogue may import: the shared floor and the job config.
 CATALOG_MAY_IMPORT = (*SHARED_FLOOR, "config")
 BELOW_PIPELINE = (*STAGES, *SHARED_FLOOR, "catalog", "config")

@@ -183,20 +183,13 @@ def evaluate_funnel(truths: Mapping[int, GtFrame], mined: Sequence[MinedTube],
         raise InputError("no ground-truth frames to evaluate")
     p = FunnelProtocol(iou_threshold, similarity, min_visible_px, max_depth_m, track_cover, part_ioa)
     stages = dict(stages or {})
-    clash = set(stages) & set(TUBE_STAGES)
-    if clash:
+    if clash := set(stages) & set(TUBE_STAGES):
         raise InputError(f"proposal stage names must differ from the tube stages: {sorted(clash)}")
     names = list(stages) + list(TUBE_STAGES)
     nd, nh = len(p.distance_edges_m) - 1, len(p.height_edges_px) - 1
     counts = np.zeros((len(SPLITS), nd, nh, 1 + len(names)), np.int64)
     thr = p.iou_threshold - _EPS
-
-    # observed tube frames per frame: (tube, rle, box)
-    tube_dets: dict[int, list] = {}
-    for m in mined:
-        for f in m.tube.frames:
-            if f.observed and f.frame in truths:
-                tube_dets.setdefault(f.frame, []).append((m, f.rle, np.asarray(f.box, np.float64)))
+    tube_dets = _observed_by_frame(mined, truths)  # frame → (tube, rle, box) of its observed tube frames
 
     visible: dict[int, int] = {}  # gt track → evaluated frames
     track_known: dict[int, bool] = {}
@@ -247,6 +240,30 @@ def evaluate_funnel(truths: Mapping[int, GtFrame], mined: Sequence[MinedTube],
         _explain_frame(p, gt, evaluated, dets, iou, sel, explain, covers_object)
 
     dist_names, height_names = bin_names(p.distance_edges_m, "m"), bin_names(p.height_edges_px, "px")
+    return {
+        "stages": names,
+        "bins": {"distance_m": {"edges": list(p.distance_edges_m), "names": dist_names},
+                 "height_px": {"edges": list(p.height_edges_px), "names": height_names}},
+        "protocol": asdict(p) | {"distance_edges_m": list(p.distance_edges_m),
+                                 "height_edges_px": list(p.height_edges_px)},
+        "frames": _frame_rates(counts, names, dist_names, height_names),
+        "tracks": _tracks(p, names, stages, visible, track_known, stage_hits, tube_hits, mined),
+        "carried": _carried(mined, explain, covers_object, alpha, beta, groups),
+    } | ({} if tube_split is None else {"calls": _calls(p, mined, tube_split, where)})
+
+
+def _observed_by_frame(mined: Sequence[MinedTube], truths: Mapping[int, GtFrame]) -> dict[int, list]:
+    """Frame → the observed tube frames on it with ground truth: (mined tube, rle, box)."""
+    tube_dets: dict[int, list] = {}
+    for m in mined:
+        for f in m.tube.frames:
+            if f.observed and f.frame in truths:
+                tube_dets.setdefault(f.frame, []).append((m, f.rle, np.asarray(f.box, np.float64)))
+    return tube_dets
+
+
+def _frame_rates(counts: np.ndarray, names: list[str], dist_names: list[str], height_names: list[str]) -> dict:
+    """Per split: the frame counts and recall in total, per distance bin, per height bin and per cell."""
     frames: dict = {}
     for k, split in enumerate(SPLITS):
         c = counts[k]
@@ -257,16 +274,7 @@ def evaluate_funnel(truths: Mapping[int, GtFrame], mined: Sequence[MinedTube],
             "cells": {f"{dn} | {hn}": _rates(c[i, j], names) for i, dn in enumerate(dist_names)
                       for j, hn in enumerate(height_names)},
         }
-    return {
-        "stages": names,
-        "bins": {"distance_m": {"edges": list(p.distance_edges_m), "names": dist_names},
-                 "height_px": {"edges": list(p.height_edges_px), "names": height_names}},
-        "protocol": asdict(p) | {"distance_edges_m": list(p.distance_edges_m),
-                                 "height_edges_px": list(p.height_edges_px)},
-        "frames": frames,
-        "tracks": _tracks(p, names, stages, visible, track_known, stage_hits, tube_hits, mined),
-        "carried": _carried(mined, explain, covers_object, alpha, beta, groups),
-    } | ({} if tube_split is None else {"calls": _calls(p, mined, tube_split, where)})
+    return frames
 
 
 CALLS = ("known", "unknown", "unclassified")  # the miner's call: TubeCategory.known True / False / None
