@@ -167,7 +167,7 @@ def test_a_table_by_mode_checks_each_entry_and_refuses_a_mode_it_does_not_have()
         load_config(overrides=["select.price=1.0"])
 
 
-def test_every_table_by_mode_has_exactly_its_modes_and_no_field_is_a_mode_twin():
+def test_every_table_by_mode_has_exactly_its_modes():  # (no twin field: tests/test_house.py)
     import dataclasses
     import typing
 
@@ -185,16 +185,6 @@ def test_every_table_by_mode_has_exactly_its_modes_and_no_field_is_a_mode_twin()
         keys = {f.name for f in dataclasses.fields(split_hint(field_of(table))[0])}
         choices = next(r.choices for r in split_hint(field_of(mode))[1] if isinstance(r, OneOf))
         assert keys == set(choices) - {"auto"}, (table, mode)  # score.model "auto" resolves to one of the two
-
-    def names(cls: type, prefix: str = ""):
-        for f in dataclasses.fields(cls):
-            yield prefix + f.name
-            sub = split_hint(typing.get_type_hints(cls, include_extras=True)[f.name])[0]
-            if dataclasses.is_dataclass(sub):
-                yield from names(sub, f"{prefix}{f.name}.")
-
-    twins = [k for k in names(JobConfig) if k.rsplit(".", 1)[-1].endswith(("_calibrated", "_normalised", "_reference"))]
-    assert not twins
 
 
 def test_a_recorded_job_with_a_key_no_version_had_is_refused_naming_the_key():

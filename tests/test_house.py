@@ -196,3 +196,108 @@ def test_the_ratchet_catches_a_long_function_growth_and_a_stale_entry(tmp_path):
     assert ratchet_faults(functions, {}, "function") == ["mining/a.py:K.long: 101 lines, a new long function"]
     assert ratchet_faults(files, {"mining/b.py": 700, "mining/c.py": 900}, "file") == [
         "mining/b.py: grew from 700 to 801 lines", "mining/c.py: listed but no longer long: take it off the list"]
+
+
+# --- every command is one row of cli.COMMANDS, its module offering add_arguments and run
+
+def parsed_commands(parser) -> list[tuple[str, ...]]:
+    """Every command a parser takes, as its words (``("submit",)``, ``("bench", "tubes")``):
+    the leaves of its tree of sub-parsers."""
+    import argparse
+
+    found = []
+    for action in parser._actions:  # argparse keeps sub-parsers only here
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                inner = parsed_commands(sub)
+                found += [(name, *words) for words in inner] or [(name,)]
+    return found
+
+
+def command_faults(parsed: list[tuple[str, ...]], rows, root: Path = REPO) -> list[str]:
+    """What breaks "every command is one row": a command parsed without a row, a row twice or
+    not parsed, a row whose module lacks ``add_arguments`` or ``run``."""
+    words = [tuple(w for w in (r.group, r.name) if w) for r in rows]
+    faults = [f"mine {' '.join(p)}: parsed, but no COMMANDS row" for p in parsed if p not in words]
+    faults += [f"mine {' '.join(w)}: {words.count(w)} rows" for w in dict.fromkeys(words) if words.count(w) > 1]
+    faults += [f"mine {' '.join(w)}: a row, but not parsed" for w in dict.fromkeys(words) if w not in parsed]
+    for r in rows:
+        path = root / (r.module.replace(".", "/") + ".py")
+        defined = {n.name for n in ast.parse(path.read_text()).body if isinstance(n, ast.FunctionDef)} \
+            if path.exists() else set()
+        faults += [f"{r.module}: no {f}()" for f in ("add_arguments", "run") if f not in defined]
+    return faults
+
+
+def test_every_command_is_one_row():
+    from mining.cli import COMMANDS, build_parser
+
+    parsed = parsed_commands(build_parser())
+    assert ("submit",) in parsed and ("bench", "tubes") in parsed and len(parsed) == len(COMMANDS)
+    assert not command_faults(parsed, COMMANDS)
+
+
+def test_the_command_rule_catches_a_command_parsed_in_place_and_a_row_without_run(tmp_path):
+    import argparse
+
+    from mining.cli import Command
+
+    parser = argparse.ArgumentParser(prog="mine")
+    sub = parser.add_subparsers()
+    sub.add_parser("submit")
+    sub.add_parser("query")  # parsed here, in cli.py's way before issue 38: no row
+    sub.add_parser("bench").add_subparsers().add_parser("tubes")
+    (tmp_path / "mining/commands").mkdir(parents=True)
+    (tmp_path / "mining/commands/submit.py").write_text("def add_arguments(p):\n    pass\n")
+    (tmp_path / "mining/bench").mkdir()
+    (tmp_path / "mining/bench/tubes.py").write_text("def add_arguments(p):\n    pass\ndef run(a):\n    pass\n")
+    rows = (Command(None, "submit", "mining.commands.submit", ""), Command("bench", "tubes", "mining.bench.tubes", ""),
+            Command("bench", "tubes", "mining.bench.tubes", ""), Command(None, "view", "mining.commands.view", ""))
+    assert command_faults(parsed_commands(parser), rows, tmp_path) == [
+        "mine query: parsed, but no COMMANDS row", "mine bench tubes: 2 rows", "mine view: a row, but not parsed",
+        "mining.commands.submit: no run()", "mining.commands.view: no add_arguments()", "mining.commands.view: no run()"]
+
+
+# --- every proposer is one registry entry: no other list of proposer names, every factory there
+
+def proposer_faults(names: set[str], entries, root: Path = REPO) -> list[str]:
+    """What breaks "every proposer is one registry entry": a literal list of two or more proposer
+    names outside ``proposals/registry.py`` (a parallel list to keep in step), an entry whose
+    factory is not defined in its module."""
+    faults = []
+    for path in sorted((root / "mining").rglob("*.py")):
+        rel = path.relative_to(root).as_posix()
+        if rel == "mining/proposals/registry.py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.Tuple, ast.List, ast.Set)) and len(node.elts) >= 2 and all(
+                    isinstance(e, ast.Constant) and e.value in names for e in node.elts):
+                faults.append(f"{rel}:{node.lineno}: a list of proposer names")
+    for e in entries:
+        path = root / f"mining/proposals/{e.module}.py"
+        defined = {n.name for n in ast.parse(path.read_text()).body if isinstance(n, ast.FunctionDef)} \
+            if path.exists() else set()
+        if e.factory not in defined:
+            faults.append(f"{e.name}: no {e.factory}() in mining/proposals/{e.module}.py")
+    return faults
+
+
+def test_every_proposer_is_one_registry_entry():
+    from mining.proposals.registry import PROPOSERS
+
+    assert {"stereo", "onnx", "torch", "json", "fastsam", "sam"} <= set(PROPOSERS)
+    assert not proposer_faults(set(PROPOSERS), PROPOSERS.values())
+
+
+def test_the_proposer_rule_catches_a_parallel_name_list_and_a_missing_factory(tmp_path):
+    from mining.proposals.registry import FRAME, ProposerEntry
+
+    (tmp_path / "mining/proposals").mkdir(parents=True)
+    (tmp_path / "mining/proposals/registry.py").write_text("NAMES = ('stereo', 'onnx')\n")
+    (tmp_path / "mining/proposals/make.py").write_text("CLASSIFYING = ('onnx', 'json')\nONE = ('onnx', 'x')\n")
+    (tmp_path / "mining/proposals/stereo.py").write_text("def stereo_proposer(cfg, size):\n    pass\n")
+    entries = [ProposerEntry("stereo", "stereo", FRAME, False, "stereo", "stereo_proposer"),
+               ProposerEntry("json", "json", FRAME, True, "precomputed", "json_proposer")]
+    assert proposer_faults({"stereo", "onnx", "json"}, entries, tmp_path) == [
+        "mining/proposals/make.py:1: a list of proposer names",
+        "json: no json_proposer() in mining/proposals/precomputed.py"]
