@@ -19,20 +19,21 @@ Every fit table carries its provenance beside the weights: ``command`` (what was
 them), ``proposer``, ``seeds`` and ``frames`` (the synthetic training seeds, frames each),
 ``samples`` (the counts it was fit on), ``auc`` (leave-one-seed-out ROC AUC on the held-out
 seeds) and a ``note``. A bench's ``--write`` replaces its own table and keeps the others.
-Floats are written as Python's ``repr``, which reads back to the same float.
+Written with tomli-w, which spells a float as Python's ``repr``: it reads back as the same float.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import re
 import tomllib
 from collections.abc import Mapping
 from importlib import resources
 from importlib.resources.abc import Traversable
 from pathlib import Path
 from typing import Any
+
+import tomli_w
 
 FITS_DIR = Path(__file__).resolve().parent / "fits"  # where `--write` writes by default (the package's own files)
 ROWS = "rows"  # rows.toml: the classifier rows' confidence; every other file is a proposer's
@@ -44,7 +45,6 @@ HEADERS = {
                  "`mine bench calibrate --write`, [object_evidence] by `mine bench calibrate --calling --write`;",
                  "each table records how it was made."),
 }
-_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
 
 
 def _folder(folder: Path | str | None) -> Traversable:
@@ -82,41 +82,19 @@ def row_weights(folder: Path | str | None = None) -> tuple[dict[str, float], dic
     return _floats(rows["on_object"], "rows.toml [rows.on_object]"), _floats(rows["known"], "rows.toml [rows.known]")
 
 
-def _key(k: str) -> str:
-    return k if _BARE_KEY.fullmatch(k) else json.dumps(k, ensure_ascii=False)
-
-
-def _value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        if not math.isfinite(v):
-            raise ValueError(f"a fit holds finite numbers only, got {v!r}")
-        return repr(v)  # the shortest text that reads back as the same float
-    if isinstance(v, str):
-        return json.dumps(v, ensure_ascii=False)  # JSON's escapes are TOML basic-string escapes
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_value(x) for x in v) + "]"
-    raise TypeError(f"a fit holds numbers, text and lists of them, not {type(v).__name__}")
-
-
-def _table(path: str, table: Mapping[str, Any], lines: list[str]) -> None:
-    lines += ["", f"[{path}]"]
-    lines += [f"{_key(k)} = {_value(v)}" for k, v in table.items() if not isinstance(v, Mapping)]
-    for k, v in table.items():
-        if isinstance(v, Mapping):
-            _table(f"{path}.{_key(k)}", v, lines)
+def _finite(v: Any) -> None:
+    """A fit holds finite numbers only (TOML could spell nan and inf; no weight should be one)."""
+    if isinstance(v, float) and not math.isfinite(v):
+        raise ValueError(f"a fit holds finite numbers only, got {v!r}")
+    for x in v.values() if isinstance(v, Mapping) else v if isinstance(v, (list, tuple)) else ():
+        _finite(x)
 
 
 def fit_text(name: str, doc: Mapping[str, Mapping[str, Any]]) -> str:
     """The text of fit file ``name`` (``ROWS`` or a proposer) holding the fit tables ``doc``."""
+    _finite(doc)
     header = HEADERS[ROWS] if name == ROWS else tuple(line.format(name=name) for line in HEADERS["proposer"])
-    lines = [f"# {line}" for line in header]
-    for k, table in doc.items():
-        _table(_key(k), table, lines)
-    return "\n".join(lines) + "\n"
+    return "".join(f"# {line}\n" for line in header) + "\n" + tomli_w.dumps(doc)  # floats as their repr
 
 
 def updated_fit(name: str, fit: str, table: Mapping[str, Any],
