@@ -138,7 +138,9 @@ def _build(cls: type, data: dict[str, Any], where: str, prefix: str = "") -> Any
             try:
                 kwargs[key] = coerce(hint, value, prefix + key)
             except ConfigError as e:
-                raise ConfigError(f"{where}: {e}") from None
+                new = RENAMED_VALUES.get(prefix + key, {}).get(value) if isinstance(value, str) else None
+                hint = f" ({value!r} is now {new!r})" if new is not None else ""
+                raise ConfigError(f"{where}: {e}{hint}") from None
     return cls(**kwargs)
 
 
@@ -151,7 +153,7 @@ def section_from_dict(cls: type, data: dict[str, Any], where: str) -> Any:
 
 # Keys a recorded job (``job.json``'s ``config``) may hold from an older version of the code:
 # old dotted key → its new dotted key (a tuple: every place it now fills), or None where the
-# setting is gone (it changed nothing). A key moved here is refused in a job file or ``--set``
+# setting is gone. A key moved here is refused in a job file or ``--set``
 # with a hint naming its new place.
 RENAMED_KEYS: dict[str, str | tuple[str, ...] | None] = {
     "tubes.kalman.velocity_noise_factor": "localise.velocity_noise_factor",  # moved at da118f8
@@ -166,6 +168,13 @@ RENAMED_KEYS: dict[str, str | tuple[str, ...] | None] = {
     "tubes.min_association_normalised": ("tubes.association_floor.normalised", "tubes.association_floor.innovation"),
     "score.known_log_margin": "score.known_margin.reference",
     "score.known_log_margin_calibrated": "score.known_margin.calibrated",
+    # issue 39: only a tube no classifier looked at is unclassified; its call no longer depends on the evidence
+    "score.min_class_evidence": None,
+}
+# Values a recorded job may hold from an older version: dotted key → {old value: its new name}. Refused
+# in a job file or ``--set`` with a hint naming the new one.
+RENAMED_VALUES: dict[str, dict[str, str]] = {
+    "score.unknown_gate": {"unclassified": "call"},  # issue 39: the gate's outcome is the call "clutter"
 }
 
 
@@ -181,13 +190,20 @@ def moved_key(key: str) -> str | None:
     for old, new in RENAMED_KEYS.items():
         if key == old or key.startswith(old + "."):
             if new is None:
-                return "was removed (it changed nothing)"
+                return "was removed"
             return "is now " + " and ".join(f"{n}{key[len(old):]}" for n in renamed_to(new))
     return None
 
 
 def _renamed(data: dict[str, Any]) -> dict[str, Any]:
     out = json.loads(json.dumps(data, default=str))
+    for key, values in RENAMED_VALUES.items():
+        *path, leaf = key.split(".")
+        node = out
+        for p in path:
+            node = node.get(p) if isinstance(node, dict) else None
+        if isinstance(node, dict) and isinstance(node.get(leaf), str) and node[leaf] in values:
+            node[leaf] = values[node[leaf]]
     for old, new in RENAMED_KEYS.items():
         *path, leaf = old.split(".")
         node = out
@@ -275,4 +291,9 @@ def _check_job(cfg: JobConfig, where: str) -> JobConfig:
         unary_weights(cfg.score, cfg.proposals.proposer)
     except ConfigError as e:
         raise ConfigError(f"{where}: {e}") from None
+    # A recorded job may hold a negative margin (the default was −1 before issue 39); a new one may not.
+    for mode, margin in dataclasses.asdict(cfg.score.known_margin).items():
+        if margin < 0:
+            raise ConfigError(f"{where}: score.known_margin.{mode} = {margin:g}: must be ≥ 0, or a tube is called known "
+                              "while unknown has more of its posterior than the class named (mining/score/call.py)")
     return cfg

@@ -485,13 +485,22 @@ class TubeScore:
     version: str = ""  # the model and a hash of every parameter of its total (``score.unary.unary_version``)
 
 
+# A tube's call (the rule: ``mining.score.call``): known (one of the 80 COCO classes wins its posterior),
+# unknown (unknown wins and its object evidence says object), clutter (unknown wins, but the object gate
+# says P(object) below ``score.unknown_min_object``), unclassified (no classifier looked).
+CALLS = ("known", "unknown", "clutter", "unclassified")
+
+
 @dataclass
 class TubeCategory:
-    """What the tube is, from the frames where a classifier looked (``mining.score.category``).
+    """What the tube is, from the frames where a classifier looked (``mining.score.category``)
+    and the object gate (``mining.score.call``).
 
-    ``known`` is True (one of the 80 COCO classes), False (classified, and none of them:
-    *unknown*) or None (*unclassified*: no classifier looked, or too little evidence);
-    ``category`` is the COCO class, "unknown", or None when unclassified.
+    ``known`` is True (one of the 80 COCO classes wins the posterior), False (unknown wins) or
+    None (*unclassified*: no classifier looked, ``classified_frames`` 0); ``category`` is the
+    winning COCO class, "unknown", or None when unclassified. ``clutter``: unknown, but the
+    object gate judged it not an object (``object_prob`` below the gate's threshold); ``call``
+    says which of ``CALLS`` the tube is.
     """
 
     posterior: np.ndarray | None  # (81,) evidence-weighted mean over the classified frames, or None
@@ -501,6 +510,17 @@ class TubeCategory:
     best_known: str | None  # the most probable of the 80 classes, even when the tube is unknown (None when unclassified)
     classified_frames: int = 0  # observed frames whose posterior counted (weight > 0)
     evidence: float = 0.0  # the sum of those frames' weights (frame-equivalents of a classifier's own rows)
+    object_prob: float = float("nan")  # P(object) of the object gate for a tube unknown wins (NaN: not judged)
+    clutter: bool = False  # unknown wins and the object gate said not an object
+
+    @property
+    def call(self) -> str:
+        """One of ``CALLS``."""
+        if self.known is None:
+            return "unclassified"
+        if self.known:
+            return "known"
+        return "clutter" if self.clutter else "unknown"
 
 
 @dataclass

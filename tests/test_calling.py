@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from conftest import coco_rle
 
-from mining.bench.calling import (KNOWN, NOTHING, UNKNOWN, best_margin, classifier_rows, fit_rows, load_seed,
+from mining.bench.calling import (KNOWN, NOTHING, UNKNOWN, MARGIN_GRID, best_margin, classifier_rows, fit_rows, load_seed,
                                   save_seed)
 from mining.config import load_config
 from mining.errors import InputError
@@ -119,9 +119,13 @@ def test_best_margin_takes_the_balanced_accuracy_and_the_margin_nearest_zero_on_
         p = np.zeros(81)
         p[0], p[UNKNOWN_CLASS] = ratio / (1 + ratio), 1 / (1 + ratio)
         return p
-    # known tubes at ln-ratios 1.2 and −1.2, unknown ones at −2.2: any margin in [−2.2, −1.2) separates them
-    m, acc = best_margin([post(np.exp(1.2)), post(np.exp(-1.2)), post(np.exp(-2.2))], np.array([True, True, False]))
-    assert acc == 1.0 and m == -1.5
+    # known tubes at ln-ratios 2.2 and 1.2, an unknown one at 0.6: any margin in [0.6, 1.2) separates them
+    m, acc = best_margin([post(np.exp(2.2)), post(np.exp(1.2)), post(np.exp(0.6))], np.array([True, True, False]))
+    assert acc == 1.0 and m == 1.0
+    # known at 1.2, unknown at −1.2: every margin of [0, 1.2) separates them, the nearest 0 is taken; and a
+    # known tube below 0 is never bought by a negative margin (the grid holds none: mining/score/call.py)
+    m, acc = best_margin([post(np.exp(1.2)), post(np.exp(-1.2)), post(np.exp(-0.5))], np.array([True, False, True]))
+    assert m == 0.0 and acc == 0.75 and min(MARGIN_GRID) == 0.0
     m, acc = best_margin([post(np.exp(1.2)), None], np.array([True, False]))  # an unclassified tube is a miss
     assert acc == 0.5 and m == 0.0
 
@@ -148,7 +152,7 @@ def _unknown_tube(tube_id: int, mask: np.ndarray) -> Tube:
     return Tube(tube_id, 0, [frame(k, mask, agnostic) for k in range(5)])
 
 
-@pytest.mark.parametrize("action", ["off", "unclassified", "drop"])
+@pytest.mark.parametrize("action", ["off", "call", "drop"])
 def test_the_gate_keeps_a_clutter_like_unknown_tube_out_of_the_unknown_set(action):
     # two unknown tubes, apart: the one whose mask fills its box passes the gate, the ragged one does not
     solid = _unknown_tube(1, rect(0, 0, 20, 20))
@@ -159,9 +163,14 @@ def test_the_gate_keeps_a_clutter_like_unknown_tube_out_of_the_unknown_set(actio
                              "score.unknown_min_object=0.5", "select.price.calibrated=-100",
                              "score.object_evidence.stereo.bias=-3", "score.object_evidence.stereo.mean_fill=4"])
     mined = {m.tube.tube_id: m for m in judge([solid, ragged], cfg)}
-    assert mined[1].category.known is False and mined[1].selected
-    expect = {"off": (False, True), "unclassified": (None, True), "drop": (False, False)}[action]
-    assert (mined[2].category.known, mined[2].selected) == expect
+    assert mined[1].category.call == "unknown" and mined[1].selected
+    assert mined[1].category.object_prob >= 0.5 if action != "off" else np.isnan(mined[1].category.object_prob)
+    expect = {"off": ("unknown", True), "call": ("clutter", True), "drop": ("clutter", False)}[action]
+    assert (mined[2].category.call, mined[2].selected) == expect
+    # clutter is its own call: unknown still wins its posterior (known false), the badge is not unclassified
+    assert mined[2].category.known is False and mined[2].category.category == "unknown"
+    if action != "off":
+        assert mined[2].category.object_prob < 0.5
 
 
 def test_the_seed_cache_reads_back_what_it_wrote(tmp_path):
@@ -184,8 +193,8 @@ def test_the_seed_cache_reads_back_what_it_wrote(tmp_path):
 
 
 def test_the_calibrated_rows_apply_to_the_jobs_whose_classifier_they_were_fit_on():
-    # a far small pedestrian at 0.25 in every frame: by the paper's rule (margin −1) unknown
-    tube = Tube(1, 0, [frame(k, rect(0, 0, 6, 14), person_row(0.25), depth=45.0) for k in range(6)])
+    # a pedestrian at 20 m found at 0.25 in every frame: by the paper's rule (P(unknown) 0.75 wins) unknown
+    tube = Tube(1, 0, [frame(k, rect(0, 0, 16, 40), person_row(0.25), depth=20.0) for k in range(6)])
     calls = {}
     for proposer in ("onnx", "stereo"):
         cfg = load_config(None, [f"proposals.proposer={proposer}", "select.price.calibrated=-100",

@@ -21,10 +21,11 @@ from mining.cli import main
 from mining.errors import MiningError
 from mining.export.crops import crop_box
 from mining.export.dest import RECORD
-from mining.export.json_annotations import UNCLASSIFIED_ID, UNKNOWN_ID
+from mining.export.json_annotations import CLUTTER_ID, UNCLASSIFIED_ID, UNKNOWN_ID
 from mining.export.run import LABELS_FILE, run_export
 from mining.export.selection import frame_digits
 from mining.names import tube_folder
+from mining.types import CALLS
 
 H, W = 375, 1242
 CAR = 3  # COCO's annotation id of "car"
@@ -66,18 +67,19 @@ def tao(catalogue, tmp_path_factory):
 
 
 def _with_kinds(catalogue, tmp_path):
-    """A copy of the catalogue whose selected tubes are known, unknown and unclassified in turn."""
+    """A copy of the catalogue whose selected tubes are called known, unknown, clutter and unclassified in turn."""
     out, tables = catalogue
     rows = tables["tubes"].to_pylist()
     for i, r in enumerate(r for r in rows if r["selected"]):
-        r["known"] = (True, False, None)[i % 3]
+        r["call"] = CALLS[i % 4]
+        r["known"] = {"known": True, "unknown": False, "clutter": False, "unclassified": None}[r["call"]]
         r["category"] = {True: "car", False: "unknown", None: None}[r["known"]]
     cat = tmp_path / "cat"
     store = Store(cat)
     write_sequence(store, "tubes", DATASET, SEQUENCE, pa.Table.from_pylist(rows, schema=SCHEMAS["tubes"]))
     write_sequence(store, "tube_frames", DATASET, SEQUENCE, tables["tube_frames"])
     store.write_bytes("job.json", Store(out).read_bytes("job.json"))
-    return cat, {r["tube_id"]: r["known"] for r in rows if r["selected"]}
+    return cat, {r["tube_id"]: r["call"] for r in rows if r["selected"]}
 
 
 def test_youtube_vis_one_video_of_the_mined_frames(ytvis):
@@ -119,15 +121,16 @@ def test_youtube_vis_masks_decode_to_the_catalogues(ytvis, catalogue):
             np.testing.assert_allclose(box, _xywh(tf[k]["bbox"]), atol=1e-3)
 
 
-def test_youtube_vis_categories_follow_the_known_flag(catalogue, tmp_path):
-    cat, known = _with_kinds(catalogue, tmp_path)
+def test_youtube_vis_categories_follow_the_call(catalogue, tmp_path):
+    cat, calls = _with_kinds(catalogue, tmp_path)
     assert run_export(str(cat), "selected", "youtube-vis", str(tmp_path / "v")) == 0
     doc = json.loads((tmp_path / "v" / "instances.json").read_text())
-    want = {True: CAR, False: UNKNOWN_ID, None: UNCLASSIFIED_ID}
-    assert {a["tube_id"]: a["category_id"] for a in doc["annotations"]} == {t: want[k] for t, k in known.items()}
+    want = {"known": CAR, "unknown": UNKNOWN_ID, "clutter": CLUTTER_ID, "unclassified": UNCLASSIFIED_ID}
+    assert {a["tube_id"]: a["category_id"] for a in doc["annotations"]} == {t: want[k] for t, k in calls.items()}
     cats = {c["id"]: c["name"] for c in doc["categories"]}
-    assert cats == {CAR: "car", UNKNOWN_ID: "unknown", UNCLASSIFIED_ID: "unclassified"}
-    assert max(c for c in cats if c not in (UNKNOWN_ID, UNCLASSIFIED_ID)) <= 90 < min(UNKNOWN_ID, UNCLASSIFIED_ID)
+    assert cats == {want[c]: "car" if c == "known" else c for c in calls.values()} and len(cats) >= 3
+    own = (UNKNOWN_ID, CLUTTER_ID, UNCLASSIFIED_ID)
+    assert max(c for c in cats if c not in own) <= 90 < min(own) and len(set(own)) == 3
 
 
 def test_youtube_vis_images_are_the_source_frames(ytvis, kitti_tracking_root):

@@ -48,8 +48,9 @@ def test_views(catalogue):
     assert by_tube == {t["tube_id"]: t["n_frames"] for t in tubes if t["selected"]}
 
 
-def test_known_unknown_and_unclassified_views_partition_the_selected_tubes(catalogue, tmp_path):
-    """known_tubes / unknown_tubes / unclassified_tubes: known true / false / null, nothing in two."""
+def test_the_call_views_partition_the_selected_tubes(catalogue, tmp_path):
+    """known_tubes / unknown_tubes / clutter_tubes / unclassified_tubes: one per call, nothing in two; rows
+    written before the call column (call null) read known false as unknown and null as unclassified."""
     import pyarrow as pa
 
     from mining.catalog.store import Store, write_sequence
@@ -57,20 +58,22 @@ def test_known_unknown_and_unclassified_views_partition_the_selected_tubes(catal
     _, tables = catalogue
     tubes = tables["tubes"]
     n = tubes.num_rows
-    known = [(True, False, None)[i % 3] for i in range(n)]
+    call = [("known", "unknown", "clutter", "unclassified", None, None)[i % 6] for i in range(n)]
+    known = [{"known": True, "unknown": False, "clutter": False, "unclassified": None}.get(c, (False, None)[i % 2])
+             for i, c in enumerate(call)]
     category = ["car" if k else "unknown" if k is False else None for k in known]
-    tubes = tubes.set_column(tubes.schema.get_field_index("known"), SCHEMAS["tubes"].field("known"), pa.array(known, pa.bool_()))
-    tubes = tubes.set_column(tubes.schema.get_field_index("category"), SCHEMAS["tubes"].field("category"),
-                             pa.array(category, pa.string()))
+    for name, values, kind in (("known", known, pa.bool_()), ("category", category, pa.string()),
+                               ("call", call, pa.string())):
+        tubes = tubes.set_column(tubes.schema.get_field_index(name), SCHEMAS["tubes"].field(name), pa.array(values, kind))
     write_sequence(Store(tmp_path), "tubes", DATASET, SEQUENCE, tubes)
     con = connect(tmp_path)
-    sel = {t["tube_id"]: k for t, k in zip(tubes.to_pylist(), known) if t["selected"]}
-    views = {v: {r[0] for r in con.sql(f"SELECT tube_id FROM {v}").fetchall()}
-             for v in ("known_tubes", "unknown_tubes", "unclassified_tubes")}
-    assert views["known_tubes"] == {t for t, k in sel.items() if k is True}
-    assert views["unknown_tubes"] == {t for t, k in sel.items() if k is False}
-    assert views["unclassified_tubes"] == {t for t, k in sel.items() if k is None}
-    assert all(views.values()) and sum(map(len, views.values())) == len(sel)
+    legacy = {False: "unknown", None: "unclassified"}
+    sel = {t["tube_id"]: c or legacy[k] for t, c, k in zip(tubes.to_pylist(), call, known) if t["selected"]}
+    views = {c: {r[0] for r in con.sql(f"SELECT tube_id FROM {c}_tubes").fetchall()}
+             for c in ("known", "unknown", "clutter", "unclassified")}
+    for c, got in views.items():
+        assert got == {t for t, v in sel.items() if v == c}, c
+    assert sum(map(len, views.values())) == len(sel)
 
 
 def test_empty_catalogue_has_every_table_and_view(tmp_path):

@@ -75,7 +75,7 @@ def test_perfect_tubes_score_one():
                                 mined(9, [(t, CONE) for t in range(4)], known=None),
                                 mined(11, [(t, EMPTY) for t in range(4)], known=False)], truths)["tubes"]
     assert (calls["known_called_known"], calls["unknown_called_unclassified"], calls["clutter"]) == (1, 1, 1)
-    assert calls["clutter_called"] == {"known": 0, "unknown": 1, "unclassified": 0}
+    assert calls["clutter_called"] == {"known": 0, "unknown": 1, "clutter": 0, "unclassified": 0}
     assert calls["clutter_share"] == pytest.approx(1 / 3)
     # the unknown set: the clutter tube alone is called unknown
     assert (calls["called_unknown"], calls["called_unknown_on"]) == (1, {"unknown": 0, "known": 0, "clutter": 1})

@@ -48,6 +48,7 @@ def kinds(catalogue, tmp_path_factory) -> Path:
     assert len(selected) == 3
     for i, r in enumerate(selected):
         r["known"] = (True, False, None)[i]
+        r["call"] = ("known", "unknown", "unclassified")[i]
         r["category"] = ("car", "unknown", None)[i]
     cat = tmp_path_factory.mktemp("kinds") / "cat"
     store = Store(cat)
@@ -119,7 +120,7 @@ def test_the_lvis_table_is_taos_category_list():
     BURST_OW_Base._split_known_unknown_distractor(split)
     assert {cid for _, cid, _ in COCO_IN_LVIS.values() if cid is not None} == split.knowns
     # our own BURST ids are "unknown" to BURST-OW, never known or distractors
-    own = {burst.UNKNOWN_ID, burst.UNCLASSIFIED_ID, burst.OUTSIDE_TAO_BASE + 58, burst.OUTSIDE_TAO_BASE + 79}
+    own = {*burst.OWN_IDS.values(), burst.OUTSIDE_TAO_BASE + 58, burst.OUTSIDE_TAO_BASE + 79}
     assert own <= split.unknowns and not own & set(tao)
 
 

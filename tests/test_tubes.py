@@ -215,10 +215,15 @@ def test_posterior_is_the_evidence_weighted_mean():
     for f in t.frames[2:]:
         f.class_weight = 1.0
     assert tube_category(t).known is False
-    # too little evidence: unclassified
+    # little evidence is still evidence: the call is what the posterior says (issue 39); unclassified is
+    # only a tube no classifier looked at
     for f in t.frames:
         f.class_weight = 0.2
-    assert tube_category(t).known is None and tube_category(t, min_evidence=0.5).known is False
+    assert tube_category(t).known is False and tube_category(t).evidence == pytest.approx(0.8)
+    for f in t.frames:
+        f.class_weight = 0.0
+    c = tube_category(t)
+    assert (c.known, c.call, c.classified_frames) == (None, "unclassified", 0)
 
 
 def test_detections_only_kitti_0005(kitti_tracking_root, tmp_path):

@@ -56,7 +56,7 @@ from mining.score.fits import OBJECT_FIT, ROWS
 from mining.score.category import ROW_FEATURES, RowConfidence, accumulate_posterior, decide, row_features
 from mining.types import Tube, TubeFrame, max_class_score
 
-MARGIN_GRID = tuple(np.round(np.arange(-3.0, 3.01, 0.5), 2))  # ln-ratio margins tried with calibrated rows
+MARGIN_GRID = tuple(np.round(np.arange(0.0, 3.01, 0.5), 2))  # ln-ratio margins tried with calibrated rows (never negative: mining/score/call.py)
 ROW_IOU = 0.5  # issue 29: a row lies on the object its mask overlaps with IoU ≥ 0.5
 KNOWN, UNKNOWN, NOTHING = 0, 1, 2  # a row's truth label
 CACHE_VERSION = 1
@@ -131,13 +131,11 @@ def seed_data(tubes: list[Tube], truths: dict[int, GtFrame]) -> dict:
 def fit_all(data: Sequence[dict], cfg: JobConfig, l2: float = 1.0) -> dict:
     """Row confidence, margin and object evidence from the seeds ``data``."""
     conf = fit_rows(np.concatenate([d["rows"] for d in data]), l2)
-    s = cfg.score
     posts, known = [], []
     for d in data:
         for t, y, u in zip(d["keep"], d["y"], d["unknown"]):
             if y:
-                mean, _, ev = accumulate_posterior(t, conf)
-                posts.append(mean if mean is not None and ev >= s.min_class_evidence else None)
+                posts.append(accumulate_posterior(t, conf)[0])
                 known.append(not u)
     margin, acc = best_margin(posts, np.array(known, bool))
     # on all candidate tubes: fit on the tubes called unknown alone (a tenth of them objects), the gate dropped
@@ -151,7 +149,7 @@ def fit_all(data: Sequence[dict], cfg: JobConfig, l2: float = 1.0) -> dict:
 
 def calling_config(cfg: JobConfig, fit: dict | None, gate: float | None) -> JobConfig:
     """``cfg`` with REFERENCE's rows and no gate (``fit`` None), or with the fitted rows and margin, and with
-    ``gate`` the object evidence at that ``unknown_min_object`` (the job's gate action; "unclassified" if off)."""
+    ``gate`` the object evidence at that ``unknown_min_object`` (the job's gate action; "call" if off)."""
     out = copy.deepcopy(cfg)
     if fit is None:
         out.score.class_confidence, out.score.unknown_gate = "reference", "off"
@@ -160,7 +158,7 @@ def calling_config(cfg: JobConfig, fit: dict | None, gate: float | None) -> JobC
     out.score.row_on_object, out.score.row_known = dict(fit["row_on_object"]), dict(fit["row_known"])
     out.score.known_margin.calibrated = fit["margin"]
     out.score.object_evidence = {**out.score.object_evidence, cfg.proposals.proposer: dict(fit["object_evidence"])}
-    action = cfg.score.unknown_gate if cfg.score.unknown_gate != "off" else "unclassified"
+    action = cfg.score.unknown_gate if cfg.score.unknown_gate != "off" else "call"
     out.score.unknown_gate = "off" if gate is None else action
     if gate is not None:
         out.score.unknown_min_object = float(gate)

@@ -134,7 +134,9 @@ def _sequence_tables(rng: np.random.Generator, masks, dataset: str, sequence: st
         "score_version": pa.nulls(m, pa.string()),  # synthetic scores: no parameters to hash
         **{c: pa.nulls(m, pa.float64()) for c in THETA_COLUMNS}, "score_motion": pa.array(motion),
         "score_mask": pa.array(mask), "score_objectness": pa.array(objn),
-        "selected": pa.array(rng.random(m) > 0.5), "known": pa.array(known),
+        "selected": pa.array(rng.random(m) > 0.5), "call": pa.array(np.where(known, "known", "unknown")),
+        "object_prob": pa.array(np.where(known, np.nan, rng.random(m)), pa.float32(), mask=np.asarray(known, bool)),
+        "known": pa.array(known),
         "category": pa.array(np.where(known, best, "unknown")), "category_prob": pa.array(rng.random(m), pa.float32()),
         "best_known": pa.array(best), "class_posterior": pa.array(list(post), pa.list_(pa.float32())),
         "classified_frames": pa.array(lengths_a, pa.int32()), "class_evidence": pa.array(lengths_a, pa.float32()),

@@ -49,7 +49,7 @@ from mining.types import MinedTube
 
 KITTI_COCO_TYPES = ("Car", "Van", "Truck", "Pedestrian", "Person_sitting", "Cyclist", "Tram")  # COCO: car, truck, person, bicycle, train
 COVER_IOU = 0.5  # ours: box IoU at which a learned proposal covers an object (KITTI has boxes only)
-MARGIN_GRID = tuple(np.round(np.arange(-3.0, 3.01, 0.25), 2))  # ln-ratio margins tried (0 = the paper's argmax)
+MARGIN_GRID = tuple(np.round(np.arange(0.0, 3.01, 0.25), 2))  # ln-ratio margins tried (0 = the paper's argmax; never negative: mining/score/call.py)
 
 
 # --- 1. detectability -----------------------------------------------------------------------
@@ -150,7 +150,7 @@ def kitti_car_calls(root: Path, sequence: str, frames: range, cfg: JobConfig) ->
     mined = mine_tubes((r.tracking for r in frame_records(src, plan, frames.start, frames.stop, cfg)), cfg)
     labels = read_kitti_tracking(root / "training" / "label_02" / f"{sequence}.txt")
     cars = {int(f): labels.box[(labels.frame == f) & (labels.type == "Car")] for f in np.unique(labels.frame)}
-    on_car, called = 0, {"car": 0, "other known": 0, "unknown": 0, "unclassified": 0}
+    on_car, called = 0, {"car": 0, "other known": 0, "unknown": 0, "clutter": 0, "unclassified": 0}
     for m in mined:
         if not m.selected:
             continue
@@ -161,8 +161,7 @@ def kitti_car_calls(root: Path, sequence: str, frames: range, cfg: JobConfig) ->
             continue
         on_car += 1
         c = m.category
-        key = ("unclassified" if c.known is None else "unknown" if not c.known else
-               "car" if c.category == "car" else "other known")
+        key = c.call if c.call != "known" else "car" if c.category == "car" else "other known"
         called[key] += 1
     return {"tubes_on_cars": on_car, "called": called, "car_share": called["car"] / on_car if on_car else float("nan"),
             "selected": sum(m.selected for m in mined)}

@@ -30,7 +30,7 @@ SCHEMA_VERSION = 3  # v3: dataset / sequence inside the compacted files, plain f
 # so an older catalogue (of v2 or v3) stays readable.
 THETA_COLUMNS = ("theta_prior", "theta_motion", "theta_mask", "theta_objectness", "theta_shape", "theta_class")
 ADDED_COLUMNS = {"tubes": frozenset({"speed_sigma_mps", "path_sigma_m", "moving_speed_mps", "score_model", "score_version",
-                                  *THETA_COLUMNS})}
+                                  *THETA_COLUMNS, "call", "object_prob"})}
 PARTITION = ("dataset", "sequence")  # the folder levels of every table (hive-named before v3 and in the working files)
 
 vec3 = pa.list_(pa.float32(), 3)
@@ -60,9 +60,13 @@ TUBES = pa.schema([
     pa.field("score_mask", pa.float64(), False),  # REFERENCE's mask LLR Σ ln(IoU·score.mask_k): part of score only under reference
     pa.field("score_objectness", pa.float64(), False),  # REFERENCE's objectness LLR Σ ln(o·score.objectness_k): part of score only under reference
     pa.field("selected", pa.bool_(), False),  # chosen by co-selection
-    # Known / unknown / unclassified (mining/score/category.py): known is null where no classifier
-    # looked (or too little evidence); category is then null too.
-    pa.field("known", pa.bool_()),  # true: a COCO class; false: classified and none of the 80 (unknown); null: unclassified
+    # The call (mining/score/call.py, one rule): known, unknown, clutter (unknown wins but the object gate says not an
+    # object) or unclassified (no classifier looked: classified_frames = 0). Rows written before issue 39 have no
+    # call (null); their known was also null where classifier evidence was below score.min_class_evidence or the gate
+    # withdrew the call.
+    pa.field("call", pa.string()),  # known | unknown | clutter | unclassified (null: written before the column)
+    pa.field("object_prob", pa.float32()),  # P(object) of the object gate for a tube unknown wins; below score.unknown_min_object it is clutter (null: not judged)
+    pa.field("known", pa.bool_()),  # true: a COCO class wins the posterior; false: unknown wins (call unknown or clutter); null: unclassified
     pa.field("category", pa.string()),  # COCO class, "unknown", or null (unclassified)
     pa.field("category_prob", pa.float32()),  # posterior mass of category; null when unclassified
     pa.field("best_known", pa.string()),  # most probable of the 80 classes, even when unknown; null when unclassified

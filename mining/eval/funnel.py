@@ -396,14 +396,14 @@ def _carried(mined: Sequence[MinedTube], explain: dict[int, list], covers_object
         terms = weighted_terms(m, alpha, beta, groups)
         by = carried_by(terms)
         by_term[by] += 1
-        if m.category.known is False:
+        if m.category.call == "unknown":
             called_unknown[kind][by] += 1
         tubes.append({
             "tube_id": int(tid), "frames": len(why), "observed_frames": m.tube.n_inliers, "kind": kind, "of": of,
             "label": _label(kind, of), "share": sum(1 for w in why if _key(w) == key) / len(why),
             "terms": terms, "total": float(m.score.total), "carried_by": by,
             "category": m.category.category,
-            "known_call": None if m.category.known is None else bool(m.category.known),
+            "known_call": None if m.category.known is None else bool(m.category.known), "call": m.category.call,
         })
     tubes.sort(key=lambda x: (-x["total"], x["tube_id"]))
     return {"summary": summary, "carried_by": by_term, "called_unknown_by": called_unknown, "tubes": tubes}

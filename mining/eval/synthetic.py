@@ -54,7 +54,7 @@ from mining.eval.hota import hota_metrics, hota_sums
 from mining.eval.identity import identity_metrics, identity_sums
 from mining.boxes import box_iou
 from mining.masks import areas, crop_rle, mask_iou
-from mining.types import FrameTruth, MinedTube
+from mining.types import CALLS, FrameTruth, MinedTube
 
 SPLITS = ("all", "known", "unknown")
 _EPS = np.finfo(float).eps
@@ -296,17 +296,16 @@ def evaluate_synthetic(mined: Sequence[MinedTube], truths: Mapping[int, FrameTru
         "ignored_dets": ignored,
     }
     results["tube_split"] = {m.tube.tube_id: tube_split.get(m.tube.tube_id, "clutter") for m in tubes}
-    # how the miner's own call (TubeCategory.known: True, False or None = unclassified) agrees with the split
-    calls = {"known": True, "unknown": False, "unclassified": None}
+    # how the miner's own call (TubeCategory.call, one of CALLS: mining.score.call) agrees with the split
     t = results["tubes"]
     for split in ("known", "unknown"):
         on = [m for m in tubes if tube_split.get(m.tube.tube_id) == split]
-        for call, value in calls.items():
-            t[f"{split}_called_{call}"] = sum(1 for m in on if m.category.known is value)
+        for call in CALLS:
+            t[f"{split}_called_{call}"] = sum(1 for m in on if m.category.call == call)
         t[f"{split}_called_{split}_share"] = t[f"{split}_called_{split}"] / len(on) if on else float("nan")
     t["clutter_share"] = t["clutter"] / len(tubes) if tubes else float("nan")
-    t["clutter_called"] = {call: sum(1 for m in tubes if m.tube.tube_id not in tube_split and m.category.known is value)
-                           for call, value in calls.items()}
+    t["clutter_called"] = {call: sum(1 for m in tubes if m.tube.tube_id not in tube_split and m.category.call == call)
+                           for call in CALLS}
     # the unknown set (issue 29): what a researcher who exports the tubes called unknown finds in them
     t |= unknown_set(tubes, tube_split)
     return results
@@ -319,7 +318,7 @@ def unknown_set(tubes: Sequence[MinedTube], tube_split: Mapping[int, str]) -> di
     none is called unknown)."""
     on = {"unknown": 0, "known": 0, "clutter": 0}
     for m in tubes:
-        if m.category.known is False:
+        if m.category.call == "unknown":
             on[tube_split.get(m.tube.tube_id, "clutter")] += 1
     n = sum(on.values())
     return {"called_unknown": n, "called_unknown_on": on,
@@ -345,13 +344,13 @@ def format_synthetic(results: dict) -> str:
     def pct(x):
         return "—" if x != x else f"{100 * x:.0f} %"
     if "known_called_unclassified" in t:
-        lines.append("the miner's call per object kind (known / unknown / unclassified):")
+        lines.append(f"the miner's call per object kind ({' / '.join(CALLS)}):")
         for kind, n in (("known", t["known"]), ("unknown", t["unknown"]), ("clutter", t["clutter"])):
-            c = t["clutter_called"] if kind == "clutter" else {k: t[f"{kind}_called_{k}"] for k in ("known", "unknown", "unclassified")}
+            c = t["clutter_called"] if kind == "clutter" else {k: t[f"{kind}_called_{k}"] for k in CALLS}
             share = t["clutter_share"] if kind == "clutter" else t[f"{kind}_called_{kind}_share"]
             what = "of the evaluated tubes" if kind == "clutter" else f"called {kind}"
             lines.append(f"  on {kind + ' objects' if kind != 'clutter' else 'nothing (clutter)'}: {n} tubes → "
-                         f"{c['known']} / {c['unknown']} / {c['unclassified']}; {pct(share)} {what}")
+                         f"{' / '.join(str(c[k]) for k in CALLS)}; {pct(share)} {what}")
     if "called_unknown_on" in t:
         on = t["called_unknown_on"]
         lines.append(f"the unknown set: {t['called_unknown']} tubes called unknown, {on['unknown']} on unknown objects "

@@ -25,7 +25,7 @@ category list whatever the file lists. A known tube's COCO class → its TAO id
 (``mining/formats/lvis.py``). The rest get ids above TAO's (1..1230) and inside BURST-OW's
 range (1..1999, where an id that is not one of its 78 COCO ids, "known", or a distractor counts
 as "unknown"): hot dog and oven, the COCO classes TAO lacks, ``OUTSIDE_TAO_BASE`` + their
-COCO id; unknown tubes ``UNKNOWN_ID``, unclassified ``UNCLASSIFIED_ID``. So class-guided
+COCO id; unknown tubes ``UNKNOWN_ID``, clutter ``CLUTTER_ID``, unclassified ``UNCLASSIFIED_ID``. So class-guided
 BURST scores the known tubes of TAO's classes, and BURST-OW scores every tube, its "known"
 subset the COCO classes and its "unknown" subset the others.
 """
@@ -48,18 +48,18 @@ BURST_SPLIT = "val"  # REFERENCE: BURST's splits are train / val / test; its eva
 OUTSIDE_TAO_BASE = 1900  # ours: + COCO id (1..90) for the COCO classes TAO lacks
 UNKNOWN_ID = 1998  # ours: unknown tubes (above TAO's 1..1230, inside BURST-OW's 1..1999)
 UNCLASSIFIED_ID = 1999  # ours: unclassified tubes
+CLUTTER_ID = 1997  # ours: tubes called clutter (unknown wins, the object gate says not an object)
+OWN_IDS = {"unknown": UNKNOWN_ID, "unclassified": UNCLASSIFIED_ID, "clutter": CLUTTER_ID}  # by the tube's call
 BURST_OW_MAX_ID = 1999  # REFERENCE: TrackEval's BURST-OW: ids 1..1999 are known, unknown or distractor
 
-assert TAO_MAX_ID < OUTSIDE_TAO_BASE and OUTSIDE_TAO_BASE + 90 < UNKNOWN_ID < UNCLASSIFIED_ID <= BURST_OW_MAX_ID
+assert TAO_MAX_ID < OUTSIDE_TAO_BASE and OUTSIDE_TAO_BASE + 90 < CLUTTER_ID < UNKNOWN_ID < UNCLASSIFIED_ID <= BURST_OW_MAX_ID
 
 
 def burst_category(tube: dict) -> tuple[int, str, str]:
     """(id, name, synset) of a tube's BURST category (``json_annotations.category_id`` checks the class)."""
     label = category_label(tube)
-    if label == "unknown":
-        return UNKNOWN_ID, label, OWN_SYNSETS[label]
-    if label == "unclassified":
-        return UNCLASSIFIED_ID, label, OWN_SYNSETS[label]
+    if label in OWN_IDS:
+        return OWN_IDS[label], label, OWN_SYNSETS[label]
     coco_id = category_id(tube)  # raises naming a class that is not COCO's
     tao = tao_category(label)
     if tao is None:

@@ -18,8 +18,8 @@ The video frames are the ones the catalogue mined (the ``frames`` table), as You
 and TAO's are. The video has even sides (4:2:0; KITTI's 375 rows → 376, the last black) and
 the labels' frame size is the video's, so relative boxes place the masks on the right pixels.
 
-A detection: ``label`` the category by the rule of the ``known`` flag (a known tube's COCO
-class, ``unknown``, ``unclassified``), ``confidence`` the tube's ``category_prob`` (none
+A detection: ``label`` the category by the tube's call (a known tube's COCO
+class, ``unknown``, ``clutter``, ``unclassified``), ``confidence`` the tube's ``category_prob`` (none
 when unclassified), ``index`` the tube's track id (0, 1, … per sequence in catalogue order:
 the KITTI exports' ids), and attributes ``tube_id``, ``score`` (the tube's weighted total)
 and ``observed``. FiftyOne keeps an instance mask inside its box, so the box is the pixel

@@ -1,5 +1,5 @@
 """What the JSON annotation formats share (YouTube-VIS and TAO: ``video_json.py``; BURST:
-``burst.py``): the two own categories beside COCO's (``category_id``), the results file's
+``burst.py``): the own categories beside COCO's (``category_id``), the results file's
 place, the ``info`` block, the checked mask area and the writing of one JSON document.
 
 Each of these formats writes a **dataset** file and, in ``DEST/results/``, a **results**
@@ -21,21 +21,23 @@ from mining.formats.coco import CLASS_INDEX, COCO_CATEGORY_IDS
 
 UNKNOWN_ID = 1000  # ours: category id of unknown tubes, outside COCO's 1..90
 UNCLASSIFIED_ID = 1001  # ours: category id of unclassified tubes
-# ours: the synsets of the two own categories; not WordNet names (no sense is known for them)
-OWN_SYNSETS = {"unknown": "tube_miner.unknown", "unclassified": "tube_miner.unclassified"}
+CLUTTER_ID = 1002  # ours: category id of tubes called clutter (unknown wins, the object gate says not an object)
+# ours: the synsets of the own categories; not WordNet names (no sense is known for them)
+OWN_SYNSETS = {"unknown": "tube_miner.unknown", "unclassified": "tube_miner.unclassified", "clutter": "tube_miner.clutter"}
 TAO_IMAGES = "frames"  # TAO's image folder; BURST's --images uses it too
 # ours: the results (tracker) file of every video format, in a folder of its own: evaluators
 # want one JSON in the ground-truth folder and one in the tracker's
 RESULTS_DIR, RESULTS_JSON = "results", "results.json"
 
 
+OWN_IDS = {"unknown": UNKNOWN_ID, "unclassified": UNCLASSIFIED_ID, "clutter": CLUTTER_ID}  # by the tube's call
+
+
 def category_id(tube: dict) -> int:
-    """The COCO id of a known tube's class; UNKNOWN_ID / UNCLASSIFIED_ID otherwise."""
+    """The COCO id of a known tube's class; OWN_IDS's by its call otherwise."""
     label = category_label(tube)
-    if label == "unknown":
-        return UNKNOWN_ID
-    if label == "unclassified":
-        return UNCLASSIFIED_ID
+    if label in OWN_IDS:
+        return OWN_IDS[label]
     if label not in CLASS_INDEX:
         raise InputError(f"tube {tube['tube_id']} is known as {label!r}, which is not a COCO class")
     return COCO_CATEGORY_IDS[CLASS_INDEX[label]]

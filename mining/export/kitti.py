@@ -32,7 +32,7 @@ from pycocotools import mask as mask_utils
 from mining.catalog.rows import mask_rle
 from mining.config import JobConfig
 from mining.errors import InputError
-from mining.export.selection import by_sequence, export_settings, frames_by_tube
+from mining.export.selection import by_sequence, export_settings, frames_by_tube, tube_call
 from mining.formats.kitti_tracking import ResultFrame, ResultTrack, kitti_type, write_tracking_results
 from mining.names import check_name, inside
 
@@ -85,7 +85,7 @@ def export_kitti(tubes: pa.Table, frames: pa.Table, job: JobConfig | None, dest:
                                     _result_tracks(seq_tubes, per_tube, settings.unclassified_as, category_from),
                                     _cam_to_rect0(job, sequence), settings.observed_only)
         _write_id_map(dest, sequence, {i: {"tube_id": t["tube_id"], "category": t[category_from],
-                                           "known": t["known"]} for i, t in enumerate(seq_tubes)})
+                                           "known": t["known"], "call": tube_call(t)} for i, t in enumerate(seq_tubes)})
     return n
 
 
@@ -138,7 +138,7 @@ def export_kitti_mots(tubes: pa.Table, frames: pa.Table, job: JobConfig | None, 
             next_instance[cls] = instance + 1
             obj_id = cls * MOTS_IDS_PER_CLASS + instance
             ids[obj_id] = {"tube_id": t["tube_id"], "category": t[category_from], "known": t["known"],
-                           "class_id": cls}
+                           "call": tube_call(t), "class_id": cls}
             for f in per_tube.get(t["tube_id"], []):
                 if settings.observed_only and not f["observed"]:
                     continue

@@ -4,7 +4,7 @@ Each frame is re-read through the source named in ``OUT/job.json`` (as the crops
 does) and every selected tube present in it is drawn: its mask filled semi-transparently
 in its own colour (``draw.tube_colours``: hues spread over the rendered tubes, fixed for a
 tube through the video), the mask's outline, and a label with the short id and the category by the rule of
-the ``known`` flag (a known tube's COCO class, ``unknown``, ``unclassified``). Frames where
+the tube's call (a known tube's COCO class, ``unknown``, ``clutter``, ``unclassified``). Frames where
 the tube is only predicted (a gap between observations) get the outline and label without
 the fill.
 
@@ -76,9 +76,13 @@ def short_id(tube_id: str) -> str:
 
 
 def tube_caption(t: dict) -> str:
-    """A render's label: the short id, then the class by the rule of ``known``, with the
-    posterior of the class named (``#12:3 car 0.37``, ``#4:1 unknown 0.91``, ``#7:2 unclassified``)."""
+    """A render's label: the short id, then the tube's call (its class when known), with the
+    posterior of the class named (``#12:3 car 0.37``, ``#4:1 unknown 0.91``, ``#7:2 unclassified``);
+    clutter with its P(object) (``#5:2 clutter P(obj) 0.31``)."""
     name = category_label(t)
+    if name == "clutter":
+        p = t.get("object_prob")
+        return f"{short_id(t['tube_id'])} clutter" + ("" if p is None or p != p else f" P(obj) {p:.2f}")
     p = t.get("category_prob")
     prob = "" if t.get("known") is None or p is None or p != p else f" {p:.2f}"
     return f"{short_id(t['tube_id'])} {name}{prob}"

@@ -121,6 +121,9 @@ def category_from_tag(tubes: pa.Table) -> pa.Table:
     category = pc.if_else(tagged, tubes.column("tag"), tubes.column("category"))
     known = pc.if_else(tagged, pa.scalar(True), tubes.column("known"))
     tubes = tubes.set_column(tubes.schema.get_field_index("category"), "category", category)
+    if "call" in tubes.schema.names:
+        call = pc.if_else(tagged, pa.scalar("known"), tubes.column("call"))
+        tubes = tubes.set_column(tubes.schema.get_field_index("call"), "call", call)
     return tubes.set_column(tubes.schema.get_field_index("known"), "known", known)
 
 

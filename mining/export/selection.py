@@ -12,7 +12,7 @@ selects, and the groupings the formats share.
   ``tube_frames`` row whose mask is malformed or not of its frames' size (``rows.mask_rle``)
   is left out of what is written and named (``left_out_line``); when every tube asked for
   is bad, nothing is written.
-* ``by_sequence``, ``frames_by_tube``, ``category_label``, ``frame_digits`` — the groupings
+* ``by_sequence``, ``frames_by_tube``, ``tube_call``, ``category_label``, ``frame_digits`` — the groupings
   and names the formats share.
 * ``Video``, ``videos``, ``video_tubes`` — the tubes grouped as videos, one per sequence, its
   frames the ones the catalogue mined (YouTube-VIS, TAO, BURST, FiftyOne, Rerun).
@@ -195,12 +195,21 @@ def left_out_line(left_out: dict[str, str], written: str) -> str:
     return f"left out {_bad_tubes(left_out)}; the other tubes are written to {written}"
 
 
+def tube_call(tube: dict) -> str:
+    """A catalogue row's call (``mining.types.CALLS``; the rule: ``mining.score.call``). Rows
+    written before the ``call`` column read it from ``known`` as they were written: false is
+    unknown, null unclassified."""
+    call = tube.get("call")
+    if call is not None:
+        return call
+    return "unclassified" if tube["known"] is None else "known" if tube["known"] else "unknown"
+
+
 def category_label(tube: dict) -> str:
-    """A tube's category by the rule of its ``known`` flag: a known tube's COCO class,
-    ``unknown`` when classified as none of them, ``unclassified`` when no classifier looked."""
-    if tube["known"] is None:
-        return "unclassified"
-    return tube["category"] if tube["known"] else "unknown"
+    """A tube's label by its call: a known tube's COCO class, else the call itself
+    (``unknown``, ``clutter`` or ``unclassified``)."""
+    call = tube_call(tube)
+    return tube["category"] if call == "known" else call
 
 
 def by_sequence(tubes: pa.Table) -> dict[tuple[str, str], list[dict]]:

@@ -15,9 +15,9 @@ frames re-read through the job's source (the frames the masks are drawn on). Box
 counts. With the job's ``export.observed_only`` (the default) a frame where a tube is only
 predicted (a gap) has no annotation (null in YouTube-VIS), as in the KITTI exports.
 
-Categories follow the ``known`` flag: a known tube's COCO class with its COCO annotation id
-(``mining/formats/coco.py``); known false → ``unknown`` (id ``UNKNOWN_ID``); no
-classifier → ``unclassified`` (``UNCLASSIFIED_ID``), both outside COCO's 1..90. Only the
+Categories follow the tube's call (``mining.score.call``): a known tube's COCO class with its
+COCO annotation id (``mining/formats/coco.py``); ``unknown``, ``clutter`` and ``unclassified``
+their own ids (``json_annotations.OWN_IDS``), outside COCO's 1..90. Only the
 categories some exported tube has are listed: an evaluator averages over the categories a
 dataset lists, and an empty one would count as a failed class. Every annotation carries the
 tube's score (its weighted total, not a probability) and tube id.
@@ -49,8 +49,8 @@ from pycocotools import mask as mask_utils
 
 from mining.catalog.rows import mask_rle
 from mining.config import JobConfig
-from mining.export.json_annotations import (OWN_SYNSETS, RESULTS_DIR, RESULTS_JSON, TAO_IMAGES, UNCLASSIFIED_ID,
-                                            UNKNOWN_ID, area, category_id, info, write_json)
+from mining.export.json_annotations import (OWN_IDS, OWN_SYNSETS, RESULTS_DIR, RESULTS_JSON, TAO_IMAGES, area,
+                                            category_id, info, write_json)
 from mining.export.selection import video_tubes, videos
 from mining.export.source_frames import ticking, write_images
 from mining.formats.coco import CLASS_INDEX, COCO_CATEGORY_IDS
@@ -72,7 +72,7 @@ def categories(used: set[int], tao: bool = False) -> list[dict]:
     supercategory ("coco" / "mined"), TAO entries the class's synset."""
     names = {COCO_CATEGORY_IDS[i]: name for name, i in CLASS_INDEX.items()}
     rows = [(c, names[c], "coco") for c in sorted(used) if c in names]
-    rows += [(c, n, "mined") for c, n in ((UNKNOWN_ID, "unknown"), (UNCLASSIFIED_ID, "unclassified")) if c in used]
+    rows += [(c, n, "mined") for n, c in sorted(OWN_IDS.items(), key=lambda kv: kv[1]) if c in used]
     if tao:
         return [{"id": c, "name": n, "synset": OWN_SYNSETS[n] if g == "mined" else synset(n)} for c, n, g in rows]
     return [{"id": c, "name": n, "supercategory": g} for c, n, g in rows]

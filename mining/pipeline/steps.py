@@ -34,7 +34,7 @@ from mining.pipeline.proposal_stage import ModelStage
 from mining.pipeline.stitch import concat_parts, stitch_sequence
 from mining.pipeline.window import ObservedFrame, observe_window, track_window
 from mining.sources.base import Source
-from mining.types import SequencePlan, Window
+from mining.types import CALLS, SequencePlan, Window
 
 
 @dataclass(frozen=True)
@@ -45,6 +45,7 @@ class TubeCounts:
     candidates: int = 0
     known: int = 0
     unknown: int = 0
+    clutter: int = 0
     unclassified: int = 0
 
 
@@ -306,9 +307,6 @@ class Finalize:
                        finished=_now().isoformat()).save(store)
         tubes = out["tubes"]
         sel = np.asarray(tubes.column("selected").to_pylist(), bool)
-        known = tubes.column("known").to_pylist()  # True, False or None (unclassified)
+        calls = [c for c, s in zip(tubes.column("call").to_pylist(), sel) if s]  # mining.types.CALLS
         return StepResult(sequence, True, seconds=time.perf_counter() - t0,
-                          tubes=TubeCounts(int(sel.sum()), len(sel),
-                                           known=sum(bool(s) and k is True for s, k in zip(sel, known)),
-                                           unknown=sum(bool(s) and k is False for s, k in zip(sel, known)),
-                                           unclassified=sum(bool(s) and k is None for s, k in zip(sel, known))))
+                          tubes=TubeCounts(int(sel.sum()), len(sel), **{c: calls.count(c) for c in CALLS}))

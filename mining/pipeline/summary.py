@@ -36,6 +36,7 @@ class Summary:
     candidates: int = 0
     known: int = 0
     unknown: int = 0
+    clutter: int = 0
     unclassified: int = 0
     seconds: float = 0.0  # the whole command: preflight, planning, Ray start, mining
     mining_seconds: float = 0.0  # run_job's: from the first step to the last result (the frames/s denominator)
@@ -60,7 +61,7 @@ class Summary:
                f"{stitch}",
                *self.clamped,
                f"tubes written this run: {self.tubes} selected ({self.known} known, {self.unknown} unknown, "
-               f"{self.unclassified} unclassified) of {self.candidates} candidates, in {self.sequences_written} sequence(s)",
+               f"{self.clutter} clutter, {self.unclassified} unclassified) of {self.candidates} candidates, in {self.sequences_written} sequence(s)",
                *([self.classifiers] if self.classifiers else []),
                f"time: {self.seconds:.1f} s in all, {self.mining_seconds:.1f} s mining: "
                f"{self.frames / max(self.mining_seconds, 1e-9):.2f} frames/s (core frames tracked / mining time)"]
@@ -124,4 +125,5 @@ class Summary:
             self.candidates += t.candidates
             self.known += t.known
             self.unknown += t.unknown
+            self.clutter += t.clutter
             self.unclassified += t.unclassified

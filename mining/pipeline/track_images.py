@@ -16,6 +16,7 @@ from mining.pipeline.mine import mine_tubes
 from mining.pipeline.preflight import checked_plan
 from mining.proposals.make import classifiers_line
 from mining.score.unary import unary_line
+from mining.types import CALLS
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -42,10 +43,9 @@ def run(args: argparse.Namespace) -> int:
     n = write_tubes_kitti(out, mined, to_rect0, observed_only=cfg.export.observed_only,
                           unclassified_as=cfg.export.unclassified_as, overwrite=args.overwrite)
     sel = [m for m in mined if m.selected]
-    known = sum(m.category.known is True for m in sel)
-    unknown = sum(m.category.known is False for m in sel)
+    calls = [m.category.call for m in sel]
     print(f"{args.sequence} frames {start}:{stop}: {len(mined)} tubes, {len(sel)} selected "
-          f"({known} known, {unknown} unknown, {len(sel) - known - unknown} unclassified), {n} rows → {out}")
+          f"({', '.join(f'{calls.count(c)} {c}' for c in CALLS)}), {n} rows → {out}")
     print(classifiers_line(cfg.proposals.proposer))
     print(unary_line(cfg.score, cfg.proposals.proposer))
     return 0

@@ -1,25 +1,38 @@
-"""The call of a tube: known, unknown, unclassified, or clutter kept from co-selection.
+"""The call of a tube: known, unknown, clutter or unclassified, one rule read from what is stored.
 
 Each tube is called from the job's score settings (``ScoreConfig``) and the proposer whose
-evidence it carries (its rows' confidence and its object evidence were fit per proposer):
+evidence it carries (its rows' confidence and its object evidence were fit per proposer). The
+rule, in the terms of the catalogue's columns (``class_posterior`` P, 80 COCO classes and
+unknown; k* the most probable of the 80; ``object_prob``):
+
+==============  ===============================================================  =====  ==========
+call            when                                                             known  category
+==============  ===============================================================  =====  ==========
+unclassified    ``classified_frames`` = 0: no classifier looked at the tube      null   null
+known           ln P[k*] − ln P[unknown] > ``known_margin`` (≥ 0)                true   k*, P[k*]
+unknown         otherwise, and the object gate passes (or there is no gate)      false  "unknown"
+clutter         otherwise, and the object gate says ``object_prob`` <            false  "unknown"
+                ``unknown_min_object``: not an object, kept out of the unknown set
+==============  ===============================================================  =====  ==========
 
 1. **Its class** (``mining.score.category``). The posteriors of the frames where a classifier
-   looked are accumulated over the tube. With ``class_confidence = "calibrated"`` and a
-   proposer in ``row_proposers`` (the jobs whose classifier rows the weights were fit on), a
-   classifier's own row is first read through ``RowConfidence(row_on_object, row_known)`` and
-   the decision is made at ``known_margin.calibrated``; otherwise the rows count as the
-   classifier gives them, at ``known_margin.reference`` (``class_mode`` says which). A tube
-   with less evidence than ``min_class_evidence`` is *unclassified* (known None); else it is
-   *known* as its best class k* when ln P[k*] − ln P[unknown] exceeds the margin, *unknown*
-   otherwise.
-2. **The object gate** (``mining.score.clutter``), before the unknown set: where the proposer
-   has ``object_evidence`` weights and ``unknown_gate`` is not "off", a tube called unknown
-   whose object evidence gives P(object) < ``unknown_min_object`` is clutter. With
-   ``unknown_gate = "unclassified"`` its call is withdrawn (category None, known None,
-   probability NaN; its posterior, best class and evidence kept) and it is still offered to
-   co-selection; with "drop" it keeps its call but is never offered to co-selection (a
-   candidate in the catalogue, unselected, so it cannot suppress an overlapping object).
-   Known and unclassified tubes pass the gate untouched.
+   looked are accumulated over the tube, however little evidence they carry (the evidence is
+   stored beside the call, ``class_evidence``). With ``class_confidence = "calibrated"`` and a
+   proposer in ``row_proposers``, a classifier's own row is first read through
+   ``RowConfidence(row_on_object, row_known)`` and the decision is made at
+   ``known_margin.calibrated``; otherwise the rows count as the classifier gives them, at
+   ``known_margin.reference`` (``class_mode`` says which). The margin is never negative, so a
+   known call's class is always more probable than unknown (and P[unknown] < 0.5): the badge
+   never contradicts the posterior stored beside it.
+2. **The object gate** (``mining.score.clutter``): where the proposer has ``object_evidence``
+   weights and ``unknown_gate`` is not "off", a tube unknown wins is judged: P(object) is
+   stored (``object_prob``) and below ``unknown_min_object`` the tube is *clutter*. With
+   ``unknown_gate = "call"`` it is still offered to co-selection (selection is the unary's
+   judgement); with "drop" it is not (a candidate in the catalogue, unselected, so it cannot
+   suppress an overlapping object). Known and unclassified tubes are not judged.
+
+The unknown set (the catalogue's ``unknown_tubes``, the exports' "unknown", ``mine eval``'s
+unknown set) is the selected tubes whose call is unknown.
 """
 
 from __future__ import annotations
@@ -28,6 +41,7 @@ import dataclasses
 from collections.abc import Callable
 
 import numpy as np
+from scipy.special import expit
 
 from mining.score.category import RowConfidence, tube_category
 from mining.score.clutter import object_log_odds
@@ -47,17 +61,15 @@ def categories(tubes: list[Tube], cfg: ScoreConfig, proposer: str) -> list[TubeC
     mode = class_mode(cfg, proposer)
     conf = RowConfidence(cfg.row_on_object, cfg.row_known) if mode == "calibrated" else None
     margin = getattr(cfg.known_margin, mode)
-    return [tube_category(t, margin, cfg.min_class_evidence, conf) for t in tubes]
+    return [tube_category(t, margin, conf) for t in tubes]
 
 
-def object_gate(cfg: ScoreConfig, proposer: str) -> Callable[[Tube], bool] | None:
-    """Whether a tube is likely an object (``unknown_gate``; None: no gate for this proposer)."""
+def object_gate(cfg: ScoreConfig, proposer: str) -> Callable[[Tube], float] | None:
+    """P(object) of a tube by its object evidence (``unknown_gate``; None: no gate for this proposer)."""
     weights = cfg.object_evidence.get(proposer)
     if cfg.unknown_gate == "off" or not weights:
         return None
-    p = cfg.unknown_min_object
-    cut = np.log(p / (1.0 - p)) if 0 < p < 1 else (-np.inf if p <= 0 else np.inf)
-    return lambda tube: object_log_odds(tube, weights) >= cut
+    return lambda tube: float(expit(object_log_odds(tube, weights)))
 
 
 def call_tubes(tubes: list[Tube], cfg: ScoreConfig, proposer: str) -> tuple[list[TubeCategory], np.ndarray]:
@@ -68,10 +80,10 @@ def call_tubes(tubes: list[Tube], cfg: ScoreConfig, proposer: str) -> tuple[list
     gate = object_gate(cfg, proposer)
     if gate is None:
         return cats, offered
-    clutter = np.array([c.known is False and not gate(t) for t, c in zip(tubes, cats)], bool)
+    for i, (t, c) in enumerate(zip(tubes, cats)):
+        if c.known is False:
+            p = gate(t)
+            cats[i] = dataclasses.replace(c, object_prob=p, clutter=not p >= cfg.unknown_min_object)
     if cfg.unknown_gate == "drop":
-        offered &= ~clutter
-    else:
-        cats = [dataclasses.replace(c, category=None, probability=float("nan"), known=None) if x else c
-                for c, x in zip(cats, clutter)]
+        offered &= np.array([not c.clutter for c in cats], bool)
     return cats, offered

@@ -24,16 +24,17 @@ training seeds (``mine bench calibrate --calling``): the known classes share P(k
 object) in the ratios of the row's scores, "unknown" the rest, and the row weighs P(on an
 object) (a row on background says little either way). Class-agnostic rows keep their own.
 
-Decision. A tube with evidence below ``min_class_evidence`` (one frame-equivalent of a
-classifier's own rows by default) is unclassified: known = None, category None. Otherwise,
-with k* the most probable of the 80 classes, the tube is known as k* when
+Decision (the whole rule, the object gate included: ``mining.score.call``). A tube no
+classifier looked at (``classified_frames`` 0) is unclassified: known = None, category None.
+Otherwise, with k* the most probable of the 80 classes, the tube is known as k* when
 
-    ln P[k*] − ln P[unknown] > margin,
+    ln P[k*] − ln P[unknown] > margin,   margin ≥ 0,
 
 and unknown otherwise (the margin: ``score.known_margin``'s entry for the rows' reading,
-``mining.score.call``). A margin of 0 is the paper's argmax over the 81 entries;
-``mine bench classify`` measures whether another margin separates known from unknown
-objects better on training data.
+``mining.score.call``). A margin of 0 is the paper's argmax over the 81 entries; it is never
+negative, so a tube called known has its class more probable than unknown, and P[unknown] < 0.5.
+However little evidence a tube carries, its call is what its stored posterior says (the
+evidence is stored beside it); ``mine bench classify`` measures margins on training data.
 """
 
 from __future__ import annotations
@@ -131,10 +132,10 @@ def decide(posterior: np.ndarray, log_margin: float) -> tuple[bool, int]:
     return bool(known), best
 
 
-def tube_category(tube: Tube, log_margin: float = 0.0, min_evidence: float = 1.0,
-                  confidence: RowConfidence | None = None) -> TubeCategory:
+def tube_category(tube: Tube, log_margin: float = 0.0, confidence: RowConfidence | None = None) -> TubeCategory:
+    """The tube's class call by the module docstring's decision (``log_margin`` ≥ 0)."""
     mean, n, evidence = accumulate_posterior(tube, confidence)
-    if mean is None or evidence < min_evidence:
+    if mean is None:
         return TubeCategory(None, None, float("nan"), None, None, n, evidence)
     known, best = decide(mean, log_margin)
     if known:

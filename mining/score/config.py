@@ -25,10 +25,11 @@ OBJECT_EVIDENCE: dict[str, dict[str, float]] = proposer_weights(OBJECT_FIT)
 @dataclass
 class KnownMargin:
     """The margin ln P[best known] − ln P[unknown] a tube's posterior must exceed to be called
-    known, by ``score.class_confidence`` (the classifier's rows as given, or calibrated)."""
+    known, by ``score.class_confidence`` (the classifier's rows as given, or calibrated). A job
+    refuses a negative one (``config._check_job``); a recorded job of before issue 39 holds −1."""
 
-    reference: Signed = -1.0  # paper: argmax over the 81 entries is 0; ours: −1, calibrated by `mine bench classify` on synthetic training seeds 0000–0002 (docs/RESULTS.md)
-    calibrated: Signed = -1.0  # ours: the margin with calibrated rows, best balanced accuracy of tubes on objects (0.919) on seeds 0000–0006 (`mine bench calibrate --calling`; −1 in every fold)
+    reference: Signed = 0.0  # paper: the argmax over the 81 entries (0); never negative (mining/score/call.py), so a known call's class always beats unknown (−1 before issue 39)
+    calibrated: Signed = 0.0  # likewise with calibrated rows (`mine bench calibrate --calling` picks it among margins ≥ 0; −1 before issue 39)
 
 
 @dataclass
@@ -50,7 +51,6 @@ class ScoreConfig:
 
     # Known / unknown / unclassified (mining/score/category.py, the rule in mining/score/call.py).
     known_margin: KnownMargin = field(default_factory=KnownMargin)  # was score.known_log_margin and score.known_log_margin_calibrated (issue 38)
-    min_class_evidence: float = 1.0  # ours: classified only with ≥ one frame-equivalent of classifier evidence
     # "calibrated" = ours (issue 29): a classifier's own row is read through ROW_ON_OBJECT / ROW_KNOWN before the
     # posterior accumulates (a far small pedestrian at 0.25 is a known object the detector is unsure of, not unknown),
     # decided at known_margin.calibrated; "reference" = the paper's row as the classifier gives it (unknown mass
@@ -59,12 +59,13 @@ class ScoreConfig:
     row_on_object: dict[str, Signed] = field(default_factory=lambda: dict(ROW_ON_OBJECT))  # weights of P(row on an object), by mining.score.category.ROW_FEATURES
     row_known: dict[str, Signed] = field(default_factory=lambda: dict(ROW_KNOWN))  # weights of P(known | on an object), likewise
     row_proposers: tuple[str, ...] = ("onnx", "onnx+stereo")  # ours: the jobs whose classifier rows these weights were fit on (the ONNX YOLO-seg decoder's); other classifiers (torch, detections) keep their rows as given
-    # Object or clutter before the unknown set (issue 29; mining/score/clutter.py): a tube called unknown whose object
-    # evidence gives P(object) < unknown_min_object is "unclassified" = ours, the default: it stays selected but is not
-    # called unknown (selection is the unary's judgement; the unknown set is what researchers export, and dropping
-    # cost unknown objects: docs/RESULTS.md); "drop" = not offered to co-selection (a candidate in the catalogue,
-    # unselected); "off" = no gate (before issue 29). A proposer without OBJECT_EVIDENCE weights has no gate.
-    unknown_gate: Annotated[str, OneOf(("off", "drop", "unclassified"))] = "unclassified"
+    # Object or clutter before the unknown set (issue 29; mining/score/clutter.py): a tube unknown wins whose object
+    # evidence gives P(object) (stored: object_prob) < unknown_min_object is called "clutter" (issue 39: its own call,
+    # never folded into unclassified). "call" = ours, the default: it stays offered to co-selection (selection is the
+    # unary's judgement; the unknown set is what researchers export, and dropping cost unknown objects:
+    # docs/RESULTS.md); "drop" = not offered to co-selection (a candidate in the catalogue, unselected); "off" = no
+    # gate (before issue 29). A proposer without OBJECT_EVIDENCE weights has no gate.
+    unknown_gate: Annotated[str, OneOf(("off", "drop", "call"))] = "call"
     unknown_min_object: Fraction = 0.5  # ours: more likely an object than not; best mean F1 of the unknown set of 0.5–0.9, leave-one-seed-out on seeds 0000–0006 (`mine bench calibrate --calling`)
     # proposer → term → weight of the object evidence (mining.score.clutter.OBJECT_TERMS); a job table changes the terms
     # it names and keeps OBJECT_EVIDENCE's others

@@ -27,19 +27,29 @@ CREATE TABLE labels (label_id VARCHAR, dataset VARCHAR, sequence VARCHAR, tube_i
 CREATE VIEW selected_tubes AS
 SELECT * FROM tubes WHERE selected;
 
--- Selected tubes a classifier looked at and found none of the 80 COCO classes in: the
--- discovery candidates. (`NOT known` is null for unclassified tubes, so they are not here.)
+-- The call (mining/score/call.py): known, unknown, clutter or unclassified, in the column `call`.
+-- Rows written before the column (call null) keep their old reading: known false = unknown,
+-- known null = unclassified (then also where classifier evidence was low or the gate withdrew it).
+
+-- Selected tubes a classifier looked at, in which unknown wins over the 80 COCO classes, and
+-- whose object evidence says object: the unknown set, the discovery candidates.
 CREATE VIEW unknown_tubes AS
-SELECT * FROM tubes WHERE selected AND known = false;
+SELECT * FROM tubes WHERE selected AND coalesce(call = 'unknown', known = false);
 
 -- Selected tubes that are one of the 80 COCO classes (category names which).
 CREATE VIEW known_tubes AS
 SELECT * FROM tubes WHERE selected AND known = true;
 
--- Selected tubes no classifier looked at (a class-agnostic proposer alone, or too little
--- classifier evidence): neither known nor unknown.
+-- Selected tubes unknown wins in, but whose object evidence says not an object (object_prob
+-- below score.unknown_min_object: vegetation, verges, masks spilling over the background):
+-- kept out of the unknown set.
+CREATE VIEW clutter_tubes AS
+SELECT * FROM tubes WHERE selected AND call = 'clutter';
+
+-- Selected tubes no classifier looked at (classified_frames = 0: a class-agnostic proposer
+-- alone): neither known nor unknown.
 CREATE VIEW unclassified_tubes AS
-SELECT * FROM tubes WHERE selected AND known IS NULL;
+SELECT * FROM tubes WHERE selected AND coalesce(call = 'unclassified', known IS NULL);
 
 -- A tube's score and the terms that make it. score_model says which unary made the score:
 --   calibrated: natural-log odds that the tube is an object; the theta_* columns add up to it, so
@@ -54,12 +64,12 @@ CREATE VIEW tube_scores AS
 SELECT tube_id, dataset, sequence, n_frames, n_observed,
        score, score_model, score_version, theta_prior, theta_motion, theta_mask, theta_objectness, theta_shape, theta_class,
        score_motion, score_mask, score_objectness,
-       selected, known, category, category_prob, classified_frames, class_evidence
+       selected, call, object_prob, known, category, category_prob, classified_frames, class_evidence
 FROM tubes;
 
 -- Every frame of every tube with the tube's class and selection (the 3D track per tube).
 CREATE VIEW tube_tracks AS
-SELECT f.*, t.category, t.known, t.selected, t.score AS tube_score
+SELECT f.*, t.category, t.known, t.call, t.selected, t.score AS tube_score
 FROM tube_frames AS f
 JOIN tubes AS t USING (dataset, sequence, tube_id);
 
