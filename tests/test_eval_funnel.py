@@ -210,8 +210,8 @@ def test_known_objects_called_unknown_by_bin_and_clutter_called_unknown_by_term(
              tube(4, [(t, EMPTY) for t in range(3)], score=(9.0, 0.0, 1.0), known=None, selected=False)]
     f = funnel(truths, mined, tube_split={1: "known", 2: "known"})
     c = f["calls"]
-    assert c["total"] == {"tubes": 2, "known": 1, "unknown": 1, "unclassified": 0}
-    assert c["distance"]["40–60 m"] == {"tubes": 1, "known": 0, "unknown": 1, "unclassified": 0}
+    assert c["total"] == {"tubes": 2, "known": 1, "unknown": 1, "clutter": 0, "unclassified": 0}
+    assert c["distance"]["40–60 m"] == {"tubes": 1, "known": 0, "unknown": 1, "clutter": 0, "unclassified": 0}
     assert c["distance"]["0–20 m"]["known"] == 1 and c["distance"]["20–40 m"]["tubes"] == 0
     assert c["height"]["25–50 px"]["unknown"] == 1 and c["height"]["0–25 px"]["known"] == 1  # CONE is 20 px tall
     cu = f["carried"]["called_unknown_by"]

@@ -43,7 +43,7 @@ believed.
 **Calls** (with the synthetic protocol's tube split). Each selected tube on a known object is
 placed in the distance and height bins of the evaluated known objects it covers (the median
 over its frames) and counted by the miner's call: known, unknown (a *known object called
-unknown*) or unclassified. Of the part and clutter tubes above, those called unknown are
+unknown*), clutter or unclassified. Of the part and clutter tubes above, those called unknown are
 counted by the term that carried them: the evidence that put them into the unknown set.
 
 Run it: ``mine eval synthetic …`` prints it after the synthetic metrics (masks; driver
@@ -63,7 +63,7 @@ from mining.boxes import box_ioa, box_iou
 from mining.errors import InputError
 from mining.eval.synthetic import GtFrame, SyntheticEvalProtocol
 from mining.masks import mask_ioa, mask_iou
-from mining.types import MinedTube
+from mining.types import CALLS, MinedTube
 
 SPLITS = ("all", "known", "unknown")
 TUBE_STAGES = ("candidate", "selected")
@@ -277,11 +277,8 @@ def _frame_rates(counts: np.ndarray, names: list[str], dist_names: list[str], he
     return frames
 
 
-CALLS = ("known", "unknown", "unclassified")  # the miner's call: TubeCategory.known True / False / None
-
-
 def _call(m: MinedTube) -> str:
-    return {True: "known", False: "unknown", None: "unclassified"}[m.category.known]
+    return m.category.call  # one of CALLS (mining.score.call)
 
 
 def _calls(p: FunnelProtocol, mined: Sequence[MinedTube], tube_split: Mapping[int, str],
@@ -469,20 +466,19 @@ def format_funnel(funnel: dict, max_tubes: int = 20) -> str:
             f"{kind} {sum(v.values())}" + (" (" + ", ".join(f"{k} {n}" for k, n in v.items() if n) + ")"
                                             if sum(v.values()) else "") for kind, v in cu.items()))
     if "calls" in funnel:
-        lines.append("selected tubes on known objects by the miner's call (known / unknown / unclassified):")
+        lines.append(f"selected tubes on known objects by the miner's call ({' / '.join(CALLS)}):")
         cells = [("", "all", funnel["calls"]["total"])]
         cells += [(axis, name, r) for axis in ("distance", "height") for name, r in funnel["calls"][axis].items()]
-        rows = [[axis, name, str(r["tubes"]), str(r["known"]), str(r["unknown"]), str(r["unclassified"]),
-                 _pct(r["unknown"] / r["tubes"] if r["tubes"] else float("nan"))] for axis, name, r in cells]
-        lines += ["  " + x for x in _table(["by", "bin", "tubes", "known", "unknown", "unclassified",
-                                            "called unknown"], rows)]
+        rows = [[axis, name, str(r["tubes"]), *(str(r.get(c, 0)) for c in CALLS),
+                 _pct(r.get("unknown", 0) / r["tubes"] if r["tubes"] else float("nan"))] for axis, name, r in cells]
+        lines += ["  " + x for x in _table(["by", "bin", "tubes", *CALLS, "called unknown"], rows)]
     if c["tubes"]:
         names = list(c["tubes"][0]["terms"])  # the REFERENCE's three terms, or the calibrated model's groups
         head = ["tube", "kind", "frames", *names, "total", "carried by", "call"]
         rows = []
         for x in c["tubes"][:max_tubes]:
             t = x["terms"]
-            call = {True: "known", False: "unknown", None: "unclassified"}[x["known_call"]]
+            call = x["call"]
             if x["category"] not in (None, "unknown"):
                 call += f" ({x['category']})"
             rows.append([str(x["tube_id"]), x["label"], str(x["frames"])] +

@@ -41,8 +41,11 @@ def judge(tubes: list[Tube], cfg: JobConfig, proposer: str | None = None) -> lis
     selected = np.zeros(len(tubes), bool)
     idx = np.flatnonzero(offered)
     if len(idx):
-        selected[idx] = co_select([tubes[i] for i in idx], np.array([scores[i].total for i in idx]),
-                                 cfg.select, "reference" if weights is None else "calibrated")
+        # a tube called unknown pays select.unknown_price on top of ε1 (the stored score stays the unary's)
+        unary_minus = np.array([scores[i].total - (cfg.select.unknown_price if cats[i].call == "unknown" else 0.0)
+                                for i in idx])
+        selected[idx] = co_select([tubes[i] for i in idx], unary_minus, cfg.select,
+                                  "reference" if weights is None else "calibrated")
     return [MinedTube(t, s, c, bool(m)) for t, s, c, m in zip(tubes, scores, cats, selected)]
 
 

@@ -45,6 +45,9 @@ class SelectConfig:
     # --- the energy: maximise mᵀQm, Q_ii = score_i − ε1, Q_ij = −½·ε2·Σ_t o_t(i, j), o per ``overlap``;
     # ε1 and ε2 by the unary the scores come from (the two live on different scales)
     price: Price = field(default_factory=Price)  # was select.epsilon1 and select.epsilon1_calibrated (issue 38)
+    # ours (issue 39): added to ε1 for a tube called unknown (mining/score/call.py), in the unary's units; < 0 makes
+    # unknown candidates cheaper than the whole set's operating point (chosen on mostly known objects)
+    unknown_price: Signed = 0.0
     overlap_weight: OverlapWeight = field(default_factory=OverlapWeight)  # was select.epsilon2 and select.epsilon2_calibrated (issue 38)
     window_frames: Count = 100  # REFERENCE/paper: batches of 100 frames (original: ±50 frames around each frame)
     box_iou_gate: Fraction = 0.1  # REFERENCE: a frame's overlap counts only when the boxes' overlap (IoU; for "min": intersection over the smaller box) exceeds this
