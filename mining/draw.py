@@ -22,8 +22,10 @@ OUTLINE_PX = 2  # ours: width of a mask's outline
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 FONT_SCALE = 0.5  # ours: label text size (≈ 11 px high)
 GOLDEN_HUE_STEP = 0.618034  # ours: hue step between tubes (the golden ratio's fraction spreads any count)
-# Colours (RGB) by the tube's class, ``known`` true, false, None (the viewer's); a predicted frame is white.
-CLASS_COLOURS = {True: (70, 220, 90), False: (255, 150, 20), None: (40, 190, 255)}
+# Colours (RGB) by the tube's call (``mining.types.CALLS``; the viewer's, its CSS says the same); a predicted
+# frame is white.
+CALL_COLOURS = {"known": (70, 220, 90), "unknown": (255, 150, 20), "clutter": (190, 130, 255),
+                "unclassified": (40, 190, 255)}
 PREDICTED_COLOUR = (255, 255, 255)
 
 

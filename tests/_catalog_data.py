@@ -83,3 +83,62 @@ def build_catalogue(out: Path, kitti_tracking_root: Path) -> dict:
     job = {"run_id": RUN_ID, "params_hash": cfg.params_hash, "config": cfg.to_dict(), "windows": []}
     store.write_bytes("job.json", json.dumps(job, default=str).encode())
     return {"tubes": tubes, "tube_frames": tf, "mined": mined}
+
+
+# ── every call in one catalogue (the viewer's tests) ─────────────────────────────────
+# The four tubes of the catalogue above each get a call, and three more, copies of them under new ids,
+# are rows written before the `call` column (call null: read from `known`, as export/selection.py
+# tube_call reads them); a last copy is a selected unclassified tube. Posteriors and P(object) agree
+# with each call (mining/score/call.py at margin 0 and unknown_min_object 0.5).
+COCO_CAR = 2  # the index of "car" among the 80 COCO classes (formats/coco.py)
+UNKNOWN_INDEX = 80
+
+
+def _posterior(p_car: float, p_unknown: float) -> list[float]:
+    rest = (1.0 - p_car - p_unknown) / 79
+    post = [rest] * 81
+    post[COCO_CAR], post[UNKNOWN_INDEX] = p_car, p_unknown
+    return post
+
+
+_UNKNOWN = dict(known=False, category="unknown", category_prob=0.8, best_known="car",
+                class_posterior=_posterior(0.15, 0.8))
+_CLUTTER = dict(known=False, category="unknown", category_prob=0.9, best_known="car",
+                class_posterior=_posterior(0.06, 0.9))
+_UNCLASSIFIED = dict(known=None, category=None, category_prob=None, best_known=None, class_posterior=None,
+                     classified_frames=0, class_evidence=0.0, object_prob=None)
+# (the source tube's position in tube-id order, the new id's observation index or None, changes, its call)
+EVERY_CALL = [
+    (0, None, dict(call="known"), "known"),
+    (1, None, dict(_UNKNOWN, call="unknown", object_prob=0.72), "unknown"),
+    (2, None, dict(_CLUTTER, call="clutter", object_prob=0.31), "clutter"),
+    (3, None, dict(_UNCLASSIFIED, call="unclassified"), "unclassified"),  # a candidate, not selected
+    (0, 100, dict(call=None, object_prob=None), "known"),  # written before the call column
+    (1, 101, dict(_UNKNOWN, call=None, object_prob=None), "unknown"),
+    # before the call column, an older rule called a tube unclassified on low classifier evidence too
+    (2, 102, dict(_UNCLASSIFIED, call=None, classified_frames=3, class_evidence=0.4), "unclassified"),
+    (3, 103, dict(_UNCLASSIFIED, call="unclassified", selected=True), "unclassified"),
+]
+
+
+def every_call_catalogue(out: Path, tables: dict, dest: Path) -> dict[str, str]:
+    """A copy at ``dest`` of the catalogue ``out`` with the ``tables`` of ``build_catalogue``, whose
+    tubes carry every call, some as rows written before the call column (``EVERY_CALL``); tube id →
+    its call."""
+    import shutil
+
+    shutil.copytree(out, dest)
+    tubes = sorted(tables["tubes"].to_pylist(), key=lambda t: t["tube_id"])
+    assert len(tubes) == 4, "EVERY_CALL is written for the four tubes of KITTI 0005 frames 0–15"
+    rows, frames, calls = [], [], {}
+    for k, obs, changes, call in EVERY_CALL:
+        src = tubes[k]
+        tube_id = src["tube_id"] if obs is None else f"{src['tube_id'].rsplit('.', 1)[0]}.{obs:03d}"
+        rows.append(dict(src, **changes, tube_id=tube_id))
+        frames += [dict(f, tube_id=tube_id) for f in tables["tube_frames"].to_pylist() if f["tube_id"] == src["tube_id"]]
+        calls[tube_id] = call
+    store = Store(dest)
+    write_sequence(store, "tubes", DATASET, SEQUENCE, pa.Table.from_pylist(rows, schema=tables["tubes"].schema))
+    write_sequence(store, "tube_frames", DATASET, SEQUENCE,
+                   pa.Table.from_pylist(frames, schema=tables["tube_frames"].schema))
+    return calls

@@ -102,6 +102,17 @@ def catalogue(tmp_path_factory, kitti_tracking_root):
     return out, build_catalogue(out, kitti_tracking_root)
 
 
+@pytest.fixture(scope="module")
+def every_call(catalogue, tmp_path_factory) -> tuple[Path, dict[str, str]]:
+    """(folder, tube id → call) of a copy of ``catalogue`` whose tubes carry every call, rows
+    written before the call column among them (tests/_catalog_data.py ``EVERY_CALL``)."""
+    from _catalog_data import every_call_catalogue
+
+    out, tables = catalogue
+    dest = tmp_path_factory.mktemp("every-call") / "catalogue"
+    return dest, every_call_catalogue(out, tables, dest)
+
+
 @pytest.fixture(scope="session")
 def base_catalogue(tmp_path_factory) -> tuple[Path, dict]:
     """(folder, its tables) of the small synthetic job of tests/_jobs.py over frames 0:16, mined

@@ -18,6 +18,8 @@ from conftest import REPO, count_tubes, get, json_get, serving
 from mining.catalog.views import connect
 from mining.cli import main
 from mining.errors import InputError
+from mining.export.selection import selected_rows, tube_call
+from mining.types import CALLS
 from mining.view.images import JPEG_QUALITY, THUMB_SIZE
 from mining.view.server import make_server
 
@@ -58,8 +60,9 @@ def test_gallery_pages_are_the_catalogues_tubes_in_score_order(server):
 @pytest.mark.parametrize("params, where, values", [
     ({"min_score": "50"}, "selected AND score >= ?", [50.0]),
     ({"set": "all", "max_n_frames": "15"}, "n_frames <= ?", [15]),
-    ({"known": "true"}, "selected AND known = true", []),
-    ({"known": ["false", "null"]}, "selected AND (known = false OR known IS NULL)", []),
+    ({"call": "known"}, "selected AND call = 'known'", []),
+    ({"call": ["unknown", "clutter", "unclassified"]}, "selected AND call IN ('unknown', 'clutter', 'unclassified')", []),
+    ({"set": "all", "min_object_prob": "0.5"}, "object_prob >= 0.5", []),
     ({"category": "car", "min_score_mask": "85"}, "selected AND category = 'car' AND score_mask >= 85", []),
     ({"seq": f"{DATASET}/{SEQUENCE}", "min_score_motion": "57", "max_score_objectness": "34"},
      "selected AND score_motion >= 57 AND score_objectness <= 34", []),
@@ -96,7 +99,11 @@ def test_a_narrowing_filter_narrows(server):
     ({"limit": "0"}, "'limit' must be in 1..500"),
     ({"limit": "100000"}, "'limit' must be in 1..500"),
     ({"offset": "-1"}, "'offset' must be ≥ 0"),
-    ({"known": "maybe"}, "'known' is true, false or null"),
+    ({"call": "maybe"}, "parameter 'call' is one of known, unknown, clutter, unclassified, got 'maybe'"),
+    ({"call": ["known", "true"]}, "parameter 'call' is one of known, unknown, clutter, unclassified, got 'true'"),
+    # the old parameter is refused, naming the new one (its three values cannot say clutter)
+    ({"known": "true"}, "filter by parameter 'call'"),
+    ({"min_object_prob": "x"}, "'min_object_prob' must be a number"),
     ({"seq": "0005"}, "'seq' is DATASET/SEQUENCE"),
     ({"set": "some"}, "'set' is 'selected' or 'all'"),
     ({"min_score": ["1", "2"]}, "given 2 times"),
@@ -139,12 +146,138 @@ def test_facets_count_the_catalogue(server):
     status, f = json_get(base, "/api/facets")
     assert status == 200
     assert f["tubes"] == count_tubes(out, "true") and f["selected"] == count_tubes(out, "selected")
-    assert sum(f["known"].values()) == f["selected"]
+    assert f["calls"] == {c: count_tubes(out, "selected AND call = ?", [c]) for c in CALLS}
+    assert sum(f["calls"].values()) == f["selected"]
     assert f["sequences"] == [{"dataset": DATASET, "sequence": SEQUENCE, "n": f["selected"]}]
     assert {c["category"]: c["n"] for c in f["categories"]} == {"car": count_tubes(out, "selected AND category = 'car'")}
     lo, hi = f["ranges"]["score"]
     assert count_tubes(out, "selected AND score BETWEEN ? AND ?", [lo, hi]) == f["selected"]
     assert f["frames_unavailable"] is None
+
+
+@pytest.fixture(scope="module")
+def every_call_server(every_call, tmp_path_factory):
+    out, calls = every_call
+    with serving(out, tmp_path_factory.mktemp("every-call-cache")) as (base, _):
+        yield base, out, calls
+
+
+def _ids(page: dict) -> set[str]:
+    return {t["tube_id"] for t in page["tubes"]}
+
+
+def test_the_call_filter_gives_exactly_the_tubes_of_each_call(every_call_server):
+    base, out, calls = every_call_server
+    con = connect(out)
+    try:
+        rows = {r["tube_id"]: r for r in con.execute("SELECT * FROM tubes").to_arrow_table().to_pylist()}
+    finally:
+        con.close()
+    assert {t: tube_call(r) for t, r in rows.items()} == calls, "the fixture's calls are the exports' reading"
+    legacy = {t for t, r in rows.items() if r["call"] is None}
+    assert {calls[t] for t in legacy} == {"known", "unknown", "unclassified"}, "rows from before the call column"
+    selected = {t for t, r in rows.items() if r["selected"]}
+    assert selected != set(rows)
+    for call in CALLS:
+        want = {t for t, c in calls.items() if c == call}
+        assert want, f"the fixture has no {call} tube"
+        for which, expected in (("all", want), ("selected", want & selected)):
+            status, page = json_get(base, "/api/tubes", {"set": which, "call": call})
+            assert status == 200, page
+            assert _ids(page) == expected and page["total"] == len(expected), (call, which)
+            assert {t["call"] for t in page["tubes"]} <= {call}, "each card says its call, old rows' read from known"
+            # The export line's --where selects the same tubes through `mine export`'s own predicate check.
+            con = connect(out)
+            try:
+                tubes, _ = selected_rows(con, page["where"])
+            finally:
+                con.close()
+            assert set(tubes.column("tube_id").to_pylist()) == expected, page["where"]
+            assert page["export_command"].startswith(f"mine export --out {out} --where \"")
+    status, page = json_get(base, "/api/tubes", {"set": "all", "call": ["clutter", "unclassified"]})
+    assert _ids(page) == {t for t, c in calls.items() if c in ("clutter", "unclassified")}
+    status, page = json_get(base, "/api/tubes", {"set": "all"})
+    assert {t["tube_id"]: t["call"] for t in page["tubes"]} == calls
+    # P(object) is a range and a sort: only the tubes the object gate judged have one.
+    status, page = json_get(base, "/api/tubes", {"set": "all", "min_object_prob": "0.5"})
+    assert _ids(page) == {t for t, r in rows.items() if r["object_prob"] is not None and r["object_prob"] >= 0.5}
+    assert page["total"] == 1
+    status, page = json_get(base, "/api/tubes", {"set": "all", "sort": "object_prob", "order": "asc"})
+    judged = sorted((r["object_prob"], t) for t, r in rows.items() if r["object_prob"] is not None)
+    assert [t["tube_id"] for t in page["tubes"]][:len(judged)] == [t for _, t in judged]
+
+
+def test_facets_count_the_calls_old_rows_by_known(every_call_server):
+    base, out, calls = every_call_server
+    _, f = json_get(base, "/api/facets", {"set": "all"})
+    assert f["calls"] == {c: list(calls.values()).count(c) for c in CALLS}
+    _, f = json_get(base, "/api/facets")
+    _, page = json_get(base, "/api/tubes")
+    assert f["calls"] == {c: sum(t["call"] == c for t in page["tubes"]) for c in CALLS}
+    assert sum(f["calls"].values()) == f["selected"] == page["total"]
+    assert "known" not in f, "the facets count calls, not known"
+
+
+def _rule(base: str, tube_id: str) -> tuple[dict, dict]:
+    status, d = json_get(base, "/api/tube", {"id": tube_id})
+    assert status == 200, d
+    return d["tube"], d["class_rule"]
+
+
+def test_the_tube_page_explains_each_call_with_its_numbers(every_call_server):
+    base, out, calls = every_call_server
+    # clutter: unknown wins, and P(object) is below the gate's threshold
+    tube, r = _rule(base, "kitti/0005/0000000.002")
+    assert tube["call"] == r["call"] == "clutter" and tube["call_from_known"] is False
+    assert r["object_prob"] == pytest.approx(0.31) and r["min_object"] == 0.5
+    assert r["min_object_key"] == "score.unknown_min_object" and r["gate"] == "call"
+    assert r["log_ratio"] == pytest.approx(np.log(0.06) - np.log(0.9), abs=1e-5) and r["best_known"] == "car"
+    assert "ln 0.060 − ln 0.900 = -2.71 ≤ 0.00: unknown wins." in r["text"]
+    assert "P(object) 0.31 < 0.50 (score.unknown_min_object): clutter" in r["text"]
+    assert "kept out of the unknown set" in r["text"] and "score.unknown_gate = call" in r["text"]
+    # unknown: the same inequality, and P(object) at or above the threshold
+    tube, r = _rule(base, "kitti/0005/0000000.001")
+    assert r["call"] == "unknown" and "P(object) 0.72 ≥ 0.50 (score.unknown_min_object): an object, unknown." in r["text"]
+    # unclassified: no classifier looked
+    tube, r = _rule(base, "kitti/0005/0000005.003")
+    assert tube["call"] == r["call"] == "unclassified" and r["classified_frames"] == 0
+    assert r["text"] == "Unclassified: no classifier looked at this tube (classified frames 0)."
+    assert r["log_ratio"] is None and r["object_prob"] is None
+    # known, whose posterior has P(unknown) 0: ln 0 is −∞, known at any margin
+    tube, r = _rule(base, "kitti/0005/0000000.000")
+    assert r["call"] == "known" and "= +∞ > 0.00: known, car." in r["text"]
+    # rows written before the call column: read from known, and they say so
+    for tube_id, call in (("kitti/0005/0000000.100", "known"), ("kitti/0005/0000000.101", "unknown"),
+                          ("kitti/0005/0000000.102", "unclassified")):
+        tube, r = _rule(base, tube_id)
+        assert tube["call"] == r["call"] == call and tube["call_from_known"] is True and r["call_from_known"] is True
+        assert "written before the call column" in r["text"], r["text"]
+    assert "older rule, though 3 frame(s) were classified" in _rule(base, "kitti/0005/0000000.102")[1]["text"]
+
+
+def test_without_a_job_record_the_rule_says_what_it_cannot_know(every_call, tmp_path):
+    out, _ = every_call
+    copy = tmp_path / "no-job"
+    shutil.copytree(out, copy)
+    (copy / "job.json").unlink()
+    with serving(copy, tmp_path / "cache") as (base, _):
+        _, r = _rule(base, "kitti/0005/0000000.002")
+    assert r["margin"] is None and r["min_object"] is None
+    assert "the job's margin (not known: the catalogue has no job.json)" in r["text"]
+    assert "P(object) 0.31 < the job's threshold (score.unknown_min_object; no job.json): clutter" in r["text"]
+
+
+def test_a_clutter_thumbnail_is_outlined_in_its_own_colour(every_call_server):
+    base, _, _ = every_call_server
+
+    def violet(tube_id: str) -> int:
+        status, _, body = get(base, "/img/thumb", {"id": tube_id})
+        assert status == 200
+        rgb = _decode(body).astype(int)
+        return int(((abs(rgb[..., 0] - 190) < 40) & (abs(rgb[..., 1] - 130) < 40) & (rgb[..., 2] > 215)).sum())
+
+    # the same tube's frames: clutter (violet) and, as a row from before the call column, unclassified (blue)
+    assert violet("kitti/0005/0000000.002") > 50 > violet("kitti/0005/0000000.102")
 
 
 def test_tube_page_data(server, catalogue):
@@ -171,6 +304,10 @@ def test_tube_page_data(server, catalogue):
     assert d["top_classes"][0]["name"] == tube["category"]
     np.testing.assert_allclose([c["p"] for c in d["top_classes"]], np.sort(post)[::-1][:5], rtol=1e-6)
     assert count_tubes(out, d["where"]) == 1
+    # The call, explained with this tube's numbers (the fixture's tubes are all known cars).
+    assert d["tube"]["call"] == tube["call"] == "known" and d["tube"]["call_from_known"] is False
+    assert d["class_rule"]["call"] == "known" and d["class_rule"]["margin_key"].startswith("score.known_margin.")
+    assert d["class_rule"]["text"].endswith(": known, car.")
     assert d["export_command"] == (f"mine export --out {out} --where \"tube_id = '{tube['tube_id']}'\" "
                                    f"--format crops crops/{tube['tube_id'].replace('/', '_')}")
 

@@ -125,6 +125,79 @@ def test_gallery_filter_and_tube_page_in_chromium(catalogue, chromium, tmp_path)
     _looks_like_a_page(shots / "tube.png", 1400, 900)
 
 
+# Each card's tube id → [badge text, badge classes, the number beside it].
+CARDS = """Object.fromEntries([...document.querySelectorAll('.card')].map(c => [c.dataset.tube,
+  [c.querySelector('.badge').textContent, c.querySelector('.badge').className, c.querySelector('.prob-text').textContent]]))"""
+CLUTTER_RGB = "rgb(190, 130, 255)"  # app.css --clutter, draw.py CALL_COLOURS["clutter"]
+
+
+@pytest.mark.slow  # over ~2.5 s: the fast tier stays under 3 minutes
+def test_the_calls_in_chromium(every_call, chromium, tmp_path):
+    """Badges, counts, the call filter and the legend of the gallery, and a clutter and an
+    unclassified tube's page, over a catalogue with every call (rows from before the call column too)."""
+    out, calls = every_call
+    clutter = next(t for t, c in calls.items() if c == "clutter")
+    shots = _shots(tmp_path)
+    with serving(out, tmp_path / "cache") as (base, _):
+        with Browser(chromium, width=1400, height=900) as b:
+            b.goto(f"{base}/?set=all")
+            b.wait_for("document.body.dataset.state === 'ready'")
+            cards = b.evaluate(CARDS)
+            assert set(cards) == set(calls)
+            for tube_id, call in calls.items():
+                text, classes, _ = cards[tube_id]
+                assert text == ("car" if call == "known" else call) and f"c-{call}" in classes.split(), tube_id
+            assert cards[clutter][2] == "P(object) 0.31"
+            assert cards["kitti/0005/0000000.001"][2] == "P(unknown) 0.80"
+            assert cards["kitti/0005/0000005.003"][2] == ""  # unclassified: no probability
+            assert cards["kitti/0005/0000000.000"][2] == "P(car) 1.00"
+            assert b.evaluate(f"getComputedStyle(document.querySelector('.card[data-tube=\"{clutter}\"] .badge'))"
+                              ".backgroundColor") == CLUTTER_RGB
+            counts = b.evaluate("Object.fromEntries([...document.querySelectorAll('span.n[data-call]')]"
+                                ".map(s => [s.dataset.call, s.textContent]))")
+            assert counts == {c: f"({list(calls.values()).count(c)})" for c in ("known", "unknown", "clutter", "unclassified")}
+            legend = " ".join(b.evaluate("document.getElementById('legend').textContent").split())
+            assert ("clutter unknown to the classifier, but its object evidence says not an object: P(object) below "
+                    "the gate; kept out of the unknown set") in legend
+            assert "unclassified no classifier looked" in legend
+            assert b.evaluate(ALL_IMAGES_LOADED) == [240] * len(calls)
+            b.screenshot(shots / "gallery-calls.png")
+            # The call checkboxes filter: clutter and unclassified, the address keeps them.
+            for call in ("clutter", "unclassified"):
+                b.evaluate(f"document.querySelector('input[name=call][value={call}]').click()")
+            want = sorted(t for t, c in calls.items() if c in ("clutter", "unclassified"))
+            b.wait_for(f"document.body.dataset.state === 'ready' && document.body.dataset.total === '{len(want)}'")
+            assert sorted(b.evaluate(CARDS)) == want
+            assert b.evaluate("location.search") == "?set=all&call=clutter&call=unclassified"
+            assert "IN ('clutter', 'unclassified')" in b.evaluate("document.getElementById('export').textContent")
+            # The clutter tube's page: its badge, the call and P(object) in its table, the rule with the numbers.
+            b.evaluate(f"document.querySelector('.card[data-tube=\"{clutter}\"]').click()")
+            b.wait_for("location.pathname === '/tube' && document.body.dataset.state === 'ready'")
+            assert b.evaluate("document.getElementById('badge').textContent") == "clutter"
+            rule = b.evaluate("document.getElementById('class-rule').textContent")
+            assert "P(object) 0.31 < 0.50 (score.unknown_min_object): clutter" in rule, rule
+            assert "ln P(car) − ln P(unknown) = ln 0.060 − ln 0.900 = -2.71 ≤ 0.00" in rule
+            table = b.evaluate("Object.fromEntries([...document.querySelectorAll('#class tr')]"
+                               ".map(r => [r.cells[0].textContent, r.cells[1].textContent]))")
+            assert table["call"] == "clutter" and table["P(object)"] == "0.310" and table["P(unknown)"] == "0.900"
+            assert b.evaluate("getComputedStyle(document.querySelector('#track polyline.tube')).stroke") == CLUTTER_RGB
+            assert b.evaluate("getComputedStyle(document.querySelector('.swatch.tube')).backgroundColor") == CLUTTER_RGB
+            b.wait_for("document.getElementById('frame').complete && document.getElementById('frame').naturalWidth > 0")
+            b.screenshot(shots / "tube-clutter.png")
+            # An unclassified tube's page says no classifier looked; an old row says its call was read from known.
+            b.goto(f"{base}/tube?id=kitti/0005/0000005.003")
+            b.wait_for("document.body.dataset.state === 'ready'")
+            assert b.evaluate("document.getElementById('badge').textContent").startswith("unclassified")
+            assert b.evaluate("document.getElementById('class-rule').textContent") == (
+                "Unclassified: no classifier looked at this tube (classified frames 0).")
+            b.goto(f"{base}/tube?id=kitti/0005/0000000.101")
+            b.wait_for("document.body.dataset.state === 'ready'")
+            assert b.evaluate("document.getElementById('badge').textContent") == "unknown"
+            assert "written before the call column" in b.evaluate("document.querySelector('#class tr td').textContent")
+    _looks_like_a_page(shots / "gallery-calls.png", 1400, 900)
+    _looks_like_a_page(shots / "tube-clutter.png", 1400, 900)
+
+
 # Loads video `src` into a <video>, waits for its first frame (or an error), and reports its size,
 # duration, error code and the mean of the first frame's pixels as the browser decoded them.
 PLAY_VIDEO = """(src => new Promise(done => {

@@ -438,7 +438,8 @@ def test_a_malformed_or_mis_sized_mask_is_a_placeholder_that_says_why(catalogue,
     ("/api/tubes", {"offset": str(10**23)}, "'offset' must be at most"),
     ("/api/tubes", {"offset": str(10**19)}, "'offset' must be at most"),
     ("/api/tubes", {"offset": "1e23"}, "'offset' must be an integer"),
-    ("/api/tubes", {"known": "unknown"}, "'known' is true, false or null"),
+    ("/api/tubes", {"call": "maybe"}, "parameter 'call' is one of known, unknown, clutter, unclassified"),
+    ("/api/tubes", {"known": "false"}, "filter by parameter 'call'"),  # the old parameter names the new one
     ("/api/tubes", {"category": "carr"}, "'category' is a COCO class name"),
     ("/api/tubes", {"seq": "kitti/0005\r\nX: y"}, "'seq' is DATASET/SEQUENCE of names"),
     ("/api/tube", {"id": "x", "bogus": "1"}, "unknown parameter 'bogus'"),
@@ -586,7 +587,8 @@ def test_the_gallery_applies_every_parameter_of_its_address(server, browser, cat
 
 @pytest.mark.slow  # Chromium: over ~2.5 s
 @pytest.mark.parametrize("query, names", [
-    ("known=unknown", "'known'"), ("category=carr", "'category'"), ("sort=bogus", "sort by 'bogus'"),
+    ("call=maybe", "'call'"), ("known=true", "parameter 'call'"), ("category=carr", "'category'"),
+    ("sort=bogus", "sort by 'bogus'"),
     ("set=some", "'set'"), ("bogus=1", "'bogus'"), (f"offset={10**23}", "'offset'"), ("order=sideways", "'order'"),
 ])
 def test_an_address_the_server_cannot_use_is_an_error_on_the_page(server, browser, query, names):
@@ -604,11 +606,11 @@ def test_an_address_the_server_cannot_use_is_an_error_on_the_page(server, browse
 @pytest.mark.slow  # Chromium: over ~2.5 s
 def test_the_form_replaces_a_bad_address(server, browser):
     base, _, out = server
-    browser.goto(f"{base}/?known=unknown")
+    browser.goto(f"{base}/?call=maybe")
     browser.wait_for(SETTLED)
-    browser.evaluate("document.querySelector('input[name=known][value=true]').click()")
+    browser.evaluate("document.querySelector('input[name=call][value=known]').click()")
     browser.wait_for("document.body.dataset.state === 'ready'")
-    status, page = _api_page(base, "known=true")
-    assert browser.evaluate("location.search") == "?known=true"
+    status, page = _api_page(base, "call=known")
+    assert browser.evaluate("location.search") == "?call=known"
     assert browser.evaluate(CARDS) == [t["tube_id"] for t in page["tubes"]]
     assert browser.evaluate("document.getElementById('banner').hidden")

@@ -29,8 +29,9 @@ from mining.catalog.views import connect, refresh_labels, sql_string
 from mining.config import JobConfig
 from mining.errors import InputError
 from mining.formats.coco import COCO_CLASSES
-from mining.types import UNKNOWN_CLASS
-from mining.view.filters import CARD_COLUMNS, RANGE_COLUMNS, TooLarge, TubeFilter
+from mining.score.call import class_mode
+from mining.types import CALLS, UNKNOWN_CLASS
+from mining.view.filters import CALL_SQL, CARD_COLUMNS, RANGE_COLUMNS, TooLarge, TubeFilter
 from mining.view.images import best_frame
 
 CLASS_NAMES = (*COCO_CLASSES, "unknown")
@@ -68,6 +69,67 @@ def _clean(v):
 def _rows(cur: duckdb.DuckDBPyConnection) -> list[dict]:
     names = [d[0] for d in cur.description]
     return [{n: _clean(v) for n, v in zip(names, row)} for row in cur.fetchall()]
+
+
+def _f(v: float | None, digits: int = 2) -> str:
+    return "–" if v is None else f"{v:.{digits}f}"
+
+
+def call_text(r: dict, category: str | None) -> str:
+    """The tube page's explanation of a call, with the tube's numbers (``class_rule``'s ``r``):
+    known / unknown by the margin inequality, clutter by the object gate, unclassified by the
+    classified frames. Where the stored call is not what these numbers give (a row written by
+    another rule), it says so."""
+    call = r["call"]
+    legacy = " (read from known: the row was written before the call column)" if r["call_from_known"] else ""
+    if call == "unclassified":
+        if not r["classified_frames"]:
+            return f"Unclassified: no classifier looked at this tube (classified frames 0){legacy}."
+        return (f"Unclassified{legacy}: recorded so by an older rule, though {r['classified_frames']} frame(s) were "
+                "classified; today's rule calls a tube unclassified only where no classifier looked.")
+    margin, lr = r["margin"], r["log_ratio"]
+    bound = (f"{_f(margin)} ({r['margin_key']})" if margin is not None
+             else "the job's margin (not known: the catalogue has no job.json)")
+    out = [f"Known when ln P(best COCO class) − ln P(unknown) > {bound}."]
+    wins = None  # what the posterior and the margin give: known or unknown (None: cannot tell)
+    p_best, p_unknown = r["p_best"], r["p_unknown"]
+    if lr is not None or p_best is not None and (p_best > 0) != (p_unknown > 0):
+        # ln 0 = −∞: a posterior with P(unknown) 0 is known at any margin, one with P(best) 0 unknown
+        value = _f(lr) if lr is not None else "+∞" if p_best > 0 else "−∞"
+        here = (f"Here ln P({r['best_known']}) − ln P(unknown) = ln {_f(p_best, 3)} − ln {_f(p_unknown, 3)} = "
+                f"{value}")
+        if margin is not None:
+            wins = "known" if (lr > margin if lr is not None else p_best > 0) else "unknown"
+            here += f" {'>' if wins == 'known' else '≤'} {_f(margin)}"
+        out.append(here + (f": known, {category}{legacy}." if call == "known" else ": unknown wins."))
+    else:
+        out.append((f"Known, {category}" if call == "known" else "Unknown wins") + f"{legacy}.")
+    if call != "known":
+        op, threshold, key = r["object_prob"], r["min_object"], r["min_object_key"]
+        limit = f"{_f(threshold)} ({key})" if threshold is not None else f"the job's threshold ({key}; no job.json)"
+        if call == "clutter":
+            action = {"call": "still offered to co-selection", "drop": "not offered to co-selection"}.get(r["gate"])
+            out.append(f"P(object) {_f(op)} < {limit}: clutter, unknown to the classifier but not an object by its "
+                       "object evidence; kept out of the unknown set"
+                       + (f" ({r['gate_key']} = {r['gate']}: {action})." if action else "."))
+            if op is not None and threshold is not None and op >= threshold:
+                out.append("The stored call is not what these numbers give: the row was written by another rule.")
+        elif op is not None:
+            out.append(f"P(object) {_f(op)} ≥ {limit}: an object, unknown{legacy}.")
+            if threshold is not None and op < threshold:
+                out.append("The stored call is not what these numbers give: the row was written by another rule.")
+        elif r["call_from_known"]:
+            out.append(f"No P(object) stored: unknown{legacy}.")
+        elif r["gate"] == "off":
+            out.append(f"No object gate ({r['gate_key']} = off): unknown{legacy}.")
+        elif r["gate_weights"] is False:
+            out.append(f"No object gate: the job has no object-evidence weights for proposer {r['proposer']}; "
+                       f"unknown{legacy}.")
+        else:
+            out.append(f"No P(object) stored: unknown{legacy}.")
+    if wins is not None and wins != ("known" if call == "known" else "unknown"):
+        out.append(f"The stored call ({call}) is not what these numbers give: the row was written by another rule.")
+    return " ".join(out)
 
 
 class CatalogueBrowser:
@@ -135,7 +197,7 @@ class CatalogueBrowser:
         """One gallery page: the total that match, and the tubes of ``flt``'s page."""
         pred, values = flt.predicate()
         total = self._query(f"SELECT count(*) AS n FROM labelled_tubes WHERE {pred}", values)[0]["n"]
-        cols = ", ".join(CARD_COLUMNS)
+        cols = ", ".join(f"{CALL_SQL} AS call" if c == "call" else c for c in CARD_COLUMNS)
         tubes = self._query(f"SELECT {cols} FROM labelled_tubes WHERE {pred} ORDER BY {flt.order_by()} LIMIT ? OFFSET ?",
                             [*values, flt.limit, flt.offset])
         where = flt.export_where()
@@ -143,11 +205,13 @@ class CatalogueBrowser:
                 "export_command": export_command(self.out, where, "crops")}
 
     def facets(self, all_tubes: bool) -> dict:
-        """What the filter form offers: counts by class, category and sequence, and each range."""
+        """What the filter form offers: counts by call (``calls``: every one of CALLS, a row
+        written before the call column counted by its ``known``), category and sequence, and
+        each range."""
         pred = "true" if all_tubes else "selected"
         counts = self._query("SELECT count(*) AS tubes, count(*) FILTER (WHERE selected) AS selected FROM tubes")[0]
-        known = {("null" if r["known"] is None else str(r["known"]).lower()): r["n"]
-                 for r in self._query(f"SELECT known, count(*) AS n FROM tubes WHERE {pred} GROUP BY known")}
+        calls = dict.fromkeys(CALLS, 0) | {r["call"]: r["n"] for r in self._query(
+            f"SELECT {CALL_SQL} AS call, count(*) AS n FROM tubes WHERE {pred} GROUP BY ALL")}
         categories = self._query(f"SELECT category, count(*) AS n FROM tubes WHERE {pred} AND category IS NOT NULL "
                                  "GROUP BY category ORDER BY n DESC, category")
         sequences = self._query(f"SELECT dataset, sequence, count(*) AS n FROM tubes WHERE {pred} "
@@ -159,13 +223,16 @@ class CatalogueBrowser:
             f"SELECT verdict, count(*) AS n FROM labelled_tubes WHERE {pred} GROUP BY verdict")}
         tags = self._query(f"SELECT tag, count(*) AS n FROM (SELECT unnest(tags) AS tag FROM labelled_tubes WHERE {pred}) "
                            "GROUP BY tag ORDER BY n DESC, tag")
-        return {"catalogue": self.out, "tubes": counts["tubes"], "selected": counts["selected"], "known": known,
+        return {"catalogue": self.out, "tubes": counts["tubes"], "selected": counts["selected"], "calls": calls,
                 "categories": categories, "sequences": sequences, "ranges": ranges, "verdicts": verdicts,
                 "tags": tags, "author": self.author}
 
     def tube(self, tube_id: str) -> dict | None:
-        """The tubes row of ``tube_id`` (looked up by parameter), or None."""
-        rows = self._query("SELECT * FROM labelled_tubes WHERE tube_id = ?", [tube_id])
+        """The tubes row of ``tube_id`` (looked up by parameter), or None. Its ``call`` is always
+        one of CALLS (``CALL_SQL``); ``call_from_known`` says the row was written before the
+        call column, its call read from ``known``."""
+        rows = self._query(f"SELECT * REPLACE ({CALL_SQL} AS call), call IS NULL AS call_from_known "
+                           "FROM labelled_tubes WHERE tube_id = ?", [tube_id])
         return rows[0] if rows else None
 
     def frames(self, tube: dict, columns: tuple[str, ...] = FRAME_COLUMNS) -> list[dict]:
@@ -202,16 +269,25 @@ class CatalogueBrowser:
                     f"{of})")
         return "not recorded: the catalogue was written before score_model (job.json's score.model says which unary ran)"
 
-    def class_rule(self, tube: dict, posterior: list | None) -> dict | None:
-        """The known / unknown decision as the run made it (mining/score/category.py): the margin
-        and evidence bound of its job, and this tube's ln P[best known] − ln P[unknown]."""
-        if self.job is None:
-            return None
-        s = self.job.score
-        calibrated = s.class_confidence == "calibrated" and self.job.proposals.proposer in s.row_proposers
-        rule = {"margin": s.known_margin.calibrated if calibrated else s.known_margin.reference,
-                "margin_key": "score.known_margin.calibrated" if calibrated else "score.known_margin.reference",
-                "min_evidence": s.min_class_evidence, "evidence": tube.get("class_evidence"), "log_ratio": None}
+    def class_rule(self, tube: dict, posterior: list | None) -> dict:
+        """What the tube page needs to explain the tube's call (mining/score/call.py) with its own
+        numbers: the call; ln P[best known] − ln P[unknown] from its posterior; its classified
+        frames; its P(object) (``object_prob``, where the object gate judged it). From the job
+        that made it (None where the catalogue has no job.json): the margin and its key, the
+        gate's threshold (``score.unknown_min_object``), its mode (``score.unknown_gate``) and
+        whether the job's proposer has object-evidence weights (no weights: no gate)."""
+        rule = {"call": tube.get("call"), "call_from_known": bool(tube.get("call_from_known")),
+                "classified_frames": tube.get("classified_frames"), "evidence": tube.get("class_evidence"),
+                "object_prob": tube.get("object_prob"), "log_ratio": None, "best_known": None, "p_best": None,
+                "p_unknown": None, "margin": None, "margin_key": None, "min_object": None,
+                "min_object_key": "score.unknown_min_object", "gate": None, "gate_key": "score.unknown_gate",
+                "gate_weights": None, "proposer": None}
+        if self.job is not None:
+            s, proposer = self.job.score, self.job.proposals.proposer
+            mode = class_mode(s, proposer)
+            rule |= {"margin": getattr(s.known_margin, mode), "margin_key": f"score.known_margin.{mode}",
+                     "min_object": s.unknown_min_object, "gate": s.unknown_gate,
+                     "gate_weights": bool(s.object_evidence.get(proposer)), "proposer": proposer}
         if posterior and len(posterior) == len(CLASS_NAMES):
             known = [p or 0.0 for p in posterior[:UNKNOWN_CLASS]]
             k = max(range(len(known)), key=known.__getitem__)
@@ -219,6 +295,7 @@ class CatalogueBrowser:
             if p_best > 0 and p_unknown > 0:
                 rule["log_ratio"] = math.log(p_best) - math.log(p_unknown)
             rule |= {"best_known": CLASS_NAMES[k], "p_best": p_best, "p_unknown": p_unknown}
+        rule["text"] = call_text(rule, tube.get("category"))
         return rule
 
     def detail(self, tube_id: str, frame: int | None = None) -> dict | None:

@@ -10,7 +10,11 @@ to paste into ``mine export --where`` — that text is shown, never executed by 
 Parameters (each may repeat where it says so):
 
 * ``set``: ``selected`` (default: the mined result) or ``all`` (every candidate tube)
-* ``known``: ``true`` / ``false`` / ``null`` — known, unknown, unclassified (repeat for several)
+* ``call``: one of ``CALLS`` — known, unknown, clutter, unclassified (``mining/score/call.py``;
+  repeat for several), matched on ``CALL_SQL``: the ``call`` column, and for a row written before
+  it the reading of ``known`` (true known, false unknown, null unclassified), as the exports read
+  it. The old ``known`` parameter is refused, naming ``call`` (its three values do not tell
+  unknown from clutter).
 * ``category``: one of ``CATEGORIES``, the 80 COCO class names or ``unknown`` (repeat for several)
 * ``seq``: ``DATASET/SEQUENCE``, both safe names (``mining/names.py``; repeat for several)
 * ``min_C`` / ``max_C`` for C in ``RANGE_COLUMNS``: inclusive bounds
@@ -33,12 +37,16 @@ from mining.catalog.views import sql_string
 from mining.errors import InputError
 from mining.names import NAME_RULE, name_problem
 from mining.formats.coco import COCO_CLASSES
+from mining.types import CALLS
 
 RANGE_COLUMNS = ("score", "score_motion", "score_mask", "score_objectness", "n_frames", "n_observed",
-                 "category_prob", "class_evidence", "speed", "moving_speed_mps", "path_length")
+                 "category_prob", "object_prob", "class_evidence", "speed", "moving_speed_mps", "path_length")
 INT_COLUMNS = frozenset({"n_frames", "n_observed"})
 SORT_COLUMNS = (*RANGE_COLUMNS, "tube_id", "sequence", "frame_start", "category")
-KNOWN_VALUES = {"true": "known = true", "false": "known = false", "null": "known IS NULL"}
+# A row's call (mining/score/call.py) as SQL over the tubes' columns: ``call``, and for a row written
+# before that column its old reading of ``known`` (export/selection.py tube_call, views.sql). A fixed
+# text: the filter binds the values it is compared with.
+CALL_SQL = "coalesce(call, CASE WHEN known THEN 'known' WHEN NOT known THEN 'unknown' ELSE 'unclassified' END)"
 DEFAULT_LIMIT = 48  # ours: tubes per gallery page (a 6 × 8 grid)
 MAX_LIMIT = 500  # ours: the most one request may ask for
 MAX_OFFSET = 1_000_000_000  # ours: far past any catalogue, and inside DuckDB's BIGINT OFFSET
@@ -46,8 +54,9 @@ MAX_OFFSET = 1_000_000_000  # ours: far past any catalogue, and inside DuckDB's 
 CATEGORIES = frozenset((*COCO_CLASSES, "unknown"))
 # The columns a gallery card shows (the whole row is one `mine query` away).
 CARD_COLUMNS = ("tube_id", "dataset", "sequence", "frame_start", "frame_end", "n_frames", "n_observed", "score",
-                "score_motion", "score_mask", "score_objectness", "selected", "known", "category", "category_prob",
-                "best_known", "speed", "moving_speed_mps", "path_length", "verdict", "tags")
+                "score_motion", "score_mask", "score_objectness", "selected", "call", "known", "category",
+                "category_prob", "object_prob", "best_known", "speed", "moving_speed_mps", "path_length", "verdict",
+                "tags")
 VERDICT_VALUES = (*VERDICTS, "none")  # none: no verdict yet
 
 
@@ -82,7 +91,7 @@ class TubeFilter:
     """One gallery request: which tubes, in which order, which page."""
 
     all_tubes: bool = False
-    known: tuple[str, ...] = ()  # subset of KNOWN_VALUES
+    calls: tuple[str, ...] = ()  # subset of CALLS
     categories: tuple[str, ...] = ()
     sequences: tuple[tuple[str, str], ...] = ()  # (dataset, sequence)
     ranges: tuple[tuple[str, float | int | None, float | int | None], ...] = ()  # (column, min, max)
@@ -96,7 +105,11 @@ class TubeFilter:
     @classmethod
     def from_query(cls, params: dict[str, list[str]]) -> TubeFilter:
         """Parse ``urllib.parse.parse_qs`` output (blank values kept); FilterError when bad."""
-        allowed = {"set", "known", "category", "seq", "sort", "order", "offset", "limit", "verdict", "tag",
+        if "known" in params:
+            raise FilterError("parameter 'known' is no longer taken: filter by parameter 'call' "
+                              f"({', '.join(CALLS)}; repeat it for several): known=true is call=known, "
+                              "known=false is call=unknown&call=clutter, known=null is call=unclassified")
+        allowed = {"set", "call", "category", "seq", "sort", "order", "offset", "limit", "verdict", "tag",
                    *(f"{b}_{c}" for c in RANGE_COLUMNS for b in ("min", "max"))}
         unknown = sorted(set(params) - allowed)
         if unknown:
@@ -104,10 +117,10 @@ class TubeFilter:
         which = _one(params, "set") or "selected"
         if which not in ("selected", "all"):
             raise FilterError(f"parameter 'set' is 'selected' or 'all', got {which!r}")
-        known = tuple(dict.fromkeys(v for v in params.get("known", []) if v))
-        bad = [v for v in known if v not in KNOWN_VALUES]
+        calls = tuple(dict.fromkeys(v for v in params.get("call", []) if v))
+        bad = [v for v in calls if v not in CALLS]
         if bad:
-            raise FilterError(f"parameter 'known' is true, false or null (known, unknown, unclassified), got {bad[0]!r}")
+            raise FilterError(f"parameter 'call' is one of {', '.join(CALLS)}, got {bad[0]!r}")
         categories = tuple(dict.fromkeys(v for v in params.get("category", []) if v))
         bad = [v for v in categories if v not in CATEGORIES]
         if bad:
@@ -154,7 +167,7 @@ class TubeFilter:
             raise FilterError(f"parameter 'offset' must be at most {MAX_OFFSET}, got {offset}")
         if not 1 <= limit <= MAX_LIMIT:
             raise FilterError(f"parameter 'limit' must be in 1..{MAX_LIMIT}, got {limit}")
-        return cls(which == "all", known, categories, tuple(sequences), tuple(ranges), verdicts, tags, sort,
+        return cls(which == "all", calls, categories, tuple(sequences), tuple(ranges), verdicts, tags, sort,
                    order == "desc", int(offset), int(limit))
 
     def _terms(self, literal: bool) -> tuple[list[str], list]:
@@ -170,9 +183,10 @@ class TubeFilter:
 
         if not self.all_tubes:
             terms.append("selected")
-        if self.known:
-            parts = [KNOWN_VALUES[k] for k in self.known]
-            terms.append(parts[0] if len(parts) == 1 else "(" + " OR ".join(parts) + ")")
+        if self.calls:  # CALL_SQL is a fixed text; the calls (checked against CALLS) are bound
+            values_sql = [bind(c) for c in self.calls]
+            terms.append(f"{CALL_SQL} = {values_sql[0]}" if len(values_sql) == 1
+                         else f"{CALL_SQL} IN ({', '.join(values_sql)})")
         if self.categories:
             terms.append(f"category IN ({', '.join(bind(c) for c in self.categories)})")
         if self.sequences:

@@ -45,7 +45,7 @@ import numpy as np
 
 from mining.catalog.rows import MAX_MASK_PIXELS, BadMask, decode_mask, mask_rle
 from mining.config import JobConfig
-from mining.draw import CLASS_COLOURS, PREDICTED_COLOUR, draw_mask
+from mining.draw import CALL_COLOURS, PREDICTED_COLOUR, draw_mask
 from mining.errors import ConfigError, MiningError
 from mining.view.filters import TooLarge
 
@@ -390,7 +390,7 @@ class TubeImages:
     def _name(self, kind: str, size: str, tube: dict, frame: dict) -> str:
         material = json.dumps([RENDER_VERSION, kind, size, self.source.identity, tube["dataset"], tube["sequence"],
                                frame["frame"], frame["rle_h"], frame["rle_w"], frame["rle_counts"],
-                               [round(float(v), 3) for v in frame["bbox"]], tube["known"], frame["observed"]])
+                               [round(float(v), 3) for v in frame["bbox"]], tube["call"], frame["observed"]])
         return self.cache.name(material.encode())
 
     def _image_and_mask(self, tube: dict, frame: dict) -> tuple[np.ndarray, np.ndarray]:
@@ -420,7 +420,7 @@ class TubeImages:
 
     def thumbnail(self, tube: dict, frame: dict) -> tuple[bytes, str | None]:
         """The gallery picture of ``tube`` on ``frame`` (best_frame's choice); TooLarge over the limit."""
-        colour = CLASS_COLOURS[tube["known"]]
+        colour = CALL_COLOURS[tube["call"]]
 
         def draw(image, mask):
             h, w = image.shape[:2]
@@ -442,7 +442,7 @@ class TubeImages:
         """Frame ``frame`` of ``tube`` with its mask, at ``size`` (one of SIZES); TooLarge over the limit."""
         if size not in SIZES:
             raise ValueError(f"size is one of {SIZES}, got {size!r}")
-        colour = CLASS_COLOURS[tube["known"]] if frame["observed"] else PREDICTED_COLOUR
+        colour = CALL_COLOURS[tube["call"]] if frame["observed"] else PREDICTED_COLOUR
 
         def draw(image, mask):
             if size == "strip":

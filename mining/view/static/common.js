@@ -1,8 +1,6 @@
 // Shared by the gallery and the tube page: JSON fetches, small DOM helpers, class labels.
 "use strict";
 
-const KNOWN_LABEL = { true: "known", false: "unknown", null: "unclassified" };
-
 async function getJSON(url) {
   const r = await fetch(url);
   let body;
@@ -28,18 +26,20 @@ function fmt(v, digits = 2) {
   return String(v);
 }
 
-function knownKey(known) { return known === null || known === undefined ? "null" : String(known); }
-
+// A tube's call (mining/score/call.py) is the API's `call`, one of known, unknown, clutter, unclassified
+// for every row (the server reads a row written before the column from its `known`); each call has its
+// colour (app.css: .c-<call>). The badge: a known tube's COCO class, else its call.
 function classLabel(t) {
-  if (t.known === null || t.known === undefined) return "unclassified";
-  return t.known ? t.category : "unknown";
+  return t.call === "known" ? t.category : t.call;
 }
 
-// What the number beside a class badge is: the posterior of the class the badge names.
+// The number beside the badge: the posterior of the class the badge names (known: P(class), unknown:
+// P(unknown)); for clutter the object gate's P(object), which made it clutter; nothing when unclassified.
 function probLabel(t) {
-  if (t.category_prob === null || t.category_prob === undefined) return "";
-  if (t.known === null || t.known === undefined) return "";
-  return `P(${t.known ? t.category : "unknown"}) ${t.category_prob.toFixed(2)}`;
+  const call = t.call, num = v => v !== null && v !== undefined && Number.isFinite(v);
+  if (call === "clutter") return num(t.object_prob) ? `P(object) ${t.object_prob.toFixed(2)}` : "";
+  if (call === "unclassified" || !num(t.category_prob)) return "";
+  return `P(${call === "known" ? t.category : "unknown"}) ${t.category_prob.toFixed(2)}`;
 }
 
 // Labels: the verdicts' names and keys (catalog/labels.py VERDICTS), and the one write.

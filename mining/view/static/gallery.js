@@ -8,7 +8,8 @@
 const RANGES = [
   ["score", "score"], ["score_motion", "motion"], ["score_mask", "mask"],
   ["score_objectness", "objectness"], ["n_frames", "frames"], ["n_observed", "frames seen"],
-  ["category_prob", "class prob."], ["class_evidence", "class evidence"], ["moving_speed_mps", "moving m/s"],
+  ["category_prob", "class prob."], ["object_prob", "P(object)"],
+  ["class_evidence", "class evidence"], ["moving_speed_mps", "moving m/s"],
   ["path_length", "path m"],
 ];
 const form = document.getElementById("filters");
@@ -33,7 +34,7 @@ function formToParams() {
   const checked = form.querySelector("input[name=set]:checked");
   const set = checked ? checked.value : address().get("set");  // none checked: the address's (bad) value stays
   if (set !== null && set !== "selected") p.set("set", set);
-  for (const c of form.querySelectorAll("input[name=known]:checked")) p.append("known", c.value);
+  for (const c of form.querySelectorAll("input[name=call]:checked")) p.append("call", c.value);
   for (const o of document.getElementById("category").selectedOptions) p.append("category", o.value);
   for (const o of document.getElementById("seq").selectedOptions) p.append("seq", o.value);
   for (const c of form.querySelectorAll("input[name=verdict]:checked")) p.append("verdict", c.value);
@@ -61,8 +62,8 @@ function choose(select, value) {
 function paramsToForm(p) {
   const set = p.get("set") || "selected";
   for (const r of form.querySelectorAll("input[name=set]")) r.checked = r.value === set;
-  const known = p.getAll("known");
-  for (const c of form.querySelectorAll("input[name=known]")) c.checked = known.includes(c.value);
+  const calls = p.getAll("call");
+  for (const c of form.querySelectorAll("input[name=call]")) c.checked = calls.includes(c.value);
   const verdicts = p.getAll("verdict");
   for (const c of form.querySelectorAll("input[name=verdict]")) c.checked = verdicts.includes(c.value);
   for (const [col] of RANGES) {
@@ -107,7 +108,7 @@ async function loadFacets(p) {
   const f = facets;
   document.getElementById("catalogue").textContent = f.catalogue;
   document.getElementById("totals").textContent = `${f.selected} selected of ${f.tubes} candidate tubes`;
-  for (const s of document.querySelectorAll("span.n[data-known]")) s.textContent = `(${f.known[s.dataset.known] || 0})`;
+  for (const s of document.querySelectorAll("span.n[data-call]")) s.textContent = `(${f.calls[s.dataset.call] || 0})`;
   for (const s of document.querySelectorAll("span.n[data-verdict]")) s.textContent = `(${f.verdicts[s.dataset.verdict] || 0})`;
   document.getElementById("author").textContent = `· you label as ${f.author}`;
   fillSelects(p);
@@ -127,7 +128,7 @@ function facetsNote() {
 function card(t, back) {
   const id = encodeURIComponent(t.tube_id);
   const img = el("img", { src: `/img/thumb?id=${id}`, alt: `tube ${t.tube_id}`, width: "240", height: "180", loading: "lazy" });
-  const badge = el("span", { class: `badge k-${knownKey(t.known)}`, text: classLabel(t) });
+  const badge = el("span", { class: `badge c-${t.call}`, text: classLabel(t) });
   const moving = t.moving_speed_mps === null || t.moving_speed_mps === undefined ? "" : ` · moving ${fmt(t.moving_speed_mps, 1)} m/s`;
   const a = el("a", { class: "card", href: `/tube?id=${id}&back=${encodeURIComponent(back)}`, "data-tube": t.tube_id },
     img,

@@ -98,7 +98,7 @@ function svg(tag, attrs) {
   return e;
 }
 
-function drawTrack(tubeFrames, ego, known) {
+function drawTrack(tubeFrames, ego, call) {
   const box = document.getElementById("track");
   box.replaceChildren();
   const pts = tubeFrames.map(f => f.position_world).filter(p => p);
@@ -130,7 +130,7 @@ function drawTrack(tubeFrames, ego, known) {
     const [ex, ey] = toSvg(cam[cam.length - 1]);
     box.append(svg("circle", { cx: ex, cy: ey, r: 3, class: "ego-end" }));
   }
-  box.append(svg("polyline", { points: pts.map(p => toSvg(p).join(",")).join(" "), class: `tube k-${knownKey(known)}` }));
+  box.append(svg("polyline", { points: pts.map(p => toSvg(p).join(",")).join(" "), class: `tube c-${call}` }));
   for (const f of tubeFrames) {
     const [x, y] = toSvg(f.position_world);
     box.append(svg("circle", { cx: x, cy: y, r: f.observed ? 2.2 : 1.4, class: f.observed ? "obs" : "gap" }));
@@ -145,16 +145,6 @@ function motionText(t) {
     return `moving ${fmt(t.moving_speed_mps, 1)} ± ${fmt(t.speed_sigma_mps, 1)} m/s · path ${fmt(t.path_length, 1)} ± ${fmt(t.path_sigma_m, 1)} m`;
   if (t.speed_sigma_mps === null || t.speed_sigma_mps === undefined) return "not measurable (under 3 observations)";
   return `static: ${fmt(t.speed, 1)} m/s is within 3 × its ±${fmt(t.speed_sigma_mps, 1)} m/s noise`;
-}
-
-function ruleText(t, r) {
-  if (!r) return "";
-  if (t.known === null) return `Unclassified: classifier evidence ${fmt(r.evidence, 2)} is below ${fmt(r.min_evidence, 2)} frame(s) (score.min_class_evidence).`;
-  if (r.log_ratio === null) return `Known when ln P(best COCO class) − ln P(unknown) > ${fmt(r.margin, 2)} (${r.margin_key}).`;
-  const cmp = r.log_ratio > r.margin ? ">" : "≤";
-  return `Known when ln P(best COCO class) − ln P(unknown) > ${fmt(r.margin, 2)} (${r.margin_key}). Here ln P(${r.best_known}) − ln P(unknown) = ` +
-    `ln ${fmt(r.p_best, 3)} − ln ${fmt(r.p_unknown, 3)} = ${fmt(r.log_ratio, 2)} ${cmp} ${fmt(r.margin, 2)}: ` +
-    (r.log_ratio > r.margin ? `known, ${r.best_known}.` : "unknown.");
 }
 
 function showLabels(r) {
@@ -208,7 +198,7 @@ async function main() {
   badge.textContent = classLabel(t) + (t.selected ? "" : " · candidate, not selected");
   showLabels(t);
   wireLabels();
-  badge.classList.add(`k-${knownKey(t.known)}`);
+  badge.classList.add(`c-${t.call}`);
   if (d.frames_unavailable) showBanner(`Pictures are placeholders: ${d.frames_unavailable}`);
   document.getElementById("score-model").textContent = `score: ${d.score_model}`;
   const scoreRows = [["score", fmt(t.score, 2)]];
@@ -220,11 +210,14 @@ async function main() {
     ["objectness LLR", fmt(t.score_objectness, 1)], ["selected", t.selected ? "yes" : "no: a candidate co-selection did not choose"]);
   rows(document.getElementById("scores"), scoreRows);
   rows(document.getElementById("class"), [
-    ["class", KNOWN_LABEL[knownKey(t.known)]], ["category", fmt(t.category)],
-    [t.known === null ? "probability" : `P(${t.known ? t.category : "unknown"})`, t.category_prob === null ? "–" : t.category_prob.toFixed(3)],
+    ["call", t.call + (t.call_from_known ? " (read from known: written before the call column)" : "")],
+    ["category", fmt(t.category)],
+    [t.call === "unclassified" ? "probability" : `P(${t.call === "known" ? t.category : "unknown"})`,
+      t.category_prob === null ? "–" : t.category_prob.toFixed(3)],
+    ["P(object)", t.object_prob === null ? "– (not judged by the object gate)" : t.object_prob.toFixed(3)],
     ["best COCO class", fmt(t.best_known)], ["classified frames", fmt(t.classified_frames)],
     ["evidence", fmt(t.class_evidence, 2)]]);
-  document.getElementById("class-rule").textContent = ruleText(t, d.class_rule);
+  document.getElementById("class-rule").textContent = d.class_rule.text;
   const top = document.getElementById("top-classes");
   top.replaceChildren(...d.top_classes.map(c => bar(c.name, c.p)));
   if (!d.top_classes.length) top.append(el("p", { class: "muted", text: "No classifier looked at this tube." }));
@@ -233,8 +226,8 @@ async function main() {
     ["size (w, h, l)", (t.size || []).map(v => fmt(v, 2)).join(" × ") + " m"],
     ["motion", motionText(t)], ["segment", fmt(t.segment)], ["windows stitched", fmt(t.n_windows)]]);
   document.getElementById("export").textContent = d.export_command;
-  drawTrack(frames, d.ego, t.known);
-  document.querySelector(".swatch.tube").classList.add(`k-${knownKey(t.known)}`);
+  drawTrack(frames, d.ego, t.call);
+  document.querySelector(".swatch.tube").classList.add(`c-${t.call}`);
 
   const strip = document.getElementById("strip");
   strip.replaceChildren(...frames.map((f, k) => {
