@@ -85,7 +85,7 @@ def test_the_benches_fit_tables_record_what_each_was_fit_on(tmp_path):
     write_fit("stereo", UNARY_FIT, table, tmp_path)
     assert proposer_weights(UNARY_FIT, tmp_path) == {"stereo": final}
 
-    fit = {"row_on_object": dict(ROW_ON_OBJECT), "row_known": dict(ROW_KNOWN), "margin": -1.0,
+    fit = {"row_on_object": dict(ROW_ON_OBJECT), "row_known": dict(ROW_KNOWN), "margin": 0.0, "unknown_cost": 0.5,
            "balanced_accuracy": 0.9, "object_evidence": dict(OBJECT_EVIDENCE["onnx+stereo"]), "unknown_min_object": 0.5}
     labels = np.array([calling.KNOWN, calling.UNKNOWN, calling.NOTHING, calling.NOTHING], float)
     data = [{"rows": np.column_stack([np.ones((4, 3)), labels]), "y": y,
@@ -94,7 +94,7 @@ def test_the_benches_fit_tables_record_what_each_was_fit_on(tmp_path):
     folds = [{"auc": auc}, {"auc": {**auc, "row_on_object": 0.7}}]
     rows, obj = calling.calling_fits(fit, folds, data, "onnx+stereo", ["0000", "0001"], 16,
                                      "mine bench calibrate --calling")
-    assert rows["samples"] == {"rows": 4, "on_known": 1, "on_unknown": 1, "on_nothing": 2}
+    assert rows["samples"] == {"rows": 4, "on_known": 1, "on_unknown": 1, "on_nothing": 2} and "× 0.5" in rows["note"]
     assert rows["auc"]["on_object"] == [0.7, 0.8] and obj["auc"] == {"min": 0.9, "max": 0.9}
     assert obj["samples"] == {"object": 2, "object_on_unknown": 1, "part_or_clutter": 3}
     write_fit("onnx+stereo", OBJECT_FIT, obj, tmp_path)

@@ -46,7 +46,8 @@ class SelectConfig:
     # ε1 and ε2 by the unary the scores come from (the two live on different scales)
     price: Price = field(default_factory=Price)  # was select.epsilon1 and select.epsilon1_calibrated (issue 38)
     # ours (issue 39): added to ε1 for a tube called unknown (mining/score/call.py), in the unary's units; < 0 makes
-    # unknown candidates cheaper than the whole set's operating point (chosen on mostly known objects)
+    # unknown candidates cheaper than the whole set's operating point. 0 measured best: −1 raised unknown frame recall
+    # 0.368 → 0.412 but cut the unknown set's precision 0.44 → 0.32 on seeds 0000–0006 (docs/RESULTS.md, issue 39)
     unknown_price: Signed = 0.0
     overlap_weight: OverlapWeight = field(default_factory=OverlapWeight)  # was select.epsilon2 and select.epsilon2_calibrated (issue 38)
     window_frames: Count = 100  # REFERENCE/paper: batches of 100 frames (original: ±50 frames around each frame)
