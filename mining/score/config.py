@@ -66,7 +66,7 @@ class ScoreConfig:
     # docs/RESULTS.md); "drop" = not offered to co-selection (a candidate in the catalogue, unselected); "off" = no
     # gate (before issue 29). A proposer without OBJECT_EVIDENCE weights has no gate.
     unknown_gate: Annotated[str, OneOf(("off", "drop", "call"))] = "call"
-    unknown_min_object: Fraction = 0.5  # ours: more likely an object than not (issue 29: best mean F1 of the unknown set, leave-one-seed-out on seeds 0000–0006; issue 39: 0.7 by 0.016 of F1, but tubes on unknown objects called unknown 0.88 → 0.72: 0.5 kept, docs/RESULTS.md)
+    unknown_min_object: Fraction = 0.5  # ours: more likely an object than not (issue 29: best mean F1 of the unknown set, leave-one-seed-out on seeds 0000–0006; issue 39: 0.7 by 0.022 of F1, but tubes on unknown objects called unknown 0.88 → 0.72: 0.5 kept, docs/RESULTS.md)
     # proposer → term → weight of the object evidence (mining.score.clutter.OBJECT_TERMS); a job table changes the terms
     # it names and keeps OBJECT_EVIDENCE's others
     object_evidence: dict[str, dict[str, Signed]] = field(default_factory=dict)
