@@ -203,3 +203,16 @@ def test_the_calibrated_rows_apply_to_the_jobs_whose_classifier_they_were_fit_on
     assert calls == {"onnx": True, "stereo": False}
     ref = load_config(None, ["proposals.proposer=onnx", "score.class_confidence=reference"])
     assert judge([tube], ref)[0].category.known is False
+
+
+def test_the_unknown_price_is_paid_by_tubes_called_unknown_only():
+    # one tube unknown wins in, one a classifier's confident person: the same masks, apart in the image
+    unknown = _unknown_tube(1, rect(0, 0, 20, 20))
+    person = Tube(2, 0, [frame(k, rect(30, 0, 50, 20), person_row(0.9)) for k in range(5)])
+    base = ["proposals.proposer=stereo", "score.unknown_gate=off", "select.price.calibrated=-100",
+            "select.price.reference=-100"]
+    calls = {m.tube.tube_id: (m.category.call, m.selected) for m in judge([unknown, person], load_config(None, base))}
+    assert calls == {1: ("unknown", True), 2: ("known", True)}
+    dear = {m.tube.tube_id: (m.category.call, m.selected)
+            for m in judge([unknown, person], load_config(None, [*base, "select.unknown_price=1000"]))}
+    assert dear == {1: ("unknown", False), 2: ("known", True)}
