@@ -38,9 +38,9 @@ class StereoConfig:
     # ours: a second SGBM pass at full resolution over disparities [0, far_full_disparities) (on KITTI, bf ≈ 386 px·m:
     # 32 px = depths beyond 12 m), over the rows that hold them, taken wherever the half-resolution disparity is below
     # that range less far_full_margin_px: far objects get full-resolution precision. 32 = ours, on by default since
-    # issue 39: unknown frame recall 0.357 → 0.443 on training seeds 0000–0004 (known recall and HOTA up too), the
-    # geometry step 51 → 88 ms a frame on one core (`mine bench geometry`; docs/RESULTS.md); 0 = off, REFERENCE's
-    # single half-resolution pass
+    # issue 39: unknown frame recall 0.357 → 0.443 on training seeds 0000–0004 (known recall and HOTA up too; held
+    # out: known recall and HOTA up, unknown recall flat), the geometry step 40.6 → 72.5 ms a frame on one core
+    # (`mine bench geometry`; docs/RESULTS.md); 0 = off, REFERENCE's single half-resolution pass
     far_full_disparities: Annotated[int, Range(0), MultipleOf(16, "OpenCV SGBM searches disparities in blocks of 16")] = 32
     far_full_margin_px: Annotated[float, Range(0)] = 8.0  # ours: the far pass's own range end is unreliable (a nearer surface clips to it)
     pad_left: bool = True  # ours: pad the left border so its first num_disparities columns get matched
