@@ -139,3 +139,13 @@ def test_unknown_kind_is_mined_and_called_unknown(scenario: str, band: tuple[flo
     assert u["tracks"] >= floor, f"unknown tracks evaluated {u['tracks']} < {floor}: {u}"
     assert u["tube_recall"] >= 0.5, f"unknown tube recall {u['tube_recall']:.2f} < 0.5: {u} {t}"
     assert t["unknown_called_unknown_share"] >= 0.5, f"unknown tubes called unknown {t['unknown_called_unknown_share']}: {t}"
+
+
+def test_staged_background_never_enters_the_unknown_set() -> None:
+    """Issue 39 (scope item 4): the verge's hedge, fence and grass (background, no truth) may be selected, but the
+    object gate must keep them out of the unknown set: no clutter tube called unknown. Met 2026-12-06 (1 clutter tube
+    of 7 selected, called known). The clutter that survives in the random worlds (far, high in the image, "moving" by
+    depth noise at ~30 m) is not staged yet (docs/RESULTS.md, issue 39)."""
+    t = _mine("verge", 40, HALF)["tubes"]
+    assert t["evaluated"] > 0
+    assert t["called_unknown_on"]["clutter"] == 0 and t["clutter_called"]["unknown"] == 0, t
