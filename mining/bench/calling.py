@@ -351,7 +351,7 @@ def run_calling_bench(cfg: JobConfig, seeds: Sequence[str], n_frames: int, cache
     f1s = {g: float(np.mean([f["runs"][f"gate {g:g}"]["unknown_set_f1"] for f in folds])) for g in GATE_GRID}
     final["unknown_min_object"] = max(GATE_GRID, key=lambda g: (f1s[g], -g))
     final["gate_f1"], final["by_cost"] = f1s, by_cost
-    final["kinds"] = leave_one_kind_out(data, cfg, l2, cost, final["unknown_min_object"])
+    final["kinds"] = leave_one_kind_out(data, cfg, l2, final, final["unknown_min_object"])
     _print(folds, final, seeds, n_frames)
     print(f"calibrate --calling: {time.perf_counter() - t0:.0f} s")
     if json_out:
@@ -431,17 +431,17 @@ def _new_kind_calls(data: dict[str, dict], cfg: JobConfig, l2: float, cost: floa
     return out
 
 
-def leave_one_kind_out(data: dict[str, dict], cfg: JobConfig, l2: float, cost: float, gate: float) -> dict:
+def leave_one_kind_out(data: dict[str, dict], cfg: JobConfig, l2: float, final: dict, gate: float) -> dict:
     """Per unknown kind of the seeds' truth: the calls of the selected tubes on it when the fits saw it
     (fit on everything) and when they never did (every row and tube on that kind left out of the fits;
     every seed judged). A kind called known only when left out was learned by heart."""
     known_kinds = _known_kinds(data)
     seen: dict[str, Counter] = {}
-    everything = calling_config(cfg, fit_all(list(data.values()), cfg, l2, cost), gate)
+    everything = calling_config(cfg, final, gate)  # the fit on every seed (``fit_all``), at its cost ratio
     for d in data.values():
         for kind, c in _calls_on_objects(judge(d["tubes"], everything), d["tube_kind"]).items():
             seen[kind] = seen.get(kind, Counter()) + c
-    left = _new_kind_calls(data, cfg, l2, cost, gate, known_kinds)
+    left = _new_kind_calls(data, cfg, l2, final["unknown_cost"], gate, known_kinds)
     return {kind: {"seen": dict(seen.get(kind, Counter())), "left_out": dict(c)} for kind, c in left.items()}
 
 

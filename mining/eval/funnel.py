@@ -277,10 +277,6 @@ def _frame_rates(counts: np.ndarray, names: list[str], dist_names: list[str], he
     return frames
 
 
-def _call(m: MinedTube) -> str:
-    return m.category.call  # one of CALLS (mining.score.call)
-
-
 def _calls(p: FunnelProtocol, mined: Sequence[MinedTube], tube_split: Mapping[int, str],
            where: dict[int, list]) -> dict:
     """The selected tubes on known objects per bin of the objects they cover, by the miner's call."""
@@ -294,7 +290,7 @@ def _calls(p: FunnelProtocol, mined: Sequence[MinedTube], tube_split: Mapping[in
         if not m.selected or tube_split.get(tid) != "known" or not on:
             continue
         z, h = np.median(np.array(on, np.float64), axis=0)
-        call = _call(m)
+        call = m.category.call
         for axis, names, edges, v in (("distance", dist_names, p.distance_edges_m, z),
                                       ("height", height_names, p.height_edges_px, h)):
             cell = out[axis][names[int(_bin(np.array([v]), edges)[0])]]
