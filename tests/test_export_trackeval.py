@@ -252,3 +252,56 @@ def test_burst_carries_the_frame_rate_and_its_image_layout(catalogue, tmp_path):
     seq = doc["sequences"][0]
     folder = dest / "frames" / doc["split"] / seq["dataset"] / seq["seq_name"]
     assert sorted(p.name for p in folder.iterdir()) == seq["annotated_image_paths"] == [f"{k:06d}.jpg" for k in range(16)]
+
+
+# -- a user's tag as the category -----------------------------------------------------------
+
+
+TAG = "construction barrier"  # the README's example: no COCO class
+
+
+@pytest.fixture(scope="module")
+def tagged(kinds, tmp_path_factory) -> Path:
+    """A copy of ``kinds`` whose unknown tubes the user tagged TAG (in both sequences)."""
+    from mining.catalog import labels
+    from mining.catalog.views import connect
+    cat = tmp_path_factory.mktemp("tagged") / "cat"
+    shutil.copytree(kinds, cat)
+    con = connect(cat)
+    try:
+        ids = con.execute("SELECT dataset, sequence, tube_id FROM tubes WHERE selected AND call = 'unknown'").fetchall()
+    finally:
+        con.close()
+    assert len(ids) == 2
+    labels.append(Store(cat), labels.events([tuple(r) for r in ids], "tag", TAG))
+    return cat
+
+
+@pytest.mark.parametrize("fmt", ["youtube-vis", "tao", "burst"])
+def test_a_tag_that_is_no_coco_class_is_a_category_of_its_own_the_reader_scores(tagged, tmp_path, fmt):
+    """The README's workflow, label then export with ``--category-from tag``: a tag that is not a
+    COCO class became a category of its own (it was refused, "not a COCO class"), listed by name,
+    and the format's reader scores it: YouTube-VIS and TAO as a class of its own, BURST-OW as one
+    of its "unknown" objects (class-guided BURST takes TAO's list, which cannot hold it)."""
+    dest = _export(tagged, fmt, tmp_path / fmt, category_from="tag")
+    if fmt == "youtube-vis":
+        cats = json.loads((dest / "instances.json").read_text())["categories"]
+        assert {"id": 2000, "name": TAG, "supercategory": "tag"} in cats
+        _place(dest / "instances.json", tmp_path / "gt" / "youtube_vis_tagged")
+        _place(dest / "results" / "results.json", tmp_path / "trk" / "youtube_vis_tagged" / "ours" / "data")
+        config = {"GT_FOLDER": f"{tmp_path / 'gt'}{os.sep}", "TRACKERS_FOLDER": f"{tmp_path / 'trk'}{os.sep}",
+                  "SPLIT_TO_EVAL": "tagged"}
+        _perfect(_evaluate(trackeval.datasets.YouTubeVIS, config, tmp_path), {"car", TAG, "unclassified"})
+    elif fmt == "tao":
+        cats = json.loads((dest / "tao.json").read_text())["categories"]
+        assert {"id": 2000, "name": TAG, "synset": f"tube_miner.tag:{TAG}"} in cats
+        _place(dest / "tao.json", tmp_path / "gt")
+        _place(dest / "results" / "results.json", tmp_path / "trk" / "ours" / "data")
+        config = {"GT_FOLDER": str(tmp_path / "gt"), "TRACKERS_FOLDER": str(tmp_path / "trk")}
+        _perfect(_evaluate(trackeval.datasets.TAO, config, tmp_path), {"car", TAG, "unclassified"})
+    else:
+        doc = json.loads((dest / "burst.json").read_text())
+        assert {"id": burst.TAG_BASE, "name": TAG, "synset": f"tube_miner.tag:{TAG}"} in doc["categories"]
+        assert all(s["track_category_ids"]["2"] == burst.TAG_BASE for s in doc["sequences"])
+        config, _ = _burst_folders(dest, tmp_path)
+        _perfect(_evaluate(trackeval.datasets.BURST_OW, config, tmp_path), {"object"})

@@ -25,7 +25,8 @@ category list whatever the file lists. A known tube's COCO class → its TAO id
 (``mining/formats/lvis.py``). The rest get ids above TAO's (1..1230) and inside BURST-OW's
 range (1..1999, where an id that is not one of its 78 COCO ids, "known", or a distractor counts
 as "unknown"): hot dog and oven, the COCO classes TAO lacks, ``OUTSIDE_TAO_BASE`` + their
-COCO id; unknown tubes ``UNKNOWN_ID``, clutter ``CLUTTER_ID``, unclassified ``UNCLASSIFIED_ID``. So class-guided
+COCO id; unknown tubes ``UNKNOWN_ID``, clutter ``CLUTTER_ID``, unclassified ``UNCLASSIFIED_ID``;
+a user's tag that is no COCO class (``--category-from tag``) ``TAG_BASE`` + its rank. So class-guided
 BURST scores the known tubes of TAO's classes, and BURST-OW scores every tube, its "known"
 subset the COCO classes and its "unknown" subset the others.
 """
@@ -37,8 +38,8 @@ from pathlib import Path
 import pyarrow as pa
 
 from mining.config import JobConfig
-from mining.export.json_annotations import (OWN_SYNSETS, RESULTS_DIR, RESULTS_JSON, TAO_IMAGES, area, category_id,
-                                            info, write_json)
+from mining.export.json_annotations import (OWN_SYNSETS, RESULTS_DIR, RESULTS_JSON, TAG_SYNSET, TAO_IMAGES, area,
+                                            category_id, info, tag_categories, write_json)
 from mining.export.selection import Video, category_label, video_tubes, videos
 from mining.export.source_frames import ticking, write_images
 from mining.formats.lvis import TAO_MAX_ID, synset, tao_category
@@ -51,15 +52,22 @@ UNCLASSIFIED_ID = 1999  # ours: unclassified tubes
 CLUTTER_ID = 1997  # ours: tubes called clutter (unknown wins, the object gate says not an object)
 OWN_IDS = {"unknown": UNKNOWN_ID, "unclassified": UNCLASSIFIED_ID, "clutter": CLUTTER_ID}  # by the tube's call
 BURST_OW_MAX_ID = 1999  # REFERENCE: TrackEval's BURST-OW: ids 1..1999 are known, unknown or distractor
+# ours: a user's tag that is no COCO class: TAG_BASE + its rank, between TAO's ids and
+# OUTSIDE_TAO_BASE, so BURST-OW scores it as "unknown" (TAG_LIMIT such tags in one export)
+TAG_BASE, TAG_LIMIT = 1300, 600
 
+assert TAO_MAX_ID < TAG_BASE and TAG_BASE + TAG_LIMIT <= OUTSIDE_TAO_BASE
 assert TAO_MAX_ID < OUTSIDE_TAO_BASE and OUTSIDE_TAO_BASE + 90 < CLUTTER_ID < UNKNOWN_ID < UNCLASSIFIED_ID <= BURST_OW_MAX_ID
 
 
-def burst_category(tube: dict) -> tuple[int, str, str]:
-    """(id, name, synset) of a tube's BURST category (``json_annotations.category_id`` checks the class)."""
+def burst_category(tube: dict, tags: dict[str, int] | None = None) -> tuple[int, str, str]:
+    """(id, name, synset) of a tube's BURST category (``json_annotations.category_id`` checks the
+    class); ``tags``: the export's own categories for tags that are no COCO class."""
     label = category_label(tube)
     if label in OWN_IDS:
         return OWN_IDS[label], label, OWN_SYNSETS[label]
+    if tags is not None and label in tags:
+        return tags[label], label, f"{TAG_SYNSET}:{label}"
     coco_id = category_id(tube)  # raises naming a class that is not COCO's
     tao = tao_category(label)
     if tao is None:
@@ -95,8 +103,9 @@ def export_burst(tubes: pa.Table, frames: pa.Table, job: JobConfig | None, dest:
                for vid, s in seqs.items()}
     used: dict[int, tuple[str, str]] = {}
     n = 0
+    tags = tag_categories(tubes.to_pylist(), TAG_BASE, TAG_LIMIT)
     for v, t, at in video_tubes(vids, frames, job):
-        cid, name, syn = burst_category(t)
+        cid, name, syn = burst_category(t, tags)
         used[cid] = (name, syn)
         seq, res = seqs[v.id], results[v.id]
         track = str(len(seq["track_category_ids"]) + 1)

@@ -31,16 +31,34 @@ RESULTS_DIR, RESULTS_JSON = "results", "results.json"
 
 
 OWN_IDS = {"unknown": UNKNOWN_ID, "unclassified": UNCLASSIFIED_ID, "clutter": CLUTTER_ID}  # by the tube's call
+# ours: a user's tag that is no COCO class (``--category-from tag``) is a category of its own,
+# TAG_BASE + its rank among the export's such tags in sorted order (above COCO's and OWN_IDS)
+TAG_BASE = 2000
+TAG_SUPERCATEGORY = "tag"  # ours: YouTube-VIS's supercategory of those categories
+TAG_SYNSET = "tube_miner.tag"  # ours: TAO's synset of each, followed by ":" and the tag
 
 
-def category_id(tube: dict) -> int:
-    """The COCO id of a known tube's class; OWN_IDS's by its call otherwise."""
+def tag_categories(tubes: list[dict], base: int = TAG_BASE, limit: int | None = None) -> dict[str, int]:
+    """The export's own categories for labels that are neither a COCO class nor a call (a user's
+    tag taken as the category): tag → ``base`` + its rank in sorted order, so one export's ids
+    do not depend on the tubes' order. ``limit``: the most a format's id range holds."""
+    tags = sorted({label for t in tubes if (label := category_label(t)) not in OWN_IDS and label not in CLASS_INDEX})
+    if limit is not None and len(tags) > limit:
+        raise InputError(f"{len(tags)} tags that are not COCO classes; this format's id range holds {limit}")
+    return {tag: base + i for i, tag in enumerate(tags)}
+
+
+def category_id(tube: dict, tags: dict[str, int] | None = None) -> int:
+    """The COCO id of a known tube's class; OWN_IDS's by its call; ``tags``'s (``tag_categories``)
+    for a tag that is no COCO class."""
     label = category_label(tube)
     if label in OWN_IDS:
         return OWN_IDS[label]
-    if label not in CLASS_INDEX:
-        raise InputError(f"tube {tube['tube_id']} is known as {label!r}, which is not a COCO class")
-    return COCO_CATEGORY_IDS[CLASS_INDEX[label]]
+    if label in CLASS_INDEX:
+        return COCO_CATEGORY_IDS[CLASS_INDEX[label]]
+    if tags is not None and label in tags:
+        return tags[label]
+    raise InputError(f"tube {tube['tube_id']} is known as {label!r}, which is not a COCO class")
 
 
 def area(f: dict) -> float:

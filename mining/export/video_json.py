@@ -49,8 +49,9 @@ from pycocotools import mask as mask_utils
 
 from mining.catalog.rows import mask_rle
 from mining.config import JobConfig
-from mining.export.json_annotations import (OWN_IDS, OWN_SYNSETS, RESULTS_DIR, RESULTS_JSON, TAO_IMAGES, area,
-                                            category_id, info, write_json)
+from mining.export.json_annotations import (OWN_IDS, OWN_SYNSETS, RESULTS_DIR, RESULTS_JSON, TAG_SUPERCATEGORY,
+                                            TAG_SYNSET, TAO_IMAGES, area, category_id, info, tag_categories,
+                                            write_json)
 from mining.export.selection import video_tubes, videos
 from mining.export.source_frames import ticking, write_images
 from mining.formats.coco import CLASS_INDEX, COCO_CATEGORY_IDS
@@ -67,14 +68,19 @@ def xywh(bbox) -> list[float]:
     return [round(x1, BOX_DECIMALS), round(y1, BOX_DECIMALS), round(x2 - x1, BOX_DECIMALS), round(y2 - y1, BOX_DECIMALS)]
 
 
-def categories(used: set[int], tao: bool = False) -> list[dict]:
-    """The categories among ``used`` (by id), COCO's first; YouTube-VIS entries carry a
-    supercategory ("coco" / "mined"), TAO entries the class's synset."""
+def categories(used: set[int], tao: bool = False, tags: dict[str, int] | None = None) -> list[dict]:
+    """The categories among ``used`` (by id), COCO's first, then the calls', then the tags'
+    (``json_annotations.tag_categories``); YouTube-VIS entries carry a supercategory ("coco" /
+    "mined" / "tag"), TAO entries the class's synset."""
     names = {COCO_CATEGORY_IDS[i]: name for name, i in CLASS_INDEX.items()}
     rows = [(c, names[c], "coco") for c in sorted(used) if c in names]
     rows += [(c, n, "mined") for n, c in sorted(OWN_IDS.items(), key=lambda kv: kv[1]) if c in used]
+    rows += [(c, n, TAG_SUPERCATEGORY) for n, c in sorted((tags or {}).items(), key=lambda kv: kv[1]) if c in used]
+
+    def tao_synset(n: str, g: str) -> str:
+        return OWN_SYNSETS[n] if g == "mined" else f"{TAG_SYNSET}:{n}" if g == TAG_SUPERCATEGORY else synset(n)
     if tao:
-        return [{"id": c, "name": n, "synset": OWN_SYNSETS[n] if g == "mined" else synset(n)} for c, n, g in rows]
+        return [{"id": c, "name": n, "synset": tao_synset(n, g)} for c, n, g in rows]
     return [{"id": c, "name": n, "supercategory": g} for c, n, g in rows]
 
 
@@ -102,8 +108,9 @@ def export_youtube_vis(tubes: pa.Table, frames: pa.Table, job: JobConfig | None,
     out_videos = [{"id": v.id, "name": v.name, "width": v.width, "height": v.height, "length": len(v.frames),
                    "file_names": [v.file_name(f) for f in v.frames]} for v in vids]
     anns, results, used = [], [], set()
+    tags = tag_categories(tubes.to_pylist())
     for v, t, at in video_tubes(vids, frames, job):
-        cid = category_id(t)
+        cid = category_id(t, tags)
         used.add(cid)
         areas = [area(at[f]) if f in at else None for f in v.frames]  # checks every mask before it is copied
         anns.append({"id": len(anns) + 1, "video_id": v.id, "category_id": cid, "iscrowd": 0,
@@ -115,7 +122,7 @@ def export_youtube_vis(tubes: pa.Table, frames: pa.Table, job: JobConfig | None,
                         "segmentations": [rle(at[f]) if f in at else None for f in v.frames],
                         "tube_id": t["tube_id"]})
     doc = {"info": info(job, "youtube-vis"), "licenses": [], "videos": out_videos, "annotations": anns,
-           "categories": categories(used)}
+           "categories": categories(used, tags=tags)}
     write_json(dest / YTVIS_JSON, doc)
     write_json(dest / RESULTS_DIR / RESULTS_JSON, results)
     if images:
@@ -138,8 +145,9 @@ def export_tao(tubes: pa.Table, frames: pa.Table, job: JobConfig | None, dest: P
             out_images.append({"id": image_id[v.id, f], "video_id": v.id, "file_name": v.file_name(f),
                                "width": v.width, "height": v.height, "frame_index": k, "frame": f})
     tracks, anns, results, used = [], [], [], set()
+    tags = tag_categories(tubes.to_pylist())
     for v, t, at in video_tubes(vids, frames, job):
-        cid = category_id(t)
+        cid = category_id(t, tags)
         used.add(cid)
         track_id = len(tracks) + 1
         score = float(t["score"])
@@ -152,7 +160,7 @@ def export_tao(tubes: pa.Table, frames: pa.Table, job: JobConfig | None, dest: P
             results.append({"image_id": image_id[v.id, frame], "video_id": v.id, "track_id": track_id,
                             "category_id": cid, "bbox": box, "score": score, "segmentation": rle(f)})
     doc = {"info": info(job, "tao"), "licenses": [], "videos": out_videos, "images": out_images, "tracks": tracks,
-           "annotations": anns, "categories": categories(used, tao=True)}
+           "annotations": anns, "categories": categories(used, tao=True, tags=tags)}
     write_json(dest / TAO_JSON, doc)
     write_json(dest / RESULTS_DIR / RESULTS_JSON, results)
     if images:
