@@ -47,11 +47,17 @@ def test_tag_tubes_with_keys_filter_by_the_tag_and_export_them(base_catalogue, c
             b.send("Input.insertText", {"text": TAG}, session=True)
             b.key("Enter", key_code=13)
             b.wait_for("document.body.dataset.labelled === '1'")
+            assert b.evaluate("document.getElementById('tag').value") == ""  # it kept the text once
             b.key("o", key_code=79)  # the verdict for the same selection
             b.wait_for("document.body.dataset.labelled === '2'")
+            b.key("t", key_code=84)  # a second tag: its own, not joined onto the first
+            b.send("Input.insertText", {"text": "post"}, session=True)
+            b.key("Enter", key_code=13)
+            b.wait_for("document.body.dataset.labelled === '3'")
             assert b.evaluate("document.body.dataset.labelError || ''") == ""
-            chips = b.evaluate("[...document.querySelectorAll('.cell.picked .labels')].map(l => l.textContent)")
-            assert chips == ["object" + TAG] * n
+            chips = b.evaluate("[...document.querySelectorAll('.cell.picked .labels')]"
+                               ".map(l => [...l.querySelectorAll('.tag')].map(t => t.textContent).sort())")
+            assert chips == [sorted([TAG, "post"])] * n
             b.evaluate("window.scrollTo(0, 0)")
             _looks_like_a_page(b.screenshot(shots / "gallery-tagged.png"), 1400, 1000)
             # The tag is a filter: exactly the tagged tubes, and the export line says so.
@@ -69,10 +75,11 @@ def test_tag_tubes_with_keys_filter_by_the_tag_and_export_them(base_catalogue, c
     assert cli.main(args) == 0
     sidecar = json.loads((tmp_path / "export" / "tube_labels.json").read_text())
     assert sorted(t["tube_id"] for t in sidecar["tubes"]) == sorted(shown[:n])
-    assert {(t["verdict"], tuple(t["tags"]), t["labelled_by"]) for t in sidecar["tubes"]} == {("object", (TAG,), "ann")}
+    assert {(t["verdict"], tuple(sorted(t["tags"])), t["labelled_by"]) for t in sidecar["tubes"]} == {
+        ("object", tuple(sorted([TAG, "post"])), "ann")}
     # A compaction keeps every tag.
     store = Store(out)
-    assert labels.compact(store)[0] == 2
+    assert labels.compact(store)[0] == 3
     con = connect(out)
     try:
         tagged = con.execute("SELECT tube_id FROM tube_labels WHERE list_contains(tags, ?)", [TAG]).fetchall()

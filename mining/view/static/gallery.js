@@ -191,6 +191,7 @@ async function applyLabel(body) {
       if (r) c.querySelector(".labels").replaceWith(labelChips(r));
     }
     status.textContent = `${answer.labelled.length} labelled`;
+    if (body.tag) document.getElementById("tag").value = "";  // the next tag starts afresh (not joined onto this one)
     facetsFor = null;  // the counts changed
     await loadFacets(address());
     document.body.dataset.labelled = String(Number(document.body.dataset.labelled || 0) + 1);

@@ -158,6 +158,7 @@ async function label(body) {
     const answer = await postLabels(body);
     showLabels(answer.labelled[0]);
     document.getElementById("label-status").textContent = "saved";
+    if (body.tag) document.getElementById("tag").value = "";  // the next tag starts afresh (not joined onto this one)
     document.body.dataset.labelled = String(Number(document.body.dataset.labelled || 0) + 1);
   } catch (e) { document.getElementById("label-status").textContent = `not saved: ${e.message}`; }
 }
