@@ -246,6 +246,7 @@ def test_the_classify_hint_names_settings_that_load_and_only_where_nothing_class
     assert classify_hint("onnx+stereo") is None and classify_hint("json") is None
     for proposer in ("stereo", "fastsam+stereo"):
         hint = classify_hint(proposer)
+        assert "/path/to" not in hint and "in place of MODEL.onnx" in hint  # a placeholder said to be one
         settings = hint[hint.index("--set"):].replace("--set ", "").split()
         cfg = load_config(REPO / "jobs" / "synthetic.toml", settings)  # the hinted settings are valid keys and values
         assert cfg.proposals.proposer == f"onnx+{proposer}"

@@ -40,10 +40,12 @@ def classify_hint(proposer: str) -> str | None:
     (a summary's closing line); None where one does."""
     if any(n in CLASSIFYING for n in proposer_names(proposer)):
         return None
+    # MODEL.onnx is a placeholder the user must replace: a plausible-looking path was copied as is
     return ("to call each tube known (one of COCO's 80 classes, e.g. car) or unknown (the discovery set), mine "
-            "again into a new --out with a COCO instance-segmentation model you provide (a YOLOv8-seg ONNX file; "
-            f"its weights are AGPL-3.0, not bundled): --set proposals.proposer=onnx+{proposer} "
-            "--set proposals.onnx.model_path=/path/to/yolov8n-seg.onnx")
+            "again into a new --out with a COCO instance-segmentation model you provide in place of MODEL.onnx "
+            "(a YOLOv8-seg ONNX file, e.g. made by Ultralytics' `yolo export model=yolov8n-seg.pt format=onnx`; "
+            "its weights are AGPL-3.0, not bundled; docs/USAGE.md, Proposers): "
+            f"--set proposals.proposer=onnx+{proposer} --set proposals.onnx.model_path=MODEL.onnx")
 
 
 def make_one(name: str, cfg: ProposalConfig, frame_size: tuple[int, int]) -> Proposer:
