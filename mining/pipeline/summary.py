@@ -55,16 +55,27 @@ class Summary:
         """A window, a stitch or a sequence's planning failed (``mine submit`` exits 1)."""
         return bool(self.failed or self.stitch_failed or self.unplanned)
 
+    @property
+    def nothing_to_do(self) -> bool:
+        """Every window was done by an earlier run and this one wrote nothing (a finished job resubmitted)."""
+        return (self.windows > 0 and self.skipped == self.windows and not self.ok and not self.any_failed
+                and not self.sequences_written and not self.recomputed)
+
     def lines(self) -> list[str]:
         stitch = f"; stitch: {len(self.stitch_failed)} failed" if self.stitch_failed else ""
         out = [f"windows: {self.ok} ok, {len(self.failed)} failed, {self.skipped} already done (of {self.windows})"
                f"{stitch}",
-               *self.clamped,
-               f"tubes written this run: {self.tubes} selected ({self.known} known, {self.unknown} unknown, "
-               f"{self.clutter} clutter, {self.unclassified} unclassified) of {self.candidates} candidates, in {self.sequences_written} sequence(s)",
-               *([self.classifiers] if self.classifiers else []),
-               f"time: {self.seconds:.1f} s in all, {self.mining_seconds:.1f} s mining: "
-               f"{self.frames / max(self.mining_seconds, 1e-9):.2f} frames/s (core frames tracked / mining time)"]
+               *self.clamped]
+        if self.nothing_to_do:  # "0 selected … 0.00 frames/s" read as a job that found nothing
+            out += ["nothing left to mine: an earlier run did every window; the catalogue is as it was "
+                    "(mine status, mine query)", f"time: {self.seconds:.1f} s in all"]
+            return out
+        out += [f"tubes written this run: {self.tubes} selected ({self.known} known, {self.unknown} unknown, "
+                f"{self.clutter} clutter, {self.unclassified} unclassified) of {self.candidates} candidates, in "
+                f"{self.sequences_written} sequence(s)",
+                *([self.classifiers] if self.classifiers else []),
+                f"time: {self.seconds:.1f} s in all, {self.mining_seconds:.1f} s mining: "
+                f"{self.frames / max(self.mining_seconds, 1e-9):.2f} frames/s (core frames tracked / mining time)"]
         if self.placement.get("proposal_actors"):
             actors = self.placement["proposal_actors"]
             gpus = ", ".join("+".join(a["gpu_ids"]) or "none" for a in actors)
