@@ -223,3 +223,31 @@ def test_render_labels_keep_the_id_apart_from_the_probability():
                          "category_prob": 0.91}) == "#4:1 unknown 0.91"
     assert tube_caption({"tube_id": "kitti/0005/0000004.001", "known": None, "category": None,
                          "category_prob": None}) == "#4:1 unclassified"
+
+
+def test_a_sequence_with_no_selected_tube_renders_its_frames_and_says_so(catalogue, kitti_tracking_root, tmp_path, capsys):
+    """It was refused ("no selected tube … nothing written"): a video of the frames shows what was
+    missed, which is what one renders such a sequence for."""
+    import pyarrow as pa
+
+    from _catalog_data import DATASET
+    from mining.catalog.schema import SCHEMAS
+    from mining.catalog.store import Store, write_sequence
+    from mining.cli import main
+
+    out, tables = catalogue
+    cat = tmp_path / "none-selected"
+    rows = [dict(r, selected=False) for r in tables["tubes"].to_pylist()]
+    write_sequence(Store(cat), "tubes", DATASET, SEQUENCE, pa.Table.from_pylist(rows, schema=SCHEMAS["tubes"]))
+    write_sequence(Store(cat), "tube_frames", DATASET, SEQUENCE, tables["tube_frames"])
+    Store(cat).write_bytes("job.json", (out / "job.json").read_bytes())
+    dest = tmp_path / "frames.mp4"
+    assert main(["render", "--out", str(cat), "--sequence", SEQUENCE, "--frames", "0:3", str(dest)]) == 0
+    said = capsys.readouterr().out
+    assert f"sequence {SEQUENCE!r} has no selected tube: the video shows its frames alone" in said, said
+    assert "3 frames, 0 tubes" in said
+    got = _frames(dest)
+    assert len(got) == 3
+    # The frame as the source has it, under the caption band: no tube drawn.
+    src = _source(kitti_tracking_root, 1)
+    assert np.abs(got[1][H // 2:H].astype(int) - src[H // 2:].astype(int)).mean() < 8

@@ -20,7 +20,9 @@ only with ``--overwrite`` and only when it is a plain file; written in a private
 it and moved on; a failed render leaves DEST as it was. A bad tube fails only itself: one
 whose ``tube_frames`` rows hold a malformed mask, or one of another size than the
 sequence's frames (its calibration), is not drawn, and is named with the table in one line
-(exit 1); when no selected tube is left, nothing is written (exit 2).
+(exit 1); when no selected tube is left, nothing is written (exit 2). A sequence with no selected
+tube at all renders its frames alone, and says so (so one can see what was missed); with
+``--where`` matching nothing, nothing is written (exit 1).
 
 ``--all-candidates`` draws the candidates co-selection left out too (``selected = false``),
 dimmed: outline and label only, in a colour halfway to grey, under the selected tubes; so
@@ -159,8 +161,7 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
         con.close()
     tube_rows = [t for t in tubes.to_pylist() if (t["selected"] or all_candidates) and t["sequence"] == sequence
                  and t["dataset"] == dataset]
-    keep = {t["tube_id"] for t in tube_rows}
-    if not tube_rows:
+    if not tube_rows and where is not None:  # a sequence with no selected tube renders its frames alone
         raise NothingMatched(f"no {'candidate' if all_candidates else 'selected'} tube of sequence {sequence!r} matches"
                              + ("" if where is None else f" --where {where!r}") + "; nothing written")
     plan = source.survey(sequence)
@@ -171,6 +172,8 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
         stop = len(plan) if stop is None else min(stop, len(plan))
     elif mined[2]:
         start, stop = int(mined[0]), min(int(mined[1]) + 1, len(plan))
+    elif not tube_rows:
+        start, stop = 0, len(plan)
     else:
         position = {f: p for p, f in enumerate(plan.frames)}
         spans = [position.get(f) for f in tube_frames.column("frame").to_pylist()]
@@ -181,9 +184,11 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
     plan = source.plan(sequence, start, stop)  # refuses a frame in the range the source cannot read
     fps = _fps(plan.t_ns[start:stop]) if fps is None else fps
     h, w = plan.calib.height, plan.calib.width
-    tubes, tube_frames, left_out = without_bad_masks(tubes, tube_frames, lambda d, s: (h, w))
+    left_out: dict[str, str] = {}
+    if tube_rows:  # without_bad_masks refuses when no tube is left
+        tubes, tube_frames, left_out = without_bad_masks(tubes, tube_frames, lambda d, s: (h, w))
     tube_rows = [t for t in tube_rows if t["tube_id"] not in left_out]
-    keep = {t["tube_id"] for t in tube_rows}  # not empty: without_bad_masks refuses when no tube is left
+    keep = {t["tube_id"] for t in tube_rows}
 
     selected = {t["tube_id"] for t in tube_rows if t["selected"]}
     colours = tube_colours(sorted(selected)) | {k: dimmed(c) for k, c in tube_colours(sorted(keep - selected)).items()}
@@ -272,6 +277,9 @@ def run_render(out: str | Path, sequence: str, dest: str | Path, where: str | No
         raise safe_files.write_error(e, e.filename or dest) from None
     if r.clamped:
         print(f"mine render: {r.clamped}")
+    if not r.tubes and not r.candidates:
+        print(f"mine render: sequence {sequence!r} has no {'candidate' if all_candidates else 'selected'} tube: the "
+              f"video shows its frames alone" + ("" if all_candidates else " (--all-candidates draws the candidates)"))
     cands = f" and {r.candidates} unselected candidates" if all_candidates else ""
     print(f"mine render: {r.frames} frames, {r.tubes} tubes{cands}, {r.width}×{r.height} {r.codec} at {r.fps:g} fps → "
           f"{r.dest} ({r.seconds:.1f} s){codec_note(r.codec)}")
