@@ -178,6 +178,9 @@ def _check_names(args: argparse.Namespace) -> None:
             check_name(name, "sequence", f"--{flag}")
 
 
+BROKEN_PIPE = 141  # the shell's status of a writer whose reader went away: 128 + SIGPIPE (13)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Parse ``argv`` and run the command. Every error it raises is one line on standard error
     and an exit status, here and nowhere else: NothingMatched ``mine NAME: …``, 1; a MiningError
@@ -200,6 +203,10 @@ def main(argv: list[str] | None = None) -> int:
     except MiningError as e:
         print(f"{said}: {e}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # the reader stopped reading (`mine config | head`): stop quietly, as `cat` does
+        # The interpreter flushes stdout at exit and would fail again: point it at /dev/null first.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return BROKEN_PIPE
     except KeyboardInterrupt:  # Ctrl-C: one line, no traceback (Ray's included); 130 = 128 + SIGINT
         resume = " — rerun the same command to resume" if args.command == "submit" else ""
         print(f"interrupted{resume}", file=sys.stderr)

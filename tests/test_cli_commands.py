@@ -134,3 +134,22 @@ def test_a_failed_write_and_a_duckdb_error_are_said_in_the_commands_name(capsys,
                    "and run the command again)\n")
         monkeypatch.setattr(module, name, damaged)
         assert _main(capsys, command, *argv, "--out", out) == (2, "", f"mine {command}: IO Error: the file is damaged\n")
+
+
+@pytest.mark.parametrize("argv", [["config"], ["--help"], ["config", "--help"]])
+def test_a_reader_that_stops_reading_ends_the_command_quietly(argv):
+    """`mine config | head` ended in a BrokenPipeError traceback: the reader closing the pipe is
+    now the shell's quiet stop (status 141, 128 + SIGPIPE, as `cat` gives), nothing on stderr.
+    The reader is gone before the command starts, so its first write meets the closed pipe."""
+    import os
+
+    r, w = os.pipe()
+    os.close(r)
+    try:
+        proc = subprocess.run([sys.executable, "-m", "mining.cli", *argv], cwd=REPO, stdout=w,
+                              stderr=subprocess.PIPE, timeout=60)
+    finally:
+        os.close(w)
+    err = proc.stderr.decode()
+    # argparse's help drops its own write errors (status 0); everything else stops at 141
+    assert proc.returncode == (0 if "--help" in argv else 141) and err == "", (proc.returncode, err)
