@@ -21,7 +21,7 @@ the labels' frame size is the video's, so relative boxes place the masks on the 
 A detection: ``label`` the category by the tube's call (a known tube's COCO
 class, ``unknown``, ``clutter``, ``unclassified``), ``confidence`` the tube's ``category_prob`` (none
 when unclassified), ``index`` the tube's track id (0, 1, … per sequence in catalogue order:
-the KITTI exports' ids), and attributes ``tube_id``, ``score`` (the tube's weighted total)
+the KITTI exports' ids), and attributes ``tube_id``, ``score`` (the catalogue's ``score``)
 and ``observed``. FiftyOne keeps an instance mask inside its box, so the box is the pixel
 grid box that holds both the catalogue's box and every mask pixel, and the mask is the
 catalogue's mask cut to it: the same pixels, none lost. With the job's
