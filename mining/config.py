@@ -66,8 +66,8 @@ class RunConfig:
     calib_fov_deg: tuple[float, float] = (5.0, 170.0)  # ours: plausible horizontal field of view of a rectified camera (fx = 0 or a 10× typo falls outside)
     calib_baseline_m: tuple[float, float] = (0.01, 5.0)  # ours: plausible stereo baseline (a baseline given in millimetres falls outside)
     calib_aspect: tuple[float, float] = (0.5, 2.0)  # ours: plausible fy / fx (rectified pixels are near square)
-    # ours: the interface a local Ray of the job's own binds every port to (pipeline/localray.py);
-    # loopback unless the user names another (`mine submit --host`); 0.0.0.0 = Ray's own choice
+    # ours: the interface a local Ray of the job's own binds every port to (pipeline/localray.py): 127.0.0.1,
+    # or every interface asked for by name, 0.0.0.0 or :: (announced); any other address is refused (Ray would not keep to it)
     bind_host: str = "127.0.0.1"
     # The proposal stage (pipeline/proposal_stage.py): the proposer's model parts on actors of their own;
     # without one the models run inside the CPU workers.
