@@ -57,7 +57,7 @@ MAX_BODY_DEPTH = 32  # ours: arrays/objects nested in a POST body (a labelling r
 _NOT_PRINTABLE = re.compile(r"[^\x20-\x7e]")
 _HOST = re.compile(r"(?:\[(?P<v6>[0-9a-f:.]+)\]|(?P<name>[^:\[\]]+))(?::(?P<port>[0-9]{1,5}))?")
 _HEAD_END = re.compile(rb"\r?\n\r?\n")
-WILDCARD_HOSTS = ("", "0.0.0.0", "::")
+WILDCARD_HOSTS = ("0.0.0.0", "::")  # every interface (IPv4; IPv6 and, dual-stack, IPv4 too)
 
 
 def _not_json(constant: str) -> None:
@@ -384,7 +384,9 @@ class ViewServer(HTTPServer):
 
     request_queue_size = 128  # the listen backlog (socketserver's 5 overflows under a burst of connects)
 
-    def __init__(self, address: tuple[str, int], handler: type[Handler], limits: Limits, hosts: HostRule):
+    def __init__(self, address: tuple[str, int], handler: type[Handler], limits: Limits, hosts: HostRule,
+                 family: socket.AddressFamily = socket.AF_INET):
+        self.address_family = family  # read by socketserver when it makes the listening socket
         self.limits, self.hosts = limits, hosts
         self.cap = connection_cap(limits.max_connections)
         self._lock = threading.Lock()
