@@ -95,9 +95,8 @@ def init_local_ray(num_cpus: int | None, bind_host: str = LOOPBACK, **init_kwarg
 
     # The dashboard is off; were it turned on, it stays on loopback either way.
     kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False, "dashboard_host": LOOPBACK}
-    # Every interface: the node address others reach this machine by (Ray's own guess, before
-    # init), which makes Ray listen on `::`; a local ray.init left to itself stays on 127.0.0.1.
-    kwargs["_node_ip_address"] = LOOPBACK if loopback else ray.util.get_node_ip_address()
+    if loopback:  # else Ray's own choice: the host's address as the node's, every port on `::`
+        kwargs["_node_ip_address"] = LOOPBACK
     ray.init(address="local", num_cpus=num_cpus, **(kwargs | init_kwargs))
     node = ray.util.get_node_ip_address()
     if loopback and node != LOOPBACK:
