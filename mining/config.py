@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 from mining.checks import Count, OneOf, Range, coerce, split_hint
-from mining.errors import ConfigError
+from mining.errors import ConfigError, read_text
 from mining.geometry.config import GeometryConfig
 from mining.localise.config import LocaliseConfig
 from mining.proposals.config import ProposalConfig
@@ -66,8 +66,8 @@ class RunConfig:
     calib_fov_deg: tuple[float, float] = (5.0, 170.0)  # ours: plausible horizontal field of view of a rectified camera (fx = 0 or a 10× typo falls outside)
     calib_baseline_m: tuple[float, float] = (0.01, 5.0)  # ours: plausible stereo baseline (a baseline given in millimetres falls outside)
     calib_aspect: tuple[float, float] = (0.5, 2.0)  # ours: plausible fy / fx (rectified pixels are near square)
-    # ours: the interface a local Ray of the job's own binds every port to (pipeline/localray.py);
-    # loopback unless the user names another (`mine submit --host`); 0.0.0.0 = Ray's own choice
+    # ours: the interface a local Ray of the job's own binds every port to (pipeline/localray.py): 127.0.0.1,
+    # or every interface asked for by name, 0.0.0.0 or :: (announced); any other address is refused (Ray would not keep to it)
     bind_host: str = "127.0.0.1"
     # The proposal stage (pipeline/proposal_stage.py): the proposer's model parts on actors of their own;
     # without one the models run inside the CPU workers.
@@ -251,7 +251,7 @@ def parse_override(text: str) -> dict[str, Any]:
     key, raw = text.split("=", 1)
     try:
         value = tomllib.loads(f"v = {raw}")["v"]
-    except tomllib.TOMLDecodeError:
+    except (tomllib.TOMLDecodeError, RecursionError):  # RecursionError: nested past tomllib's recursion
         value = raw  # bare strings need no quotes on the command line
     out: dict[str, Any] = {}
     node = out
@@ -268,11 +268,15 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
     if path is not None:
         p = Path(path)
         try:
-            data = tomllib.loads(p.read_text())
+            data = tomllib.loads(read_text(p, "job config"))
         except FileNotFoundError:
             raise ConfigError(f"file {p}: job config not found") from None
         except tomllib.TOMLDecodeError as e:
             raise ConfigError(f"file {p}: not valid TOML: {e}") from None
+        except RecursionError:  # tomllib recurses once per nested array or table
+            raise ConfigError(f"file {p}: not valid TOML: nested deeper than the parser can read") from None
+        except OSError as e:  # a folder, no permission
+            raise ConfigError(f"file {p}: job config cannot be read ({e.strerror or e})") from None
     where = str(path) if path else "config"
     _build(JobConfig, data, where)  # the file's own faults are the file's
     for o in overrides or []:

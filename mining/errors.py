@@ -38,3 +38,22 @@ class NothingMatched(Exception):
     An answer, not a failure of the input: ``cli.main`` maps it to exit status 1 (as grep's
     "no match"), once for every command. Not a MiningError on purpose: the commands report
     those as failures (exit status 2)."""
+
+
+def decode_text(data: bytes, path: str | Path, what: str, frame: int | None = None) -> str:
+    """``data``, the bytes of a user's text file ``path`` (``what`` it is: "job config"), as
+    text with universal newlines (as ``Path.read_text``); InputError, one line naming the file,
+    the first byte that is not UTF-8, its offset and line, where the bytes are not UTF-8."""
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        line = data.count(b"\n", 0, e.start) + 1
+        raise InputError(f"{what} is not UTF-8 text: byte 0x{data[e.start]:02x} at offset {e.start} (line {line}); "
+                         "save it as UTF-8", path, frame) from None
+    return text.replace("\r\n", "\n").replace("\r", "\n")
+
+
+def read_text(path: str | Path, what: str, frame: int | None = None) -> str:
+    """The text of a user's file ``path`` (see ``decode_text``); OSError (a missing file,
+    say) is the caller's to word."""
+    return decode_text(Path(path).read_bytes(), path, what, frame)

@@ -61,6 +61,7 @@ def test_a_marker_saves_as_the_stitch_wrote_it_and_loads_back(tmp_path):
     (b'{"windows": [], "files": {"f": {"size": "3"}}}', "key 'files' holds an object"),
     (b'{"windows": [], "dataset": "d", "sequence": "t"}', "another sequence's marker"),
     (b"\xff\xfe", "not valid JSON"),
+    (b"[" * 100_000 + b"]" * 100_000, "not valid JSON"),  # a RecursionError inside json.loads (issue 40)
 ])
 def test_a_damaged_or_foreign_marker_is_unreadable_with_why(tmp_path, content, reason):
     store = Store(tmp_path)
@@ -115,6 +116,7 @@ WIN = {"dataset": "d", "sequence": "s", "core": [0, 8], "context": [0, 12]}
 
 @pytest.mark.parametrize("content, reason", [
     (b'{"run_id": "r", "par', "not valid JSON"),
+    (b'{"run_id": ' + b"[" * 100_000 + b"]" * 100_000 + b"}", "not valid JSON"),  # RecursionError (issue 40)
     (b"[]", "expected a JSON object, got an array"),
     (b'{"run_id": "r"}', "key 'params_hash' is missing"),
     (json.dumps({**JOB_OK, "run_id": 1}).encode(), "key 'run_id' holds a number, expected a run id"),

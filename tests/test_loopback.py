@@ -12,7 +12,10 @@ from __future__ import annotations
 import ipaddress
 import os
 import re
+import socket
+import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -130,18 +133,114 @@ def _exposure_lines(stderr: str) -> list[str]:
     return [ln for ln in stderr.splitlines() if "unauthenticated" in ln]
 
 
-def test_a_bind_beyond_loopback_is_one_line_naming_the_interface_and_where_it_came_from(tmp_path, capsys):
+def test_a_bind_to_every_interface_is_one_line_naming_it_and_where_it_came_from(tmp_path, capsys):
     job_file = tmp_path / "someone-elses.toml"
     job_file.write_text('[run]\nbind_host = "0.0.0.0"\n')
     cases = [(("--host", "0.0.0.0"), "0.0.0.0", "--host"),
+             (("--host", "::"), "::", "--host"),
              (("--config", str(job_file)), "0.0.0.0", str(job_file)),
-             (("--set", "run.bind_host=10.1.2.3"), "10.1.2.3", "--set run.bind_host=10.1.2.3"),
-             (("--config", str(job_file), "--host", "192.168.7.7"), "192.168.7.7", "--host")]
+             (("--set", 'run.bind_host="::"'), "::", '--set run.bind_host="::"'),
+             (("--config", str(job_file), "--host", "::"), "::", "--host")]
     for args, interface, origin in cases:
         lines = _exposure_lines(_refused_submit(capsys, tmp_path, *args))
         assert len(lines) == 1, (args, lines)
-        assert interface in lines[0] and origin in lines[0] and "Ray" in lines[0], (args, lines[0])
-    assert "every interface" in _exposure_lines(_refused_submit(capsys, tmp_path, "--host", "0.0.0.0"))[0]
-    # Loopback (the default, or named) says nothing.
-    for args in [(), ("--host", "127.0.0.1"), ("--set", 'run.bind_host="::1"')]:
+        line = lines[0]
+        assert "every interface" in line and interface in line and origin in line and "Ray" in line, (args, line)
+    # 127.0.0.1 (the default, or named) says nothing.
+    for args in [(), ("--host", "127.0.0.1"), ("--set", 'run.bind_host="127.0.0.1"')]:
         assert not _exposure_lines(_refused_submit(capsys, tmp_path, *args)), args
+
+
+# Ray keeps only 127.0.0.1 to itself: with any other node address its GCS, raylet, driver and
+# workers listen on `::` (localray.py's docstring), and ::1 becomes 127.0.0.1.
+@pytest.mark.parametrize("host", ["127.0.0.2", "::1", "192.168.7.7", "10.1.2.3", "localhost", "::ffff:127.0.0.1"])
+def test_an_address_ray_would_widen_is_refused_before_anything_is_written(tmp_path, capsys, host):
+    from _jobs import SYNTHETIC
+    from _run import cli, clean_error
+
+    for args, origin in [(("--host", host), "--host"), (("--set", f'run.bind_host="{host}"'), "--set")]:
+        out = tmp_path / "out"
+        rc, stdout, stderr = cli(capsys, "submit", *SYNTHETIC, *args, "--out", str(out), "--workers", "1",
+                                 "--no-progress")
+        assert rc == 2 and not stdout, (rc, stdout, stderr)
+        line = clean_error(stderr)
+        assert len(stderr.strip().splitlines()) == 1, stderr
+        assert line.startswith("mine: error: ") and host in line and origin in line, line
+        assert "127.0.0.1" in line and "0.0.0.0" in line, line  # what to use instead
+        assert not _exposure_lines(stderr)
+        assert not out.exists(), f"{host}: --out was made before the bind was refused"
+
+
+# -- the viewer (issue 40): exactly the address given ---------------------------------------
+
+
+def _ipv6_loopback() -> bool:
+    try:
+        with socket.socket(socket.AF_INET6) as s:
+            s.bind(("::1", 0))
+        return True
+    except OSError:
+        return False
+
+
+@pytest.mark.parametrize("host", ["127.0.0.2", "::1"])
+def test_the_viewer_listens_exactly_where_told(tmp_path, host):
+    from mining.view.server import make_server
+
+    if ":" in host and not _ipv6_loopback():
+        pytest.skip("no IPv6 loopback here")
+    (tmp_path / "cat").mkdir()
+    server = make_server(tmp_path / "cat", host, 0, tmp_path / "cache")
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        bound, port = server.socket.getsockname()[:2]
+        assert bound == host
+        listening = {(a, p) for _, _, a, p in listening_sockets({os.getpid(): ""})}
+        assert (host, port) in listening, listening
+        # The address given answers; another loopback address on the same port does not.
+        with socket.create_connection((host, port), timeout=10) as s:
+            s.sendall(f"GET /static/gallery.js HTTP/1.1\r\nHost: {host if ':' not in host else f'[{host}]'}\r\n"
+                      "Connection: close\r\n\r\n".encode())
+            assert s.recv(64).startswith(b"HTTP/1.")
+        with pytest.raises(ConnectionRefusedError):
+            socket.create_connection(("127.0.0.1", port), timeout=10).close()
+    finally:
+        server.shutdown()
+        server.server_close()
+        server.app.browser.close()
+        thread.join(5)
+
+
+@pytest.mark.parametrize("host", ["localhost", "", "example.invalid", "127.0.0.1:8765", "[::1]"])
+def test_the_viewer_refuses_a_host_that_is_not_an_address_before_opening_anything(tmp_path, host):
+    from mining.errors import InputError
+    from mining.view.server import make_server
+
+    cache = tmp_path / "cache"
+    with pytest.raises(InputError) as e:
+        server = make_server(tmp_path / "nowhere", host, 0, cache)
+        server.server_close()  # only before the fix: a name was resolved and listened on
+    assert f"--host {host!r} is not an IP address" in str(e.value) and "\n" not in str(e.value)
+    assert not cache.exists() and not (tmp_path / "nowhere").exists()
+
+
+def test_the_viewer_says_so_when_it_listens_on_every_interface_and_refuses_a_name_in_one_line(tmp_path):
+    from _run import env, mine_cmd
+
+    proc = subprocess.run(mine_cmd("view", "--out", str(tmp_path / "cat"), "--host", "localhost", "--port", "0",
+                                   "--cache", str(tmp_path / "cache")),
+                          capture_output=True, text=True, env=env(), timeout=60)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    assert proc.stderr.strip().count("\n") == 0 and "--host 'localhost' is not an IP address" in proc.stderr
+    (tmp_path / "cat").mkdir()
+    proc = subprocess.Popen(mine_cmd("view", "--out", str(tmp_path / "cat"), "--host", "0.0.0.0", "--port", "0",
+                                     "--cache", str(tmp_path / "cache")),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env())
+    try:
+        proc.stdout.readline()  # "serving …": the announcement follows it
+        line = proc.stderr.readline()
+    finally:
+        proc.terminate()
+        proc.wait(10)
+    assert "every interface" in line and "--host 0.0.0.0" in line and "no login" in line, line

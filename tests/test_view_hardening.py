@@ -614,3 +614,33 @@ def test_the_form_replaces_a_bad_address(server, browser):
     assert browser.evaluate("location.search") == "?call=known"
     assert browser.evaluate(CARDS) == [t["tube_id"] for t in page["tubes"]]
     assert browser.evaluate("document.getElementById('banner').hidden")
+
+
+# ------------------------------------------------------------------ request bodies (issue 40)
+
+
+def _post_raw(base: str, body: bytes) -> tuple[int, bytes]:
+    """(status, body) of POST /api/labels with ``body`` as JSON, sent byte for byte."""
+    head = (f"POST /api/labels HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
+            f"Content-Length: {len(body)}\r\nConnection: close\r\n\r\n").encode()
+    status, _, answer, _ = raw(base, head + body)
+    return status, answer
+
+
+def test_a_malformed_post_body_is_400_and_the_server_goes_on(server):
+    """A body nested 100,000 deep was a RecursionError inside json.loads, answered 500."""
+    base, _, _ = server
+    bodies = {"nested 100,000 deep": b"[" * 100_000 + b"]" * 100_000,
+              "nested 40 deep in an object": b'{"tubes": ' + b"[" * 40 + b"]" * 40 + b', "verdict": "object"}',
+              "not JSON": b"{tubes: nope",
+              "not UTF-8": b'{"tubes": ["caf\xe9"], "verdict": "object"}',
+              "NaN": b'{"tubes": NaN}'}
+    for what, body in bodies.items():
+        status, answer = _post_raw(base, body)
+        assert status == 400, (what, status, answer[:300])
+        error = json.loads(answer)["error"]
+        assert "RecursionError" not in error and len(error) < 300, (what, error)
+    assert "deeper than" in json.loads(_post_raw(base, bodies["nested 100,000 deep"])[1])["error"]
+    assert "byte 0xe9" in json.loads(_post_raw(base, bodies["not UTF-8"])[1])["error"]
+    status, _, body, _ = raw(base, request_bytes("/api/facets"))
+    assert status == 200 and json.loads(body)["tubes"] > 0

@@ -81,7 +81,7 @@ def read_json(store: Store, rel: str) -> dict | None:
     try:
         with store.fs.open_input_stream(store.full(rel)) as f:
             d = json.loads(f.read())
-    except (FileNotFoundError, OSError, ValueError):
+    except (FileNotFoundError, OSError, ValueError, RecursionError):  # RecursionError: nested past the parser
         return None
     return d if isinstance(d, dict) else None
 

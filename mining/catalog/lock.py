@@ -74,7 +74,7 @@ def _parse(data: bytes) -> dict:
     try:
         d = json.loads(data.decode() or "{}")
         return d if isinstance(d, dict) else {"unreadable": data[:80].decode(errors="replace")}
-    except ValueError:
+    except (ValueError, RecursionError):  # RecursionError: nested past the parser
         return {"unreadable": data[:80].decode(errors="replace")}
 
 

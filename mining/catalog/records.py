@@ -83,7 +83,7 @@ def _read_json(store: Store, rel: str) -> object | Unreadable | None:
         return Unreadable(rel, f"cannot be read ({e})")
     try:
         return json.loads(raw)
-    except ValueError as e:  # not UTF-8, not JSON: a truncated or overwritten file
+    except (ValueError, RecursionError) as e:  # not UTF-8, not JSON, nested past the parser: truncated or planted
         return Unreadable(rel, f"not valid JSON ({e})")
 
 

@@ -24,9 +24,10 @@ def add_arguments(smt: argparse.ArgumentParser) -> None:
     smt.add_argument("--no-wait", action="store_true", help="with --address http://…: print the submission id and "
                                                             "return instead of following the job's logs")
     smt.add_argument("--workers", type=worker_count, help=f"local Ray only: CPUs to use, 1 to {MAX_WORKERS} (default: all)")
-    smt.add_argument("--host", metavar="IP", help="local Ray only: the interface every Ray port listens on (default: "
-                                                  "the config's run.bind_host, 127.0.0.1). Ray's ports run code "
-                                                  "unauthenticated: another interface only on a network you trust")
+    smt.add_argument("--host", metavar="IP", help="local Ray only: 127.0.0.1 (the config's run.bind_host by default), "
+                                                  "or 0.0.0.0 / :: for every interface; Ray keeps no other address to "
+                                                  "itself, so any other is refused. Ray's ports run code "
+                                                  "unauthenticated: every interface only on a network you trust")
     smt.add_argument("--no-progress", action="store_true", help="no progress display (without it a log or a pipe gets a line per tenth of the work)")
     smt.add_argument("--extend", action="store_true",
                      help="--out holds this job with a narrower --frames or fewer --sequences: widen it (what differs "

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mining.errors import InputError
+from mining.errors import InputError, read_text
 from mining.types import StereoCalib
 
 # Object-detection dialect key → official tracking key (SOURCES.md §1.3).
@@ -46,7 +46,7 @@ def read_calib_file(path: str | Path) -> dict[str, np.ndarray]:
     if not path.is_file():
         raise InputError("calibration file is missing", path)
     out: dict[str, np.ndarray] = {}
-    for lineno, line in enumerate(path.read_text().splitlines(), 1):
+    for lineno, line in enumerate(read_text(path, "calibration file").splitlines(), 1):
         parts = line.split()
         if not parts:
             continue

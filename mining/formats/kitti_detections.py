@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mining.errors import InputError
+from mining.errors import InputError, read_text
 from mining.formats.kitti_tracking import KittiTrackingRows, read_kitti_tracking
 
 POINTRCNN_TYPES = {1: "Pedestrian", 2: "Car", 3: "Cyclist"}  # SOURCES.md §1.6 type codes
@@ -28,7 +28,7 @@ def read_kitti_detections(path: str | Path) -> KittiTrackingRows:
     """The detections of one file, in either format (see the module docstring)."""
     path = Path(path)
     try:
-        text = path.read_text()
+        text = read_text(path, "detections file")
     except OSError as e:
         raise InputError(f"cannot read detections: {e.strerror or e}", path) from None
     first = next((line for line in text.splitlines() if line.strip()), "")

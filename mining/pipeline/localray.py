@@ -2,16 +2,23 @@
 
 Ray's processes (GCS, raylet, workers, the dashboard and runtime-env agents, the
 metrics exporter) serve unauthenticated RPC and HTTP: its job agent runs any command it
-is sent. On Linux a plain ``ray.init()`` binds them to every interface (``::``,
-``0.0.0.0``) or to the host's address, so anyone on the network could run code as the
+is sent. On Linux Ray binds them to every interface (``::``, ``0.0.0.0``) or to the
+host's address whenever its node address is not 127.0.0.1, so anyone on the network could run code as the
 user. A local ``mine submit`` therefore starts Ray single-host on 127.0.0.1: the node
 address is loopback (``_node_ip_address``), the dashboard is off and its host is
 loopback, and Ray's single-host mode (``RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0``, its
 default on Windows and macOS) keeps Ray from swapping 127.0.0.1 for the host's address
-and binds every server to the node address. ``run.bind_host`` (``mine submit --host``)
-names another interface for a user who wants one; ``0.0.0.0`` means Ray's own choice.
-Such a bind is said out loud: ``exposure_line`` is the one line ``mine submit`` prints on
-standard error, naming the interface and where the setting came from (``bind_origin``).
+and binds every server to the node address.
+
+``run.bind_host`` (``mine submit --host``) can only be what Ray honours. Measured with Ray
+2.58 (listening sockets of every process of the session, from /proc/net/tcp{,6}): a node
+address of 127.0.0.1 keeps every port on 127.0.0.1 (and ::1 becomes 127.0.0.1), but any
+other address — 127.0.0.2, a LAN address, ``::`` — makes the GCS, the raylet, the driver
+and the workers listen on ``::``, every interface. So the rule (``check_bind_host``):
+127.0.0.1, or every interface asked for by name (``0.0.0.0`` or ``::``), which
+``exposure_line`` announces on standard error naming where the setting came from
+(``bind_origin``); any other address is refused before anything is written, since Ray
+would not keep to it.
 
 The mode is read when ``ray`` is first imported, so it is set before that; a process
 that imported Ray earlier in cluster mode gets a ConfigError rather than open ports.
@@ -29,14 +36,22 @@ from mining.errors import ConfigError
 
 LOOPBACK = "127.0.0.1"  # ours: the default of run.bind_host
 SINGLE_HOST_ENV = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"  # Ray: "0" = no multi-node cluster, localhost addresses kept
-ANY_INTERFACE = "0.0.0.0"
+EVERY_INTERFACE = ("0.0.0.0", "::")  # the two ways to ask for every interface by name
 
 
-def _is_loopback(host: str) -> bool:
+def check_bind_host(host: str, origin: str = "the job config") -> bool:
+    """Whether ``host`` asks for every interface (False: 127.0.0.1); ConfigError, naming
+    ``origin``, for any address Ray would not keep to (the module's docstring)."""
+    if host == LOOPBACK or host in EVERY_INTERFACE:
+        return host != LOOPBACK
     try:
-        return ipaddress.ip_address(host).is_loopback
+        ip = ipaddress.ip_address(host)
+        why = (f"Ray would listen on {LOOPBACK} instead" if ip == ipaddress.ip_address("::1")
+               else "Ray would listen on every interface for it, not on it alone")
     except ValueError:
-        raise ConfigError(f"run.bind_host must be an IP address (e.g. {LOOPBACK}), got {host!r}") from None
+        why = "it is not an IP address"
+    raise ConfigError(f"run.bind_host {host!r} (from {origin}): {why}; Ray keeps to {LOOPBACK} only, so use "
+                      f"{LOOPBACK}, or ask for every interface by name with 0.0.0.0") from None
 
 
 def bind_origin(host_flag: str | None, sets: list[str], config: str | None) -> str:
@@ -52,19 +67,18 @@ def bind_origin(host_flag: str | None, sets: list[str], config: str | None) -> s
 
 
 def exposure_line(bind_host: str, origin: str) -> str | None:
-    """The one warning of a bind beyond loopback (None on loopback): the interface, where
-    the setting came from, and what it exposes."""
-    if _is_loopback(bind_host):
+    """The one warning of a bind to every interface (None on 127.0.0.1): that it is every
+    interface, where the setting came from, and what it exposes."""
+    if not check_bind_host(bind_host, origin):
         return None
-    where = "every interface" if ipaddress.ip_address(bind_host).is_unspecified else "a non-loopback interface"
-    return (f"mine submit: Ray will listen on {bind_host} ({where}; run.bind_host from {origin}): Ray's ports run "
-            "code unauthenticated for anyone who can reach them; use it only on a network you trust")
+    return (f"mine submit: Ray will listen on every interface (run.bind_host {bind_host} from {origin}): Ray's "
+            "ports run code unauthenticated for anyone who can reach them; use it only on a network you trust")
 
 
-def prepare_local_ray(bind_host: str = LOOPBACK) -> bool:
-    """Check ``bind_host`` and, when it is loopback, put Ray in single-host mode (before
-    ``import ray`` where possible); returns whether it is loopback."""
-    loopback = _is_loopback(bind_host)
+def prepare_local_ray(bind_host: str = LOOPBACK, origin: str = "the job config") -> bool:
+    """Check ``bind_host`` (``check_bind_host``) and, on 127.0.0.1, put Ray in single-host mode
+    (before ``import ray`` where possible); returns whether it is 127.0.0.1."""
+    loopback = not check_bind_host(bind_host, origin)
     if loopback:
         os.environ[SINGLE_HOST_ENV] = "0"  # inherited by every Ray process started from here
     return loopback
@@ -79,12 +93,13 @@ def init_local_ray(num_cpus: int | None, bind_host: str = LOOPBACK, **init_kwarg
     loopback = prepare_local_ray(bind_host)
     import ray
 
-    kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False}
-    if bind_host != ANY_INTERFACE:
-        kwargs |= {"_node_ip_address": bind_host, "dashboard_host": bind_host}
+    # The dashboard is off; were it turned on, it stays on loopback either way.
+    kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False, "dashboard_host": LOOPBACK}
+    if loopback:  # else Ray's own choice: the host's address as the node's, every port on `::`
+        kwargs["_node_ip_address"] = LOOPBACK
     ray.init(address="local", num_cpus=num_cpus, **(kwargs | init_kwargs))
     node = ray.util.get_node_ip_address()
-    if loopback and not _is_loopback(node):
+    if loopback and node != LOOPBACK:
         ray.shutdown()
         raise ConfigError(f"Ray would listen on {node}, not {bind_host}: this process imported Ray before "
                           f"{SINGLE_HOST_ENV}=0 was set; set it in the environment, or run `mine submit` "

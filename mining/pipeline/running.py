@@ -73,7 +73,7 @@ def _load(store: Store, rel: str) -> dict | None:
     """A marker, or None when it is gone or does not read as one (it then says nothing)."""
     try:
         marker = json.loads(store.read_bytes(rel))
-    except (ValueError, MiningError):  # not JSON; removed since it was listed
+    except (ValueError, RecursionError, MiningError):  # not JSON (or nested past the parser); removed since it was listed
         return None
     return marker if isinstance(marker, dict) else None
 

@@ -198,7 +198,7 @@ def mine_on_ray(cfg: JobConfig, out: str, sequences: list[str] | None = None,
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     address = address or os.environ.get("RAY_ADDRESS")
     if not address:
-        prepare_local_ray(cfg.run.bind_host)  # before `import ray`; a bad --host fails before planning
+        prepare_local_ray(cfg.run.bind_host, bind_origin)  # before `import ray`; a bad --host fails before planning
         if (line := exposure_line(cfg.run.bind_host, bind_origin)) is not None:
             print(line, file=sys.stderr, flush=True)  # before planning: said even when the job then stops
     import ray

@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 from pycocotools import mask as mask_utils
 
-from mining.errors import InputError
+from mining.errors import InputError, decode_text
 from mining.formats.coco import CATEGORY_ID_TO_INDEX, CLASS_INDEX
 from mining.formats.kitti_calib import KittiCalib
 from mining.formats.kitti_detections import read_kitti_detections
@@ -137,8 +137,6 @@ def read_proposal_json(path: str | Path, frame: int, category_ids: str = "agnost
         raise InputError("proposal file for this frame is missing", path, frame) from None
     except json.JSONDecodeError as e:
         raise InputError(f"not valid JSON at line {e.lineno} column {e.colno}: {e.msg}", path, frame) from None
-    except UnicodeDecodeError as e:
-        raise InputError(f"not UTF-8 text (byte {e.start}): {e.reason}", path, frame) from None
     except RecursionError:
         raise InputError("nested too deeply to be a list of proposals", path, frame) from None
     except OSError as e:
@@ -186,14 +184,14 @@ def _read_proposal_json(path: Path, frame: int, category_ids: str, image_size: t
 
 def _bounded_text(path: Path, frame: int, max_file_bytes: int) -> str:
     """The file's text, refused above ``max_file_bytes`` before it is read."""
-    with path.open(encoding="utf-8") as f:
+    with path.open("rb") as f:
         size = os.fstat(f.fileno()).st_size
         if size > max_file_bytes:
             raise InputError(f"{size} bytes, over proposals.json.max_file_bytes = {max_file_bytes}", path, frame)
-        text = f.read(max_file_bytes + 1)  # a file that grows, or is not a regular file, stops here too
-    if len(text) > max_file_bytes:
+        data = f.read(max_file_bytes + 1)  # a file that grows, or is not a regular file, stops here too
+    if len(data) > max_file_bytes:
         raise InputError(f"over proposals.json.max_file_bytes = {max_file_bytes}", path, frame)
-    return text
+    return decode_text(data, path, "proposal file", frame)
 
 
 def _best_elements(text: str, path: Path, frame: int, max_proposals: int) -> tuple[list[tuple[int, dict]], int, bool]:

@@ -35,6 +35,8 @@ from typing import Any
 
 import tomli_w
 
+from mining.errors import decode_text, read_text
+
 FITS_DIR = Path(__file__).resolve().parent / "fits"  # where `--write` writes by default (the package's own files)
 ROWS = "rows"  # rows.toml: the classifier rows' confidence; every other file is a proposer's
 UNARY_FIT, OBJECT_FIT = "unary", "object_evidence"  # the fit tables of a proposer's file
@@ -57,7 +59,7 @@ def read_fits(folder: Path | str | None = None) -> dict[str, dict[str, Any]]:
     for entry in sorted(_folder(folder).iterdir(), key=lambda e: e.name):
         if entry.name.endswith(".toml"):
             try:
-                out[entry.name[: -len(".toml")]] = tomllib.loads(entry.read_text(encoding="utf-8"))
+                out[entry.name[: -len(".toml")]] = tomllib.loads(decode_text(entry.read_bytes(), str(entry), "fit file"))
             except tomllib.TOMLDecodeError as e:
                 raise ValueError(f"fit file {entry.name}: not valid TOML: {e}") from None
     return out
@@ -103,7 +105,7 @@ def updated_fit(name: str, fit: str, table: Mapping[str, Any],
     replaced by ``table``, the file's other tables kept (``folder``: the package's own,
     ``FITS_DIR``, by default). The caller writes it (``mine bench calibrate --write``)."""
     path = Path(folder or FITS_DIR) / f"{name}.toml"
-    doc = tomllib.loads(path.read_text(encoding="utf-8")) if path.is_file() else {}
+    doc = tomllib.loads(read_text(path, "fit file")) if path.is_file() else {}
     doc[fit] = json.loads(json.dumps(table))  # plain lists and tables, as TOML reads them back
     text = fit_text(name, doc)
     if tomllib.loads(text) != doc:  # what is written must read back as given

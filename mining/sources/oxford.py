@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mining.errors import ConfigError, InputError
+from mining.errors import ConfigError, InputError, read_text
 from mining.names import check_name
 from mining.sources.base import Source
 from mining.types import SequencePlan, StereoCalib, StereoFrame
@@ -90,7 +90,7 @@ def load_camera_model(models_dir: Path, name: str) -> CameraModel:
     """Read ``<models_dir>/<name>.txt``; InputError when missing or malformed."""
     path = Path(models_dir) / f"{name}.txt"
     try:
-        lines = [ln.split() for ln in path.read_text().splitlines() if ln.strip()]
+        lines = [ln.split() for ln in read_text(path, "camera model").splitlines() if ln.strip()]
     except FileNotFoundError:
         raise InputError(f"camera model {name} not found", path) from None
     try:
@@ -203,7 +203,7 @@ class OxfordSource(Source):
         check_name(sequence, "sequence", "the oxford source", self.root)  # a traversal folder, never a path
         path = self.root / sequence / TIMESTAMPS_FILE
         try:
-            text = path.read_text()
+            text = read_text(path, "timestamps file")
         except FileNotFoundError:
             raise InputError("timestamps file not found", path) from None
         rows: list[tuple[int, int]] = []
@@ -348,26 +348,25 @@ class OxfordSource(Source):
         G_inv = np.linalg.inv(G)
         steps = []
         try:
-            f = open(path, newline="")
+            text = read_text(path, "visual odometry file")
         except FileNotFoundError:
             raise InputError("visual odometry file not found", path) from None
-        with f:
-            reader = csv.reader(f)
-            header = next(reader, None)
-            if header is None or [h.strip() for h in header[:2]] != ["source_timestamp", "destination_timestamp"]:
-                raise InputError("expected header 'source_timestamp,destination_timestamp,x,y,z,roll,pitch,yaw'", path)
-            for line_no, row in enumerate(reader, start=2):
-                try:
-                    src, dst = int(row[0]), int(row[1])
-                    x, y, z, roll, pitch, yaw = (float(v) for v in row[2:8])
-                except (ValueError, IndexError):
-                    raise InputError(f"line {line_no}: expected 2 timestamps and 6 numbers, got {row!r}", path) from None
-                T = np.eye(4)
-                T[:3, :3] = Rotation.from_euler("ZYX", [yaw, pitch, roll]).as_matrix()
-                T[:3, 3] = (x, y, z)
-                T_dst_src = G_inv @ T @ G  # base frame → image axes
-                if src > dst:  # source is the later frame: X_prev = T @ X_cur
-                    steps.append(VoStep(dst * 1000, src * 1000, np.linalg.inv(T_dst_src)))
-                else:
-                    steps.append(VoStep(src * 1000, dst * 1000, T_dst_src))
+        reader = csv.reader(text.splitlines())
+        header = next(reader, None)
+        if header is None or [h.strip() for h in header[:2]] != ["source_timestamp", "destination_timestamp"]:
+            raise InputError("expected header 'source_timestamp,destination_timestamp,x,y,z,roll,pitch,yaw'", path)
+        for line_no, row in enumerate(reader, start=2):
+            try:
+                src, dst = int(row[0]), int(row[1])
+                x, y, z, roll, pitch, yaw = (float(v) for v in row[2:8])
+            except (ValueError, IndexError):
+                raise InputError(f"line {line_no}: expected 2 timestamps and 6 numbers, got {row!r}", path) from None
+            T = np.eye(4)
+            T[:3, :3] = Rotation.from_euler("ZYX", [yaw, pitch, roll]).as_matrix()
+            T[:3, 3] = (x, y, z)
+            T_dst_src = G_inv @ T @ G  # base frame → image axes
+            if src > dst:  # source is the later frame: X_prev = T @ X_cur
+                steps.append(VoStep(dst * 1000, src * 1000, np.linalg.inv(T_dst_src)))
+            else:
+                steps.append(VoStep(src * 1000, dst * 1000, T_dst_src))
         return steps

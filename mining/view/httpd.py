@@ -53,15 +53,38 @@ PAGE_POLICY = ("default-src 'none'; script-src 'self'; style-src 'self' 'unsafe-
 DATA_POLICY = "default-src 'none'; sandbox; frame-ancestors 'none'"
 MAX_HEADER_CHARS = 1000  # ours: a placeholder's reason is cut here in its header (the picture says it whole)
 MAX_BODY_BYTES = 1 << 20  # ours: a labelling request's JSON (MAX_LABEL_TUBES ids of ~25 characters fit many times)
+MAX_BODY_DEPTH = 32  # ours: arrays/objects nested in a POST body (a labelling request nests two)
 _NOT_PRINTABLE = re.compile(r"[^\x20-\x7e]")
 _HOST = re.compile(r"(?:\[(?P<v6>[0-9a-f:.]+)\]|(?P<name>[^:\[\]]+))(?::(?P<port>[0-9]{1,5}))?")
 _HEAD_END = re.compile(rb"\r?\n\r?\n")
-WILDCARD_HOSTS = ("", "0.0.0.0", "::")
+WILDCARD_HOSTS = ("0.0.0.0", "::")  # every interface (IPv4; IPv6 and, dual-stack, IPv4 too)
 
 
 def _not_json(constant: str) -> None:
     """``json.loads``'s hook for NaN / Infinity, which JSON does not have."""
     raise ValueError(f"{constant} is not JSON")
+
+
+def json_body(body: bytes) -> object:
+    """A POST body parsed as JSON, or HttpError 400 saying why: not UTF-8, not JSON, or nested
+    past MAX_BODY_DEPTH (a body of a million ``[`` is a RecursionError inside ``json.loads``)."""
+    try:
+        obj = json.loads(body.decode("utf-8"), parse_constant=_not_json)
+    except UnicodeDecodeError as e:
+        raise HttpError(HTTPStatus.BAD_REQUEST, f"the body is not UTF-8 text: byte 0x{body[e.start]:02x} at offset "
+                                                f"{e.start}") from None
+    except RecursionError:
+        raise HttpError(HTTPStatus.BAD_REQUEST, f"the body nests arrays or objects deeper than {MAX_BODY_DEPTH}") \
+            from None
+    except ValueError as e:
+        raise HttpError(HTTPStatus.BAD_REQUEST, f"the body is not JSON: {e}") from None
+    level, depth = [obj], 0
+    while level:  # breadth first, so a deep body cannot exhaust the stack here either
+        depth += 1
+        if depth > MAX_BODY_DEPTH:
+            raise HttpError(HTTPStatus.BAD_REQUEST, f"the body nests arrays or objects deeper than {MAX_BODY_DEPTH}")
+        level = [v for x in level if isinstance(x, (list, dict)) for v in (x.values() if isinstance(x, dict) else x)]
+    return obj
 
 
 def header_value(value: object) -> str:
@@ -319,11 +342,7 @@ class Handler(BaseHTTPRequestHandler):
             problem = self._post_problem()
             if problem:
                 raise HttpError(HTTPStatus.FORBIDDEN, problem)
-            try:
-                obj = json.loads(body, parse_constant=_not_json)
-            except (ValueError, UnicodeDecodeError) as e:
-                raise HttpError(HTTPStatus.BAD_REQUEST, f"the body is not JSON: {e}") from None
-            return self._json(HTTPStatus.OK, ViewApp.POSTS[path](self.app, obj)), None
+            return self._json(HTTPStatus.OK, ViewApp.POSTS[path](self.app, json_body(body))), None
         except HttpError as e:
             return self._json(e.status, {"error": str(e)}), None
         except TooLarge as e:
@@ -365,7 +384,9 @@ class ViewServer(HTTPServer):
 
     request_queue_size = 128  # the listen backlog (socketserver's 5 overflows under a burst of connects)
 
-    def __init__(self, address: tuple[str, int], handler: type[Handler], limits: Limits, hosts: HostRule):
+    def __init__(self, address: tuple[str, int], handler: type[Handler], limits: Limits, hosts: HostRule,
+                 family: socket.AddressFamily = socket.AF_INET):
+        self.address_family = family  # read by socketserver when it makes the listening socket
         self.limits, self.hosts = limits, hosts
         self.cap = connection_cap(limits.max_connections)
         self._lock = threading.Lock()

@@ -11,6 +11,8 @@ catalogue or client can do is bounded in ``http.py``.
 
 from __future__ import annotations
 
+import ipaddress
+import socket
 import sys
 import time
 from pathlib import Path
@@ -19,20 +21,34 @@ import duckdb
 
 from mining.errors import InputError
 from mining.view.api import ViewApp
-from mining.view.httpd import Handler, HostRule, Limits, ViewServer, printable
+from mining.view.httpd import WILDCARD_HOSTS, Handler, HostRule, Limits, ViewServer, printable
 from mining.view.images import default_cache_dir
 
 DEFAULT_PORT = 8765  # ours
 
 
+def address_family(host: str) -> socket.AddressFamily:
+    """The socket family of ``host``, an IP address literal; InputError for anything else. A
+    name could resolve to more than one address (or to a wildcard), so the server would not
+    listen exactly where the user said."""
+    try:
+        ip = ipaddress.ip_address(host)
+    except ValueError:
+        raise InputError(f"--host {host!r} is not an IP address: the viewer listens on exactly the address given "
+                         "(127.0.0.1, ::1, a LAN address, or 0.0.0.0 / :: for every interface)") from None
+    return socket.AF_INET6 if ip.version == 6 else socket.AF_INET
+
+
 def make_server(out: str | Path, host: str = "127.0.0.1", port: int = DEFAULT_PORT,
                 cache_dir: Path | None = None, log_requests: bool = False, limits: Limits | None = None,
                 author: str | None = None) -> ViewServer:
-    """A server for catalogue ``out`` bound to ``host:port`` (0: a free port); accepting once serve_forever runs."""
+    """A server for catalogue ``out`` bound to exactly ``host:port`` (an IP address literal;
+    0: a free port); accepting once serve_forever runs."""
+    family = address_family(host)  # before the catalogue is opened or a socket made
     app = ViewApp(out, default_cache_dir() if cache_dir is None else cache_dir, log_requests, author)
     handler = type("BoundHandler", (Handler,), {"app": app})
     try:
-        server = ViewServer((host, port), handler, limits or Limits(), HostRule(host))
+        server = ViewServer((host, port), handler, limits or Limits(), HostRule(host), family)
     except OSError as e:
         app.browser.close()
         raise InputError(f"cannot listen on {host}:{port} ({e.strerror or e}); pass another --port (0 picks a free one)") \
@@ -57,7 +73,11 @@ def run_view(out: str, host: str, port: int, cache_dir: str | None, log_requests
             print(f"mine view: {e}", file=sys.stderr)
         print(f"mine view: {out}: {what}; serving {url} (started in {time.perf_counter() - t0:.1f} s; Ctrl-C stops)",
               flush=True)
-        if host not in ("127.0.0.1", "localhost", "::1"):
+        if host in WILDCARD_HOSTS:
+            print(f"mine view: listening on every interface (--host {host}): anyone who can reach this machine can "
+                  f"browse the catalogue (no login); it answers to the names {', '.join(sorted(server.hosts.names))}"
+                  " and any address", file=sys.stderr)
+        elif not ipaddress.ip_address(host).is_loopback:
             print(f"mine view: listening on {host}: anyone who can reach it can browse the catalogue (no login); "
                   f"it answers to the names {', '.join(sorted(server.hosts.names))}"
                   + (" and any address" if server.hosts.any_address else ""), file=sys.stderr)
