@@ -42,6 +42,7 @@ from pathlib import Path
 import cv2
 import duckdb
 import numpy as np
+import pyarrow as pa
 
 from mining.catalog import safe_files
 from mining.catalog.rows import decode_mask
@@ -123,6 +124,23 @@ def check_dest(dest: Path, overwrite: bool) -> None:
     check_file(dest, overwrite)
 
 
+def _frame_range(sequence: str, plan, frames: tuple[int, int | None] | None, mined: tuple,
+                 tube_frames: pa.Table | None) -> tuple[int, int, str | None]:
+    """Plan positions [start, stop) to render and the note of a clamped --frames: the range
+    asked for, else the frames the catalogue mined, else those the tubes span, else all."""
+    if frames is not None:
+        start, stop = frames
+        stop = len(plan) if stop is None else min(stop, len(plan))
+        return start, stop, clamped_note(sequence, frames, len(plan), "rendered")
+    if mined[2]:
+        return int(mined[0]), min(int(mined[1]) + 1, len(plan)), None
+    if tube_frames is None:  # no tube to draw: the whole sequence
+        return 0, len(plan), None
+    position = {f: p for p, f in enumerate(plan.frames)}
+    spans = [p for f in tube_frames.column("frame").to_pylist() if (p := position.get(f)) is not None]
+    return min(spans), max(spans) + 1, None
+
+
 def render(out: str | Path, sequence: str, dest: str | Path, where: str | None = None, depth: bool = False,
            fps: float | None = None, frames: tuple[int, int | None] | None = None,
            progress: bool = True, overwrite: bool = False, all_candidates: bool = False) -> RenderResult:
@@ -165,19 +183,7 @@ def render(out: str | Path, sequence: str, dest: str | Path, where: str | None =
         raise NothingMatched(f"no {'candidate' if all_candidates else 'selected'} tube of sequence {sequence!r} matches"
                              + ("" if where is None else f" --where {where!r}") + "; nothing written")
     plan = source.survey(sequence)
-    clamped = None
-    if frames is not None:
-        start, stop = frames
-        clamped = clamped_note(sequence, frames, len(plan), "rendered")
-        stop = len(plan) if stop is None else min(stop, len(plan))
-    elif mined[2]:
-        start, stop = int(mined[0]), min(int(mined[1]) + 1, len(plan))
-    elif not tube_rows:
-        start, stop = 0, len(plan)
-    else:
-        position = {f: p for p, f in enumerate(plan.frames)}
-        spans = [position.get(f) for f in tube_frames.column("frame").to_pylist()]
-        start, stop = min(p for p in spans if p is not None), max(p for p in spans if p is not None) + 1
+    start, stop, clamped = _frame_range(sequence, plan, frames, mined, tube_frames if tube_rows else None)
     start = max(0, start)
     if stop <= start:
         raise InputError(f"--frames {start}:{stop} holds no frame of {sequence!r} (the plan has {len(plan)})")
