@@ -90,8 +90,8 @@ def _damaged_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, dama
     """``table`` as a view with its columns that raises, naming the damaged files, when read."""
     files = "; ".join(f"{store.full(d.path)} ({d.reason})" for d in damage[:5])
     more = f" and {len(damage) - 5} more" if len(damage) > 5 else ""
-    msg = msg or (f"table {table} is damaged: {files}{more}. `mine status --out {store.uri}` lists all; resubmitting "
-                  "the job recomputes them; the other tables can be queried")
+    msg = msg or (f"table {table} is damaged: {files}{more}. `mine status --out {store.uri}` lists all; `mine "
+                  "submit --verify` repairs them (the job resubmitted); the other tables can be queried")
     # Every column is the error, and so is the filter: the optimizer can prune neither, so
     # any query that reads a row of the table (joins, counts, views over it) raises.
     con.register(f"_schema_{table}", _as_read(SCHEMAS[table] if schema is None else schema).empty_table())
