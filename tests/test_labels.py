@@ -358,10 +358,12 @@ def test_sixteen_writers_and_compactions_at_once_lose_nothing_and_every_file_che
         except BaseException as e:  # noqa: BLE001 - reported below
             errors.append(e)
 
+    merges: list[int] = []
+
     def compactor() -> None:
         try:
             while not done.is_set():
-                labels.compact(store, lock_wait_s=30)
+                merges.append(labels.compact(store, lock_wait_s=30)[0])
         except BaseException as e:  # noqa: BLE001 - reported below
             errors.append(e)
 
@@ -382,6 +384,7 @@ def test_sixteen_writers_and_compactions_at_once_lose_nothing_and_every_file_che
     for t in background:
         t.join()
     assert not errors, errors
+    assert sum(merges) > 0  # the compactions merged files while the writers wrote
     labels.compact(store)
     assert sorted(labels.read_labels(store)["label_id"].to_pylist()) == sorted(written)
     assert len(written) == 16 * 6

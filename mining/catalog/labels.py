@@ -164,7 +164,13 @@ def append(store: Store, table: pa.Table) -> str:
 
 def label_files(store: Store) -> list[str]:
     """The finished label files (parts and compactions), relative paths, sorted."""
-    return [f for f in store.list(LABELS) if f.count("/") == 1]
+    for attempt in range(RELIST_TRIES):
+        try:
+            return [f for f in store.list(LABELS) if f.count("/") == 1]
+        except FileNotFoundError:  # pyarrow's listing raced the first write making the folder: list again
+            if attempt == RELIST_TRIES - 1:
+                raise
+    raise AssertionError("unreachable")
 
 
 def recorded_sha256(rel: str) -> str | None:
