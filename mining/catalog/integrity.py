@@ -71,9 +71,9 @@ def digest(store: Store, rel: str) -> dict:
     return {"size": size, "sha256": h.hexdigest()}
 
 
-def mismatch(got: str, want: Mapping) -> str:
-    """The reason of a file whose sha256 is not the one recorded: damage, named so."""
-    return f"sha256 {got[:12]}… does not match its marker's {str(want.get('sha256'))[:12]}…: damaged"
+def mismatch(got: str, want: Mapping, record: str = "marker") -> str:
+    """The reason of a file whose sha256 is not the one its ``record`` holds: damage, named so."""
+    return f"sha256 {got[:12]}… does not match its {record}'s {str(want.get('sha256'))[:12]}…: damaged"
 
 
 def record_files(store: Store, rels: Iterable[str]) -> dict[str, dict]:
@@ -97,7 +97,8 @@ def _sizes(store: Store, rels: list[str]) -> dict[str, int | None]:
     return {r: (i.size if i.type == pafs.FileType.File else None) for r, i in zip(rels, infos)}
 
 
-def check_files(store: Store, recorded: Mapping[str, Mapping], owner: str, verify: bool = False) -> list[Damage]:
+def check_files(store: Store, recorded: Mapping[str, Mapping], owner: str, verify: bool = False,
+                record: str = "marker") -> list[Damage]:
     """The recorded files that are missing, of another size or (``verify``) of another checksum."""
     out = []
     for rel, size in _sizes(store, sorted(recorded)).items():
@@ -113,7 +114,7 @@ def check_files(store: Store, recorded: Mapping[str, Mapping], owner: str, verif
                 out.append(Damage(rel, f"unreadable: {e}", owner))
                 continue
             if got != want.get("sha256"):
-                out.append(Damage(rel, mismatch(got, want), owner))
+                out.append(Damage(rel, mismatch(got, want, record), owner))
     return out
 
 
@@ -130,7 +131,8 @@ def window_damage(store: Store, window: Window, verify: bool = False) -> list[Da
     if not isinstance(record, WindowFiles):
         return [Damage(files_path(window.dataset, window.sequence, window.name),
                        "missing or unreadable: the window's parts cannot be checked", owner)]
-    return [Damage(r, "missing", owner) for r in record.missing()] + check_files(store, record.files, owner, verify)
+    parts = check_files(store, record.files, owner, verify, "files record")
+    return [Damage(r, "missing", owner) for r in record.missing()] + parts
 
 
 def sequence_files(store: Store, written: Iterable[str]) -> dict[str, dict]:
