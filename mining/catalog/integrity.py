@@ -251,7 +251,8 @@ def check_versions(store: Store, oldest: bool = True) -> None:
     anything of it is read: ``job.json``, every sequence marker, every Parquet file of the
     compacted tables and of the manifest (the files the query views and ``mine status`` read).
     ``oldest`` False (a submission): rows older than this code reads are not refused (see
-    ``versions.py``). Raises ``versions.SchemaVersionError`` naming the file."""
+    ``versions.py``). Raises ``versions.SchemaVersionError`` naming the file; a compacted file it
+    would refuse that is not as its marker records is damage instead (left to the damage checks)."""
     check_record_version(read_json(store, JOB), store.full(JOB))
     markers = SequenceMarker.load_all(store)  # a marker of a newer version raises
     recorded = {rel: want for m in markers if isinstance(m, SequenceMarker) and m.files
