@@ -254,3 +254,139 @@ def test_a_damaged_label_file_fails_the_label_views_naming_it_and_nothing_else(b
         con.close()
     assert cli.main(["label", "--out", str(out), "--where", "selected", "--tag", "x"]) == 2  # refused, not written over
     assert bad.read_bytes() == b"PAR1 not really"
+
+
+def _flip_a_label_value(path: Path) -> None:
+    """Flip one bit of ``path`` where it still reads as a labels file but a value changes (the
+    silent kind: a tag's dataset ``synthetic`` → ``synthethc`` detaches it from its tube)."""
+    import pyarrow.parquet as pq
+
+    data = path.read_bytes()
+    before = pq.read_table(path)
+    for i in range(4, len(data) - 8):  # past the header's magic, before the footer's
+        for bit in (0x01, 0x10):
+            flipped = bytearray(data)
+            flipped[i] ^= bit
+            path.write_bytes(bytes(flipped))
+            try:
+                after = pq.read_table(path)
+            except Exception:  # noqa: BLE001 - a flip a decoder sees: not the case under test
+                continue
+            if after.schema == before.schema and not after.equals(before):
+                return
+    raise AssertionError(f"no single flipped bit of {path} changes a value and still reads")
+
+
+def _sha256(path: Path) -> str:
+    import hashlib
+
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_a_flipped_bit_in_a_label_file_is_named_as_damage_and_set_aside_never_read(base_catalogue, tmp_path,
+                                                                                     capsys):
+    """A flipped bit in a labels file changed a tag (detaching it from its tube) and every read
+    answered, exit 0: label files carry their sha256 in their name, every read checks it, a damaged
+    file fails the label tables alone (named, "damaged"), `mine status` lists it and
+    `mine submit --verify` moves it, byte-identical, to labels/_damaged/, naming it."""
+    from _jobs import mine
+    from _run import cli as run_cli
+
+    out = copy_of(base_catalogue, tmp_path / "c")
+    store = Store(out)
+    first, second = _ids(out, n=2)
+    kept = labels.append(store, labels.events([first], "tag", "kept"))
+    lost = labels.append(store, labels.events([second], "tag", "lost"))
+    bad = Path(out) / lost
+    _flip_a_label_value(bad)
+    damaged_bytes = bad.read_bytes()
+
+    with pytest.raises(InputError, match="sha256 mismatch: damaged"):
+        labels.read_labels(store)
+    rc, o, e = run_cli(capsys, "query", "SELECT * FROM tube_labels", "--out", str(out))
+    assert rc == 2 and bad.name in e and "damaged" in e and len(e.strip().splitlines()) == 1, o + e
+    rc, o, e = run_cli(capsys, "query", "SELECT count(*) AS n FROM tubes", "--out", str(out), "--format", "csv")
+    assert rc == 0 and int(o.split()[1]) > 0, o + e  # the mined tables answer
+    rc, o, e = run_cli(capsys, "status", "--out", str(out))
+    assert rc == 1 and f"damaged  {lost}: sha256 mismatch: damaged" in o, o + e
+
+    s = mine(out, verify=True)
+    assert not s.failed, s.lines()
+    aside = Path(out) / "labels" / "_damaged" / bad.name
+    assert not bad.exists() and aside.read_bytes() == damaged_bytes  # set aside, byte-identical
+    assert any(line.startswith("DAMAGED LABELS") and bad.name in line for line in s.lines()), s.lines()
+    assert labels.label_files(store) == [kept]
+    assert _tube_labels(out) == {first[2]: (None, ["kept"], "kept")}
+    assert run_cli(capsys, "status", "--out", str(out))[0] == 0
+
+
+def test_label_files_named_before_digests_still_read_and_a_compaction_records_them(base_catalogue, tmp_path):
+    """A label file written before names carried a digest reads unchecked; a compaction writes
+    its events into a file whose name carries the sha256 of its bytes."""
+    out = copy_of(base_catalogue, tmp_path / "c")
+    store = Store(out)
+    tubes = _ids(out, n=2)
+    old = "labels/part-20260101T000000000000Z-0123456789ab.parquet"
+    store.write_table(old, labels.events(tubes[:1], "verdict", "object"))
+    new = labels.append(store, labels.events(tubes[1:], "tag", "car"))
+    assert _sha256(Path(out) / new) in new  # a new file's name carries its digest
+    before = labels.read_labels(store)
+    assert before.num_rows == 2
+    assert labels.compact(store) == (2, 2)
+    (merged,) = labels.label_files(store)
+    assert merged.startswith("labels/compact-") and _sha256(Path(out) / merged) in merged
+    assert labels.read_labels(store).equals(before)
+
+
+def test_sixteen_writers_and_compactions_at_once_lose_nothing_and_every_file_checks_out(base_catalogue, tmp_path):
+    """Sixteen writers, two compactors and a reader on one catalogue at once: every event is kept,
+    no read fails (a file a compaction removed between a listing and its read is listed again) and
+    every label file's name carries the sha256 of its bytes."""
+    out = copy_of(base_catalogue, tmp_path / "c")
+    store = Store(out)
+    tubes = _ids(out)
+    written: list[str] = []
+    errors: list[BaseException] = []
+    done = threading.Event()
+
+    def writer(k: int) -> None:
+        try:
+            for j in range(6):
+                t = labels.events([tubes[(k + j) % len(tubes)]], "tag", f"w{k}-{j}", author=f"w{k}")
+                labels.append(store, t)
+                written.extend(t["label_id"].to_pylist())
+        except BaseException as e:  # noqa: BLE001 - reported below
+            errors.append(e)
+
+    merges: list[int] = []
+
+    def compactor() -> None:
+        try:
+            while not done.is_set():
+                merges.append(labels.compact(store, lock_wait_s=30)[0])
+        except BaseException as e:  # noqa: BLE001 - reported below
+            errors.append(e)
+
+    def reader() -> None:
+        try:
+            while not done.is_set():
+                labels.read_labels(store)
+        except BaseException as e:  # noqa: BLE001 - reported below
+            errors.append(e)
+
+    background = [threading.Thread(target=f) for f in (compactor, compactor, reader)]
+    writers = [threading.Thread(target=writer, args=(k,)) for k in range(16)]
+    for t in background + writers:
+        t.start()
+    for t in writers:
+        t.join()
+    done.set()
+    for t in background:
+        t.join()
+    assert not errors, errors
+    assert sum(merges) > 0  # the compactions merged files while the writers wrote
+    labels.compact(store)
+    assert sorted(labels.read_labels(store)["label_id"].to_pylist()) == sorted(written)
+    assert len(written) == 16 * 6
+    for rel in labels.label_files(store):
+        assert _sha256(Path(out) / rel) in rel, rel

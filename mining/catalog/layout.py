@@ -17,8 +17,10 @@ draws the same tree); ``store.py`` does the I/O on them::
     _running/dataset=D/sequence=S/<window>.json               a window a driver has started and not finished
     _parts/<table>/dataset=D/sequence=S/<window>.part         a window's parts before stitching (Parquet)
     _cache/obs/dataset=D/sequence=S/<window>.npz.zst          a window's observations, until no track needs them
-    labels/part-<UTC>-<hex>.parquet                           what people decided about tubes (labels.py): one file
-    labels/compact-<UTC>-<hex>.parquet                        per write, merged by `mine label --compact`
+    labels/part-<UTC>-<hex>-<sha256>.parquet                  what people decided about tubes (labels.py): one file
+    labels/compact-<UTC>-<hex>-<sha256>.parquet               per write, merged by `mine label --compact`; the
+                                                              name carries the sha256 of the file's bytes
+    labels/_damaged/<name>                                    label files set aside by `mine submit --verify`
 
 The compacted tables are what people read with their own tools, so their folders have plain
 names and their files hold ``dataset`` / ``sequence`` as strings: a default read of

@@ -57,7 +57,7 @@ import pyarrow as pa
 import pyarrow.dataset as ds
 
 from mining.catalog.integrity import Damage, check_versions, unreadable_parquet, vouched_files
-from mining.catalog.labels import LABEL_SCHEMA, label_files, read_labels
+from mining.catalog.labels import LABEL_SCHEMA, DamagedLabels, label_files, read_label_files
 from mining.catalog.layout import MANIFEST, PART_SUFFIX, PARTS, TABLE_DIRS, catalog_layout
 from mining.catalog.schema import (ADDED_COLUMNS, PARTITION, SCHEMAS, column_doc, file_schema, hive_file_schema,
                                    part_schema)
@@ -90,8 +90,8 @@ def _damaged_view(con: duckdb.DuckDBPyConnection, store: Store, table: str, dama
     """``table`` as a view with its columns that raises, naming the damaged files, when read."""
     files = "; ".join(f"{store.full(d.path)} ({d.reason})" for d in damage[:5])
     more = f" and {len(damage) - 5} more" if len(damage) > 5 else ""
-    msg = msg or (f"table {table} is damaged: {files}{more}. `mine status --out {store.uri}` lists all; resubmitting "
-                  "the job recomputes them; the other tables can be queried")
+    msg = msg or (f"table {table} is damaged: {files}{more}. `mine status --out {store.uri}` lists all; `mine "
+                  "submit --verify` repairs them (the job resubmitted); the other tables can be queried")
     # Every column is the error, and so is the filter: the optimizer can prune neither, so
     # any query that reads a row of the table (joins, counts, views over it) raises.
     con.register(f"_schema_{table}", _as_read(SCHEMAS[table] if schema is None else schema).empty_table())
@@ -252,18 +252,18 @@ def refresh_labels(con: duckdb.DuckDBPyConnection, store: Store) -> list[str]:
     read into memory (label files are small, and a viewer reads new ones as they appear); a file
     that does not read makes ``labels`` (and the views over it) fail naming it, and nothing else.
     The label files read."""
-    files = label_files(store)
     try:
         con.unregister("labels")
     except duckdb.Error:
         pass
     try:
-        table = read_labels(store, files)
+        files, table = read_label_files(store)
     except InputError as e:
+        how = "; " if isinstance(e, DamagedLabels) else ". Move that file aside; "  # damage says its own repair
         con.execute("DROP VIEW IF EXISTS labels")
         _damaged_view(con, store, "labels", [], LABEL_SCHEMA,
-                      f"the labels cannot be read: {e}. Move that file aside; the mined tables can be queried")
-        return files
+                      f"the labels cannot be read: {e}{how}the mined tables can be queried")
+        return label_files(store)
     con.execute("DROP VIEW IF EXISTS labels")
     con.register("labels", table)
     return files

@@ -25,6 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from mining.catalog.integrity import Damage, check_versions, sequence_damage, unreadable_damage, window_damage
+from mining.catalog.labels import DAMAGED, damaged_label_files
 from mining.catalog.layout import JOB, STITCH_ROW, manifest_path
 from mining.catalog.records import JobRecord, ManifestRow, SequenceMarker, Unreadable, UnreadableRecord
 from mining.catalog.lock import current_writer, describe
@@ -107,11 +108,15 @@ def job_damage(out: str, rows: list[WindowStatus], verify: bool = False) -> list
         out_ += sequence_damage(store, d, seq, True) or []
         if isinstance(row := ManifestRow.load(store, d, seq, STITCH_ROW), Unreadable):  # resume stitches it again
             out_.append(unreadable_damage(row, f"sequence {seq}"))
+    # Label files are read whole by every query, so their digests are checked here always (they are small).
+    out_ += [Damage(rel, why.split(";")[0], "labels") for rel, why in damaged_label_files(store).items()]
     return out_
 
 
 def _repair(d: Damage) -> str:
     kind, _, name = d.owner.partition(" ")
+    if kind == "labels":  # no copy to recompute them from: set aside, so the other labels read
+        return f"moves it to {DAMAGED}/; its labels are lost"
     return f"runs window {name} again" if kind == "window" else f"stitches sequence {name} again"
 
 

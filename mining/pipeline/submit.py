@@ -40,6 +40,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from mining.catalog import labels
 from mining.catalog.identity import job_identity
 from mining.catalog.layout import LEGACY_CACHE_SUFFIX, cache_path
 from mining.catalog.lock import OutputLock
@@ -163,6 +164,8 @@ def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frame
         pf = None  # --new-run over an unreadable job.json: set aside under the lock, then checked again
     with OutputLock(Store(out), lock_wait):
         swept = sweep_temporaries(Store(out))  # what a killed run left: no write of ours is in flight
+        # Under the lock no compaction reads them while they move; --verify is the repair that checks every byte.
+        damaged_labels = labels.set_aside_damaged(Store(out)) if verify else []
         if pf is None:
             set_aside_unreadable(Store(out))
             pf = preflight(cfg, out, sequences, frames)
@@ -180,6 +183,7 @@ def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frame
     summary.classifiers = classifiers_line(cfg.proposals.proposer)
     summary.classify_hint = classify_hint(cfg.proposals.proposer) or ""
     summary.swept = swept
+    summary.damaged_labels = damaged_labels
     summary.unplanned = {f"{cfg.source.dataset}/{seq}": error for seq, error in unplanned.items()}
     summary.clamped = [pf.clamped[seq] for seq in sorted(pf.clamped)]
     return summary

@@ -46,6 +46,7 @@ class Summary:
     classify_hint: str = ""  # how to get classes where no proposer gave any (proposals.make.classify_hint)
     recomputed: dict[str, str] = field(default_factory=dict)  # window → why its observation cache did not read back
     swept: list[str] = field(default_factory=list)  # temporary files an interrupted run left, removed by this one
+    damaged_labels: list[str] = field(default_factory=list)  # label files --verify set aside (labels/_damaged/…)
     # Where the steps ran (executors' ``placement``): "workers" and "proposal_actors", each a
     # list of {pid, gpu_ids, node, ...}; empty for a job that ran nothing.
     placement: dict[str, list[dict]] = field(default_factory=dict)
@@ -88,6 +89,9 @@ class Summary:
                            f"every actor had work {busy['all_busy_after_s']:.1f} s in")
         if self.classify_hint:
             out.append(self.classify_hint)
+        if self.damaged_labels:  # said apart and loud: these labels are lost unless the user has a copy
+            out.append(f"DAMAGED LABELS: {len(self.damaged_labels)} label file(s) did not match their sha256 and were "
+                       f"moved aside, their labels lost: {', '.join(self.damaged_labels)}")
         if self.swept:
             more = f" and {len(self.swept) - 1} more" if len(self.swept) > 1 else ""
             out.append(f"swept {len(self.swept)} temporary file(s) an interrupted run left: {self.swept[0]}{more}")
