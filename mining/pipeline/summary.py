@@ -68,15 +68,15 @@ class Summary:
                f"{stitch}",
                *self.clamped]
         if self.nothing_to_do:  # "0 selected … 0.00 frames/s" read as a job that found nothing
-            out += ["nothing left to mine: an earlier run did every window; the catalogue is as it was "
-                    "(mine status, mine query)", f"time: {self.seconds:.1f} s in all"]
-            return out
-        out += [f"tubes written this run: {self.tubes} selected ({self.known} known, {self.unknown} unknown, "
-                f"{self.clutter} clutter, {self.unclassified} unclassified) of {self.candidates} candidates, in "
-                f"{self.sequences_written} sequence(s)",
-                *([self.classifiers] if self.classifiers else []),
-                f"time: {self.seconds:.1f} s in all, {self.mining_seconds:.1f} s mining: "
-                f"{self.frames / max(self.mining_seconds, 1e-9):.2f} frames/s (core frames tracked / mining time)"]
+            out += ["nothing left to mine: an earlier run did every window; the catalogue's tubes are as they "
+                    "were (mine status, mine query)", f"time: {self.seconds:.1f} s in all"]
+        else:
+            out += [f"tubes written this run: {self.tubes} selected ({self.known} known, {self.unknown} unknown, "
+                    f"{self.clutter} clutter, {self.unclassified} unclassified) of {self.candidates} candidates, "
+                    f"in {self.sequences_written} sequence(s)",
+                    *([self.classifiers] if self.classifiers else []),
+                    f"time: {self.seconds:.1f} s in all, {self.mining_seconds:.1f} s mining: "
+                    f"{self.frames / max(self.mining_seconds, 1e-9):.2f} frames/s (core frames tracked / mining time)"]
         if self.placement.get("proposal_actors"):
             actors = self.placement["proposal_actors"]
             gpus = ", ".join("+".join(a["gpu_ids"]) or "none" for a in actors)
