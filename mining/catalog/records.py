@@ -36,14 +36,14 @@ from datetime import datetime
 from typing import TYPE_CHECKING, Any
 
 from mining.catalog.identity import legacy_identity
-from mining.catalog.layout import (JOB, MARKERS, PART_TABLES, REPLACED, STITCH_ROW, done_path, files_path,
+from mining.catalog.layout import (CATALOG, JOB, MARKERS, TABLE_DIRS, PART_TABLES, REPLACED, STITCH_ROW, done_path, files_path,
                                    manifest_path, part_path, stitch_path)
 from mining.catalog.rows import to_table
 from mining.catalog.schema import SCHEMA_VERSION
 from mining.catalog.versions import RECORD_KEY, check_columns, check_record_version
 from mining.config import JobConfig, job_config_from_record
 from mining.errors import ConfigError, InputError
-from mining.names import check_name
+from mining.names import NAME_RULE, check_name, name_problem
 from mining.types import Window
 
 if TYPE_CHECKING:
@@ -85,6 +85,29 @@ def _read_json(store: Store, rel: str) -> object | Unreadable | None:
         return json.loads(raw)
     except ValueError as e:  # not UTF-8, not JSON: a truncated or overwritten file
         return Unreadable(rel, f"not valid JSON ({e})")
+
+
+def check_job_names(store: Store) -> None:
+    """Refuse a catalogue, whole and in one line, that holds a dataset or sequence name the
+    rule no longer admits (``mining/names.py``): an older rule allowed ``_x``, whose folders
+    pandas and pyarrow skip by default, so a plain read of it silently misses rows. The names
+    are those of job.json's windows and of the compacted tables' folders."""
+    found: list[tuple[str, object, str]] = []  # (kind, name, where)
+    d = _read_json(store, JOB)
+    if isinstance(d, dict) and isinstance(d.get("windows"), list):  # a record of another shape: its reader says so
+        for w in d["windows"]:
+            if isinstance(w, dict):
+                found += [(k, w.get(k), JOB) for k in ("dataset", "sequence") if isinstance(w.get(k), str)]
+    for table in TABLE_DIRS:
+        for rel in store.list(f"{CATALOG}/{table}"):
+            p = rel.split("/")
+            if len(p) == 5:  # catalog/<table>/<dataset>/<sequence>/<file>, or their hive folders
+                found += [("dataset", p[2].removeprefix("dataset="), rel), ("sequence", p[3].removeprefix("sequence="), rel)]
+    for kind, name, where in found:
+        if (problem := name_problem(name)) is not None:
+            raise InputError(f"this catalogue holds the {kind} name {name!r} ({problem}), which an older name rule "
+                             f"allowed; names are now {NAME_RULE}, so that every Parquet reader sees its folders. "
+                             f"Mine it again: {FRESH_START}", store.full(where))
 
 
 class _Shape(Exception):

@@ -38,7 +38,7 @@ from typing import TypeVar
 
 from mining.catalog import safe_files
 from mining.errors import InputError
-from mining.names import name_problem
+from mining.names import NAME_MAX, name_problem
 
 RECORD = ".mine-export.json"  # in DEST: what the export wrote there, so --overwrite replaces exactly that
 STAGING_PREFIX = "mine-export-partial-"  # the exporters' private folder in DEST (a safe name: a record may list it)
@@ -60,7 +60,7 @@ def recorded(dest: Path) -> list[str]:
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise InputError(f"not a record of an earlier export ({e}); remove DEST's contents yourself or choose "
                          "another folder", dest / RECORD) from None
-    bad = [n for n in names if n == RECORD or name_problem(n) is not None]
+    bad = [n for n in names if n == RECORD or name_problem(n, NAME_MAX) is not None]  # a crops folder joins names: longer than one
     if bad:
         raise InputError(f"the record names {bad!r}, which are not entries of DEST; remove DEST's contents yourself",
                          dest / RECORD)
