@@ -20,6 +20,7 @@ from typing import Annotated, Any
 
 from mining.checks import Count, OneOf, Range, coerce, split_hint
 from mining.errors import ConfigError
+from mining.files import read_text
 from mining.geometry.config import GeometryConfig
 from mining.localise.config import LocaliseConfig
 from mining.proposals.config import ProposalConfig
@@ -268,7 +269,7 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
     if path is not None:
         p = Path(path)
         try:
-            data = tomllib.loads(p.read_text())
+            data = tomllib.loads(read_text(p))
         except FileNotFoundError:
             raise ConfigError(f"file {p}: job config not found") from None
         except tomllib.TOMLDecodeError as e:

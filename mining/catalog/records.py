@@ -36,13 +36,14 @@ from datetime import datetime
 from typing import TYPE_CHECKING, Any
 
 from mining.catalog.identity import legacy_identity
-from mining.catalog.layout import (CATALOG, JOB, MARKERS, TABLE_DIRS, PART_TABLES, REPLACED, STITCH_ROW, done_path, files_path,
+from mining.catalog.layout import (CATALOG, JOB, MARKERS, TABLE_DIRS, catalog_layout, PART_TABLES, REPLACED, STITCH_ROW, done_path, files_path,
                                    manifest_path, part_path, stitch_path)
 from mining.catalog.rows import to_table
 from mining.catalog.schema import SCHEMA_VERSION
 from mining.catalog.versions import RECORD_KEY, check_columns, check_record_version
 from mining.config import JobConfig, job_config_from_record
 from mining.errors import ConfigError, InputError
+from mining.files import check_regular
 from mining.names import NAME_RULE, check_name, name_problem
 from mining.types import Window
 
@@ -75,12 +76,14 @@ def _kind(value: object) -> str:
 def _read_json(store: Store, rel: str) -> object | Unreadable | None:
     """The parsed JSON of ``rel``; None when there is no such file."""
     try:
-        with store.fs.open_input_stream(store.full(rel), compression=None) as f:
+        with store.open_stream(rel) as f:
             raw = f.read()
     except FileNotFoundError:
         return None
     except OSError as e:
         return Unreadable(rel, f"cannot be read ({e})")
+    except InputError as e:  # a FIFO or device at the record's name
+        return Unreadable(rel, e.reason)
     try:
         return json.loads(raw)
     except ValueError as e:  # not UTF-8, not JSON: a truncated or overwritten file
@@ -93,6 +96,8 @@ def check_job_names(store: Store) -> None:
     pandas and pyarrow skip by default, so a plain read of it silently misses rows. The names
     are those of job.json's windows and of the compacted tables' folders."""
     found: list[tuple[str, object, str]] = []  # (kind, name, where)
+    if store.local:
+        check_regular(store.full(JOB))  # a FIFO there: said at once, never read
     d = _read_json(store, JOB)
     if isinstance(d, dict) and isinstance(d.get("windows"), list):  # a record of another shape: its reader says so
         for w in d["windows"]:
@@ -101,8 +106,8 @@ def check_job_names(store: Store) -> None:
     for table in TABLE_DIRS:
         for rel in store.list(f"{CATALOG}/{table}"):
             p = rel.split("/")
-            if len(p) == 5:  # catalog/<table>/<dataset>/<sequence>/<file>, or their hive folders
-                found += [("dataset", p[2].removeprefix("dataset="), rel), ("sequence", p[3].removeprefix("sequence="), rel)]
+            if catalog_layout(rel) == "plain":  # catalog/<table>/<dataset>/<sequence>/<file>: hive folders are seen
+                found += [("dataset", p[2], rel), ("sequence", p[3], rel)]
     for kind, name, where in found:
         if (problem := name_problem(name)) is not None:
             raise InputError(f"this catalogue holds the {kind} name {name!r} ({problem}), which an older name rule "
@@ -210,7 +215,7 @@ class JobRecord:
     def load(cls, store: Store) -> JobRecord | None:
         """The record in ``store``, or None when it has none; ``UnreadableRecord`` (naming the
         file, why, and ``FRESH_START``) when job.json is there but does not read as one."""
-        if not store.exists(JOB):
+        if not store.anything_at(JOB):  # a FIFO there is no job.json, but not "no job" either
             return None
         d = _read_json(store, JOB)
         if d is None:  # removed since it was seen

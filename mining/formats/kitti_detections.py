@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from mining.errors import InputError
+from mining.files import read_text
 from mining.formats.kitti_tracking import KittiTrackingRows, read_kitti_tracking
 
 POINTRCNN_TYPES = {1: "Pedestrian", 2: "Car", 3: "Cyclist"}  # SOURCES.md §1.6 type codes
@@ -28,7 +29,7 @@ def read_kitti_detections(path: str | Path) -> KittiTrackingRows:
     """The detections of one file, in either format (see the module docstring)."""
     path = Path(path)
     try:
-        text = path.read_text()
+        text = read_text(path)
     except OSError as e:
         raise InputError(f"cannot read detections: {e.strerror or e}", path) from None
     first = next((line for line in text.splitlines() if line.strip()), "")

@@ -25,6 +25,7 @@ from typing import NamedTuple
 import numpy as np
 
 from mining.errors import InputError
+from mining.files import read_text
 
 LABEL_COLUMNS = 17  # KITTI tracking devkit: label_02 lines
 RESULT_COLUMNS = 18  # KITTI tracking devkit: result lines = label columns + score
@@ -100,7 +101,7 @@ def read_kitti_tracking(path: str | Path, require_score: bool = False) -> KittiT
     """
     p = Path(path)
     try:
-        lines = p.read_text().splitlines()
+        lines = read_text(p).splitlines()
     except OSError as e:
         raise InputError(f"cannot read KITTI tracking file: {e.strerror or e}", p) from None
 
@@ -162,7 +163,7 @@ def read_seqmap(path: str | Path) -> dict[str, int]:
     """KITTI seqmap: ``SEQ empty 000000 NFRAMES`` per line → {seq: number of frames}."""
     p = Path(path)
     try:
-        lines = p.read_text().splitlines()
+        lines = read_text(p).splitlines()
     except OSError as e:
         raise InputError(f"cannot read seqmap: {e.strerror or e}", p) from None
     frames = {}

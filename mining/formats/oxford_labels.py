@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from mining.errors import InputError
+from mining.files import read_text
 
 OXFORD_KNOWN = frozenset({"car", "person", "bike", "bus"})  # REFERENCE (original eval): known categories
 OXFORD_UNKNOWN = frozenset({"other"})  # REFERENCE (original eval): the "others" curve
@@ -66,7 +67,7 @@ def read_oxford_labels(root: str | Path) -> list[LabelledFrame]:
 
 def read_oxford_label_file(path: Path, traversal: str, sub: int, frame: int) -> LabelledFrame:
     try:
-        items = json.loads(Path(path).read_text())
+        items = json.loads(read_text(path, frame))
     except json.JSONDecodeError as e:
         raise InputError(f"not valid JSON at line {e.lineno} column {e.colno}: {e.msg}", path, frame) from None
     except OSError as e:

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from mining.errors import InputError
+from mining.files import read_text
 
 
 def poses_text(poses: np.ndarray) -> str:
@@ -24,7 +25,7 @@ def read_poses(path: str | Path) -> np.ndarray:
     """KITTI odometry poses file → (N, 4, 4)."""
     p = Path(path)
     rows = []
-    for n, line in enumerate(p.read_text().splitlines()):
+    for n, line in enumerate(read_text(p).splitlines()):
         if not line.strip():
             continue
         vals = line.split()

@@ -50,6 +50,7 @@ import numpy as np
 from pycocotools import mask as mask_utils
 
 from mining.errors import InputError
+from mining.files import open_regular
 from mining.formats.coco import CATEGORY_ID_TO_INDEX, CLASS_INDEX
 from mining.formats.kitti_calib import KittiCalib
 from mining.formats.kitti_detections import read_kitti_detections
@@ -186,12 +187,13 @@ def _read_proposal_json(path: Path, frame: int, category_ids: str, image_size: t
 
 def _bounded_text(path: Path, frame: int, max_file_bytes: int) -> str:
     """The file's text, refused above ``max_file_bytes`` before it is read."""
-    with path.open(encoding="utf-8") as f:
+    with open_regular(path, frame) as f:  # a FIFO at the frame's name is refused, never waited on
         size = os.fstat(f.fileno()).st_size
         if size > max_file_bytes:
             raise InputError(f"{size} bytes, over proposals.json.max_file_bytes = {max_file_bytes}", path, frame)
-        text = f.read(max_file_bytes + 1)  # a file that grows, or is not a regular file, stops here too
-    if len(text) > max_file_bytes:
+        raw = f.read(max_file_bytes + 1)  # a file that grows stops here too
+    text = raw.decode("utf-8")
+    if len(raw) > max_file_bytes:
         raise InputError(f"over proposals.json.max_file_bytes = {max_file_bytes}", path, frame)
     return text
 

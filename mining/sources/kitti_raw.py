@@ -17,6 +17,7 @@ from typing import NamedTuple
 import numpy as np
 
 from mining.errors import InputError
+from mining.files import check_regular, read_text
 from mining.formats.kitti_calib import KittiCalib, read_raw_calib
 from mining.sources.base import Source
 from mining.sources.kitti import listed_frames, png_size, read_stereo_pair
@@ -203,9 +204,9 @@ class KittiRawSource(Source):
     @staticmethod
     def _timestamps(path: Path, frames: tuple[int, ...]) -> tuple[int, ...]:
         """t_ns of the given frames (line i = frame i), strictly increasing."""
-        if not path.is_file():
+        if not check_regular(path).is_file():
             raise InputError("timestamps file is missing", path)
-        lines = path.read_text().splitlines()
+        lines = read_text(path).splitlines()
         out: list[int] = []
         for idx in frames:
             if idx >= len(lines):
@@ -252,7 +253,7 @@ class KittiRawSource(Source):
             if not re.fullmatch(rf"\d{{{_DIGITS}}}", path.stem):
                 continue
             frame = int(path.stem)
-            values = path.read_text().split()
+            values = read_text(path, frame).split()
             if len(values) != len(OxtsPacket._fields):
                 raise InputError(f"{len(values)} values, expected {len(OxtsPacket._fields)}", path, frame)
             try:

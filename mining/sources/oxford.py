@@ -35,6 +35,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from mining.errors import ConfigError, InputError
+from mining.files import open_regular, read_text
 from mining.names import check_name
 from mining.sources.base import Source
 from mining.types import SequencePlan, StereoCalib, StereoFrame
@@ -90,7 +91,7 @@ def load_camera_model(models_dir: Path, name: str) -> CameraModel:
     """Read ``<models_dir>/<name>.txt``; InputError when missing or malformed."""
     path = Path(models_dir) / f"{name}.txt"
     try:
-        lines = [ln.split() for ln in path.read_text().splitlines() if ln.strip()]
+        lines = [ln.split() for ln in read_text(path).splitlines() if ln.strip()]
     except FileNotFoundError:
         raise InputError(f"camera model {name} not found", path) from None
     try:
@@ -118,7 +119,7 @@ def load_lut(path: Path, width: int, height: int) -> tuple[np.ndarray, np.ndarra
 
 def png_size(path: Path) -> tuple[int, int, int, int]:
     """(width, height, bit depth, colour type) from the PNG header, without decoding."""
-    with open(path, "rb") as f:
+    with open_regular(path) as f:
         head = f.read(26)
     if len(head) < 26 or head[:8] != PNG_SIGNATURE or head[12:16] != b"IHDR":
         raise InputError("not a PNG file (bad header)", path)
@@ -203,7 +204,7 @@ class OxfordSource(Source):
         check_name(sequence, "sequence", "the oxford source", self.root)  # a traversal folder, never a path
         path = self.root / sequence / TIMESTAMPS_FILE
         try:
-            text = path.read_text()
+            text = read_text(path)
         except FileNotFoundError:
             raise InputError("timestamps file not found", path) from None
         rows: list[tuple[int, int]] = []
