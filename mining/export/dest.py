@@ -38,6 +38,7 @@ from typing import TypeVar
 
 from mining.catalog import safe_files
 from mining.errors import InputError
+from mining.files import read_text
 from mining.names import NAME_MAX, name_problem
 
 RECORD = ".mine-export.json"  # in DEST: what the export wrote there, so --overwrite replaces exactly that
@@ -54,7 +55,7 @@ def recorded(dest: Path) -> list[str]:
     """The top-level names in ``dest`` an earlier export recorded (RECORD), checked to be
     plain names inside ``dest``."""
     try:
-        names = json.loads((dest / RECORD).read_text())["written"]
+        names = json.loads(read_text(dest / RECORD))["written"]
         if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
             raise TypeError("'written' is not a list of names")
     except (OSError, ValueError, KeyError, TypeError) as e:
