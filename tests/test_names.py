@@ -23,9 +23,11 @@ real KITTI 0005 one of ``tests/_catalog_data.py``, one tube renamed."""
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
+import string
 from pathlib import Path
 
 import pyarrow as pa
@@ -43,7 +45,8 @@ from mining.catalog.views import connect
 from mining.cli import main
 from mining.config import load_config
 from mining.errors import InputError, MiningError
-from mining.names import MAX_NAME_LENGTH, check_name, check_tube_id, inside, path_problem, shown, tube_folder
+from mining.names import (MAX_NAME_LENGTH, check_name, check_tube_id, inside, name_problem, path_problem, shown,
+                          tube_folder)
 from mining.pipeline.executors import LocalExecutor
 from mining.pipeline.submit import mine_job
 from mining.sources import open_source
@@ -303,3 +306,109 @@ def test_kitti_export_of_an_unsafe_sequence_name(catalogue, tmp_path, capsys, la
     with pytest.raises(MiningError, match=re.escape("sequence name '../../escaped'")):
         run_export(str(cat), "selected", "kitti", str(dest))
     assert {p for p in tmp_path.rglob("*")} - before <= {tmp_path / "work", dest}, "nothing written"
+
+
+# -- every name a folder a default read sees (issue 40, case 2) --------------------------
+#
+# The adversarial run: a sequence named ``_x`` (the rule allowed it) lay at
+# ``catalog/<table>/<dataset>/_x/``, and pandas, ``pyarrow.dataset`` and ``pq.read_table`` skip
+# ``_``- and ``.``-prefixed folders by default: they saw 10 tubes where ``mine query`` saw 20,
+# silently. Now a name starts with a letter or digit; a catalogue an older rule let hold
+# such a name is refused whole, in one line, when opened.
+
+# One name the rule admits for each character a name may start with, the longest, and each
+# character at the end: the names a reader must not skip.
+ADMITTED = sorted({c + "x" for c in string.ascii_letters + string.digits + "._-" if name_problem(c + "x") is None}
+                  | {"a" + c for c in "._-"} | {"7", "A.b-c_d", "z" * MAX_NAME_LENGTH})
+
+
+def test_every_name_the_rule_admits_makes_folders_a_default_read_sees(catalogue, tmp_path):
+    import pandas as pd
+    import pyarrow.dataset as pads
+    import pyarrow.parquet as pq
+
+    from mining.catalog.layout import CATALOG, MANIFEST, manifest_path
+    from mining.types import Window
+
+    _, tables = catalogue
+    tubes = tables["tubes"]
+    store = Store(tmp_path / "cat")
+    manifest = pa.table({"window": pa.array([], pa.string())})
+    for name in ADMITTED:
+        named = tubes
+        for column in ("dataset", "sequence"):
+            named = named.set_column(named.schema.get_field_index(column), column, pa.array([name] * len(tubes)))
+        write_sequence(store, "tubes", name, name, named)
+        window = Window(name, name, (0, 10), (0, 10)).name  # the window's own file: named by its sequence
+        store.write_table(manifest_path(name, name, window), manifest)
+    want = len(ADMITTED) * len(tubes)
+    folder = tmp_path / "cat" / CATALOG / "tubes"
+    assert len(pd.read_parquet(folder)) == want, "pandas"
+    assert pads.dataset(folder, format="parquet").count_rows() == want, "pyarrow.dataset"
+    assert pq.read_table(folder).num_rows == want, "pq.read_table"
+    assert sorted(set(pq.read_table(folder).column("sequence").to_pylist())) == ADMITTED
+    # The manifest's files are named by their window, so by their sequence: all seen too.
+    assert len(pads.dataset(tmp_path / "cat" / MANIFEST, format="parquet").files) == len(ADMITTED)
+
+
+@pytest.mark.parametrize("name", ["_x", "_", "__init__", "_" + "a" * 10])
+def test_a_name_starting_with_an_underscore_is_refused(name):
+    with pytest.raises(InputError) as e:
+        check_name(name, "sequence", "--sequences")
+    assert repr(name) in str(e.value) and "starts with '_'" in str(e.value)
+    assert "starting with a letter or digit" in str(e.value)
+
+
+def test_mine_submit_refuses_an_underscore_name_before_anything_is_written(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "out"
+    rc, _, err = cli(capsys, "submit", *SYNTHETIC[:2], "--sequences", "0000", "_1", *SYNTHETIC[4:],
+                     "--workers", "1", "--out", str(out))
+    line = clean_error(err)
+    assert rc == 2 and len(err.strip().splitlines()) == 1, err
+    assert "'_1'" in line and "--sequences" in line and "starts with '_'" in line, line
+    assert os.listdir(tmp_path) == [], "nothing written"
+
+
+def test_config_sequences_starting_with_an_underscore_are_refused(tmp_path):
+    cfg = load_config(None, ['source.dataset="synthetic"', 'source.sequences=["0000", "_1"]',
+                             "source.options.n_frames=8"])
+    with pytest.raises(InputError) as e:
+        mine_job(cfg, str(tmp_path / "out"), executor=LocalExecutor)
+    assert "'_1'" in str(e.value) and "source.sequences" in str(e.value) and "starts with '_'" in str(e.value)
+    assert not (tmp_path / "out").exists()
+
+
+def _as_older_rule_named(base: Path, dst: Path, name: str) -> Path:
+    """A copy of the mined catalogue ``base`` whose sequence is called ``name`` (as an older name
+    rule let it be): job.json's windows and the compacted tables' folders."""
+    from _jobs import SEQ
+
+    shutil.copytree(base, dst)
+    job = json.loads((dst / "job.json").read_text())
+    for w in job["windows"]:
+        w["sequence"], w["window"] = name, w["window"].replace(SEQ, name, 1)
+    (dst / "job.json").write_text(json.dumps(job))
+    for folder in list((dst / "catalog").glob(f"*/*/{SEQ}")):
+        folder.rename(folder.with_name(name))
+    return dst
+
+
+@pytest.mark.parametrize("command", [["query", "SELECT count(*) FROM tubes"], ["status"]], ids=["query", "status"])
+def test_a_catalogue_holding_a_name_an_older_rule_allowed_is_one_line(base_catalogue, tmp_path, capsys, command):
+    out = _as_older_rule_named(base_catalogue[0], tmp_path / "out", "_1")
+    rc, _, err = cli(capsys, *command, "--out", str(out))
+    line = clean_error(err)
+    assert rc == 2 and len(err.strip().splitlines()) == 1, err
+    assert "'_1'" in line and "--new-run" in line and "starting with a letter or digit" in line, line
+
+
+def test_a_catalogue_no_job_wrote_holding_such_a_name_is_refused_too(catalogue, tmp_path):
+    out, _ = catalogue
+    cat = tmp_path / "cat"
+    shutil.copytree(out, cat)
+    for folder in list((cat / "catalog").glob(f"*/*/{SEQUENCE}")):
+        folder.rename(folder.with_name("_" + SEQUENCE))
+    with pytest.raises(InputError) as e:
+        connect(cat)
+    assert repr("_" + SEQUENCE) in str(e.value) and "--new-run" in str(e.value) and "\n" not in str(e.value)
