@@ -412,3 +412,82 @@ def test_a_catalogue_no_job_wrote_holding_such_a_name_is_refused_too(catalogue, 
     with pytest.raises(InputError) as e:
         connect(cat)
     assert repr("_" + SEQUENCE) in str(e.value) and "--new-run" in str(e.value) and "\n" not in str(e.value)
+
+
+# -- the longest names fit every path (issue 40, case 7) ----------------------------------
+#
+# The adversarial run: a sequence of 128 characters (the rule allowed it) aborted the whole
+# job, good sequences included, blaming --out: its window name (the sequence's name and its
+# frame range) was 144 characters, over the name rule, and job.json was already written. Now
+# a name is at most 100 characters and a window's 120 (100 + 2 × (1 + 9)), and every path
+# built from names of those lengths, its temporary name included, fits NAME_MAX.
+
+
+def test_every_path_built_from_names_of_the_maximum_length_fits(tmp_path):
+    from mining.catalog import layout, safe_files
+    from mining.catalog.store import LEFTOVER, TMP_MARK
+    from mining.export.fiftyone_video import VIDEO_SUFFIX
+    from mining.export.rerun_rrd import RRD_SUFFIX
+    from mining.export.selection import video_name
+    from mining.names import FRAME_DIGITS, MAX_WINDOW_NAME_LENGTH, NAME_MAX
+    from mining.types import Window
+
+    d, s = "d" * MAX_NAME_LENGTH, "s" * MAX_NAME_LENGTH
+    last = 10 ** FRAME_DIGITS - 1
+    w = Window(d, s, (last - 1, last), (last - 1, last))
+    assert len(w.name) == MAX_WINDOW_NAME_LENGTH == 120
+    catalogue = [
+        *(layout.part_path(t, d, s, w.name) for t in layout.PART_TABLES), layout.manifest_path(d, s, w.name),
+        layout.files_path(d, s, w.name), layout.stitch_path(d, s), layout.observed_path(d, s, w.name),
+        layout.running_path(d, s, w.name), layout.cache_path(w), layout.cache_path(w, layout.LEGACY_CACHE_SUFFIX),
+        layout.done_path(d, s), *(layout.catalog_file(t, d, s, 999) for t in layout.TABLE_DIRS)]
+    tube_id = f"{d}/{s}/{last:07d}.999-99"  # stitch.py: first frame and observation, -k for the k-th alike
+    video = video_name(d, s)
+    export = [video + VIDEO_SUFFIX, f"labels/{video}.json", video + RRD_SUFFIX, f"{tube_folder(tube_id)}/index.json",
+              f"{s}.txt", f"{s}.ids.json"]  # fiftyone, rerun, crops, kitti (export/*.py)
+    for rel in catalogue + export:
+        for name in rel.split("/"):
+            temporary = f".{name}{TMP_MARK}{'0' * 12}"  # what every write makes first (store, safe_files)
+            assert LEFTOVER.fullmatch(temporary)
+            assert len(temporary.encode()) <= NAME_MAX, (rel, len(temporary.encode()))
+    # And written for real, through the catalogue's and the exports' own writers.
+    store = Store(tmp_path / "out")
+    for rel in catalogue:
+        store.write_bytes(rel, b"x")
+    for rel in export:
+        safe_files.write_atomic(tmp_path / "dest", rel, b"x")
+    assert all((tmp_path / "out" / rel).is_file() for rel in catalogue)
+    assert all((tmp_path / "dest" / rel).is_file() for rel in export)
+
+
+def test_a_sequence_over_the_maximum_length_is_refused_naming_the_limit(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert MAX_NAME_LENGTH == 100, "the limit docs/OPERATING.md states"
+    long = "0" * 100 + "1"  # a synthetic sequence is named by an integer
+    rc, _, err = cli(capsys, "submit", *SYNTHETIC[:2], "--sequences", "0000", long, *SYNTHETIC[4:],
+                     "--workers", "1", "--out", str(tmp_path / "out"))
+    line = clean_error(err)
+    assert rc == 2 and len(err.strip().splitlines()) == 1, err
+    assert repr(long) in line and f"{MAX_NAME_LENGTH + 1} characters, more than {MAX_NAME_LENGTH}" in line, line
+    assert "--sequences" in line and "--out" not in line.split(repr(long))[1], line
+    assert os.listdir(tmp_path) == [], "nothing written"
+
+
+@pytest.mark.slow  # a real `mine submit` on a local Ray
+def test_a_sequence_of_the_maximum_length_is_mined_beside_another(tmp_path):
+    from _jobs import TINY
+    from _run import SUMMARY, submit
+
+    longest = "0" * (MAX_NAME_LENGTH - 1) + "1"  # a synthetic sequence is named by an integer
+    args = list(TINY)
+    at = args.index("--sequences")
+    args[at + 1:at + 2] = ["0000", longest]
+    rc, out, err = submit(tmp_path / "out", *args, workers=1)
+    assert rc == 0, (out, err)
+    assert SUMMARY.search(out + err).groups() == ("4", "0", "0", "4"), out + err
+    con = connect(tmp_path / "out")
+    try:
+        got = con.execute("SELECT sequence, count(*) FROM frames GROUP BY sequence ORDER BY sequence").fetchall()
+    finally:
+        con.close()
+    assert got == [("0000", 12), (longest, 12)]
