@@ -403,6 +403,19 @@ def test_a_catalogue_holding_a_name_an_older_rule_allowed_is_one_line(base_catal
     assert "'_1'" in line and "--new-run" in line and "starting with a letter or digit" in line, line
 
 
+def test_new_run_mines_a_catalogue_an_older_rule_named_again(base_catalogue, tmp_path):
+    from _jobs import mine
+
+    out = _as_older_rule_named(base_catalogue[0], tmp_path / "out", "_1")
+    summary = mine(out, mode="new")  # `mine submit --new-run`, as the refusal advises
+    assert summary.ok == 2 and not summary.failed, summary.lines()
+    con = connect(out)
+    try:
+        assert con.execute("SELECT DISTINCT sequence FROM frames").fetchall() == [("0000",)]
+    finally:
+        con.close()
+
+
 def test_a_catalogue_no_job_wrote_holding_such_a_name_is_refused_too(catalogue, tmp_path):
     out, _ = catalogue
     cat = tmp_path / "cat"
