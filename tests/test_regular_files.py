@@ -116,21 +116,29 @@ def test_a_fifo_proposals_file_fails_its_window_and_the_job_completes_the_others
 # -- an image ---------------------------------------------------------------------------------
 
 
-def test_a_fifo_image_fails_its_frame_naming_it(kitti_tracking_root, tmp_path):
+@pytest.mark.parametrize("dataset", ["kitti", "oxford"])
+def test_a_fifo_image_fails_its_frame_naming_it(kitti_tracking_root, tmp_path, dataset):
     from _kitti_copy import kitti_copy
+    from conftest import kitti_0005_stereo
     from mining.sources import open_source
+    from mining.testing.fixtures import write_robotcar_fixture
 
-    root = kitti_copy(tmp_path / "kitti", kitti_tracking_root, n_frames=4)
-    image = root / "training" / "image_02" / "0005" / "000002.png"
+    if dataset == "kitti":
+        root = kitti_copy(tmp_path / "kitti", kitti_tracking_root, n_frames=4)
+        sequence, image = "0005", root / "training" / "image_02" / "0005" / "000002.png"
+    else:  # a RobotCar layout of the same frames: images named by their time
+        root = tmp_path / "robotcar"
+        write_robotcar_fixture(root, *kitti_0005_stereo(kitti_tracking_root, 4), traversal="t")
+        sequence, image = "t", sorted((root / "t" / "stereo" / "left").glob("*.png"))[2]
     image.unlink()
     _fifo(image)
-    source = open_source("kitti", str(root))
-    plan = source.plan("0005")
+    source = open_source(dataset, str(root))
+    plan = source.plan(sequence)
     with no_hang(image):
-        assert source.read_frame(plan, 1).index == 1
+        assert source.read_frame(plan, 1).index == plan.frames[1]
         with pytest.raises(InputError) as e:
             source.read_frame(plan, 2)
-    assert str(image) in str(e.value) and "frame 2" in str(e.value) and "FIFO" in str(e.value)
+    assert str(image) in str(e.value) and f"frame {plan.frames[2]}" in str(e.value) and "FIFO" in str(e.value)
 
 
 # -- a config, a job.json -----------------------------------------------------------------------

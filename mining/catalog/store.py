@@ -43,7 +43,7 @@ from mining.catalog.layout import JOB, JOB_ENTRIES, RUNNING, catalog_dir, catalo
 from mining.catalog.safe_files import TMP_MARK, write_error
 from mining.catalog.schema import PARTITION, SCHEMA_VERSION, file_schema
 from mining.errors import InputError
-from mining.files import open_regular
+from mining.files import check_regular, open_regular
 
 COMPRESSION = "zstd"  # ours: smaller than snappy at similar decode speed in DuckDB
 ROWS_PER_FILE = 2_000_000  # ours: few large files per sequence (DESIGN "never by window")
@@ -157,6 +157,8 @@ class Store:
     def read_table(self, rel: str, columns: list[str] | None = None) -> pa.Table:
         """One Parquet file as written (no partition columns are added from the path)."""
         try:
+            if self.local:
+                check_regular(self.full(rel))  # a FIFO would block the read for ever
             with self.fs.open_input_file(self.full(rel)) as f:
                 return pq.ParquetFile(f).read(columns=columns)
         except FileNotFoundError:

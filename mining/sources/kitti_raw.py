@@ -231,7 +231,7 @@ class KittiRawSource(Source):
     def velodyne(self, sequence: str, frame: int) -> np.ndarray:
         """(N, 4) float32 Velodyne scan: x forward, y left, z up (m), reflectance."""
         path = self._drive_dir(sequence) / "velodyne_points" / "data" / f"{frame:0{_DIGITS}d}.bin"
-        if not path.is_file():
+        if not check_regular(path, frame).is_file():
             raise InputError("Velodyne scan is missing", path, frame)
         size = path.stat().st_size
         if size % 16:
