@@ -10,7 +10,7 @@
   written, naming the bad name and where it came from.
 * A source's own listing is checked like a user's names: a RobotCar root holding a
   traversal folder whose name is not a safe name (a copy named ``… (copy)``, a hidden
-  ``.…`` folder) fails that sequence at planning, named with where the name came from, and
+  ``.…`` folder, a ``_…`` one readers would skip) fails that sequence at planning, named with where the name came from, and
   the other traversals are mined; nothing of the bad ones is written. Before, their names
   went into paths under ``--out`` as they were.
 * ``mine export`` never writes outside DEST: a catalogue whose tube id is ``..`` made
@@ -56,7 +56,7 @@ N_FRAMES = 6
 # From <tmp>/r1/r2/r3/root, four levels up is <tmp>: this name reaches <tmp>/elsewhere/victim.
 ESCAPE = "../../../../elsewhere/victim"
 GOOD = "2014-12-09-13-21-02"
-BAD = ("2014-12-09-13-21-02 (copy)", ".2014-12-10-18-10-13")
+BAD = ("2014-12-09-13-21-02 (copy)", ".2014-12-10-18-10-13", "_2014-12-10-18-10-13")
 
 
 # -- paths a user names ---------------------------------------------------------------------
