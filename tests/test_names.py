@@ -504,3 +504,16 @@ def test_a_sequence_of_the_maximum_length_is_mined_beside_another(tmp_path):
     finally:
         con.close()
     assert got == [("0000", 12), (longest, 12)]
+
+
+def test_a_single_file_dest_of_the_longest_name_is_written(tmp_path):
+    """``mine render``'s and a one-file export's DEST: its private folder beside it was named
+    ``.<DEST name>.partial-<random>``, over NAME_MAX for a DEST name the path check admits."""
+    from mining.export.dest import publish_file
+
+    for name in ("v" * 251 + ".mp4", "ü" * 125 + ".mp4"):  # 255 bytes each: the longest name a path may hold
+        dest = tmp_path / name
+        assert path_problem(dest) is None
+        publish_file(dest, False, lambda path: path.write_bytes(b"video"))
+        assert dest.read_bytes() == b"video"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["v" * 251 + ".mp4", "ü" * 125 + ".mp4"])

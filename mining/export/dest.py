@@ -22,7 +22,7 @@ A file (render): the destination rule of every single file a command writes
 (``safe_files.check_output_file`` and ``publish_file``): an existing DEST is replaced only
 with ``--overwrite``, and only when it is a plain file (a link or a folder there is refused,
 whatever the flag). The file is written
-in a private folder beside DEST (``.<DEST name>.partial-<random>``, made by ``mkdir`` under
+in a private folder beside DEST (``.<DEST name, cut when long>.partial-<random>``, made by ``mkdir`` under
 an unpredictable name, so no link can be planted where the writer writes), then moved onto
 DEST (``safe_files.publish_file``: without ``--overwrite`` the name is claimed atomically,
 never replaced). A failed write leaves DEST as it was (``publish_file``).
@@ -138,7 +138,8 @@ def publish_file(dest: Path, overwrite: bool, write: Callable[[Path], T]) -> T:
     move the file onto ``dest`` (replacing it only with ``overwrite``); ``write``'s result.
     The private folder is removed whatever happens."""
     dest.parent.mkdir(parents=True, exist_ok=True)
-    work = safe_files.private_dir(dest.parent, f".{dest.name}.partial-")
+    name = dest.name if len(os.fsencode(dest.name)) <= 100 else dest.name[:25]  # so the folder's name fits NAME_MAX
+    work = safe_files.private_dir(dest.parent, f".{name}.partial-")
     try:
         result = write(work / dest.name)  # writers open files by path: inside a folder only this write uses
         safe_files.publish_file(work / dest.name, dest, overwrite)
