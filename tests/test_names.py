@@ -517,3 +517,8 @@ def test_a_single_file_dest_of_the_longest_name_is_written(tmp_path):
         publish_file(dest, False, lambda path: path.write_bytes(b"video"))
         assert dest.read_bytes() == b"video"
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["v" * 251 + ".mp4", "ü" * 125 + ".mp4"])
+    # A file a command writes in place (`mine query --output`, `--json`): its temporary name beside it too.
+    from mining.catalog import safe_files
+
+    safe_files.write_atomic(tmp_path, "q" * 251 + ".csv", b"a,b\n")
+    assert (tmp_path / ("q" * 251 + ".csv")).read_bytes() == b"a,b\n"
