@@ -44,6 +44,7 @@ from scipy.optimize import linear_sum_assignment
 from mining.boxes import box_ioa, box_iou
 from mining.checks import count, input_file, input_folder
 from mining.errors import InputError
+from mining.files import read_text
 from mining.eval.clear import clear_metrics, clear_sums, combine_clear_sums
 from mining.eval.hota import combine_hota_sums, hota_metrics, hota_sums
 from mining.eval.identity import combine_identity_sums, identity_metrics, identity_sums
@@ -286,7 +287,7 @@ def evaluate_first_frames(gt_dir: str | Path, result_dir: str | Path, sequences:
     with tempfile.TemporaryDirectory() as tmp:
         gt_files, lines = {}, []
         for seq in sequences:
-            rows = [ln for ln in (Path(gt_dir) / f"{seq}.txt").read_text().splitlines()
+            rows = [ln for ln in read_text(Path(gt_dir) / f"{seq}.txt").splitlines()
                     if ln.strip() and int(ln.split()[0]) < n_frames]
             gt_files[seq] = Path(tmp) / f"{seq}.txt"
             gt_files[seq].write_text("\n".join(rows) + "\n")
