@@ -39,8 +39,8 @@ from mining.errors import InputError
 NAME_MAX = 255  # bytes in one name of a path (Linux and macOS filesystems)
 PATH_MAX = 4096  # bytes in a path, its terminating NUL included (Linux)
 # The longest name of a path the catalogue or an export builds from names is two names joined
-# (an export's ``<dataset>_<sequence>.rrd`` and its temporary ``.<that>.tmp-<12 hex>``, a crops
-# folder ``<dataset>_<sequence>_<frame>.<obs>``): 1 + 2*100 + 1 + 4 + 5 + 12 = 223 bytes, under
+# (an export's ``<dataset>_<sequence>.json`` and its temporary ``.<that>.tmp-<12 hex>``, a crops
+# folder ``<dataset>_<sequence>_<frame>.<obs>``): 1 + 2*100 + 1 + 5 + 5 + 12 = 224 bytes, under
 # NAME_MAX (tests/test_names.py builds every such path and checks it).
 MAX_NAME_LENGTH = 100  # characters of a dataset or sequence name (ASCII: one byte each)
 FRAME_DIGITS = 9  # a window's frame position prints in at most 9 digits (below 10**9: a year of 30 fps video)

@@ -36,8 +36,8 @@ from datetime import datetime
 from typing import TYPE_CHECKING, Any
 
 from mining.catalog.identity import legacy_identity
-from mining.catalog.layout import (CATALOG, JOB, MARKERS, TABLE_DIRS, catalog_layout, PART_TABLES, REPLACED, STITCH_ROW, done_path, files_path,
-                                   manifest_path, part_path, stitch_path)
+from mining.catalog.layout import (CATALOG, JOB, MARKERS, PART_TABLES, REPLACED, STITCH_ROW, TABLE_DIRS, catalog_layout,
+                                   done_path, files_path, manifest_path, part_path, stitch_path)
 from mining.catalog.rows import to_table
 from mining.catalog.schema import SCHEMA_VERSION
 from mining.catalog.versions import RECORD_KEY, check_columns, check_record_version
@@ -94,7 +94,7 @@ def check_job_names(store: Store) -> None:
     """Refuse a catalogue, whole and in one line, that holds a dataset or sequence name the
     rule no longer admits (``mining/names.py``): an older rule allowed ``_x``, whose folders
     pandas and pyarrow skip by default, so a plain read of it silently misses rows. The names
-    are those of job.json's windows and of the compacted tables' folders."""
+    are those of job.json's windows, or where it lists none, of the compacted tables' folders."""
     found: list[tuple[str, object, str]] = []  # (kind, name, where)
     if store.local:
         check_regular(store.full(JOB))  # a FIFO there: said at once, never read
@@ -103,11 +103,12 @@ def check_job_names(store: Store) -> None:
         for w in d["windows"]:
             if isinstance(w, dict):
                 found += [(k, w.get(k), JOB) for k in ("dataset", "sequence") if isinstance(w.get(k), str)]
-    for table in TABLE_DIRS:
-        for rel in store.list(f"{CATALOG}/{table}"):
-            p = rel.split("/")
-            if catalog_layout(rel) == "plain":  # catalog/<table>/<dataset>/<sequence>/<file>: hive folders are seen
-                found += [("dataset", p[2], rel), ("sequence", p[3], rel)]
+    if not found:  # no job's windows (store.write_sequence alone): its folders name its sequences
+        for table in TABLE_DIRS:
+            for rel in store.list(f"{CATALOG}/{table}"):
+                p = rel.split("/")
+                if catalog_layout(rel) == "plain":  # catalog/<table>/<dataset>/<sequence>/<file>: hive folders are seen
+                    found += [("dataset", p[2], rel), ("sequence", p[3], rel)]
     for kind, name, where in found:
         if (problem := name_problem(name)) is not None:
             raise InputError(f"this catalogue holds the {kind} name {name!r} ({problem}), which an older name rule "
