@@ -19,7 +19,8 @@ from pathlib import Path
 from typing import Annotated, Any
 
 from mining.checks import Count, OneOf, Range, coerce, split_hint
-from mining.errors import ConfigError, read_text
+from mining.errors import ConfigError
+from mining.files import read_text
 from mining.geometry.config import GeometryConfig
 from mining.localise.config import LocaliseConfig
 from mining.proposals.config import ProposalConfig

@@ -51,9 +51,3 @@ def decode_text(data: bytes, path: str | Path, what: str, frame: int | None = No
         raise InputError(f"{what} is not UTF-8 text: byte 0x{data[e.start]:02x} at offset {e.start} (line {line}); "
                          "save it as UTF-8", path, frame) from None
     return text.replace("\r\n", "\n").replace("\r", "\n")
-
-
-def read_text(path: str | Path, what: str, frame: int | None = None) -> str:
-    """The text of a user's file ``path`` (see ``decode_text``); OSError (a missing file,
-    say) is the caller's to word."""
-    return decode_text(Path(path).read_bytes(), path, what, frame)

@@ -9,8 +9,12 @@ again where a path is built from it, and a path is never made from anything else
 The rule (no encoding, so every name reads the same in a path, a query and a log):
 
 * a **name** is 1 to ``MAX_NAME_LENGTH`` characters of ``[A-Za-z0-9._-]``, starts with a
-  letter, digit or ``_`` (never ``.`` or ``-``), and holds no ``..``. It is one path
+  letter or digit (never ``_``, ``.`` or ``-``), and holds no ``..``. It is one path
   component: no separator, never ``.`` or ``..``, no ``=`` (the hive partition mark).
+  Not ``_`` or ``.`` first because the catalogue's folders are named by it and pandas,
+  ``pyarrow.dataset`` and ``pq.read_table`` skip such folders by default: a sequence ``_x``
+  was silently missing from every plain read. A window name is its sequence's name plus
+  its frame range, so it may be longer (``MAX_WINDOW_NAME_LENGTH``).
 * a **tube id** is names joined by ``/`` (the catalogue's ``dataset/sequence/frame.obs``);
   its export folder joins them with ``_`` instead (``tube_folder``).
 
@@ -32,35 +36,43 @@ from pathlib import Path
 
 from mining.errors import InputError
 
-MAX_NAME_LENGTH = 128  # ours: a window file name (name + 16 + suffix + temp mark) stays far below 255 bytes
 NAME_MAX = 255  # bytes in one name of a path (Linux and macOS filesystems)
 PATH_MAX = 4096  # bytes in a path, its terminating NUL included (Linux)
-NAME_RULE = f"1-{MAX_NAME_LENGTH} characters of A-Z a-z 0-9 . _ -, not starting with '.' or '-', no '..'"
+# The longest name of a path the catalogue or an export builds from names is two names joined
+# (an export's ``<dataset>_<sequence>.json`` and its temporary ``.<that>.tmp-<12 hex>``, a crops
+# folder ``<dataset>_<sequence>_<frame>.<obs>``): 1 + 2*100 + 1 + 5 + 5 + 12 = 224 bytes, under
+# NAME_MAX (tests/test_names.py builds every such path and checks it).
+MAX_NAME_LENGTH = 100  # characters of a dataset or sequence name (ASCII: one byte each)
+FRAME_DIGITS = 9  # a window's frame position prints in at most 9 digits (below 10**9: a year of 30 fps video)
+# A window name is ``<sequence>-<first:07d>-<last:07d>`` (types.Window.name): 100 + 2*(1+9) = 120.
+MAX_WINDOW_NAME_LENGTH = MAX_NAME_LENGTH + 2 * (1 + FRAME_DIGITS)
+NAME_RULE = f"1-{MAX_NAME_LENGTH} characters of A-Z a-z 0-9 . _ -, starting with a letter or digit, no '..'"
 
 
-def name_problem(name: object) -> str | None:
-    """Why ``name`` is not a safe name, or None when it is one."""
+def name_problem(name: object, limit: int = MAX_NAME_LENGTH) -> str | None:
+    """Why ``name`` is not a safe name of at most ``limit`` characters, or None when it is one."""
     if not isinstance(name, str):
         return f"not a string but {type(name).__name__}"
     if not name:
         return "empty"
-    if len(name) > MAX_NAME_LENGTH:
-        return f"{len(name)} characters, more than {MAX_NAME_LENGTH}"
+    if len(name) > limit:
+        return f"{len(name)} characters, more than {limit}"
     problems = []
     bad = sorted({c for c in name if not (c.isascii() and (c.isalnum() or c in "._-"))})
     if bad:
         problems.append("holds " + " ".join(repr(c) for c in bad))
     if ".." in name:
         problems.append("holds '..'")
-    if name[0] in ".-":
+    if name[0] in "._-":
         problems.append(f"starts with {name[0]!r}")
     return "; ".join(problems) or None
 
 
 def check_name(name: object, kind: str, origin: str, path: str | Path | None = None) -> str:
     """``name`` when it is a safe ``kind`` name (dataset, sequence, window…); else an
-    InputError naming it, where it came from (``origin``) and the rule."""
-    problem = name_problem(name)
+    InputError naming it, where it came from (``origin``) and the rule. A window's name may
+    be longer than the others (``MAX_WINDOW_NAME_LENGTH``: its sequence's name and frame range)."""
+    problem = name_problem(name, MAX_WINDOW_NAME_LENGTH if kind == "window" else MAX_NAME_LENGTH)
     if problem is not None:
         raise InputError(f"{kind} name {name!r} from {origin} is not a safe name ({problem}); "
                          f"names are {NAME_RULE}", path)

@@ -153,7 +153,7 @@ OWN_FILES_ONLY = ("mining/bench/", "mining/catalog/schema.py", "mining/catalog/v
 
 
 def test_a_users_text_is_read_through_one_helper():
-    """Every text read in mining/ outside OWN_FILES_ONLY is errors.read_text / decode_text:
+    """Every text read in mining/ outside OWN_FILES_ONLY is files.read_text / decode_text:
     no ``.read_text()`` and no text-mode ``open()`` for reading."""
     import ast
 
@@ -180,4 +180,4 @@ def test_a_users_text_is_read_through_one_helper():
                 # A bare x.open() may be a source's, not a file's: only a builtin open() is text by default.
                 if text or (isinstance(f, ast.Name) and not modes):
                     found.append(f"{rel}:{node.lineno}: {ast.unparse(node)}")
-    assert not found, "text read without mining.errors.read_text:\n" + "\n".join(found)
+    assert not found, "text read without mining.files.read_text:\n" + "\n".join(found)

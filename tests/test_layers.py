@@ -18,7 +18,7 @@ from conftest import REPO
 # The paper's stages, each a package; none imports another (they meet in pipeline/).
 STAGES = ("sources", "geometry", "proposals", "localise", "tubes", "score", "select")
 # The shared floor every stage may use: words, not work.
-SHARED_FLOOR = ("types", "errors", "names", "masks", "boxes", "checks", "progress", "draw", "formats")
+SHARED_FLOOR = ("types", "errors", "names", "files", "masks", "boxes", "checks", "progress", "draw", "formats")
 # The export wing's shared modules; every other module of export/ is a format (export/registry.py),
 # and a format imports only these, never another format (as TrackEval's datasets import only their base).
 EXPORT_SHARED = ("registry", "selection", "source_frames", "json_annotations", "depth", "dest", "video")

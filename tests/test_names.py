@@ -10,7 +10,7 @@
   written, naming the bad name and where it came from.
 * A source's own listing is checked like a user's names: a RobotCar root holding a
   traversal folder whose name is not a safe name (a copy named ``… (copy)``, a hidden
-  ``.…`` folder) fails that sequence at planning, named with where the name came from, and
+  ``.…`` folder, a ``_…`` one readers would skip) fails that sequence at planning, named with where the name came from, and
   the other traversals are mined; nothing of the bad ones is written. Before, their names
   went into paths under ``--out`` as they were.
 * ``mine export`` never writes outside DEST: a catalogue whose tube id is ``..`` made
@@ -23,9 +23,11 @@ real KITTI 0005 one of ``tests/_catalog_data.py``, one tube renamed."""
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
+import string
 from pathlib import Path
 
 import pyarrow as pa
@@ -43,7 +45,8 @@ from mining.catalog.views import connect
 from mining.cli import main
 from mining.config import load_config
 from mining.errors import InputError, MiningError
-from mining.names import MAX_NAME_LENGTH, check_name, check_tube_id, inside, path_problem, shown, tube_folder
+from mining.names import (MAX_NAME_LENGTH, check_name, check_tube_id, inside, name_problem, path_problem, shown,
+                          tube_folder)
 from mining.pipeline.executors import LocalExecutor
 from mining.pipeline.submit import mine_job
 from mining.sources import open_source
@@ -53,7 +56,7 @@ N_FRAMES = 6
 # From <tmp>/r1/r2/r3/root, four levels up is <tmp>: this name reaches <tmp>/elsewhere/victim.
 ESCAPE = "../../../../elsewhere/victim"
 GOOD = "2014-12-09-13-21-02"
-BAD = ("2014-12-09-13-21-02 (copy)", ".2014-12-10-18-10-13")
+BAD = ("2014-12-09-13-21-02 (copy)", ".2014-12-10-18-10-13", "_2014-12-10-18-10-13")
 
 
 # -- paths a user names ---------------------------------------------------------------------
@@ -303,3 +306,219 @@ def test_kitti_export_of_an_unsafe_sequence_name(catalogue, tmp_path, capsys, la
     with pytest.raises(MiningError, match=re.escape("sequence name '../../escaped'")):
         run_export(str(cat), "selected", "kitti", str(dest))
     assert {p for p in tmp_path.rglob("*")} - before <= {tmp_path / "work", dest}, "nothing written"
+
+
+# -- every name a folder a default read sees (issue 40, case 2) --------------------------
+#
+# The adversarial run: a sequence named ``_x`` (the rule allowed it) lay at
+# ``catalog/<table>/<dataset>/_x/``, and pandas, ``pyarrow.dataset`` and ``pq.read_table`` skip
+# ``_``- and ``.``-prefixed folders by default: they saw 10 tubes where ``mine query`` saw 20,
+# silently. Now a name starts with a letter or digit; a catalogue an older rule let hold
+# such a name is refused whole, in one line, when opened.
+
+# One name the rule admits for each character a name may start with, the longest, and each
+# character at the end: the names a reader must not skip.
+ADMITTED = sorted({c + "x" for c in string.ascii_letters + string.digits + "._-" if name_problem(c + "x") is None}
+                  | {"a" + c for c in "._-"} | {"7", "A.b-c_d", "z" * MAX_NAME_LENGTH})
+
+
+def test_every_name_the_rule_admits_makes_folders_a_default_read_sees(catalogue, tmp_path):
+    import pandas as pd
+    import pyarrow.dataset as pads
+    import pyarrow.parquet as pq
+
+    from mining.catalog.layout import CATALOG, MANIFEST, manifest_path
+    from mining.types import Window
+
+    _, tables = catalogue
+    tubes = tables["tubes"]
+    store = Store(tmp_path / "cat")
+    manifest = pa.table({"window": pa.array([], pa.string())})
+    for name in ADMITTED:
+        named = tubes
+        for column in ("dataset", "sequence"):
+            named = named.set_column(named.schema.get_field_index(column), column, pa.array([name] * len(tubes)))
+        write_sequence(store, "tubes", name, name, named)
+        window = Window(name, name, (0, 10), (0, 10)).name  # the window's own file: named by its sequence
+        store.write_table(manifest_path(name, name, window), manifest)
+    want = len(ADMITTED) * len(tubes)
+    folder = tmp_path / "cat" / CATALOG / "tubes"
+    assert len(pd.read_parquet(folder)) == want, "pandas"
+    assert pads.dataset(folder, format="parquet").count_rows() == want, "pyarrow.dataset"
+    assert pq.read_table(folder).num_rows == want, "pq.read_table"
+    assert sorted(set(pq.read_table(folder).column("sequence").to_pylist())) == ADMITTED
+    # The manifest's files are named by their window, so by their sequence: all seen too.
+    assert len(pads.dataset(tmp_path / "cat" / MANIFEST, format="parquet").files) == len(ADMITTED)
+
+
+@pytest.mark.parametrize("name", ["_x", "_", "__init__", "_" + "a" * 10])
+def test_a_name_starting_with_an_underscore_is_refused(name):
+    with pytest.raises(InputError) as e:
+        check_name(name, "sequence", "--sequences")
+    assert repr(name) in str(e.value) and "starts with '_'" in str(e.value)
+    assert "starting with a letter or digit" in str(e.value)
+
+
+def test_mine_submit_refuses_an_underscore_name_before_anything_is_written(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "out"
+    rc, _, err = cli(capsys, "submit", *SYNTHETIC[:2], "--sequences", "0000", "_1", *SYNTHETIC[4:],
+                     "--workers", "1", "--out", str(out))
+    line = clean_error(err)
+    assert rc == 2 and len(err.strip().splitlines()) == 1, err
+    assert "'_1'" in line and "--sequences" in line and "starts with '_'" in line, line
+    assert os.listdir(tmp_path) == [], "nothing written"
+
+
+def test_config_sequences_starting_with_an_underscore_are_refused(tmp_path):
+    cfg = load_config(None, ['source.dataset="synthetic"', 'source.sequences=["0000", "_1"]',
+                             "source.options.n_frames=8"])
+    with pytest.raises(InputError) as e:
+        mine_job(cfg, str(tmp_path / "out"), executor=LocalExecutor)
+    assert "'_1'" in str(e.value) and "source.sequences" in str(e.value) and "starts with '_'" in str(e.value)
+    assert not (tmp_path / "out").exists()
+
+
+def _as_older_rule_named(base: Path, dst: Path, name: str) -> Path:
+    """A copy of the mined catalogue ``base`` whose sequence is called ``name`` (as an older name
+    rule let it be): job.json's windows and the compacted tables' folders."""
+    from _jobs import SEQ
+
+    shutil.copytree(base, dst)
+    job = json.loads((dst / "job.json").read_text())
+    for w in job["windows"]:
+        w["sequence"], w["window"] = name, w["window"].replace(SEQ, name, 1)
+    (dst / "job.json").write_text(json.dumps(job))
+    for folder in list((dst / "catalog").glob(f"*/*/{SEQ}")):
+        folder.rename(folder.with_name(name))
+    return dst
+
+
+@pytest.mark.parametrize("command", [["query", "SELECT count(*) FROM tubes"], ["status"]], ids=["query", "status"])
+def test_a_catalogue_holding_a_name_an_older_rule_allowed_is_one_line(base_catalogue, tmp_path, capsys, command):
+    out = _as_older_rule_named(base_catalogue[0], tmp_path / "out", "_1")
+    rc, _, err = cli(capsys, *command, "--out", str(out))
+    line = clean_error(err)
+    assert rc == 2 and len(err.strip().splitlines()) == 1, err
+    assert "'_1'" in line and "--new-run" in line and "starting with a letter or digit" in line, line
+
+
+def test_new_run_mines_a_catalogue_an_older_rule_named_again(base_catalogue, tmp_path):
+    from _jobs import mine
+
+    out = _as_older_rule_named(base_catalogue[0], tmp_path / "out", "_1")
+    summary = mine(out, mode="new")  # `mine submit --new-run`, as the refusal advises
+    assert summary.ok == 2 and not summary.failed, summary.lines()
+    con = connect(out)
+    try:
+        assert con.execute("SELECT DISTINCT sequence FROM frames").fetchall() == [("0000",)]
+    finally:
+        con.close()
+
+
+def test_a_catalogue_no_job_wrote_holding_such_a_name_is_refused_too(catalogue, tmp_path):
+    out, _ = catalogue
+    cat = tmp_path / "cat"
+    shutil.copytree(out, cat)
+    for folder in list((cat / "catalog").glob(f"*/*/{SEQUENCE}")):
+        folder.rename(folder.with_name("_" + SEQUENCE))
+    with pytest.raises(InputError) as e:
+        connect(cat)
+    assert repr("_" + SEQUENCE) in str(e.value) and "--new-run" in str(e.value) and "\n" not in str(e.value)
+
+
+# -- the longest names fit every path (issue 40, case 7) ----------------------------------
+#
+# The adversarial run: a sequence of 128 characters (the rule allowed it) aborted the whole
+# job, good sequences included, blaming --out: its window name (the sequence's name and its
+# frame range) was 144 characters, over the name rule, and job.json was already written. Now
+# a name is at most 100 characters and a window's 120 (100 + 2 × (1 + 9)), and every path
+# built from names of those lengths, its temporary name included, fits NAME_MAX.
+
+
+def test_every_path_built_from_names_of_the_maximum_length_fits(tmp_path):
+    from mining.catalog import layout, safe_files
+    from mining.catalog.store import LEFTOVER, TMP_MARK
+    from mining.export.fiftyone_video import VIDEO_SUFFIX
+    from mining.export.rerun_rrd import RRD_SUFFIX
+    from mining.export.selection import video_name
+    from mining.names import FRAME_DIGITS, MAX_WINDOW_NAME_LENGTH, NAME_MAX
+    from mining.types import Window
+
+    d, s = "d" * MAX_NAME_LENGTH, "s" * MAX_NAME_LENGTH
+    last = 10 ** FRAME_DIGITS - 1
+    w = Window(d, s, (last - 1, last), (last - 1, last))
+    assert len(w.name) == MAX_WINDOW_NAME_LENGTH == 120
+    catalogue = [
+        *(layout.part_path(t, d, s, w.name) for t in layout.PART_TABLES), layout.manifest_path(d, s, w.name),
+        layout.files_path(d, s, w.name), layout.stitch_path(d, s), layout.observed_path(d, s, w.name),
+        layout.running_path(d, s, w.name), layout.cache_path(w), layout.cache_path(w, layout.LEGACY_CACHE_SUFFIX),
+        layout.done_path(d, s), *(layout.catalog_file(t, d, s, 999) for t in layout.TABLE_DIRS)]
+    tube_id = f"{d}/{s}/{last:07d}.999-99"  # stitch.py: first frame and observation, -k for the k-th alike
+    video = video_name(d, s)
+    export = [video + VIDEO_SUFFIX, f"labels/{video}.json", video + RRD_SUFFIX, f"{tube_folder(tube_id)}/index.json",
+              f"{s}.txt", f"{s}.ids.json"]  # fiftyone, rerun, crops, kitti (export/*.py)
+    for rel in catalogue + export:
+        for name in rel.split("/"):
+            temporary = f".{name}{TMP_MARK}{'0' * 12}"  # what every write makes first (store, safe_files)
+            assert LEFTOVER.fullmatch(temporary)
+            assert len(temporary.encode()) <= NAME_MAX, (rel, len(temporary.encode()))
+    # And written for real, through the catalogue's and the exports' own writers.
+    store = Store(tmp_path / "out")
+    for rel in catalogue:
+        store.write_bytes(rel, b"x")
+    for rel in export:
+        safe_files.write_atomic(tmp_path / "dest", rel, b"x")
+    assert all((tmp_path / "out" / rel).is_file() for rel in catalogue)
+    assert all((tmp_path / "dest" / rel).is_file() for rel in export)
+
+
+def test_a_sequence_over_the_maximum_length_is_refused_naming_the_limit(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert MAX_NAME_LENGTH == 100, "the limit docs/OPERATING.md states"
+    long = "0" * 100 + "1"  # a synthetic sequence is named by an integer
+    rc, _, err = cli(capsys, "submit", *SYNTHETIC[:2], "--sequences", "0000", long, *SYNTHETIC[4:],
+                     "--workers", "1", "--out", str(tmp_path / "out"))
+    line = clean_error(err)
+    assert rc == 2 and len(err.strip().splitlines()) == 1, err
+    assert repr(long) in line and f"{MAX_NAME_LENGTH + 1} characters, more than {MAX_NAME_LENGTH}" in line, line
+    assert "--sequences" in line and "--out" not in line.split(repr(long))[1], line
+    assert os.listdir(tmp_path) == [], "nothing written"
+
+
+@pytest.mark.slow  # a real `mine submit` on a local Ray
+def test_a_sequence_of_the_maximum_length_is_mined_beside_another(tmp_path):
+    from _jobs import TINY
+    from _run import SUMMARY, submit
+
+    longest = "0" * (MAX_NAME_LENGTH - 1) + "1"  # a synthetic sequence is named by an integer
+    args = list(TINY)
+    at = args.index("--sequences")
+    args[at + 1:at + 2] = ["0000", longest]
+    rc, out, err = submit(tmp_path / "out", *args, workers=1)
+    assert rc == 0, (out, err)
+    assert SUMMARY.search(out + err).groups() == ("4", "0", "0", "4"), out + err
+    con = connect(tmp_path / "out")
+    try:
+        got = con.execute("SELECT sequence, count(*) FROM frames GROUP BY sequence ORDER BY sequence").fetchall()
+    finally:
+        con.close()
+    assert got == [("0000", 12), (longest, 12)]
+
+
+def test_a_single_file_dest_of_the_longest_name_is_written(tmp_path):
+    """``mine render``'s and a one-file export's DEST: its private folder beside it was named
+    ``.<DEST name>.partial-<random>``, over NAME_MAX for a DEST name the path check admits."""
+    from mining.export.dest import publish_file
+
+    for name in ("v" * 251 + ".mp4", "ü" * 125 + ".mp4"):  # 255 bytes each: the longest name a path may hold
+        dest = tmp_path / name
+        assert path_problem(dest) is None
+        publish_file(dest, False, lambda path: path.write_bytes(b"video"))
+        assert dest.read_bytes() == b"video"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["v" * 251 + ".mp4", "ü" * 125 + ".mp4"])
+    # A file a command writes in place (`mine query --output`, `--json`): its temporary name beside it too.
+    from mining.catalog import safe_files
+
+    safe_files.write_atomic(tmp_path, "q" * 251 + ".csv", b"a,b\n")
+    assert (tmp_path / ("q" * 251 + ".csv")).read_bytes() == b"a,b\n"

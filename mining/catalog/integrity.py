@@ -40,6 +40,7 @@ from mining.catalog.layout import (CATALOG, JOB, MANIFEST, MARKERS, PART_TABLES,
 from mining.catalog.records import SequenceMarker, Unreadable, WindowFiles
 from mining.catalog.store import Store, is_temporary
 from mining.catalog.versions import SchemaVersionError, check_file, check_record_version
+from mining.errors import InputError
 from mining.types import Window
 
 CHUNK = 1 << 20  # ours: bytes read per step while hashing
@@ -84,9 +85,9 @@ def record_files(store: Store, rels: Iterable[str]) -> dict[str, dict]:
 def read_json(store: Store, rel: str) -> dict | None:
     """A JSON object (``job.json`` for ``mined``), or None when it is missing or unreadable."""
     try:
-        with store.fs.open_input_stream(store.full(rel)) as f:
+        with store.open_stream(rel) as f:
             d = json.loads(f.read())
-    except (FileNotFoundError, OSError, ValueError, RecursionError):  # RecursionError: nested past the parser
+    except (FileNotFoundError, OSError, ValueError, RecursionError, InputError):  # RecursionError: nested past the parser
         return None
     return d if isinstance(d, dict) else None
 

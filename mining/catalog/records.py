@@ -36,14 +36,15 @@ from datetime import datetime
 from typing import TYPE_CHECKING, Any
 
 from mining.catalog.identity import legacy_identity
-from mining.catalog.layout import (JOB, MARKERS, PART_TABLES, REPLACED, STITCH_ROW, done_path, files_path,
-                                   manifest_path, part_path, stitch_path)
+from mining.catalog.layout import (CATALOG, JOB, MARKERS, PART_TABLES, REPLACED, STITCH_ROW, TABLE_DIRS, catalog_layout,
+                                   done_path, files_path, manifest_path, part_path, stitch_path)
 from mining.catalog.rows import to_table
 from mining.catalog.schema import SCHEMA_VERSION
 from mining.catalog.versions import RECORD_KEY, check_columns, check_record_version
 from mining.config import JobConfig, job_config_from_record
 from mining.errors import ConfigError, InputError
-from mining.names import check_name
+from mining.files import check_regular
+from mining.names import NAME_RULE, check_name, name_problem
 from mining.types import Window
 
 if TYPE_CHECKING:
@@ -75,16 +76,44 @@ def _kind(value: object) -> str:
 def _read_json(store: Store, rel: str) -> object | Unreadable | None:
     """The parsed JSON of ``rel``; None when there is no such file."""
     try:
-        with store.fs.open_input_stream(store.full(rel), compression=None) as f:
+        with store.open_stream(rel) as f:
             raw = f.read()
     except FileNotFoundError:
         return None
     except OSError as e:
         return Unreadable(rel, f"cannot be read ({e})")
+    except InputError as e:  # a FIFO or device at the record's name
+        return Unreadable(rel, e.reason)
     try:
         return json.loads(raw)
     except (ValueError, RecursionError) as e:  # not UTF-8, not JSON, nested past the parser: truncated or planted
         return Unreadable(rel, f"not valid JSON ({e})")
+
+
+def check_job_names(store: Store) -> None:
+    """Refuse a catalogue, whole and in one line, that holds a dataset or sequence name the
+    rule no longer admits (``mining/names.py``): an older rule allowed ``_x``, whose folders
+    pandas and pyarrow skip by default, so a plain read of it silently misses rows. The names
+    are those of job.json's windows, or where it lists none, of the compacted tables' folders."""
+    found: list[tuple[str, object, str]] = []  # (kind, name, where)
+    if store.local:
+        check_regular(store.full(JOB))  # a FIFO there: said at once, never read
+    d = _read_json(store, JOB)
+    if isinstance(d, dict) and isinstance(d.get("windows"), list):  # a record of another shape: its reader says so
+        for w in d["windows"]:
+            if isinstance(w, dict):
+                found += [(k, w.get(k), JOB) for k in ("dataset", "sequence") if isinstance(w.get(k), str)]
+    if not found:  # no job's windows (store.write_sequence alone): its folders name its sequences
+        for table in TABLE_DIRS:
+            for rel in store.list(f"{CATALOG}/{table}"):
+                p = rel.split("/")
+                if catalog_layout(rel) == "plain":  # catalog/<table>/<dataset>/<sequence>/<file>: hive folders are seen
+                    found += [("dataset", p[2], rel), ("sequence", p[3], rel)]
+    for kind, name, where in found:
+        if (problem := name_problem(name)) is not None:
+            raise InputError(f"this catalogue holds the {kind} name {name!r} ({problem}), which an older name rule "
+                             f"allowed; names are now {NAME_RULE}, so that every Parquet reader sees its folders. "
+                             f"Mine it again: {FRESH_START}", store.full(where))
 
 
 class _Shape(Exception):
@@ -187,7 +216,7 @@ class JobRecord:
     def load(cls, store: Store) -> JobRecord | None:
         """The record in ``store``, or None when it has none; ``UnreadableRecord`` (naming the
         file, why, and ``FRESH_START``) when job.json is there but does not read as one."""
-        if not store.exists(JOB):
+        if not store.anything_at(JOB):  # a FIFO there is no job.json, but not "no job" either
             return None
         d = _read_json(store, JOB)
         if d is None:  # removed since it was seen

@@ -142,8 +142,9 @@ def folder(root: str | os.PathLike, rel: str = "", create: bool = True) -> Itera
 
 def _new_temporary(dir_fd: int, name: str) -> tuple[str, int]:
     """A new file beside ``name`` under an unpredictable temporary name: (name, descriptor)."""
+    short = name if len(os.fsencode(name)) <= 200 else name[:50]  # cut, so a name of NAME_MAX bytes has a temporary
     for _ in range(100):
-        tmp = f".{name}{TMP_MARK}{secrets.token_hex(6)}"
+        tmp = f".{short}{TMP_MARK}{secrets.token_hex(6)}"
         try:
             return tmp, os.open(tmp, _NEW, 0o666, dir_fd=dir_fd)
         except FileExistsError:  # taken (by chance, or planted): another name

@@ -43,6 +43,7 @@ from mining.catalog.layout import JOB, JOB_ENTRIES, RUNNING, catalog_dir, catalo
 from mining.catalog.safe_files import TMP_MARK, write_error
 from mining.catalog.schema import PARTITION, SCHEMA_VERSION, file_schema
 from mining.errors import InputError
+from mining.files import check_regular, open_regular
 
 COMPRESSION = "zstd"  # ours: smaller than snappy at similar decode speed in DuckDB
 ROWS_PER_FILE = 2_000_000  # ours: few large files per sequence (DESIGN "never by window")
@@ -100,6 +101,17 @@ class Store:
     def exists(self, rel: str) -> bool:
         return self.fs.get_file_info(self.full(rel)).type == pafs.FileType.File
 
+    def anything_at(self, rel: str) -> bool:
+        """Whether anything is at ``rel``: a file, a folder, or a FIFO or device (which ``exists`` is not)."""
+        return self.fs.get_file_info(self.full(rel)).type != pafs.FileType.NotFound
+
+    def open_stream(self, rel: str) -> pa.NativeFile:
+        """``rel`` opened for reading; a local one only when it is a regular file (``files.
+        open_regular``: an InputError naming a FIFO, which would block the read for ever)."""
+        if self.local:
+            return pa.PythonFile(open_regular(self.full(rel)), mode="r")
+        return self.fs.open_input_stream(self.full(rel), compression=None)
+
     def list(self, prefix: str = "", suffix: str = ".parquet") -> list[str]:
         """Finished files under ``prefix`` (recursive) whose names end with ``suffix``, sorted."""
         sel = pafs.FileSelector(self.full(prefix), recursive=True, allow_not_found=True)
@@ -145,6 +157,8 @@ class Store:
     def read_table(self, rel: str, columns: list[str] | None = None) -> pa.Table:
         """One Parquet file as written (no partition columns are added from the path)."""
         try:
+            if self.local:
+                check_regular(self.full(rel))  # a FIFO would block the read for ever
             with self.fs.open_input_file(self.full(rel)) as f:
                 return pq.ParquetFile(f).read(columns=columns)
         except FileNotFoundError:
@@ -154,7 +168,7 @@ class Store:
 
     def read_bytes(self, rel: str) -> bytes:
         try:
-            with self.fs.open_input_stream(self.full(rel), compression=None) as f:
+            with self.open_stream(rel) as f:
                 return f.read()
         except FileNotFoundError:
             raise InputError("catalogue file not found", self.full(rel)) from None

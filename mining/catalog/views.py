@@ -61,6 +61,7 @@ from mining.catalog.labels import LABEL_SCHEMA, DamagedLabels, label_files, read
 from mining.catalog.layout import MANIFEST, PART_SUFFIX, PARTS, TABLE_DIRS, catalog_layout
 from mining.catalog.schema import (ADDED_COLUMNS, PARTITION, SCHEMAS, column_doc, file_schema, hive_file_schema,
                                    part_schema)
+from mining.catalog.records import check_job_names
 from mining.catalog.store import Store
 from mining.errors import InputError
 
@@ -304,6 +305,7 @@ def connect(out: str | Path, native: bool | None = None, memory_limit: str | Non
         raise InputError(f"DuckDB refuses the query limits (memory {memory_limit!r}, threads {threads!r}): {e}") from None
     try:
         check_versions(store)  # a catalogue of a schema this code does not read is refused whole
+        check_job_names(store)  # so is one holding a name an older rule allowed (names.py)
         vouched = vouched_files(store, verify=verify)
     except InputError:
         con.close()

@@ -43,7 +43,8 @@ from scipy.optimize import linear_sum_assignment
 
 from mining.boxes import box_ioa, box_iou
 from mining.checks import count, input_file, input_folder
-from mining.errors import InputError, read_text
+from mining.errors import InputError
+from mining.files import read_text
 from mining.eval.clear import clear_metrics, clear_sums, combine_clear_sums
 from mining.eval.hota import combine_hota_sums, hota_metrics, hota_sums
 from mining.eval.identity import combine_identity_sums, identity_metrics, identity_sums

@@ -22,7 +22,7 @@ A file (render): the destination rule of every single file a command writes
 (``safe_files.check_output_file`` and ``publish_file``): an existing DEST is replaced only
 with ``--overwrite``, and only when it is a plain file (a link or a folder there is refused,
 whatever the flag). The file is written
-in a private folder beside DEST (``.<DEST name>.partial-<random>``, made by ``mkdir`` under
+in a private folder beside DEST (``.<DEST name, cut when long>.partial-<random>``, made by ``mkdir`` under
 an unpredictable name, so no link can be planted where the writer writes), then moved onto
 DEST (``safe_files.publish_file``: without ``--overwrite`` the name is claimed atomically,
 never replaced). A failed write leaves DEST as it was (``publish_file``).
@@ -38,7 +38,8 @@ from typing import TypeVar
 
 from mining.catalog import safe_files
 from mining.errors import InputError
-from mining.names import name_problem
+from mining.files import read_text
+from mining.names import NAME_MAX, name_problem
 
 RECORD = ".mine-export.json"  # in DEST: what the export wrote there, so --overwrite replaces exactly that
 STAGING_PREFIX = "mine-export-partial-"  # the exporters' private folder in DEST (a safe name: a record may list it)
@@ -54,13 +55,13 @@ def recorded(dest: Path) -> list[str]:
     """The top-level names in ``dest`` an earlier export recorded (RECORD), checked to be
     plain names inside ``dest``."""
     try:
-        names = json.loads((dest / RECORD).read_text())["written"]
+        names = json.loads(read_text(dest / RECORD))["written"]
         if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
             raise TypeError("'written' is not a list of names")
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise InputError(f"not a record of an earlier export ({e}); remove DEST's contents yourself or choose "
                          "another folder", dest / RECORD) from None
-    bad = [n for n in names if n == RECORD or name_problem(n) is not None]
+    bad = [n for n in names if n == RECORD or name_problem(n, NAME_MAX) is not None]  # a crops folder joins names: longer than one
     if bad:
         raise InputError(f"the record names {bad!r}, which are not entries of DEST; remove DEST's contents yourself",
                          dest / RECORD)
@@ -137,7 +138,8 @@ def publish_file(dest: Path, overwrite: bool, write: Callable[[Path], T]) -> T:
     move the file onto ``dest`` (replacing it only with ``overwrite``); ``write``'s result.
     The private folder is removed whatever happens."""
     dest.parent.mkdir(parents=True, exist_ok=True)
-    work = safe_files.private_dir(dest.parent, f".{dest.name}.partial-")
+    name = dest.name if len(os.fsencode(dest.name)) <= 100 else dest.name[:25]  # so the folder's name fits NAME_MAX
+    work = safe_files.private_dir(dest.parent, f".{name}.partial-")
     try:
         result = write(work / dest.name)  # writers open files by path: inside a folder only this write uses
         safe_files.publish_file(work / dest.name, dest, overwrite)

@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 
 from mining.errors import InputError
+from mining.files import check_regular, open_regular
 
 
 def disparity_png(disparity: np.ndarray) -> bytes:
@@ -30,7 +31,7 @@ def write_disparity_png(path: str | Path, disparity: np.ndarray) -> None:
 
 def read_disparity_png(path: str | Path) -> np.ndarray:
     """KITTI 16-bit disparity PNG → float32 pixels, NaN = invalid."""
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    raw = cv2.imread(str(check_regular(path)), cv2.IMREAD_UNCHANGED)
     if raw is None:
         raise InputError("unreadable or missing disparity PNG", path)
     if raw.dtype != np.uint16 or raw.ndim != 2:
@@ -43,7 +44,7 @@ def read_disparity_png(path: str | Path) -> np.ndarray:
 def read_pfm(path: str | Path) -> np.ndarray:
     """Portable float map (Middlebury): rows are stored bottom-to-top; ``inf`` = unknown → NaN."""
     p = Path(path)
-    with p.open("rb") as f:
+    with open_regular(p) as f:
         kind = f.readline().strip()
         if kind not in (b"Pf", b"PF"):
             raise InputError(f"not a PFM file (header {kind!r})", p)

@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mining.errors import InputError, read_text
+from mining.errors import InputError
+from mining.files import check_regular, read_text
 from mining.types import StereoCalib
 
 # Object-detection dialect key → official tracking key (SOURCES.md §1.3).
@@ -43,7 +44,7 @@ def read_calib_file(path: str | Path) -> dict[str, np.ndarray]:
     file and the line (except known text keys such as ``calib_time``).
     """
     path = Path(path)
-    if not path.is_file():
+    if not check_regular(path).is_file():  # a FIFO or device is named as what it is, not as missing
         raise InputError("calibration file is missing", path)
     out: dict[str, np.ndarray] = {}
     for lineno, line in enumerate(read_text(path, "calibration file").splitlines(), 1):

@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mining.errors import InputError, read_text
+from mining.errors import InputError
+from mining.files import read_text
 from mining.formats.kitti_tracking import KittiTrackingRows, read_kitti_tracking
 
 POINTRCNN_TYPES = {1: "Pedestrian", 2: "Car", 3: "Cyclist"}  # SOURCES.md §1.6 type codes

@@ -24,7 +24,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from mining.errors import InputError, read_text
+from mining.errors import InputError
+from mining.files import read_text
 
 LABEL_COLUMNS = 17  # KITTI tracking devkit: label_02 lines
 RESULT_COLUMNS = 18  # KITTI tracking devkit: result lines = label columns + score

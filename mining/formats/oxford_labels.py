@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mining.errors import InputError, read_text
+from mining.errors import InputError
+from mining.files import read_text
 
 OXFORD_KNOWN = frozenset({"car", "person", "bike", "bus"})  # REFERENCE (original eval): known categories
 OXFORD_UNKNOWN = frozenset({"other"})  # REFERENCE (original eval): the "others" curve

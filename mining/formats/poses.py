@@ -6,7 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mining.errors import InputError, read_text
+from mining.errors import InputError
+from mining.files import read_text
 
 
 def poses_text(poses: np.ndarray) -> str:

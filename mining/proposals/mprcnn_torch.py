@@ -82,6 +82,7 @@ from pathlib import Path
 import numpy as np
 
 from mining.errors import ConfigError, InputError
+from mining.files import check_regular
 from mining.formats.coco import COCO_CATEGORY_IDS
 from mining.masks import crop_rle
 from mining.proposals.config import ProposalConfig, TorchConfig
@@ -171,7 +172,7 @@ def torchvision_to_two_head(state: Mapping[str, torch.Tensor]) -> dict[str, torc
 def read_checkpoint(path: str | Path) -> dict[str, torch.Tensor]:
     """A state dict from ``path`` (``torch.load``, weights only: tensors and plain containers)."""
     p = Path(path).expanduser()
-    if not p.is_file():
+    if not check_regular(p).is_file():  # a FIFO is named as one, not as missing
         raise ConfigError(f"file {p}: proposals.torch.model_path: no such file")
     try:
         obj = torch.load(p, map_location="cpu", weights_only=True)

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from mining.errors import InputError
+from mining.files import open_regular
 
 CONVERTER_VERSION = 1  # bump when the conversion changes, so cached models are rebuilt
 
@@ -240,7 +241,7 @@ def convert_to_float(src_path: str | Path, dst_path: str | Path, height: int, wi
 
 def file_sha256(path: str | Path) -> str:
     h = hashlib.sha256()
-    with open(path, "rb") as f:
+    with open_regular(path) as f:
         for block in iter(lambda: f.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()

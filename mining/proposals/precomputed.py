@@ -50,6 +50,7 @@ import numpy as np
 from pycocotools import mask as mask_utils
 
 from mining.errors import InputError, decode_text
+from mining.files import open_regular
 from mining.formats.coco import CATEGORY_ID_TO_INDEX, CLASS_INDEX
 from mining.formats.kitti_calib import KittiCalib
 from mining.formats.kitti_detections import read_kitti_detections
@@ -184,7 +185,7 @@ def _read_proposal_json(path: Path, frame: int, category_ids: str, image_size: t
 
 def _bounded_text(path: Path, frame: int, max_file_bytes: int) -> str:
     """The file's text, refused above ``max_file_bytes`` before it is read."""
-    with path.open("rb") as f:
+    with open_regular(path, frame) as f:  # a FIFO at the frame's name is refused, never waited on
         size = os.fstat(f.fileno()).st_size
         if size > max_file_bytes:
             raise InputError(f"{size} bytes, over proposals.json.max_file_bytes = {max_file_bytes}", path, frame)

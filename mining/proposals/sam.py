@@ -62,6 +62,7 @@ import numpy as np
 
 from mining.boxes import nms_keep
 from mining.errors import ConfigError, InputError
+from mining.files import check_regular
 from mining.masks import crop_rle
 from mining.proposals.config import ProposalConfig, SamConfig
 from mining.proposals.registry import ModelBatch
@@ -154,7 +155,7 @@ class SamProposer:
         self.encoder_path = Path(cfg.encoder_path).expanduser()
         self.decoder_path = Path(cfg.decoder_path).expanduser()
         for key, p in (("encoder_path", self.encoder_path), ("decoder_path", self.decoder_path)):
-            if not p.is_file():
+            if not check_regular(p).is_file():  # a FIFO is named as one, not as missing
                 raise InputError(f"SAM ONNX file not found (proposals.sam.{key})", p)
         self.providers = _providers(cfg.device)
         self.encoder = self._load(self.encoder_path, "image encoder")

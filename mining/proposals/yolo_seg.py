@@ -33,6 +33,7 @@ import numpy as np
 
 from mining.boxes import nms_keep
 from mining.errors import ConfigError, InputError
+from mining.files import check_regular
 from mining.masks import crop_rle
 from mining.proposals.config import FastSamConfig, OnnxConfig
 from mining.types import N_CLASSES, Proposals
@@ -54,7 +55,7 @@ def model_file(model_path: str, section: str, what: str, found: str) -> Path:
     if not model_path:
         raise ConfigError(f"proposals.{section}.model_path is empty: give the path of {what} (weights are not bundled)")
     path = Path(model_path).expanduser()
-    if not path.is_file():
+    if not check_regular(path).is_file():  # a FIFO is named as one, not as missing
         raise InputError(f"{found} not found (proposals.{section}.model_path)", path)
     return path
 

@@ -35,7 +35,8 @@ from typing import Any
 
 import tomli_w
 
-from mining.errors import decode_text, read_text
+from mining.errors import decode_text
+from mining.files import read_text
 
 FITS_DIR = Path(__file__).resolve().parent / "fits"  # where `--write` writes by default (the package's own files)
 ROWS = "rows"  # rows.toml: the classifier rows' confidence; every other file is a proposer's

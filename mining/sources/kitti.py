@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from mining.errors import InputError
+from mining.files import check_regular, open_regular
 from mining.formats.kitti_calib import KittiCalib, read_tracking_calib
 from mining.names import check_name
 from mining.sources.base import Source
@@ -29,7 +30,7 @@ _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 def png_size(path: Path, frame: int | None = None) -> tuple[int, int]:
     """(width, height) from a PNG's IHDR chunk, reading 24 bytes only."""
     try:
-        with open(path, "rb") as f:
+        with open_regular(path, frame) as f:
             head = f.read(24)
     except OSError as e:
         raise InputError(f"cannot open image: {e.strerror}", path, frame) from None
@@ -40,7 +41,7 @@ def png_size(path: Path, frame: int | None = None) -> tuple[int, int]:
 
 def read_rgb(path: Path, frame: int) -> np.ndarray:
     """Decode a colour image to (H, W, 3) uint8 RGB; InputError when missing or undecodable."""
-    if not path.is_file():
+    if not check_regular(path, frame).is_file():  # a FIFO would hang OpenCV's read
         raise InputError("image file is missing", path, frame)
     bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if bgr is None:  # OpenCV returns None for unreadable or truncated files

@@ -16,7 +16,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from mining.errors import InputError, read_text
+from mining.errors import InputError
+from mining.files import check_regular, read_text
 from mining.formats.kitti_calib import KittiCalib, read_raw_calib
 from mining.sources.base import Source
 from mining.sources.kitti import listed_frames, png_size, read_stereo_pair
@@ -203,7 +204,7 @@ class KittiRawSource(Source):
     @staticmethod
     def _timestamps(path: Path, frames: tuple[int, ...]) -> tuple[int, ...]:
         """t_ns of the given frames (line i = frame i), strictly increasing."""
-        if not path.is_file():
+        if not check_regular(path).is_file():
             raise InputError("timestamps file is missing", path)
         lines = read_text(path, "timestamps file").splitlines()
         out: list[int] = []
@@ -230,7 +231,7 @@ class KittiRawSource(Source):
     def velodyne(self, sequence: str, frame: int) -> np.ndarray:
         """(N, 4) float32 Velodyne scan: x forward, y left, z up (m), reflectance."""
         path = self._drive_dir(sequence) / "velodyne_points" / "data" / f"{frame:0{_DIGITS}d}.bin"
-        if not path.is_file():
+        if not check_regular(path, frame).is_file():
             raise InputError("Velodyne scan is missing", path, frame)
         size = path.stat().st_size
         if size % 16:

@@ -49,6 +49,7 @@ import cv2
 import numpy as np
 
 from mining.errors import ConfigError, InputError
+from mining.files import open_regular
 from mining.sources.base import Source
 from mining.types import SequencePlan, StereoCalib, StereoFrame
 
@@ -230,7 +231,7 @@ class McapSource(Source):
 
     def _build_index(self, sequence: str) -> _Index:
         path = self._path(sequence)
-        with open(path, "rb") as f:
+        with open_regular(path) as f:
             _, summary, factory = self._reader(f, path)
             (lt, rt), (lit, rit), kinds = self._choose(path, summary)
             try:
@@ -362,7 +363,7 @@ class McapSource(Source):
         wanted = {idx.topics[0]: idx.left[frame], idx.topics[1]: idx.right[idx.partner[frame]]}
         found: dict[str, np.ndarray] = {}
         try:
-            with open(idx.path, "rb") as f:
+            with open_regular(idx.path, frame) as f:
                 _, summary, factory = self._reader(f, idx.path)
                 ids = {ch.id: ch for ch in summary.channels.values() if ch.topic in wanted}
                 logs = {log for _, log in wanted.values()}

@@ -34,7 +34,8 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from mining.errors import ConfigError, InputError, read_text
+from mining.errors import ConfigError, InputError
+from mining.files import check_regular, open_regular, read_text
 from mining.names import check_name
 from mining.sources.base import Source
 from mining.types import SequencePlan, StereoCalib, StereoFrame
@@ -105,7 +106,7 @@ def load_camera_model(models_dir: Path, name: str) -> CameraModel:
 
 def load_lut(path: Path, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
     """The undistortion LUT as cv2.remap maps (x, y), float32 (H, W); checks its size."""
-    n = path.stat().st_size // 8
+    n = check_regular(path).stat().st_size // 8
     if n != 2 * width * height or path.stat().st_size % 8:
         raise InputError(
             f"distortion LUT holds {n} values but the {width}x{height} images need {2 * width * height}", path
@@ -118,7 +119,7 @@ def load_lut(path: Path, width: int, height: int) -> tuple[np.ndarray, np.ndarra
 
 def png_size(path: Path) -> tuple[int, int, int, int]:
     """(width, height, bit depth, colour type) from the PNG header, without decoding."""
-    with open(path, "rb") as f:
+    with open_regular(path) as f:
         head = f.read(26)
     if len(head) < 26 or head[:8] != PNG_SIGNATURE or head[12:16] != b"IHDR":
         raise InputError("not a PNG file (bad header)", path)
@@ -308,7 +309,7 @@ class OxfordSource(Source):
 
     def _load(self, cam: _Camera, t_ns: int, index: int, calib: StereoCalib) -> np.ndarray:
         path = cam.folder / f"{t_ns // 1000}.png"
-        data = np.fromfile(path, np.uint8) if path.is_file() else None
+        data = np.fromfile(path, np.uint8) if check_regular(path, index).is_file() else None
         if data is None:
             raise InputError("stereo image not found", path, index)
         if data.size == 0:  # cv2.imdecode raises a bare cv2.error on an empty buffer
