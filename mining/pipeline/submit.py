@@ -124,7 +124,8 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
                     write_manifest(job, task.window, "failed", None, result.error)
             if task.step == Step.FINALIZE and not result.ok:  # a row in the manifest, for `mine status`
                 write_stitch_failure(job, task.sequence, schedule.by_seq[task.sequence], result.error)
-            elif task.step == Step.FINALIZE and not keep_cache:  # stitched: no track of it needs a cache,
+            elif (task.step == Step.FINALIZE and not keep_cache  # stitched whole: no track of it needs a cache,
+                  and {w.name for w in schedule.by_seq[task.sequence]} <= schedule.ok[task.sequence]):
                 sweep_caches(store, dataset, [task.sequence])  # those of windows a killed run observed too
             served = schedule.on_result(task, result)
             if task.window is not None and task.window.name in todo:
