@@ -38,7 +38,8 @@ def _source(job: JobConfig | None) -> Source | None:
 
 def _table_frames(con: duckdb.DuckDBPyConnection, dataset: str, sequence: str) -> set[int] | None:
     try:
-        rows = con.execute("SELECT frame FROM frames WHERE dataset = ? AND sequence = ?", [dataset, sequence]).fetchall()
+        rows = con.execute("SELECT frame FROM frames WHERE dataset = ? AND sequence = ?",
+                           [dataset, sequence]).fetchall()
     except duckdb.Error as e:  # a damaged file (the message names it)
         raise InputError(f"cannot read the catalogue: {e}") from None
     return {r[0] for r in rows} or None
