@@ -20,7 +20,7 @@ import pyarrow.parquet as pq
 from mining.catalog.layout import catalog_dir
 from mining.catalog.store import Store
 from mining.config import JobConfig
-from mining.errors import InputError
+from mining.errors import InputError, MiningError
 from mining.sources.base import Source
 
 SOURCE, TABLE = "source", "frames table"  # where a sequence's plan came from (the message says which)
@@ -32,7 +32,7 @@ def _source(job: JobConfig | None) -> Source | None:
         return None
     try:
         return job.source.open()
-    except InputError:  # the recorded root is not here: the frames table stands in
+    except (MiningError, OSError):  # the recorded root is not here (or unreadable): the frames table stands in
         return None
 
 
@@ -55,7 +55,7 @@ def sequence_plans(con: duckdb.DuckDBPyConnection, job: JobConfig | None,
             try:
                 out[d, s] = set(source.survey(s).frames), SOURCE
                 continue
-            except InputError:  # the source has no such sequence here: the catalogue's table
+            except (MiningError, OSError):  # the source has no such sequence here: the catalogue's table
                 pass
         frames = _table_frames(con, d, s)
         if frames is not None:
