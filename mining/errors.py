@@ -17,7 +17,7 @@ class InputError(MiningError):
 
     def __init__(self, reason: str, path: str | Path | None = None, frame: int | None = None):
         self.reason = reason
-        self.path = None if path is None else str(path)
+        self.path = None if path is None or str(path) == "" else str(path)  # an empty path names no file
         self.frame = frame
         parts = []
         if self.path is not None:

@@ -149,8 +149,11 @@ def test_crops_of_frames_the_source_lacks_fail_clearly(catalogue, tmp_path):
     write_sequence(store, "tubes", DATASET, SEQUENCE, tables["tubes"])
     write_sequence(store, "tube_frames", DATASET, SEQUENCE, late)
     store.write_bytes("job.json", Store(out).read_bytes("job.json"))
-    with pytest.raises(MiningError, match="frame 400 of the catalogue is not in the source's sequence"):
+    # refused before DEST is touched (export/frame_plan.py), naming the file, frame and sequence
+    with pytest.raises(MiningError, match=r"tube_frames/kitti/0005/part-0\.parquet, frame 400: .* which the source's "
+                                          "sequence kitti/0005"):
         run_export(str(cat), "selected", "crops", str(tmp_path / "c"))
+    assert not (tmp_path / "c").exists()
 
 
 HUGE = 5700  # a 5700 × 5700 mask: 32.5 MP, under the viewer's 8K bound, but not the size of KITTI's frames

@@ -8,6 +8,8 @@ machine). Jobs are small (30 frames, three 10-frame windows) to keep the file fa
 * a finished job resubmitted does no work and changes no file;
 * a driver killed mid-job: the resubmission runs only the windows not done, and the
   catalogue equals a clean run's; ``mine status`` lists the pending windows meanwhile;
+* a driver killed once its window's row is written, before it took the result: the resubmission
+  sweeps the cache it left when it stitches, and ``mine status`` says nothing is left;
 * a worker process killed mid-job: Ray restarts it, the job completes, no tube missing
   or duplicated;
 * a truncated PNG in real KITTI frames fails only its window, named with the file and
@@ -174,6 +176,52 @@ def test_interrupted_job_resumes_only_what_is_left(clean, interrupted, tmp_path)
         assert p.read_bytes() == rows_before[w] and p.stat().st_mtime_ns == mtimes_before[w], w
     assert_same_catalogue(catalogue(out), clean[1])
     assert status(out)[1].splitlines()[0].endswith("3 windows: 3 done, 0 failed, 0 pending")
+
+
+ONE_WINDOW = SYNTHETIC[:-len(SMALL_WINDOWS)] + [
+    "--set", f"window.core={N_FRAMES}", "--set", "window.context_before=0", "--set", "window.context_after=0"]
+ONE = "0000-0000000-0000030"
+
+
+def _tracking(out: Path) -> bool:
+    """Whether the driver has handed the window's track step to a worker (its running marker)."""
+    import json
+
+    marker = out / "_running" / "dataset=synthetic" / "sequence=0000" / f"{ONE}.json"
+    try:
+        return json.loads(marker.read_text())["step"] == "track"
+    except (OSError, ValueError, KeyError):
+        return False
+
+
+def test_a_resumed_job_leaves_no_cache_and_status_says_nothing_is_left(tmp_path):
+    """Issue 40: a driver killed at the first manifest row, before it took the result, leaves the
+    window's observation cache (4.5 MB stayed); the resubmission only stitches (the window is
+    done), so no track removes it: stitching sweeps it, and `mine status` says nothing is left.
+    The driver is stopped (SIGSTOP) while the worker tracks, so it never takes the result."""
+    out = tmp_path / "out"
+    job = Mine(out, *ONE_WINDOW, logs=tmp_path / "killed")
+    try:
+        deadline = time.monotonic() + JOB_TIMEOUT_S
+        while not _tracking(out):
+            assert job.proc.poll() is None and time.monotonic() < deadline, "the job never tracked"
+            time.sleep(0.05)
+        time.sleep(0.2)  # the marker is written just before the step is handed over
+        assert not manifests(out), "the window was tracked before the driver could be stopped"
+        os.kill(job.proc.pid, signal.SIGSTOP)  # the driver alone: the worker goes on and writes the row
+        wait_for_first_manifest(job, out, out / "catalog/_sequences/dataset=synthetic/sequence=0000.json")
+        os.killpg(job.proc.pid, signal.SIGKILL)
+    finally:
+        job.kill()
+    assert list((out / "_cache").rglob("*.npz.zst")), "the killed job left no cache: nothing to sweep"
+    rc, stdout, err = submit(out, *ONE_WINDOW, logs=tmp_path / "resumed")
+    assert rc == 0, stdout + err
+    assert summary(stdout) == {"ok": 0, "failed": 0, "skipped": 1, "windows": 1}, stdout
+    left = [p for p in (out / "_cache").rglob("*") if not p.is_dir()]
+    assert not left, f"the resumed job left {left}"
+    rc, text = status(out)
+    assert rc == 0, text
+    assert [ln for ln in text.splitlines() if ln.startswith("left over: nothing")], text
 
 
 def test_killed_worker_is_retried_and_the_catalogue_is_complete(clean, tmp_path):

@@ -251,3 +251,41 @@ def test_the_classify_hint_names_settings_that_load_and_only_where_nothing_class
         cfg = load_config(REPO / "jobs" / "synthetic.toml", settings)  # the hinted settings are valid keys and values
         assert cfg.proposals.proposer == f"onnx+{proposer}"
         assert set(CLASSIFYING) & set(proposer_names(cfg.proposals.proposer))
+
+
+def test_status_names_what_a_job_left_and_a_resubmission_sweeps_it(tmp_path, capsys):
+    """Issue 40: caches a run left (here kept on purpose, as a run killed after its stitch leaves
+    them), a temporary of an unfinished write and a foreign file in the cache folder are each
+    listed with a count and a size; a resubmission of the finished job removes the caches and the
+    temporary, never the foreign file; with nothing left, status says so."""
+    out = tmp_path / "cat"
+    assert mine_job(tiny_cfg(), str(out), executor=LocalExecutor, keep_cache=True).ok == 2
+    caches = sorted((out / "_cache").rglob("*.npz.zst"))
+    assert len(caches) == 2, caches
+    folder = caches[0].parent
+    tmp = folder / f".{caches[0].name}.tmp-0123456789ab"
+    tmp.write_bytes(b"x" * 100)
+    foreign = folder / "notes.txt"
+    foreign.write_text("mine\n")
+    capsys.readouterr()
+    assert print_status(str(out)) == 0
+    shown = capsys.readouterr().out.splitlines()
+    cache_line = [ln for ln in shown if ln.startswith("observation caches: 2 (")]
+    assert len(cache_line) == 1 and (" MB)" in cache_line[0] or " KB)" in cache_line[0]), shown
+    assert [ln for ln in shown if ln.startswith("temporary files: 1 left by unfinished writes (100 B)")], shown
+    assert [ln for ln in shown if ln.startswith(f"foreign files in the cache folders: 1 (5 B), e.g. {foreign}")], shown
+    assert not [ln for ln in shown if ln.startswith("left over: nothing")], shown
+
+    summary = mine_job(tiny_cfg(), str(out), executor=LocalExecutor)  # finished: nothing to do
+    assert summary.ok == 0 and summary.skipped == 2
+    assert not list((out / "_cache").rglob("*.npz.zst")) and not tmp.exists(), "the resubmission left them"
+    assert foreign.read_text() == "mine\n", "a file no job wrote was removed"
+    capsys.readouterr()
+    assert print_status(str(out)) == 0
+    shown = capsys.readouterr().out.splitlines()
+    assert not [ln for ln in shown if ln.startswith(("observation caches", "temporary files"))], shown
+    assert [ln for ln in shown if ln.startswith("foreign files in the cache folders: 1 (5 B)")], shown
+    foreign.unlink()
+    assert print_status(str(out)) == 0
+    shown = capsys.readouterr().out.splitlines()
+    assert [ln for ln in shown if ln.startswith("left over: nothing")], shown

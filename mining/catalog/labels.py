@@ -140,6 +140,16 @@ def events(tubes: list[tuple[str, str, str]], kind: str, value: str | None, op: 
     }, schema=LABEL_SCHEMA)
 
 
+def utc_text(when: datetime | None) -> str | None:
+    """A label time as ISO-8601 UTC text ending in ``Z`` (None stays None): the one form every
+    export writes. A naive time is UTC already (LABEL_SCHEMA's ``at``; DuckDB hands it back naive)."""
+    if when is None:
+        return None
+    if when.tzinfo is not None:
+        when = when.astimezone(timezone.utc).replace(tzinfo=None)
+    return when.isoformat(timespec="microseconds") + "Z"
+
+
 def _stamp(when: datetime) -> str:
     return when.astimezone(timezone.utc).strftime("%Y%m%dT%H%M%S%fZ")
 

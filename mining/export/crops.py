@@ -14,6 +14,7 @@ that is malformed or of another size than its frame stops the export naming the 
 from __future__ import annotations
 
 import json
+from datetime import datetime
 from pathlib import Path
 
 import cv2
@@ -21,6 +22,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from mining.catalog.labels import utc_text
 from mining.catalog.rows import decode_mask
 from mining.config import JobConfig
 from mining.errors import InputError
@@ -144,6 +146,8 @@ def write_index(tubes: pa.Table, per_tube: dict[str, list[dict]], dest: Path,
     pq.write_table(index, dest / "index.parquet", compression="zstd")
 
     def clean(v):
+        if isinstance(v, datetime):  # a label time (labelled_at): UTC text, as tube_labels.json writes it
+            return utc_text(v)
         if isinstance(v, float) and not np.isfinite(v):
             return None
         if isinstance(v, list):

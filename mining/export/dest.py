@@ -101,8 +101,39 @@ def publish_folder(dest: Path, replaced: list[str], write: Callable[[Path], int]
                    record: Callable[[int], dict]) -> int:
     """Fill a private folder in ``dest`` with ``write(folder)`` (it returns the items it
     wrote), then replace the entries ``replaced`` (``check_folder``'s) by what it wrote,
-    recording them in RECORD (``record(items)`` and the names written); the items."""
+    recording them in RECORD (``record(items)`` and the names written); the items. A failed
+    export removes the folders it made for DEST (an earlier DEST folder stays as it was)."""
+    made = _missing_folders(dest)
     dest.mkdir(parents=True, exist_ok=True)
+    try:
+        n = _publish(dest, replaced, write, record)
+    except BaseException:
+        _remove_made(made)
+        raise
+    return n
+
+
+def _missing_folders(dest: Path) -> list[Path]:
+    """The folders ``dest.mkdir(parents=True)`` would make, deepest first."""
+    out = []
+    for p in (dest, *dest.parents):
+        if p.exists():
+            break
+        out.append(p)
+    return out
+
+
+def _remove_made(made: list[Path]) -> None:
+    """Remove the folders a failed export made (deepest first), each only while it is empty: a
+    file someone else put there meanwhile is never removed."""
+    for p in made:
+        try:
+            p.rmdir()
+        except OSError:
+            return
+
+
+def _publish(dest: Path, replaced: list[str], write: Callable[[Path], int], record: Callable[[int], dict]) -> int:
     staging = safe_files.private_dir(dest, STAGING_PREFIX)
     try:
         n = write(staging)

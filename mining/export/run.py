@@ -34,10 +34,11 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from mining.catalog import safe_files
-from mining.catalog.labels import VERDICTS
+from mining.catalog.labels import VERDICTS, utc_text
 from mining.catalog.views import connect
 from mining.errors import InputError, MiningError, NothingMatched
 from mining.export.dest import check_folder, publish_folder
+from mining.export.frame_plan import check_tube_frames
 from mining.export.registry import FORMATS, VIDEO_FORMATS
 from mining.export.selection import (frame_rates, frame_sizes, left_out_line, mined_frames, read_job,
                                      selected_rows, sequence_frames, without_bad_masks)
@@ -84,6 +85,7 @@ def export(out: str | Path, where: str, fmt: str, dest: str | Path, margin: floa
         tubes, frames = selected_rows(con, where)
         if not tubes.num_rows:
             raise NothingMatched(f"no tube matches --where {where!r}; nothing written")
+        check_tube_frames(con, out, job, frames)  # before DEST is touched: a frame the source lacks is refused
         if category_from == "tag":
             tubes = category_from_tag(tubes)
         left_out: dict[str, str] = {}
@@ -132,7 +134,7 @@ def labels_json(tubes: pa.Table) -> bytes:
     decisions travel with every format; tubes without labels are listed too (verdict null)."""
     rows = tubes.select(["tube_id", "verdict", "tags", "tag", "labelled_at", "labelled_by"]).to_pylist()
     for r in rows:
-        r["labelled_at"] = None if r["labelled_at"] is None else r["labelled_at"].isoformat() + "Z"
+        r["labelled_at"] = utc_text(r["labelled_at"])
     return (json.dumps({"about": "mine export: the labels of the exported tubes (tube_labels in the catalogue); "
                                  "verdict one of " + ", ".join(VERDICTS) + "; times UTC",
                         "tubes": rows}, indent=1) + "\n").encode()

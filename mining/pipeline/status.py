@@ -16,8 +16,11 @@ record that does not read (``catalog/records.py``: a truncated or foreign marker
 unreadable manifest row), with why. The records are read with the same predicates resume
 uses (``resume.py``).
 Exits 1 when any window or stitch failed, a sequence could not be planned, or any file is damaged.
-Temporary files that unfinished writes left (``Store.temporaries``) are counted, one named;
-readers skip them and the next ``mine submit`` removes them, so they change no exit status.
+What a job left is listed with counts and sizes, one named (``leftovers.py``): observation
+caches, temporary files of unfinished writes (``Store.temporaries``) and foreign files in the
+cache folders; or one line saying nothing is left. Readers skip them and the next ``mine
+submit`` removes the caches of stitched sequences and the temporaries, so they change no exit
+status.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from mining.catalog.records import JobRecord, ManifestRow, SequenceMarker, Unrea
 from mining.catalog.lock import current_writer, describe
 from mining.catalog.store import Store
 from mining.errors import InputError
+from mining.pipeline.leftovers import leftover_lines
 from mining.pipeline.running import driver_alive, read_marker
 from mining.proposals.make import classifiers_line
 
@@ -211,8 +215,6 @@ def print_status(out: str, verify: bool = False) -> int:
     checked = ("sizes and checksums" if verify else
                "sizes and checksums of the catalogue's files, sizes of the windows' parts; --verify also checks their checksums")
     print(f"integrity: {len(damage)} damaged or missing file(s) ({checked})")
-    if leftover := Store(out).temporaries():  # looked at, never removed: that is the next submit's
-        print(f"temporary files: {len(leftover)} left by unfinished writes, e.g. {Store(out).full(leftover[0])} "
-              "(readers skip them; the next `mine submit` removes them"
-              + ("; some may be the writes in flight" if writer else "") + ")")
+    for line in leftover_lines(Store(out), bool(writer)):  # looked at, never removed: that is the next submit's
+        print(line)
     return 1 if counts["failed"] or stitched["failed"] or damage or unplanned else 0

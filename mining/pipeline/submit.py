@@ -49,6 +49,7 @@ from mining.catalog.store import Store
 from mining.config import JobConfig
 from mining.pipeline.executors import Executor, RayExecutor
 from mining.pipeline.failures import describe
+from mining.pipeline.leftovers import stitched, sweep_caches
 from mining.pipeline.localray import exposure_line, init_local_ray, prepare_local_ray
 from mining.pipeline.preflight import Preflight, preflight
 from mining.pipeline.running import RunningMarkers
@@ -124,6 +125,9 @@ def run_job(job: Job, schedule: Schedule, executor: Executor, progress: bool = F
                     write_manifest(job, task.window, "failed", None, result.error)
             if task.step == Step.FINALIZE and not result.ok:  # a row in the manifest, for `mine status`
                 write_stitch_failure(job, task.sequence, schedule.by_seq[task.sequence], result.error)
+            elif (task.step == Step.FINALIZE and not keep_cache  # stitched whole: no track of it needs a cache,
+                  and {w.name for w in schedule.by_seq[task.sequence]} <= schedule.ok[task.sequence]):
+                sweep_caches(store, dataset, [task.sequence])  # those of windows a killed run observed too
             served = schedule.on_result(task, result)
             if task.window is not None and task.window.name in todo:
                 bar.step_finished(task.step, task.window.core[1] - task.window.core[0],
@@ -179,6 +183,9 @@ def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frame
                 summary.placement = ex.placement()
             finally:
                 ex.shutdown()
+        if not keep_cache:  # job end: the caches of every stitched sequence (a finished job resubmitted too)
+            planned = {q: [w.name for w in ws] for q, ws in schedule.by_seq.items()}
+            sweep_caches(Store(out), cfg.source.dataset, stitched(Store(out), cfg.source.dataset, planned))
     summary.seconds = time.perf_counter() - t0
     summary.classifiers = classifiers_line(cfg.proposals.proposer)
     summary.classify_hint = classify_hint(cfg.proposals.proposer) or ""
