@@ -275,3 +275,23 @@ def test_label_like_labels_exactly_the_tubes_within_d_with_their_source_and_take
     assert left == [kept]
     code, _, err = _main(["label", "--out", str(out), "--undo-like", source], capsys)
     assert code == 1 and "nothing taken back" in err
+
+
+def test_the_tube_page_shows_its_similar_tubes_once_described(planted, tmp_path):
+    from conftest import json_get, serving
+
+    src, tables = planted
+    out = tmp_path / "c"
+    shutil.copytree(src, out)
+    first = sorted(tables["tubes"].column("tube_id").to_pylist())[0]
+    with serving(out, tmp_path / "cache") as (base, _):
+        status, d = json_get(base, "/api/tube", {"id": first})
+        assert status == 200 and d["similar"] == [] and "mine describe" in d["similar_note"]
+        describe(Store(out))
+        status, d = json_get(base, "/api/tube", {"id": first})
+    assert status == 200 and d["similar_note"] is None and len(d["similar"]) == 8
+    assert first not in [s["tube_id"] for s in d["similar"]]
+    assert d["similar"][0]["tube_id"] in (f"{DATASET}/{SEQUENCE}/twin.000", first.replace(f"/{SEQUENCE}/", f"/{OTHER}/"))
+    dist = [s["distance"] for s in d["similar"]]
+    assert dist == sorted(dist) and set(d["similar"][0]) == {"tube_id", "distance", "call", "category", "n_frames",
+                                                             "selected"}

@@ -22,6 +22,7 @@ import duckdb
 import numpy as np
 import pyarrow as pa
 
+from mining.catalog import derived
 from mining.catalog.store import Store
 from mining.catalog.views import connect
 from mining.discovery.describe import load_descriptors
@@ -118,6 +119,47 @@ def descriptor_of(store: Store, index: TubeIndex, tube_id: str) -> np.ndarray:
 SHOWN = ("tube_id", "distance", "call", "category", "n_frames", "selected")  # what `mine similar` prints per tube
 
 
+_CACHE: dict[str, tuple[object, TubeIndex]] = {}  # catalogue root → (its descriptor markers, its index)
+
+
+def cached_index(store: Store) -> TubeIndex:
+    """``open_index``, read again only when a descriptor marker changed (a long-lived viewer)."""
+    stamp = derived.descriptor_markers(store)
+    hit = _CACHE.get(store.root)
+    if hit is not None and hit[0] == stamp:
+        return hit[1]
+    index = open_index(store)
+    _CACHE[store.root] = (stamp, index)
+    return index
+
+
+def similar_rows(store: Store, con: duckdb.DuckDBPyConnection, tube_id: str, k: int) -> tuple[list[dict], str | None]:
+    """(the ``k`` tubes nearest ``tube_id`` as ``SHOWN`` dicts, None) over a catalogue connection
+    ``con``; ([], why not) where there are no descriptors, or none for this tube."""
+    try:
+        index = cached_index(store)
+    except InputError as e:
+        return [], str(e)
+    if tube_id not in index.row:
+        return [], f"tube {tube_id!r} has no descriptor: run `mine describe --out {store.uri}`"
+    found, dist = index.exact.search(index.exact.unit[index.row[tube_id]], k)
+    return _with_rows(con, [index.tube_ids[j] for j in found], dist), None
+
+
+def _with_rows(con: duckdb.DuckDBPyConnection, ids: list[str], dist: np.ndarray) -> list[dict]:
+    """``SHOWN`` of each tube of ``ids`` (with its distance), in that order."""
+    con.register("_found", pa.table({"tube_id": ids, "distance": pa.array(dist, pa.float32()),
+                                     "rank": np.arange(len(ids))}))
+    try:
+        result = con.execute("SELECT f.tube_id, f.distance, t.call, t.category, t.n_frames, t.selected FROM _found AS f "
+                             "LEFT JOIN tubes AS t USING (tube_id) ORDER BY f.rank").fetchall()
+    except duckdb.Error as e:
+        raise InputError(str(e).removeprefix("Invalid Input Error: ")) from None
+    finally:
+        con.unregister("_found")
+    return [dict(zip(SHOWN, r)) for r in result]
+
+
 def nearest(out: str | Path, tube_id: str, k: int, where: str | None = None) -> list[dict]:
     """The ``k`` tubes nearest ``tube_id`` (the tube itself first, at distance 0, when ``where``
     admits it), among those ``where`` selects: a dict per tube of ``SHOWN``."""
@@ -131,15 +173,8 @@ def nearest(out: str | Path, tube_id: str, k: int, where: str | None = None) -> 
         allowed = {t[2] for t in matching_tubes(out, where)}
         rows = np.array([j for j, t in enumerate(index.tube_ids) if t in allowed], np.int64)
     found, dist = index.exact.search(query, k, rows)
-    ids = [index.tube_ids[j] for j in found]
     con = connect(out)
     try:
-        con.register("_found", pa.table({"tube_id": ids, "distance": pa.array(dist, pa.float32()),
-                                         "rank": np.arange(len(ids))}))
-        result = con.execute("SELECT f.tube_id, f.distance, t.call, t.category, t.n_frames, t.selected FROM _found AS f "
-                             "LEFT JOIN tubes AS t USING (tube_id) ORDER BY f.rank").fetchall()
-    except duckdb.Error as e:
-        raise InputError(str(e).removeprefix("Invalid Input Error: ")) from None
+        return _with_rows(con, [index.tube_ids[j] for j in found], dist)
     finally:
         con.close()
-    return [dict(zip(SHOWN, r)) for r in result]

@@ -27,6 +27,7 @@ from mining.catalog.records import JobRecord
 from mining.catalog.store import Store
 from mining.catalog.views import connect, refresh_labels, sql_string
 from mining.config import JobConfig
+from mining.discovery.similar import SHOWN, similar_rows
 from mining.errors import InputError
 from mining.formats.coco import COCO_CLASSES
 from mining.score.call import class_mode
@@ -130,6 +131,9 @@ def call_text(r: dict, category: str | None) -> str:
     if wins is not None and wins != ("known" if call == "known" else "unknown"):
         out.append(f"The stored call ({call}) is not what these numbers give: the row was written by another rule.")
     return " ".join(out)
+
+
+SIMILAR_SHOWN = 8  # ours: the tube page's "similar tubes" strip, one row of thumbnails
 
 
 class CatalogueBrowser:
@@ -314,6 +318,9 @@ class CatalogueBrowser:
         where = f"tube_id = {sql_string(tube_id)}"
         numbers = [f["frame"] for f in frames]
         start = frame if frame in numbers else (best_frame(frames)["frame"] if frames else None)
+        with self._lock:  # the one connection is shared by the server's threads
+            similar, note = similar_rows(self.store, self.con, tube_id, SIMILAR_SHOWN + 1)
+        similar = [{k: r[k] for k in SHOWN} for r in similar if r["tube_id"] != tube_id][:SIMILAR_SHOWN]
         return {"tube": tube, "top_classes": top, "class_rule": rule, "frames": frames, "ego": self.ego_path(tube),
-                "start_frame": start, "score_model": self.score_line(tube),
+                "similar": similar, "similar_note": note, "start_frame": start, "score_model": self.score_line(tube),
                 "where": where, "export_command": export_command(self.out, where, f"crops/{tube_id.replace('/', '_')}")}
