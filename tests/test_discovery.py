@@ -295,3 +295,20 @@ def test_the_tube_page_shows_its_similar_tubes_once_described(planted, tmp_path)
     dist = [s["distance"] for s in d["similar"]]
     assert dist == sorted(dist) and set(d["similar"][0]) == {"tube_id", "distance", "call", "category", "n_frames",
                                                              "selected"}
+
+
+def test_a_labels_file_written_before_the_source_columns_still_reads(planted, tmp_path):
+    from mining.catalog import labels
+
+    src, tables = planted
+    out = tmp_path / "c"
+    shutil.copytree(src, out)
+    tube = sorted(tables["tubes"].column("tube_id").to_pylist())[0]
+    old = labels.events([(DATASET, SEQUENCE, tube)], "tag", "cone").drop_columns(["source_tube", "distance"])
+    Store(out).write_table("labels/part-20260101T000000000000Z-000000000000.parquet", old)
+    con = connect(out)
+    try:
+        got = con.execute("SELECT tube_id, tags, labelled_via, source_tube, source_distance FROM tube_labels").fetchall()
+    finally:
+        con.close()
+    assert got == [(tube, ["cone"], "cli", None, None)]
