@@ -312,3 +312,20 @@ def test_a_labels_file_written_before_the_source_columns_still_reads(planted, tm
     finally:
         con.close()
     assert got == [(tube, ["cone"], "cli", None, None)]
+
+
+def test_bench_similar_runs_small_and_the_exact_searches_agree(capsys):
+    code, text, _ = _main(["bench", "similar", "--sizes", "3000", "--queries", "5", "--group-size", "600"], capsys)
+    lines = text.splitlines()
+    assert code == 0 and lines[0].split()[0] == "method"
+    rows = {line.rsplit(None, 4)[0]: line.split()[-4:] for line in lines[1:-1]}
+    assert set(rows) == {"numpy exact (chosen; build: read from Parquet)", "duckdb array_cosine_distance"}
+    assert all(r[0] == "3000" and r[-1] == "1.000" for r in rows.values())  # DuckDB finds the same 10 tubes
+    assert lines[-1].startswith("grouping 600 unknown tubes (HDBSCAN): ")
+
+
+def test_realistic_descriptors_group_into_several_groups():
+    from mining.bench.similar import realistic_descriptors
+
+    labels, prob = groups.group_vectors(realistic_descriptors(3000, 5))
+    assert labels.max() + 1 >= 3 and (labels >= 0).mean() > 0.3 and ((prob > 0) == (labels >= 0)).all()
