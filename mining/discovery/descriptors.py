@@ -161,7 +161,7 @@ def frame_summaries(tube_frames: pa.Table) -> dict[str, np.ndarray]:
     area = areas(rles).astype(np.float64)
     cam = np.asarray(tf.column("position_cam").combine_chunks().flatten().to_numpy(zero_copy_only=False),
                      np.float64).reshape(-1, 3)
-    per_frame = pa.table({  # noqa: F841 (read by name in _FRAME_SQL)
+    per_frame = pa.table({
         "tube_id": tf.column("tube_id"), "log_aspect": np.log(bw / bh), "fill": np.clip(area / (bw * bh), 0.0, 1.0),
         "log_area": np.log(np.maximum(area, 1.0)), "cam_y": cam[:, 1], "cam_z": cam[:, 2]})
     con = duckdb.connect(":memory:")
