@@ -56,6 +56,7 @@ GROUP_SCHEMA = pa.schema([
     pa.field("group", pa.int32(), False),  # HDBSCAN group, −1: noise (in no group)
     pa.field("probability", pa.float32(), False),  # HDBSCAN membership strength in [0, 1] (0 for noise)
     pa.field("group_size", pa.int32(), False),  # tubes in the same group (noise: how many are noise)
+    pa.field("centre_distance", pa.float32(), False),  # cosine distance to the group's mean direction (the spread; noise: 0)
     pa.field("version", pa.string(), False),  # the grouping recipe: descriptor version and HDBSCAN settings
 ])
 

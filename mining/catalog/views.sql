@@ -111,10 +111,13 @@ LEFT JOIN verdicts AS v ON v.dataset = t.dataset AND v.sequence = t.sequence AND
 LEFT JOIN tags AS g ON g.dataset = t.dataset AND g.sequence = t.sequence AND g.tube_id = t.tube_id
 WHERE v.verdict IS NOT NULL OR g.tags IS NOT NULL;
 
--- Every tube with its labels (null / [] where none): what `mine export --where` and the
--- gallery filter read, so a predicate may say `verdict = 'object'` or `list_contains(tags, 'barrier')`.
+-- Every tube with its labels (null / [] where none) and its group of the unknown set (`mine group`:
+-- tube_group, −1 noise, null where not grouped): what `mine export --where`, `mine label --where` and
+-- the gallery filter read, so a predicate may say `verdict = 'object'`, `list_contains(tags, 'barrier')`
+-- or `tube_group = 3`.
 CREATE VIEW labelled_tubes AS
 SELECT t.*, l.verdict, coalesce(l.tags, []::VARCHAR[]) AS tags, l.tag, l.labelled_at, l.labelled_by,
-       l.labelled_via, l.source_tube, l.source_distance
+       l.labelled_via, l.source_tube, l.source_distance, g."group" AS tube_group, g.probability AS group_probability
 FROM tubes AS t
-LEFT JOIN tube_labels AS l ON l.dataset = t.dataset AND l.sequence = t.sequence AND l.tube_id = t.tube_id;
+LEFT JOIN tube_labels AS l ON l.dataset = t.dataset AND l.sequence = t.sequence AND l.tube_id = t.tube_id
+LEFT JOIN tube_groups AS g ON g.dataset = t.dataset AND g.sequence = t.sequence AND g.tube_id = t.tube_id;

@@ -106,6 +106,18 @@ def group_vectors(vectors: np.ndarray, min_group_size: int | None = None, min_sa
     return labels.astype(np.int64), np.asarray(model.probabilities_, np.float64)
 
 
+def centre_distances(vectors: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """Each row's cosine distance to its group's mean direction (0 for noise): a group's spread."""
+    unit = np.asarray(vectors, np.float64)
+    unit = unit / np.maximum(np.linalg.norm(unit, axis=1, keepdims=True), MIN_NORM)
+    out = np.zeros(len(unit))
+    for g in np.unique(labels[labels >= 0]):
+        rows = labels == g
+        centre = unit[rows].mean(axis=0)
+        out[rows] = np.maximum(1.0 - unit[rows] @ (centre / max(float(np.linalg.norm(centre)), MIN_NORM)), 0.0)
+    return out
+
+
 GROUPING_RECIPE = 1  # ours: bump when the code changes how the unknown set is grouped
 
 
@@ -162,9 +174,11 @@ def group_unknown(store: Store, min_group_size: int | None = None, min_samples: 
     labels, prob = group_vectors(v, min_group_size, min_samples, selection)
     sizes = np.bincount(labels + 1, minlength=1)[labels + 1] if len(labels) else np.zeros(0, np.int64)
     table = pa.table({
+        "centre_distance": pa.array(centre_distances(v, labels), pa.float32()),
         "tube_id": [u[2] for u in have], "dataset": [u[0] for u in have], "sequence": [u[1] for u in have],
         "group": pa.array(labels, pa.int32()), "probability": pa.array(prob, pa.float32()),
-        "group_size": pa.array(sizes, pa.int32()), "version": [version] * len(have)}, schema=derived.GROUP_SCHEMA)
+        "group_size": pa.array(sizes, pa.int32()), "version": [version] * len(have)}).select(derived.GROUP_SCHEMA.names)
+    table = table.cast(derived.GROUP_SCHEMA)
     derived.write_derived(store, derived.GROUPS_FILE, derived.GROUPS_MARKER, table, version, key)
     return Grouped(len(have), int(labels.max() + 1) if len(labels) else 0, int((labels < 0).sum()),
                    len(unknown) - len(have), True, time.perf_counter() - t0)
