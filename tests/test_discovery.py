@@ -329,3 +329,29 @@ def test_realistic_descriptors_group_into_several_groups():
 
     labels, prob = groups.group_vectors(realistic_descriptors(3000, 5))
     assert labels.max() + 1 >= 3 and (labels >= 0).mean() > 0.3 and ((prob > 0) == (labels >= 0)).all()
+
+
+def test_the_groups_page_has_one_tile_per_group_and_the_gallery_filters_by_group(planted, tmp_path, capsys):
+    from conftest import get, json_get, serving
+
+    src, _ = planted
+    out = tmp_path / "c"
+    shutil.copytree(src, out)
+    with serving(out, tmp_path / "cache") as (base, _):
+        status, d = json_get(base, "/api/groups")
+        assert status == 200 and d["groups"] == [] and "mine group" in d["note"]
+        assert _main(["group", "--out", str(out), "--min-size", "5"], capsys)[0] == 0  # the viewer sees it at once
+        status, d = json_get(base, "/api/groups")
+        assert status == 200 and d["note"] is None and d["tubes"] == 2 * N_FAMILY
+        tiles = {g["group"]: g for g in d["groups"]}
+        assert len(tiles) == 2 and all(g["size"] == N_FAMILY and 0 <= g["spread"] < 0.01 for g in tiles.values())
+        family = {g: t["exemplar"].split("/")[-1].split(".")[0] for g, t in tiles.items()}
+        assert sorted(family.values()) == ["big", "small"]
+        g = next(iter(tiles))
+        status, page = json_get(base, "/api/tubes", {"group": str(g), "limit": "100"})
+        assert status == 200 and page["total"] == N_FAMILY and page["where"].endswith(f"tube_group IN ({g})")
+        assert {t["tube_id"].split("/")[-1].split(".")[0] for t in page["tubes"]} == {family[g]}
+        assert json_get(base, "/api/groups", {"x": "1"})[0] == 400
+        assert get(base, "/groups")[0] == 200
+    code, _, _ = _main(["label", "--out", str(out), "--where", f"tube_group = {g}", "--tag", "t", "--dry-run"], capsys)
+    assert code == 0

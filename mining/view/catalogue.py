@@ -21,11 +21,13 @@ from pathlib import Path
 
 import duckdb
 
-from mining.catalog import labels
+import pyarrow.fs as pafs
+
+from mining.catalog import derived, labels
 from mining.catalog.layout import JOB, LABELS
 from mining.catalog.records import JobRecord
 from mining.catalog.store import Store
-from mining.catalog.views import connect, refresh_labels, sql_string
+from mining.catalog.views import connect, refresh_labels, register_derived, sql_string
 from mining.config import JobConfig
 from mining.discovery.similar import SHOWN, similar_rows
 from mining.errors import InputError
@@ -146,6 +148,7 @@ class CatalogueBrowser:
         self.author = labels.check_text(labels.default_author() if author is None else author, "--author",
                                         labels.MAX_AUTHOR_CHARS)
         self._labels_seen = self._labels_stamp()
+        self._groups_seen = self._groups_stamp()
         self._lock = threading.Lock()
         self.job: JobConfig | None = None  # the typed config of OUT/job.json (None: the catalogue has none)
         self.job_error: str | None = None
@@ -169,13 +172,22 @@ class CatalogueBrowser:
                 return None
         return labels.label_files(self.store)
 
+    def _groups_stamp(self) -> object:
+        """What changes when `mine group` writes: its marker's mtime (one stat)."""
+        info = self.store.fs.get_file_info(self.store.full(derived.GROUPS_MARKER))
+        return info.mtime_ns if info.type == pafs.FileType.File else None
+
     def _fresh_labels(self) -> None:
-        """Re-read the labels when their files changed (another viewer, `mine label`, a compaction).
-        Under ``_lock``."""
+        """Re-read the labels when their files changed (another viewer, `mine label`, a compaction),
+        and the derived tables when `mine group` wrote. Under ``_lock``."""
         stamp = self._labels_stamp()
         if stamp != self._labels_seen:
             refresh_labels(self.con, self.store)
             self._labels_seen = stamp
+        groups = self._groups_stamp()
+        if groups != self._groups_seen:
+            register_derived(self.con, self.store)
+            self._groups_seen = groups
 
     def _query(self, sql: str, params: list | None = None) -> list[dict]:
         with self._lock:
@@ -207,6 +219,18 @@ class CatalogueBrowser:
         where = flt.export_where()
         return {"total": total, "offset": flt.offset, "limit": flt.limit, "tubes": tubes, "where": where,
                 "export_command": export_command(self.out, where, "crops")}
+
+    def groups(self) -> dict:
+        """One tile per group of the unknown set (`mine group`), largest first, the tubes in no group
+        last: its number, size, spread (the median cosine distance of its tubes to its mean direction)
+        and exemplar (the tube nearest that direction, with its call and category)."""
+        rows = self._query(
+            'WITH g AS (SELECT "group", count(*) AS size, median(centre_distance) AS spread, '
+            "arg_min(tube_id, centre_distance) AS exemplar FROM tube_groups GROUP BY 1) "
+            f"SELECT g.*, {CALL_SQL} AS call, t.category FROM g LEFT JOIN tubes AS t ON t.tube_id = g.exemplar "
+            'ORDER BY g."group" < 0, g.size DESC, g."group"')
+        return {"groups": rows, "tubes": sum(r["size"] for r in rows),
+                "note": None if rows else f"the unknown set is not grouped: run `mine group --out {self.out}`"}
 
     def facets(self, all_tubes: bool) -> dict:
         """What the filter form offers: counts by call (``calls``: every one of CALLS, a row
