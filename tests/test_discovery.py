@@ -355,3 +355,22 @@ def test_the_groups_page_has_one_tile_per_group_and_the_gallery_filters_by_group
         assert get(base, "/groups")[0] == 200
     code, _, _ = _main(["label", "--out", str(out), "--where", f"tube_group = {g}", "--tag", "t", "--dry-run"], capsys)
     assert code == 0
+
+
+@pytest.mark.slow  # over ~2.5 s: it mines the job again twice (resume, then --new-run)
+def test_a_mined_catalogue_keeps_its_descriptors_through_a_resubmission_and_a_new_run_moves_them_aside(
+        base_catalogue, tmp_path):
+    from _jobs import copy_of, mine
+
+    out = copy_of(base_catalogue, tmp_path / "c")
+    store = Store(out)
+    first = describe(store)  # the sequences' inputs are their finished markers' sha256
+    assert first.computed and not first.kept
+    before = {rel: (out / rel).read_bytes() for rel in store.list("discovery", "")}
+    assert not mine(out).failed  # the same job again: resumed, nothing re-mined
+    assert {rel: (out / rel).read_bytes() for rel in store.list("discovery", "")} == before
+    again = describe(store)
+    assert not again.computed and len(again.kept) == len(first.computed)
+    assert not mine(out, mode="new").failed
+    assert not (out / "discovery").exists()
+    assert len(list((out / "_replaced").glob("*/discovery/tube_descriptors/*/*/descriptors.parquet"))) == len(first.computed)
