@@ -374,3 +374,19 @@ def test_a_mined_catalogue_keeps_its_descriptors_through_a_resubmission_and_a_ne
     assert not mine(out, mode="new").failed
     assert not (out / "discovery").exists()
     assert len(list((out / "_replaced").glob("*/discovery/tube_descriptors/*/*/descriptors.parquet"))) == len(first.computed)
+
+
+def test_tubes_written_before_the_motion_noise_and_call_columns_are_described(planted, tmp_path):
+    src, tables = planted
+    out = tmp_path / "c"
+    shutil.copytree(src, out)
+    store = Store(out)
+    rel = store.list(f"catalog/tubes/{DATASET}/{OTHER}")[0]
+    old = store.read_table(rel).drop_columns(["speed_sigma_mps", "moving_speed_mps", "object_prob", "call"])
+    store.write_table(rel, old)
+    describe(store)
+    ids, vec = load_descriptors(store)
+    mine = [k for k, t in enumerate(ids.column("tube_id").to_pylist()) if f"/{OTHER}/" in t]
+    assert len(mine) == len(tables["tubes"]) and np.isfinite(vec[mine]).all()
+    k = desc.NAMES.index("moving")
+    assert (vec[mine, k] == 0).all()  # no moving_speed_mps: not measured as moving

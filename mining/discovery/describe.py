@@ -21,6 +21,7 @@ import pyarrow as pa
 from mining.catalog import derived
 from mining.catalog.integrity import cached_sha256, vouched_files
 from mining.catalog.records import SequenceMarker
+from mining.catalog.schema import SCHEMAS
 from mining.catalog.store import Store
 from mining.discovery.descriptors import DESCRIPTOR_VERSION, DIM, FRAME_COLUMNS, TUBE_COLUMNS, descriptors
 from mining.errors import InputError
@@ -70,20 +71,22 @@ def inputs_digest(store: Store, dataset: str, sequence: str, files: dict[str, li
     return hashlib.sha256(json.dumps(items).encode()).hexdigest()
 
 
-def _read(store: Store, files: list[str], columns: list[str]) -> pa.Table:
-    """``columns`` of the files, a column a file lacks (written before it was added) as nulls."""
+def _read(store: Store, files: list[str], table: str, columns: list[str]) -> pa.Table:
+    """``columns`` of the files of ``table``, a column a file lacks (written before it was added:
+    ``schema.ADDED_COLUMNS``) as nulls of its type."""
+    types = {f.name: f.type for f in SCHEMAS[table]}
     parts = []
     for rel in files:
         t = store.read_table(rel)
-        cols = {c: t.column(c) if c in t.column_names else pa.nulls(len(t)) for c in columns}
+        cols = {c: t.column(c) if c in t.column_names else pa.nulls(len(t), types[c]) for c in columns}
         parts.append(pa.table(cols))
     return pa.concat_tables(parts, promote_options="permissive")
 
 
 def describe_sequence(store: Store, dataset: str, sequence: str, files: dict[str, list[str]]) -> pa.Table:
     """The ``tube_descriptors`` rows of one sequence."""
-    tubes = _read(store, files["tubes"], [c for c in TUBE_COLUMNS if c not in ("dataset", "sequence")])
-    frames = _read(store, files["tube_frames"], FRAME_COLUMNS)
+    tubes = _read(store, files["tubes"], "tubes", [c for c in TUBE_COLUMNS if c not in ("dataset", "sequence")])
+    frames = _read(store, files["tube_frames"], "tube_frames", FRAME_COLUMNS)
     vec = descriptors(tubes, frames)
     n = len(tubes)
     return pa.table({
