@@ -185,7 +185,7 @@ def test_mine_similar_gives_the_tube_itself_then_its_near_duplicate(planted, tmp
     code, text, _ = _main(["similar", "--out", str(out), first, "-k", "3", "--where", f"sequence = '{SEQUENCE}'"], capsys)
     lines = text.splitlines()
     assert code == 0 and lines[0].split()[:2] == ["tube_id", "distance"]
-    assert lines[1].split()[:2] == [first, "0.0000"] and lines[2].split()[0] == f"{DATASET}/{SEQUENCE}/twin.000"
+    assert lines[1].split()[:2] == [first, "0"] and lines[2].split()[0] == f"{DATASET}/{SEQUENCE}/twin.000"
     assert len(lines) == 4
     code, _, err = _main(["similar", "--out", str(out), "kitti/0005/nope"], capsys)
     assert code == 2 and "no tube 'kitti/0005/nope'" in err and err.count("\n") == 1

@@ -171,7 +171,7 @@ def label_like(out: str, source: str, within: float, where: str | None, verdict:
         raise NothingMatched(f"no unlabelled tube within distance {within} of {source}; nothing labelled")
     if dry_run:
         for (_, _, tube_id), d in near:
-            print(f"{tube_id}  {d:.4f}")
+            print(f"{tube_id}  {d:.4g}")
     return _apply(out, [t for t, _ in near], kind, value, op, author, dry_run,
                   f"within {within} of {source}", source, [d for _, d in near])
 

@@ -32,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
     if args.format == "json":
         print(json.dumps(rows, indent=1))
         return 0
-    cells = [[("" if r[c] is None else f"{r[c]:.4f}" if c == "distance" else str(r[c])) for c in SHOWN] for r in rows]
+    cells = [[("" if r[c] is None else f"{r[c]:.4g}" if c == "distance" else str(r[c])) for c in SHOWN] for r in rows]
     widths = [max(len(c), *(len(row[j]) for row in cells)) for j, c in enumerate(SHOWN)]
     print("  ".join(c.ljust(w) for c, w in zip(SHOWN, widths)))
     for row in cells:
