@@ -390,3 +390,29 @@ def test_tubes_written_before_the_motion_noise_and_call_columns_are_described(pl
     assert len(mine) == len(tables["tubes"]) and np.isfinite(vec[mine]).all()
     k = desc.NAMES.index("moving")
     assert (vec[mine, k] == 0).all()  # no moving_speed_mps: not measured as moving
+
+
+@pytest.mark.slow  # over ~2.5 s: a headless Chromium
+def test_the_groups_page_and_the_similar_strip_in_chromium(planted, chromium, tmp_path, capsys):
+    from _cdp import Browser
+    from conftest import serving
+
+    src, tables = planted
+    out = tmp_path / "c"
+    shutil.copytree(src, out)
+    assert _main(["group", "--out", str(out), "--min-size", "5"], capsys)[0] == 0
+    with serving(out, tmp_path / "cache") as (base, _):
+        with Browser(chromium, width=1400, height=900) as b:
+            b.goto(f"{base}/groups")
+            b.wait_for("document.body.dataset.state === 'ready'")
+            assert b.evaluate("document.querySelectorAll('#groups .card').length") == 2
+            assert b.evaluate("document.getElementById('totals').textContent") == f"2 groups · {2 * N_FAMILY} unknown tubes"
+            b.evaluate("document.querySelector('#groups .card').click()")  # the gallery, on that group
+            b.wait_for("location.pathname === '/' && document.body.dataset.state === 'ready'")
+            assert b.evaluate("document.querySelectorAll('#grid .card').length") == N_FAMILY
+            assert "tube_group IN (" in b.evaluate("document.getElementById('export').textContent")
+            b.goto(f"{base}/tube?id=kitti/0005/big.000")
+            b.wait_for("document.body.dataset.state === 'ready'")
+            links = b.evaluate("[...document.querySelectorAll('#similar a')].map(a => a.title)")
+    assert len(links) == 8 and all(t.startswith(f"{DATASET}/") for t in links)
+    assert sum(t.startswith(f"{DATASET}/{SEQUENCE}/big.") for t in links) == 8  # its own family is nearest
