@@ -51,7 +51,8 @@ COMMANDS = (  # in the order --help lists them: the top-level verbs, then the gr
     Command(None, "export", "mining.commands.export", "tubes matching a SQL predicate, for other tools",
             names_errors=True),
     Command(None, "label", "mining.commands.label",
-            "label the tubes a SQL predicate selects (a verdict or a tag), for scripted triage", names_errors=True),
+            "label the tubes a SQL predicate, a group or a likeness selects (a verdict or a tag), for scripted "
+            "triage", names_errors=True),
     Command(None, "describe", "mining.commands.describe",
             "a descriptor for every tube (size, height, distance, motion, shape, class), for similar and group",
             names_errors=True),
