@@ -416,3 +416,22 @@ def test_the_groups_page_and_the_similar_strip_in_chromium(planted, chromium, tm
             links = b.evaluate("[...document.querySelectorAll('#similar a')].map(a => a.title)")
     assert len(links) == 8 and all(t.startswith(f"{DATASET}/") for t in links)
     assert sum(t.startswith(f"{DATASET}/{SEQUENCE}/big.") for t in links) == 8  # its own family is nearest
+
+
+def test_a_new_descriptor_recipe_describes_every_sequence_again(planted, tmp_path, monkeypatch):
+    import mining.discovery.describe as describe_module
+
+    src, _ = planted
+    out = tmp_path / "c"
+    shutil.copytree(src, out)
+    store = Store(out)
+    assert len(describe(store).computed) == 2
+    monkeypatch.setattr(describe_module, "DESCRIPTOR_VERSION", "d999-test")
+    assert len(load_descriptors(store)[0]) == 0  # stored vectors of another recipe are not served
+    again = describe(store)
+    assert len(again.computed) == 2 and not again.kept
+    con = connect(out)
+    try:
+        assert con.execute("SELECT list(DISTINCT version) FROM tube_descriptors").fetchone()[0] == ["d999-test"]
+    finally:
+        con.close()
