@@ -93,9 +93,9 @@ def group_vectors(vectors: np.ndarray, min_group_size: int | None = None, min_sa
     v = np.asarray(vectors, np.float64)
     n = len(v)
     size = default_min_size(n) if min_group_size is None else min_group_size
-    if n < max(3, size) or selection not in SELECTIONS:
-        if selection not in SELECTIONS:
-            raise InputError(f"group selection {selection!r}: one of {', '.join(SELECTIONS)}")
+    if selection not in SELECTIONS:
+        raise InputError(f"group selection {selection!r}: one of {', '.join(SELECTIONS)}")
+    if n < max(3, size):
         return np.full(n, -1, np.int64), np.zeros(n, np.float64)
     unit = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), MIN_NORM)
     samples = min(min_samples, n - 1)
