@@ -435,3 +435,23 @@ def test_a_new_descriptor_recipe_describes_every_sequence_again(planted, tmp_pat
         assert con.execute("SELECT list(DISTINCT version) FROM tube_descriptors").fetchone()[0] == ["d999-test"]
     finally:
         con.close()
+
+
+def test_a_damaged_groups_file_fails_the_views_that_read_it_naming_it(planted, tmp_path, capsys):
+    src, _ = planted
+    out = tmp_path / "c"
+    shutil.copytree(src, out)
+    assert _main(["group", "--out", str(out), "--min-size", "5"], capsys)[0] == 0
+    path = out / derived.GROUPS_FILE
+    path.write_bytes(path.read_bytes()[:-8] + b"\0" * 8)
+    con = connect(out)
+    try:
+        for view in ("tube_groups", "labelled_tubes"):
+            with pytest.raises(Exception, match="groups.parquet"):
+                con.execute(f"SELECT count(*) FROM {view}").fetchone()
+        assert con.execute("SELECT count(*) FROM unknown_tubes").fetchone()[0] == 2 * N_FAMILY
+    finally:
+        con.close()
+    code, text, _ = _main(["group", "--out", str(out), "--min-size", "5"], capsys)
+    assert code == 0 and "grouped in" in text  # recomputed, not read back
+    assert _main(["label", "--out", str(out), "--group", "0", "--tag", "x", "--dry-run"], capsys)[0] == 0
