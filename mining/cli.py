@@ -1,6 +1,6 @@
 """The ``mine`` command line: it parses; the packages act. Every command is a row of COMMANDS:
 a top-level verb (``mine submit``, ``status``, ``query``, ``export``, ``label``, ``render``,
-``config``, ``view``: ``mining/commands/``) or a ``mine GROUP NAME`` command, each in its module,
+``config``, ``view``, ``describe``, ``similar``, ``group``: ``mining/commands/``) or a ``mine GROUP NAME`` command, each in its module,
 which offers ``add_arguments(parser)`` and ``run(args)``. ``main`` turns every error a command
 raises into one line and its exit status, once."""
 
@@ -51,7 +51,17 @@ COMMANDS = (  # in the order --help lists them: the top-level verbs, then the gr
     Command(None, "export", "mining.commands.export", "tubes matching a SQL predicate, for other tools",
             names_errors=True),
     Command(None, "label", "mining.commands.label",
-            "label the tubes a SQL predicate selects (a verdict or a tag), for scripted triage", names_errors=True),
+            "label the tubes a SQL predicate, a group or a likeness selects (a verdict or a tag), for scripted "
+            "triage", names_errors=True),
+    Command(None, "describe", "mining.commands.describe",
+            "a descriptor for every tube (size, height, distance, motion, shape, class), for similar and group",
+            names_errors=True),
+    Command(None, "similar", "mining.commands.similar",
+            "find more like this: the k tubes nearest a tube by cosine distance of their descriptors",
+            names_errors=True),
+    Command(None, "group", "mining.commands.group",
+            "group the unknown set by density (HDBSCAN over the descriptors) into the tube_groups table",
+            names_errors=True),
     Command(None, "render", "mining.commands.render",
             "a sequence with its selected tubes drawn (mask, id, category), as a video", names_errors=True),
     Command(None, "config", "mining.commands.config",
@@ -87,6 +97,9 @@ COMMANDS = (  # in the order --help lists them: the top-level verbs, then the gr
     Command("bench", "stages", "mining.bench.stages", "the proposal stage fed two ways (explicit actor queues, Ray "
                                                       "Data) on logical GPUs: frames/s, GPU busy share, ramp-up, "
                                                       "object store"),
+    Command("bench", "similar", "mining.bench.similar", "k = 10 similar-tube queries over 10⁵ and 10⁶ descriptors "
+                                                        "(median ms, build s; --compare: the index libraries), and "
+                                                        "grouping 10⁵ unknown tubes"),
     Command("bench", "pipeline", "mining.bench.pipeline", "end-to-end frames/s on 1 and 2 workers, Ray overhead, worker "
                                                           "memory, catalogue size and query times (synthetic 1242×375)"),
     Command("bench", "looks", "mining.bench.looks", "recall@20 with the right COCO class (shared ONNX model) on "

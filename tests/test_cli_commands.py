@@ -15,7 +15,7 @@ from conftest import REPO
 from mining.cli import COMMANDS, GROUPS, build_parser, main
 
 
-VERBS = ("submit", "status", "query", "export", "label", "render", "config", "view")
+VERBS = ("submit", "status", "query", "export", "label", "describe", "similar", "group", "render", "config", "view")
 
 
 def test_every_command_module_offers_add_arguments_and_run():

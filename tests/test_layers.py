@@ -26,7 +26,10 @@ EXPORT_SHARED = ("registry", "selection", "source_frames", "json_annotations", "
 CATALOG_MAY_IMPORT = (*SHARED_FLOOR, "config")
 BELOW_PIPELINE = (*STAGES, *SHARED_FLOOR, "catalog", "config")
 # The floors above the catalogue: nothing below the pipeline imports them.
-ABOVE = ("pipeline", "export", "view", "bench", "commands", "cli", "testing")
+ABOVE = ("pipeline", "export", "view", "bench", "commands", "cli", "testing", "discovery")
+# Discovery (floor 6, beside the pipeline, export and viewer) reads the catalogue and no stage: it
+# works on what was mined, whatever mined it.
+DISCOVERY_MAY_IMPORT = (*SHARED_FLOOR, "catalog", "config")
 
 
 def _modules(root: Path):
@@ -171,6 +174,10 @@ def upward_imports(deps: dict[str, set[str]]) -> list[str]:
     return sorted(f"{p} → {q}" for p in BELOW_PIPELINE for q in deps.get(p, ()) if q in ABOVE)
 
 
+def discovery_imports(deps: dict[str, set[str]]) -> list[str]:
+    return sorted(f"discovery → {q}" for q in deps.get("discovery", ()) if q not in DISCOVERY_MAY_IMPORT)
+
+
 def eval_importers(deps: dict[str, set[str]]) -> list[str]:
     return sorted(p for p in deps if "eval" in deps[p] and p not in ("bench", "cli", "commands"))
 
@@ -199,6 +206,16 @@ def test_the_catalogue_imports_only_the_shared_floor_and_the_config():
 
 def test_nothing_below_the_pipeline_imports_the_pipeline_exports_the_viewer_bench_or_cli():
     assert not upward_imports(import_graph())
+
+
+def test_discovery_imports_only_the_catalogue_and_the_shared_floor():
+    assert not discovery_imports(import_graph())
+
+
+def test_the_discovery_rule_catches_discovery_importing_a_stage_or_the_viewer(tmp_path):
+    root = _plant(tmp_path, {"mining/discovery/a.py": "from mining.score.call import x\nfrom mining.catalog import views\n",
+                             "mining/discovery/b.py": "from mining.view import api\n"})
+    assert discovery_imports(import_graph(root)) == ["discovery → score", "discovery → view"]
 
 
 def test_only_bench_and_the_cli_import_eval():

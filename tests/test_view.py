@@ -409,8 +409,8 @@ def test_pages_and_their_files_are_served_and_shipped():
     globs = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]["mining.view"]
     shipped = {p for g in globs for p in static.parent.glob(g)}
     assert set(static.iterdir()) <= shipped, "a static file pyproject's package-data leaves out"
-    html = (static / "index.html").read_text() + (static / "tube.html").read_text()
-    for name in ("app.css", "common.js", "gallery.js", "tube.js"):
+    html = (static / "index.html").read_text() + (static / "tube.html").read_text() + (static / "groups.html").read_text()
+    for name in ("app.css", "common.js", "gallery.js", "tube.js", "groups.js"):
         assert f"/static/{name}" in html
 
 

@@ -55,7 +55,7 @@ from mining.errors import InputError
 VERDICTS = ("object", "not_object", "part_of", "duplicate")
 KINDS = ("verdict", "tag")
 OPS = ("set", "unset")
-VIA = ("view", "cli")  # which tool wrote an event
+VIA = ("view", "cli", "propagated")  # which tool wrote an event (propagated: `mine label --like`, from a source tube)
 MAX_TAG_CHARS = 64  # ours: a tag is a word or a short phrase (a category name), not a note
 MAX_AUTHOR_CHARS = 64  # ours
 MAX_EVENTS_PER_WRITE = 100_000  # ours: one `mine label` over a whole drive's tubes, in one file
@@ -79,8 +79,12 @@ LABEL_SCHEMA = pa.schema([
     pa.field("author", pa.string(), False),
     # When it was decided, UTC (a plain timestamp: every reader, DuckDB's Python results too, reads it without a zone library).
     pa.field("at", pa.timestamp("us"), False),
-    pa.field("via", pa.string(), False),  # view | cli
+    pa.field("via", pa.string(), False),  # view | cli | propagated
+    # Added by issue 41 (nullable: files written before them read them as null). A propagated label's source:
+    pa.field("source_tube", pa.string()),  # the tube labelled first, whose decision this event copies (null: decided directly)
+    pa.field("distance", pa.float32()),  # cosine distance of the two tubes' descriptors (null: decided directly)
 ])
+ADDED_LABEL_COLUMNS = frozenset({"source_tube", "distance"})  # a label file written before them reads them as null
 
 
 def default_author() -> str:
@@ -112,10 +116,16 @@ def check_verdict(verdict: object) -> str:
 
 
 def events(tubes: list[tuple[str, str, str]], kind: str, value: str | None, op: str = "set",
-           author: str | None = None, via: str = "cli", at: datetime | None = None) -> pa.Table:
+           author: str | None = None, via: str = "cli", at: datetime | None = None,
+           source_tube: str | None = None, distances: list[float] | None = None) -> pa.Table:
     """The events that apply one decision to each of ``tubes`` ((dataset, sequence, tube_id)):
     ``kind`` verdict (``value`` one of VERDICTS, or None with ``op`` unset: no verdict) or tag
-    (``value`` the tag); InputError for a value these rules refuse."""
+    (``value`` the tag); InputError for a value these rules refuse. A propagated decision
+    (``via`` propagated) names its ``source_tube`` and each tube's descriptor ``distances`` to it."""
+    if (via == "propagated") != (source_tube is not None):
+        raise InputError("a propagated label names its source tube, and only a propagated one does")
+    if distances is not None and len(distances) != len(tubes):
+        raise InputError(f"{len(distances)} distances for {len(tubes)} tubes")
     if kind not in KINDS or op not in OPS or via not in VIA:
         raise InputError(f"a label is kind {'/'.join(KINDS)}, op {'/'.join(OPS)}, via {'/'.join(VIA)}; "
                          f"got {kind!r}, {op!r}, {via!r}")
@@ -137,6 +147,8 @@ def events(tubes: list[tuple[str, str, str]], kind: str, value: str | None, op: 
         "dataset": [t[0] for t in tubes], "sequence": [t[1] for t in tubes], "tube_id": [t[2] for t in tubes],
         "kind": [kind] * n, "value": [value] * n, "op": [op] * n, "author": [author] * n,
         "at": pa.array([when] * n, pa.timestamp("us")), "via": [via] * n,
+        "source_tube": [source_tube] * n, "distance": pa.array(distances if distances is not None else [None] * n,
+                                                                pa.float32()),
     }, schema=LABEL_SCHEMA)
 
 
@@ -221,9 +233,11 @@ def _read(store: Store, rel: str) -> pa.Table:
         table = pq.read_table(pa.BufferReader(data))
     except (pa.ArrowInvalid, OSError) as e:
         raise InputError(f"cannot read Parquet file: {e}", store.full(rel)) from None
-    if not set(LABEL_SCHEMA.names) <= set(table.schema.names):
-        missing = sorted(set(LABEL_SCHEMA.names) - set(table.schema.names))
+    if not set(LABEL_SCHEMA.names) - ADDED_LABEL_COLUMNS <= set(table.schema.names):
+        missing = sorted(set(LABEL_SCHEMA.names) - ADDED_LABEL_COLUMNS - set(table.schema.names))
         raise InputError(f"not a labels file: no column {', '.join(missing)}", store.full(rel))
+    for name in sorted(ADDED_LABEL_COLUMNS - set(table.schema.names)):  # written before the column
+        table = table.append_column(name, pa.nulls(len(table), LABEL_SCHEMA.field(name).type))
     try:
         return table.select(LABEL_SCHEMA.names).cast(LABEL_SCHEMA)
     except (pa.ArrowInvalid, pa.ArrowTypeError, ValueError) as e:

@@ -21,6 +21,9 @@ draws the same tree); ``store.py`` does the I/O on them::
     labels/compact-<UTC>-<hex>-<sha256>.parquet               per write, merged by `mine label --compact`; the
                                                               name carries the sha256 of the file's bytes
     labels/_damaged/<name>                                    label files set aside by `mine submit --verify`
+    discovery/tube_descriptors/D/S/descriptors.parquet        derived by `mine describe` (derived.py): a vector per tube,
+    discovery/tube_descriptors/D/S.json                       and its marker (recipe, inputs digest, sha256)
+    discovery/tube_groups/groups.parquet, …/tube_groups.json  derived by `mine group`: the unknown set's groups
 
 The compacted tables are what people read with their own tools, so their folders have plain
 names and their files hold ``dataset`` / ``sequence`` as strings: a default read of
@@ -68,6 +71,9 @@ JOB_ENTRIES = (JOB, CATALOG, MANIFEST, PARTS, "_cache")
 # People's labels of the tubes (labels.py): no job writes or resumes them; a --new-run moves them
 # aside with the catalogue whose tube ids they name.
 LABELS = "labels"
+# Tables derived from the catalogue (derived.py: descriptors, groups): no job writes them; a
+# --new-run moves them aside with the catalogue whose tube ids they name.
+DISCOVERY = "discovery"
 RUNNING = "_running"
 STITCH_ROW = "stitch"  # the ``window`` of a sequence's failed-stitch row (no window is named so: windows are S-start-end)
 CACHE_SUFFIX = ".npz.zst"  # the observation cache's format: mining/pipeline/cache.py

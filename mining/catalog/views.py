@@ -56,6 +56,7 @@ import duckdb
 import pyarrow as pa
 import pyarrow.dataset as ds
 
+from mining.catalog import derived
 from mining.catalog.integrity import Damage, check_versions, unreadable_parquet, vouched_files
 from mining.catalog.labels import LABEL_SCHEMA, DamagedLabels, label_files, read_label_files
 from mining.catalog.layout import MANIFEST, PART_SUFFIX, PARTS, TABLE_DIRS, catalog_layout
@@ -270,6 +271,32 @@ def refresh_labels(con: duckdb.DuckDBPyConnection, store: Store) -> list[str]:
     return files
 
 
+def register_derived(con: duckdb.DuckDBPyConnection, store: Store) -> None:
+    """(Re)register ``tube_descriptors`` and ``tube_groups`` (``derived.py``): the files their
+    markers vouch for, read through pyarrow datasets (lazily: a query reads the columns it names);
+    empty tables of the right columns where discovery has not run. A damaged file makes its
+    table fail naming it, and nothing else."""
+    files, damage = derived.vouched(store)
+    empty = {derived.DESCRIPTORS: pa.schema([f.with_type(pa.list_(pa.float32())) if f.name == "vector" else f
+                                            for f in derived.descriptor_schema(1)]),
+             derived.GROUPS: derived.GROUP_SCHEMA}
+    for table in derived.DERIVED_TABLES:
+        for drop in (f"DROP VIEW IF EXISTS {table}", None):
+            try:
+                con.execute(drop) if drop else con.unregister(table)
+            except duckdb.Error:
+                pass
+        bad = [Damage(rel, why, "mine describe / mine group") for rel, why in damage if rel.split("/")[1] == table]
+        if bad:
+            _damaged_view(con, store, table, bad, empty[table],
+                          f"table {table} is damaged: {store.full(bad[0].path)} ({bad[0].reason}); "
+                          f"`mine {'describe' if table == derived.DESCRIPTORS else 'group'} --out {store.uri}` recomputes it")
+        elif files[table]:
+            con.register(table, ds.dataset([store.full(f) for f in files[table]], filesystem=store.fs, format="parquet"))
+        else:
+            con.register(table, empty[table].empty_table())
+
+
 def connect(out: str | Path, native: bool | None = None, memory_limit: str | None = None,
             threads: int | None = None, verify: bool = True) -> duckdb.DuckDBPyConnection:
     """An in-memory DuckDB with the catalogue's tables and views (see module docstring).
@@ -316,6 +343,7 @@ def connect(out: str | Path, native: bool | None = None, memory_limit: str | Non
     for table in PROVISIONAL:
         _part_view(con, store, table, native)
     refresh_labels(con, store)
+    register_derived(con, store)
     con.execute(VIEWS_SQL.read_text())
     _comment_columns(con)
     # From here on: no file access but what the views read, and no way to turn that back on.

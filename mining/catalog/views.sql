@@ -78,7 +78,10 @@ WHERE w.status = 'done' AND p.core
 -- verdict: the last verdict set (object, not_object, part_of, duplicate; null when unset);
 -- tags: the tags whose last event set them, sorted; tag: the most recently set of them (the
 -- name `mine export --category-from tag` gives the tube); labelled_at / labelled_by: the
--- last event's time and author. A tube whose every decision was taken back is not here.
+-- last event's time and author; labelled_via: how the last event was written (view, cli or
+-- propagated); source_tube / source_distance: for a propagated last event (`mine label --like`),
+-- the tube whose decision it copied and the cosine distance of their descriptors (else null).
+-- A tube whose every decision was taken back is not here.
 CREATE VIEW tube_labels AS
 WITH ordered AS (
     SELECT *, row_number() OVER (PARTITION BY dataset, sequence, tube_id, kind,
@@ -96,19 +99,25 @@ tags AS (
     GROUP BY dataset, sequence, tube_id
 ),
 touched AS (
-    SELECT dataset, sequence, tube_id, max("at") AS labelled_at, arg_max(author, "at") AS labelled_by
+    SELECT dataset, sequence, tube_id, max("at") AS labelled_at, arg_max(author, "at") AS labelled_by,
+           arg_max(via, "at") AS labelled_via, arg_max(source_tube, "at") AS source_tube,
+           arg_max(distance, "at") AS source_distance
     FROM labels GROUP BY dataset, sequence, tube_id
 )
 SELECT t.dataset, t.sequence, t.tube_id, v.verdict, coalesce(g.tags, []::VARCHAR[]) AS tags, g.tag,
-       t.labelled_at, t.labelled_by
+       t.labelled_at, t.labelled_by, t.labelled_via, t.source_tube, t.source_distance
 FROM touched AS t
 LEFT JOIN verdicts AS v ON v.dataset = t.dataset AND v.sequence = t.sequence AND v.tube_id = t.tube_id
 LEFT JOIN tags AS g ON g.dataset = t.dataset AND g.sequence = t.sequence AND g.tube_id = t.tube_id
 WHERE v.verdict IS NOT NULL OR g.tags IS NOT NULL;
 
--- Every tube with its labels (null / [] where none): what `mine export --where` and the
--- gallery filter read, so a predicate may say `verdict = 'object'` or `list_contains(tags, 'barrier')`.
+-- Every tube with its labels (null / [] where none) and its group of the unknown set (`mine group`:
+-- tube_group, −1 noise, null where not grouped): what `mine export --where`, `mine label --where` and
+-- the gallery filter read, so a predicate may say `verdict = 'object'`, `list_contains(tags, 'barrier')`
+-- or `tube_group = 3`.
 CREATE VIEW labelled_tubes AS
-SELECT t.*, l.verdict, coalesce(l.tags, []::VARCHAR[]) AS tags, l.tag, l.labelled_at, l.labelled_by
+SELECT t.*, l.verdict, coalesce(l.tags, []::VARCHAR[]) AS tags, l.tag, l.labelled_at, l.labelled_by,
+       l.labelled_via, l.source_tube, l.source_distance, g."group" AS tube_group, g.probability AS group_probability
 FROM tubes AS t
-LEFT JOIN tube_labels AS l ON l.dataset = t.dataset AND l.sequence = t.sequence AND l.tube_id = t.tube_id;
+LEFT JOIN tube_labels AS l ON l.dataset = t.dataset AND l.sequence = t.sequence AND l.tube_id = t.tube_id
+LEFT JOIN tube_groups AS g ON g.dataset = t.dataset AND g.sequence = t.sequence AND g.tube_id = t.tube_id;

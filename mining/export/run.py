@@ -132,7 +132,9 @@ def category_from_tag(tubes: pa.Table) -> pa.Table:
 def labels_json(tubes: pa.Table) -> bytes:
     """LABELS_FILE: each exported tube's id with its labels (views.sql ``tube_labels``), so the
     decisions travel with every format; tubes without labels are listed too (verdict null)."""
-    rows = tubes.select(["tube_id", "verdict", "tags", "tag", "labelled_at", "labelled_by"]).to_pylist()
+    # labelled_via / source_tube / source_distance: a propagated label's origin (mine label --like)
+    rows = tubes.select(["tube_id", "verdict", "tags", "tag", "labelled_at", "labelled_by", "labelled_via",
+                         "source_tube", "source_distance"]).to_pylist()
     for r in rows:
         r["labelled_at"] = utc_text(r["labelled_at"])
     return (json.dumps({"about": "mine export: the labels of the exported tubes (tube_labels in the catalogue); "

@@ -6,9 +6,10 @@ server that binds them is ``server.py``.
 Routes:
 
 * pages and their script/style, read once from the package's ``static/`` folder (plain HTML,
-  vanilla JS and CSS; no build step): ``/`` the gallery, ``/tube?id=…`` a tube (``PAGES``);
+  vanilla JS and CSS; no build step): ``/`` the gallery, ``/tube?id=…`` a tube, ``/groups`` one
+  tile per group of the unknown set (``PAGES``);
 * a JSON API: ``/api/facets?set=…``, ``/api/tubes?<filter>`` (``filters.py``),
-  ``/api/tube?id=…``, and the one write, ``POST /api/labels`` (a verdict or tag for several
+  ``/api/tube?id=…`` (with its similar tubes), ``/api/groups``, and the one write, ``POST /api/labels`` (a verdict or tag for several
   tubes: ``catalog/labels.py``, appended as a new file, never a rewrite); a bad or unknown parameter is 400 naming it, an unknown tube 404, a
   request over a limit 413 saying which, a damaged catalogue table 503 naming the file;
 * pictures: ``/img/thumb?id=…`` and ``/img/frame?id=…&frame=N&size=full|strip`` (JPEG,
@@ -33,7 +34,7 @@ from mining.view.images import SIZES, FrameSource, ImageCache, TubeImages, best_
 
 CONTENT_TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
                  ".css": "text/css; charset=utf-8", ".png": "image/png", ".svg": "image/svg+xml"}
-PAGES = {"/": "index.html", "/index.html": "index.html", "/tube": "tube.html"}
+PAGES = {"/": "index.html", "/index.html": "index.html", "/tube": "tube.html", "/groups": "groups.html"}
 MAX_FRAME = 2**31 - 1  # frame numbers are int32 in the catalogue
 MAX_LABEL_TUBES = 1000  # ours: tubes one request labels (a gallery page is at most filters.MAX_LIMIT)
 
@@ -119,6 +120,11 @@ class ViewApp:
             raise HttpError(HTTPStatus.BAD_REQUEST, str(e)) from None
         return self.browser.page(flt)
 
+    def api_groups(self, query: dict[str, list[str]]) -> dict:
+        if query:
+            raise HttpError(HTTPStatus.BAD_REQUEST, f"/api/groups takes no parameter, got {sorted(query)[0]!r}")
+        return self.browser.groups()
+
     def api_tube(self, query: dict[str, list[str]]) -> dict:
         allowed = frozenset({"id", "frame"})
         tube = self._tube(query, "/api/tube", allowed)
@@ -176,6 +182,6 @@ class ViewApp:
                             str(e)) from None
         return {"labelled": rows, "author": self.browser.author}
 
-    API: ClassVar = {"/api/facets": api_facets, "/api/tubes": api_tubes, "/api/tube": api_tube}
+    API: ClassVar = {"/api/facets": api_facets, "/api/tubes": api_tubes, "/api/tube": api_tube, "/api/groups": api_groups}
     POSTS: ClassVar = {"/api/labels": api_labels}
     IMAGES: ClassVar = {"/img/thumb": img_thumb, "/img/frame": img_frame}

@@ -21,12 +21,15 @@ from pathlib import Path
 
 import duckdb
 
-from mining.catalog import labels
+import pyarrow.fs as pafs
+
+from mining.catalog import derived, labels
 from mining.catalog.layout import JOB, LABELS
 from mining.catalog.records import JobRecord
 from mining.catalog.store import Store
-from mining.catalog.views import connect, refresh_labels, sql_string
+from mining.catalog.views import connect, refresh_labels, register_derived, sql_string
 from mining.config import JobConfig
+from mining.discovery.similar import SHOWN, similar_rows
 from mining.errors import InputError
 from mining.formats.coco import COCO_CLASSES
 from mining.score.call import class_mode
@@ -132,6 +135,9 @@ def call_text(r: dict, category: str | None) -> str:
     return " ".join(out)
 
 
+SIMILAR_SHOWN = 8  # ours: the tube page's "similar tubes" strip, one row of thumbnails
+
+
 class CatalogueBrowser:
     """The queries behind the viewer's JSON API, over one catalogue folder."""
 
@@ -142,6 +148,7 @@ class CatalogueBrowser:
         self.author = labels.check_text(labels.default_author() if author is None else author, "--author",
                                         labels.MAX_AUTHOR_CHARS)
         self._labels_seen = self._labels_stamp()
+        self._groups_seen = self._groups_stamp()
         self._lock = threading.Lock()
         self.job: JobConfig | None = None  # the typed config of OUT/job.json (None: the catalogue has none)
         self.job_error: str | None = None
@@ -165,13 +172,22 @@ class CatalogueBrowser:
                 return None
         return labels.label_files(self.store)
 
+    def _groups_stamp(self) -> object:
+        """What changes when `mine group` writes: its marker's mtime (one stat)."""
+        info = self.store.fs.get_file_info(self.store.full(derived.GROUPS_MARKER))
+        return info.mtime_ns if info.type == pafs.FileType.File else None
+
     def _fresh_labels(self) -> None:
-        """Re-read the labels when their files changed (another viewer, `mine label`, a compaction).
-        Under ``_lock``."""
+        """Re-read the labels when their files changed (another viewer, `mine label`, a compaction),
+        and the derived tables when `mine group` wrote. Under ``_lock``."""
         stamp = self._labels_stamp()
         if stamp != self._labels_seen:
             refresh_labels(self.con, self.store)
             self._labels_seen = stamp
+        groups = self._groups_stamp()
+        if groups != self._groups_seen:
+            register_derived(self.con, self.store)
+            self._groups_seen = groups
 
     def _query(self, sql: str, params: list | None = None) -> list[dict]:
         with self._lock:
@@ -203,6 +219,18 @@ class CatalogueBrowser:
         where = flt.export_where()
         return {"total": total, "offset": flt.offset, "limit": flt.limit, "tubes": tubes, "where": where,
                 "export_command": export_command(self.out, where, "crops")}
+
+    def groups(self) -> dict:
+        """One tile per group of the unknown set (`mine group`), largest first, the tubes in no group
+        last: its number, size, spread (the median cosine distance of its tubes to its mean direction)
+        and exemplar (the tube nearest that direction, with its call and category)."""
+        rows = self._query(
+            'WITH g AS (SELECT "group", count(*) AS size, median(centre_distance) AS spread, '
+            "arg_min(tube_id, centre_distance) AS exemplar FROM tube_groups GROUP BY 1) "
+            f"SELECT g.*, {CALL_SQL} AS call, t.category FROM g LEFT JOIN tubes AS t ON t.tube_id = g.exemplar "
+            'ORDER BY g."group" < 0, g.size DESC, g."group"')
+        return {"groups": rows, "tubes": sum(r["size"] for r in rows),
+                "note": None if rows else f"the unknown set is not grouped: run `mine group --out {self.out}`"}
 
     def facets(self, all_tubes: bool) -> dict:
         """What the filter form offers: counts by call (``calls``: every one of CALLS, a row
@@ -314,6 +342,9 @@ class CatalogueBrowser:
         where = f"tube_id = {sql_string(tube_id)}"
         numbers = [f["frame"] for f in frames]
         start = frame if frame in numbers else (best_frame(frames)["frame"] if frames else None)
+        with self._lock:  # the one connection is shared by the server's threads
+            similar, note = similar_rows(self.store, self.con, tube_id, SIMILAR_SHOWN + 1)
+        similar = [{k: r[k] for k in SHOWN} for r in similar if r["tube_id"] != tube_id][:SIMILAR_SHOWN]
         return {"tube": tube, "top_classes": top, "class_rule": rule, "frames": frames, "ego": self.ego_path(tube),
-                "start_frame": start, "score_model": self.score_line(tube),
+                "similar": similar, "similar_note": note, "start_frame": start, "score_model": self.score_line(tube),
                 "where": where, "export_command": export_command(self.out, where, f"crops/{tube_id.replace('/', '_')}")}

@@ -20,6 +20,7 @@ Parameters (each may repeat where it says so):
 * ``min_C`` / ``max_C`` for C in ``RANGE_COLUMNS``: inclusive bounds
 * ``verdict``: one of ``labels.VERDICTS`` or ``none`` (no verdict yet) (repeat for several)
 * ``tag``: a tag the tube carries (repeat: any of them)
+* ``group``: a group of the unknown set (``mine group``; −1: in no group) (repeat: any of them)
 * ``sort``: one of ``SORT_COLUMNS`` (default score), ``order``: ``desc`` (default) or ``asc``
 * ``offset`` in 0..``MAX_OFFSET`` and ``limit`` in 1..``MAX_LIMIT`` (default ``DEFAULT_LIMIT``): the page
 
@@ -58,6 +59,7 @@ CARD_COLUMNS = ("tube_id", "dataset", "sequence", "frame_start", "frame_end", "n
                 "category_prob", "object_prob", "best_known", "speed", "moving_speed_mps", "path_length", "verdict",
                 "tags")
 VERDICT_VALUES = (*VERDICTS, "none")  # none: no verdict yet
+MAX_GROUP = 2**31 - 1  # tube_groups' group is an int32
 
 
 class FilterError(ValueError):
@@ -97,6 +99,7 @@ class TubeFilter:
     ranges: tuple[tuple[str, float | int | None, float | int | None], ...] = ()  # (column, min, max)
     verdicts: tuple[str, ...] = ()  # subset of VERDICT_VALUES
     tags: tuple[str, ...] = ()
+    groups: tuple[int, ...] = ()  # tube_group values (labelled_tubes)
     sort: str = "score"
     descending: bool = True
     offset: int = 0
@@ -109,7 +112,7 @@ class TubeFilter:
             raise FilterError("parameter 'known' is no longer taken: filter by parameter 'call' "
                               f"({', '.join(CALLS)}; repeat it for several): known=true is call=known, "
                               "known=false is call=unknown&call=clutter, known=null is call=unclassified")
-        allowed = {"set", "call", "category", "seq", "sort", "order", "offset", "limit", "verdict", "tag",
+        allowed = {"set", "call", "category", "seq", "sort", "order", "offset", "limit", "verdict", "tag", "group",
                    *(f"{b}_{c}" for c in RANGE_COLUMNS for b in ("min", "max"))}
         unknown = sorted(set(params) - allowed)
         if unknown:
@@ -153,6 +156,9 @@ class TubeFilter:
             tags = tuple(dict.fromkeys(check_text(v, "parameter 'tag'", MAX_TAG_CHARS) for v in params.get("tag", []) if v))
         except InputError as e:
             raise FilterError(str(e)) from None
+        groups = tuple(dict.fromkeys(_number("group", v, True) for v in params.get("group", []) if v))
+        if any(not -1 <= g <= MAX_GROUP for g in groups):
+            raise FilterError(f"parameter 'group' is a group number of `mine group` (−1: in no group), got {groups}")
         sort = _one(params, "sort") or "score"
         if sort not in SORT_COLUMNS:
             raise FilterError(f"cannot sort by {sort!r}; one of {', '.join(SORT_COLUMNS)}")
@@ -167,8 +173,8 @@ class TubeFilter:
             raise FilterError(f"parameter 'offset' must be at most {MAX_OFFSET}, got {offset}")
         if not 1 <= limit <= MAX_LIMIT:
             raise FilterError(f"parameter 'limit' must be in 1..{MAX_LIMIT}, got {limit}")
-        return cls(which == "all", calls, categories, tuple(sequences), tuple(ranges), verdicts, tags, sort,
-                   order == "desc", int(offset), int(limit))
+        return cls(which == "all", calls, categories, tuple(sequences), tuple(ranges), verdicts, tags,
+                   tuple(int(g) for g in groups), sort, order == "desc", int(offset), int(limit))
 
     def _terms(self, literal: bool) -> tuple[list[str], list]:
         """The predicate's AND-ed terms, with ``?`` and their values, or with literals."""
@@ -198,6 +204,8 @@ class TubeFilter:
         if self.tags:
             parts = [f"list_contains(tags, {bind(t)})" for t in self.tags]
             terms.append(parts[0] if len(parts) == 1 else "(" + " OR ".join(parts) + ")")
+        if self.groups:
+            terms.append(f"tube_group IN ({', '.join(bind(g) for g in self.groups)})")
         for c, lo, hi in self.ranges:  # c is one of RANGE_COLUMNS: a fixed identifier
             if lo is not None:
                 terms.append(f"{c} >= {bind(lo)}")

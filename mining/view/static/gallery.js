@@ -48,6 +48,7 @@ function formToParams() {
   const sort = document.getElementById("sort").value, order = document.getElementById("order").value;
   if (sort !== "score") p.set("sort", sort);
   if (order !== "desc") p.set("order", order);
+  for (const g of address().getAll("group")) p.append("group", g);  // a group chosen on /groups stays
   const limit = address().get("limit");  // the page size the address chose stays
   if (limit !== null) p.set("limit", limit);
   return p;

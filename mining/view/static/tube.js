@@ -183,6 +183,18 @@ function wireLabels() {
   });
 }
 
+// The nearest tubes by descriptor (`mine describe` made them), each a thumbnail linking to its page.
+function showSimilar(similar, note) {
+  const box = document.getElementById("similar");
+  if (!similar.length) { box.replaceChildren(el("p", { class: "muted small", text: note || "No other tube." })); return; }
+  box.replaceChildren(...similar.map(s => {
+    const a = el("a", { href: `/tube?id=${encodeURIComponent(s.tube_id)}`, title: s.tube_id, class: `c-${s.call}` });
+    a.append(el("img", { src: `/img/thumb?id=${encodeURIComponent(s.tube_id)}`, alt: `tube ${s.tube_id}`, width: "120",
+      height: "90", loading: "lazy" }), el("span", { class: "small", text: `${s.category || s.call} · ${s.distance.toFixed(3)}` }));
+    return a;
+  }));
+}
+
 async function main() {
   const back = params.get("back");
   if (back && back.startsWith("?")) document.getElementById("back").href = `/${back}`;
@@ -228,6 +240,7 @@ async function main() {
     ["motion", motionText(t)], ["segment", fmt(t.segment)], ["windows stitched", fmt(t.n_windows)]]);
   document.getElementById("export").textContent = d.export_command;
   drawTrack(frames, d.ego, t.call);
+  showSimilar(d.similar, d.similar_note);
   document.querySelector(".swatch.tube").classList.add(`c-${t.call}`);
 
   const strip = document.getElementById("strip");

@@ -1,0 +1,2 @@
+"""Discovery at scale (issue 41): tube descriptors, similar tubes, groups of the unknown set,
+labels propagated from one tube to its near neighbours."""
