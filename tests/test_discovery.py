@@ -455,3 +455,45 @@ def test_a_damaged_groups_file_fails_the_views_that_read_it_naming_it(planted, t
     code, text, _ = _main(["group", "--out", str(out), "--min-size", "5"], capsys)
     assert code == 0 and "grouped in" in text  # recomputed, not read back
     assert _main(["label", "--out", str(out), "--group", "0", "--tag", "x", "--dry-run"], capsys)[0] == 0
+
+
+def test_mine_group_label_the_group_export_and_read_back(planted, tmp_path, capsys):
+    """The issue's loop end to end: mine (the planted catalogue) → group → label a whole group
+    with a tag no COCO class names → export with the tag as the category → TrackEval's YouTube-VIS
+    reader reads the tag back as a class of its own with every tube of the group."""
+    import json
+    import os
+
+    trackeval = pytest.importorskip("trackeval")
+    src, _ = planted
+    out = tmp_path / "c"
+    shutil.copytree(src, out)
+    assert _main(["group", "--out", str(out), "--min-size", "5"], capsys)[0] == 0
+    con = connect(out)
+    try:
+        (group,) = con.execute("SELECT DISTINCT \"group\" FROM tube_groups WHERE tube_id LIKE '%/small.%'").fetchone()
+    finally:
+        con.close()
+    code, text, _ = _main(["label", "--out", str(out), "--group", str(group), "--tag", "bollard"], capsys)
+    assert code == 0, text
+    dest = tmp_path / "vis"
+    assert _main(["export", "--out", str(out), "--where", "list_contains(tags, 'bollard')", "--category-from", "tag",
+                  "--format", "youtube-vis", str(dest)], capsys)[0] == 0
+    doc = json.loads((dest / "instances.json").read_text())
+    assert [c["name"] for c in doc["categories"]] == ["bollard"]
+    assert sorted(a["tube_id"].split("/")[-1] for a in doc["annotations"]) == [f"small.{k:03d}" for k in range(N_FAMILY)]
+    gt, trk = tmp_path / "gt" / "youtube_vis_loop", tmp_path / "trk" / "youtube_vis_loop" / "ours" / "data"
+    gt.mkdir(parents=True), trk.mkdir(parents=True)
+    shutil.copy(dest / "instances.json", gt)
+    shutil.copy(dest / "results" / "results.json", trk)
+    dataset = trackeval.datasets.YouTubeVIS({"GT_FOLDER": f"{tmp_path / 'gt'}{os.sep}", "SPLIT_TO_EVAL": "loop",
+                                             "TRACKERS_FOLDER": f"{tmp_path / 'trk'}{os.sep}", "PRINT_CONFIG": False,
+                                             "TRACKERS_TO_EVAL": ["ours"], "OUTPUT_FOLDER": str(tmp_path / "eval")})
+    config = {"USE_PARALLEL": False, "PRINT_RESULTS": False, "PRINT_CONFIG": False, "TIME_PROGRESS": False,
+              "OUTPUT_SUMMARY": False, "OUTPUT_DETAILED": False, "PLOT_CURVES": False, "LOG_ON_ERROR": None}
+    res, messages = trackeval.Evaluator(config).evaluate([dataset], [trackeval.metrics.HOTA()])
+    assert messages["YouTubeVIS"]["ours"] == "Success", messages
+    counts = res["YouTubeVIS"]["ours"]["COMBINED_SEQ"]["bollard"]["Count"]
+    assert counts["GT_IDs"] == counts["IDs"] == N_FAMILY, counts
+    hota = res["YouTubeVIS"]["ours"]["COMBINED_SEQ"]["bollard"]["HOTA"]
+    assert float(np.mean(hota["DetA"])) == pytest.approx(1.0)  # every mask of the group, as labelled
