@@ -396,7 +396,9 @@ def test_tubes_written_before_the_motion_noise_and_call_columns_are_described(pl
 def test_the_groups_page_and_the_similar_strip_in_chromium(planted, chromium, tmp_path, capsys):
     from _cdp import Browser
     from conftest import serving
+    from test_view_browser import _looks_like_a_page, _shots
 
+    shots = _shots(tmp_path)
     src, tables = planted
     out = tmp_path / "c"
     shutil.copytree(src, out)
@@ -407,12 +409,16 @@ def test_the_groups_page_and_the_similar_strip_in_chromium(planted, chromium, tm
             b.wait_for("document.body.dataset.state === 'ready'")
             assert b.evaluate("document.querySelectorAll('#groups .card').length") == 2
             assert b.evaluate("document.getElementById('totals').textContent") == f"2 groups · {2 * N_FAMILY} unknown tubes"
+            b.wait_for("[...document.querySelectorAll('#groups img')].every(i => i.complete && i.naturalWidth > 0)")
+            _looks_like_a_page(b.screenshot(shots / "groups.png"), 1400, 900)
             b.evaluate("document.querySelector('#groups .card').click()")  # the gallery, on that group
             b.wait_for("location.pathname === '/' && document.body.dataset.state === 'ready'")
             assert b.evaluate("document.querySelectorAll('#grid .card').length") == N_FAMILY
             assert "tube_group IN (" in b.evaluate("document.getElementById('export').textContent")
             b.goto(f"{base}/tube?id=kitti/0005/big.000")
             b.wait_for("document.body.dataset.state === 'ready'")
+            b.evaluate("document.getElementById('similar').scrollIntoView()")
+            _looks_like_a_page(b.screenshot(shots / "tube-similar.png"), 1400, 900)
             links = b.evaluate("[...document.querySelectorAll('#similar a')].map(a => a.title)")
     assert len(links) == 8 and all(t.startswith(f"{DATASET}/") for t in links)
     assert sum(t.startswith(f"{DATASET}/{SEQUENCE}/big.") for t in links) == 8  # its own family is nearest
