@@ -90,6 +90,16 @@ def check_tube_id(tube_id: object, origin: str, path: str | Path | None = None) 
     return tube_id  # type: ignore[return-value]
 
 
+def tube_id_argument(text: str) -> str:
+    """An argparse type: a tube id from the command line (``check_tube_id``), refused by the parser."""
+    import argparse
+
+    try:
+        return check_tube_id(text, "the command line")
+    except InputError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
 def tube_folder(tube_id: str, origin: str = "the catalogue") -> str:
     """The one-component folder name of a tube (``/`` → ``_``); an InputError for an unsafe id."""
     return "_".join(check_tube_id(tube_id, origin).split("/"))

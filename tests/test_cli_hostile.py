@@ -55,6 +55,9 @@ ALLOWED = {
     ("bench scale", "--ray-frames", "0"): "0 skips the job on a local Ray",
     ("bench scale", "--ray-gpus", "0"): "0: the local Ray announces the GPUs it finds",
     ("bench stages", "--gpu-ms", "0"): "an emulated GPU that takes no time (the CPU front alone)",
+    ("bench similar", "--group-size", "0"): "0 skips the grouping",
+    ("label", "--group", "0"): "group 0 is the first group",
+    ("label", "--group", "-1"): "-1 labels the tubes HDBSCAN left out of every group (its noise)",
 }
 FRAME_ZERO = "frame 0 is the first frame (A = 0, one frame)"
 # Options that are neither numbers nor paths: why (their values are checked where they are used).
@@ -80,6 +83,10 @@ FREE_TEXT = {
     "--author": "a name, checked by mining/catalog/labels.check_text",
     "sql": "an SQL statement (read-only, mining/catalog/views.py)",
     "keys": "mine config's filter: matched against the config's key names, never a path or a number",
+    "tube_id": "a tube id, checked by mining/names.py (tube_id_argument) in the parser",
+    "--like": "a tube id, checked by mining/names.py (tube_id_argument) in the parser",
+    "--undo-like": "a tube id, checked by mining/names.py (tube_id_argument) in the parser",
+    "--sizes": "comma-separated tube counts, each checked by mining/checks.py count in the parser",
 }
 CASE_S = 10  # seconds one case may take before it counts as real work started
 
@@ -127,7 +134,7 @@ def test_every_option_is_checked_by_its_type():
 
 def test_the_walk_finds_every_command():
     names = [c for c, _ in COMMANDS]
-    assert {"submit", "status", "query", "export", "render", "config", "view", "label"} \
+    assert {"submit", "status", "query", "export", "render", "config", "view", "label", "describe", "similar", "group"} \
         == {c.name for c in cli_module.COMMANDS if c.group is None}
     assert {" ".join(filter(None, (c.group, c.name))) for c in cli_module.COMMANDS} == set(names)
     assert len(set(names)) == len(names)

@@ -22,6 +22,7 @@ import argparse
 
 from mining.checks import count, path_text, real
 from mining.errors import MiningError, NothingMatched
+from mining.names import tube_id_argument
 
 # Copies of constants whose module loads pyarrow (slow for `mine label --help`); tests/test_labels.py
 # checks each equal to its source.
@@ -35,11 +36,11 @@ def add_arguments(lab: argparse.ArgumentParser) -> None:
     lab.add_argument("--where", help="SQL predicate over the tubes and their labels (as mine export's)")
     lab.add_argument("--group", type=count(-1, 10**9), metavar="G",
                      help="the tubes of group G of `mine group` (-1: those in no group); with --where, those it selects")
-    lab.add_argument("--like", metavar="TUBE_ID", help="the unlabelled tubes near this one (needs --within); each "
+    lab.add_argument("--like", type=tube_id_argument, metavar="TUBE_ID", help="the unlabelled tubes near this one (needs --within); each "
                      "label records TUBE_ID and its distance (propagated)")
     lab.add_argument("--within", type=real(0.0, MAX_DISTANCE), metavar="D",
                      help="--like: cosine distance of the descriptors, at most D (0 … 2)")
-    lab.add_argument("--undo-like", metavar="TUBE_ID",
+    lab.add_argument("--undo-like", type=tube_id_argument, metavar="TUBE_ID",
                      help="take back every label propagated from TUBE_ID that no later decision replaced")
     lab.add_argument("--verdict", choices=list(VERDICTS), help="set this verdict")
     lab.add_argument("--clear-verdict", action="store_true", help="take the verdict back")

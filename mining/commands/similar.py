@@ -11,12 +11,13 @@ import json
 
 from mining.checks import count, path_text
 from mining.errors import MiningError
+from mining.names import tube_id_argument
 
 DEFAULT_K = 10  # ours: a screenful
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("tube_id", help="the tube to find more like (e.g. kitti/0005/0000012.003)")
+    p.add_argument("tube_id", type=tube_id_argument, help="the tube to find more like (e.g. kitti/0005/0000012.003)")
     p.add_argument("--out", type=path_text, default="out/catalog", help="catalogue folder")
     p.add_argument("-k", type=count(1, 10_000), default=DEFAULT_K, help=f"how many tubes (default {DEFAULT_K})")
     p.add_argument("--where", help="SQL predicate over the tubes and their labels (as mine export's): search only these")
