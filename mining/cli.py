@@ -56,6 +56,8 @@ COMMANDS = (  # in the order --help lists them: the top-level verbs, then the gr
             "a sequence with its selected tubes drawn (mask, id, category), as a video", names_errors=True),
     Command(None, "config", "mining.commands.config",
             "every job config key with its value, default, source and comment"),
+    Command(None, "embed", "mining.commands.embed",
+            "tube embeddings from an image encoder you bring (ONNX), into the tube_embeddings table", names_errors=True),
     Command(None, "view", "mining.commands.view",
             "browse the catalogue in a web browser: a gallery of tubes, a page per tube"),
     Command("inspect", "geometry", "mining.pipeline.inspect_geometry",

@@ -26,7 +26,7 @@ EXPORT_SHARED = ("registry", "selection", "source_frames", "json_annotations", "
 CATALOG_MAY_IMPORT = (*SHARED_FLOOR, "config")
 BELOW_PIPELINE = (*STAGES, *SHARED_FLOOR, "catalog", "config")
 # The floors above the catalogue: nothing below the pipeline imports them.
-ABOVE = ("pipeline", "export", "view", "bench", "commands", "cli", "testing")
+ABOVE = ("pipeline", "export", "view", "discovery", "bench", "commands", "cli", "testing")
 
 
 def _modules(root: Path):

@@ -1,0 +1,75 @@
+"""``mine embed``: tube embeddings from an image encoder you bring (``discovery/embed.py``: the
+contract; ``discovery/embed_run.py``: the run), into the ``tube_embeddings`` table.
+
+    mine embed --out OUT --model clip-vit-b32-visual.onnx --preset clip
+    mine embed --out OUT --model dinov2-small.onnx --preset dino --where "call = 'unknown'"
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+from mining.checks import count, path_text, real
+
+# Copies of EmbedConfig's choices (mining/config.py loads more than --help needs); tests/test_embed.py checks them.
+PRESETS = ("clip", "dino", "imagenet")
+DEVICES = ("auto", "cpu", "cuda")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", type=path_text, default="out/catalog", help="catalogue folder")
+    p.add_argument("--model", type=path_text, required=True,
+                   help="the image encoder, ONNX: (B, 3, H, W) float32 in, (B, D) or (B, T, D) out (docs/USAGE.md)")
+    p.add_argument("--where", default="selected", help="SQL predicate over the tubes (as mine export's; default: selected)")
+    p.add_argument("--preset", choices=list(PRESETS), default="clip",
+                   help="the input normalisation: clip (CLIP's mean / std), dino or imagenet (ImageNet's)")
+    p.add_argument("--views", type=count(1, 100), default=3, help="observed frames a tube is embedded from (default 3)")
+    p.add_argument("--margin", type=real(0.0, 2.0), default=0.15,
+                   help="context around the box, a fraction of its width / height (default 0.15, as the crops export)")
+    p.add_argument("--input-size", type=count(8, 4096), default=224,
+                   help="the input side where the model's H or W is symbolic (default 224)")
+    p.add_argument("--output", default="", help="the model output to read (default: its first)")
+    p.add_argument("--device", choices=list(DEVICES), default="auto",
+                   help="auto: onnxruntime's CUDA provider on actors Ray gave a GPU, else the CPU")
+    p.add_argument("--actors", type=count(-1, 100_000), default=-1,
+                   help="model actors (default -1: one per GPU Ray lists, else one per CPU)")
+    p.add_argument("--workers", type=count(1, 100_000), default=None,
+                   help="CPUs of the local Ray (default: every CPU); not with --address")
+    p.add_argument("--address", default=None, help="a running Ray cluster to run on (default: a local Ray)")
+    p.add_argument("--local", action="store_true", help="no Ray: embed in this process (one CPU model)")
+    p.add_argument("--lock-wait", type=real(0.0, 86400.0), default=0.0, metavar="SECONDS",
+                   help="wait this long for another writer's lock on --out (default 0: refuse at once)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from mining.config import EmbedConfig
+    from mining.discovery.embed_run import embed_catalogue, print_summary
+
+    cfg = EmbedConfig(preset=args.preset, views=args.views, margin=args.margin, input_size=args.input_size,
+                      output=args.output, device=args.device, actors=args.actors)
+    address = args.address or os.environ.get("RAY_ADDRESS")
+    started = []
+
+    def on_ray() -> None:
+        import ray
+
+        if ray.is_initialized():
+            return
+        if address:
+            ray.init(address=address, log_to_driver=False)
+        else:
+            from mining.pipeline.localray import init_local_ray
+
+            init_local_ray(args.workers)
+        started.append(True)
+
+    try:
+        summary = embed_catalogue(args.out, args.model, args.where, cfg, use_ray=not args.local, lock_wait=args.lock_wait,
+                                  on_ray=on_ray)
+    finally:
+        if started:  # only the Ray this command started
+            import ray
+
+            ray.shutdown()
+    return print_summary(summary)

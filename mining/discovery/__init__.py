@@ -1,0 +1,1 @@
+"""Discovery: what helps find objects no class names (tube embeddings, descriptors)."""
