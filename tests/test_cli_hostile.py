@@ -75,6 +75,7 @@ FREE_TEXT = {
     "--host": "an interface address (IP)",
     "--job": "a Ray Jobs submission id",
     "--where": "an SQL predicate (read-only, mining/catalog/views.py)",
+    "--output": "mine embed: an output name of the ONNX model, checked against the model's outputs",
     "--tag": "a free label, checked by mining/catalog/labels.check_text",
     "--untag": "a free label, checked by mining/catalog/labels.check_text",
     "--author": "a name, checked by mining/catalog/labels.check_text",
@@ -127,7 +128,7 @@ def test_every_option_is_checked_by_its_type():
 
 def test_the_walk_finds_every_command():
     names = [c for c, _ in COMMANDS]
-    assert {"submit", "status", "query", "export", "render", "config", "view", "label"} \
+    assert {"submit", "status", "query", "export", "render", "config", "view", "label", "embed"} \
         == {c.name for c in cli_module.COMMANDS if c.group is None}
     assert {" ".join(filter(None, (c.group, c.name))) for c in cli_module.COMMANDS} == set(names)
     assert len(set(names)) == len(names)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import os
 
-from mining.checks import count, path_text, real
+from mining.checks import count, input_file, path_text, real
 
 # Copies of EmbedConfig's choices (mining/config.py loads more than --help needs); tests/test_embed.py checks them.
 PRESETS = ("clip", "dino", "imagenet")
@@ -19,7 +19,7 @@ DEVICES = ("auto", "cpu", "cuda")
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=path_text, default="out/catalog", help="catalogue folder")
-    p.add_argument("--model", type=path_text, required=True,
+    p.add_argument("--model", type=input_file, required=True,
                    help="the image encoder, ONNX: (B, 3, H, W) float32 in, (B, D) or (B, T, D) out (docs/USAGE.md)")
     p.add_argument("--where", default="selected", help="SQL predicate over the tubes (as mine export's; default: selected)")
     p.add_argument("--preset", choices=list(PRESETS), default="clip",
