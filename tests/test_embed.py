@@ -279,3 +279,22 @@ def test_on_ray_one_actor_holds_each_logical_gpu_and_the_vectors_are_the_local_o
     a = {r["tube_id"]: r["vector"] for r in _rows(local)}
     b = {r["tube_id"]: r["vector"] for r in _rows(remote)}
     assert a.keys() == b.keys() and all(np.allclose(a[t], b[t], atol=1e-6) for t in a)
+
+
+# -- beside the catalogue: a resubmission keeps the embeddings, a new run moves them aside ----------
+
+
+@pytest.mark.slow  # a small synthetic job mined (once a session), then resumed and mined anew
+def test_a_resubmission_keeps_the_embeddings_and_a_new_run_moves_them_aside(base_catalogue, encoders, tmp_path):
+    from _jobs import copy_of, mine
+
+    out = copy_of(base_catalogue, tmp_path / "c")
+    first = _embed(out, encoders["plain"])  # frames re-rendered through the synthetic source of job.json
+    assert first.embedded == len(_rows(out, "SELECT tube_id FROM tubes")) > 0 and not first.failed
+    before = _rows(out)
+    assert not mine(out).failed  # the same job again: resumed, nothing re-mined
+    assert _rows(out) == before
+    assert _embed(out, encoders["plain"]).embedded == 0
+    assert not mine(out, mode="new").failed
+    assert _rows(out) == []
+    assert len(list((out / "_replaced").glob("*/embeddings/_markers/*/*/*.json"))) == 1
