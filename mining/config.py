@@ -72,7 +72,7 @@ class EmbedConfig:
     batch: Count = 32  # ours: crops a model run, where the export's batch axis is symbolic
     tubes_per_task: Count = 64  # ours: tubes a Ray task embeds (and a file holds): what a kill can lose
     device: Annotated[str, OneOf(("auto", "cpu", "cuda"))] = "auto"  # ours: auto = CUDA where onnxruntime has it and Ray gave a GPU
-    actors: Annotated[int, Range(-1)] = -1  # ours: -1 = one per cluster GPU, or one per CPU without GPUs; N = N actors
+    actors: Annotated[int, Range(-1)] = -1  # ours: -1 = one per cluster GPU, or one per CPU without GPUs; 0 = one per CPU, no GPU; N = N actors
     gpus_per_actor: Annotated[float, Range(0.0)] = 1.0  # ours: as run.gpus_per_proposal_actor: one model per GPU
     intra_op_num_threads: Count = 1  # ours: onnxruntime threads within an operator (Ray parallelises over actors)
 

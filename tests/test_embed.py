@@ -253,6 +253,20 @@ def test_a_tube_whose_frame_is_missing_from_the_source_fails_alone_named(cat, en
 # -- on Ray's actors, with logical GPUs ----------------------------------------------------------------
 
 
+def test_how_many_actors_a_cluster_gets_and_what_each_holds():
+    from mining.discovery.embed_run import actor_count
+
+    gpus, cpus = {"CPU": 16.0, "GPU": 4.0}, {"CPU": 16.0}
+    assert actor_count(EmbedConfig(), gpus) == (4, 1.0)  # one per GPU
+    assert actor_count(EmbedConfig(), cpus) == (16, 0.0)  # one per CPU
+    assert actor_count(EmbedConfig(gpus_per_actor=0.5), gpus) == (8, 0.5)
+    assert actor_count(EmbedConfig(actors=0), gpus) == (16, 0.0)  # the CPUs only
+    assert actor_count(EmbedConfig(actors=2), gpus) == (2, 1.0)
+    with pytest.raises(MiningError, match="the cluster has 4 GPUs"):
+        actor_count(EmbedConfig(actors=5), gpus)
+
+
+
 @pytest.fixture(scope="module")
 def ray_with_logical_gpus():
     import ray

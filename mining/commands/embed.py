@@ -33,7 +33,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", choices=list(DEVICES), default="auto",
                    help="auto: onnxruntime's CUDA provider on actors Ray gave a GPU, else the CPU")
     p.add_argument("--actors", type=count(-1, 100_000), default=-1,
-                   help="model actors (default -1: one per GPU Ray lists, else one per CPU)")
+                   help="model actors (default -1: one per GPU Ray lists, else one per CPU; 0: one per CPU, no GPU)")
     p.add_argument("--workers", type=count(1, 100_000), default=None,
                    help="CPUs of the local Ray (default: every CPU); not with --address")
     p.add_argument("--address", default=None, help="a running Ray cluster to run on (default: a local Ray)")

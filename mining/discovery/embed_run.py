@@ -16,8 +16,8 @@ Order of work, so that nothing is written for a bad model or a wrong catalogue:
    resumes after the last recorded task.
 
 Actors (``EmbedWorker``): ``embed.actors`` (-1: one per GPU Ray lists, each holding
-``embed.gpus_per_actor``, onnxruntime's CUDA provider where it has one; without GPUs one per
-CPU, on the CPU provider). ``ray=False`` runs the same worker in this process.
+``embed.gpus_per_actor``, onnxruntime's CUDA provider where it has one; without GPUs, or 0, one
+per CPU, on the CPU provider; N: N actors). ``ray=False`` runs the same worker in this process.
 """
 
 from __future__ import annotations
@@ -134,8 +134,8 @@ class EmbedWorker:
 def actor_count(cfg: EmbedConfig, resources: dict[str, float]) -> tuple[int, float]:
     """(actors, GPUs each) on a cluster with ``resources`` (``embed.actors``)."""
     gpus = resources.get("GPU", 0.0)
-    each = cfg.gpus_per_actor if gpus > 0 else 0.0
-    if cfg.actors >= 0:
+    each = cfg.gpus_per_actor if gpus > 0 and cfg.actors != 0 else 0.0
+    if cfg.actors > 0:
         if cfg.actors * each > gpus + 1e-9:
             raise MiningError(f"--actors {cfg.actors} with {each:g} GPU(s) each: the cluster has {gpus:g} GPUs")
         return max(cfg.actors, 1), each
