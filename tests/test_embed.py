@@ -198,7 +198,9 @@ def test_a_killed_run_resumes_after_its_last_recorded_file_and_its_leftovers_are
     record["files"] = {k: record["files"][k] for k in kept}  # killed after two tasks were recorded
     marker.write_text(json.dumps(record))
     assert len(_rows(cat)) == 2  # the two unrecorded files are not read
+    (marker.parent / f".{marker.name}.tmp-0123456789ab").write_text("{")  # a kill mid-write of the marker
     resumed = _embed(cat, encoders["plain"], tubes_per_task=1)
+    assert not list(marker.parent.glob(".*"))
     assert (resumed.embedded, resumed.skipped) == (2, 2)
     folder = cat / Path(kept[0]).parent
     assert sorted(p.name for p in folder.iterdir()) == sorted(Path(f).name for f in [*kept, *resumed.files])

@@ -140,9 +140,14 @@ def vouched_embeddings(store: Store) -> tuple[list[str], list[Damage]]:
     return sorted(files), damage
 
 
-def existing(store: Store, dataset: str, sequence: str, model: str, model_sha256: str) -> tuple[EmbeddingMarker, pa.Table]:
+KEY_COLUMNS = ["tube_id", "settings", "views_key"]  # what says whether a tube's vector is already stored
+
+
+def existing(store: Store, dataset: str, sequence: str, model: str,
+             model_sha256: str) -> tuple[EmbeddingMarker, pa.Table]:
     """(the marker of one sequence's embeddings by one model, keeping only the files that check
-    out; their rows). A marker that does not read starts afresh: its files are embedded again."""
+    out; their rows' ``KEY_COLUMNS``). A marker that does not read starts afresh: its files are
+    embedded again."""
     rel = embedding_marker(dataset, sequence, model_key(model_sha256))
     marker = EmbeddingMarker(dataset, sequence, model, model_sha256, {})
     if store.exists(rel):
@@ -152,16 +157,19 @@ def existing(store: Store, dataset: str, sequence: str, model: str, model_sha256
             pass
     good, _ = _check(store, marker)
     marker.files = {r: marker.files[r] for r in good}
-    tables = [store.read_table(r) for r in good]
-    rows = pa.concat_tables([t.cast(EMBEDDING_SCHEMA) for t in tables]) if tables else EMBEDDING_SCHEMA.empty_table()
-    return marker, rows
+    keys = pa.schema([EMBEDDING_SCHEMA.field(c) for c in KEY_COLUMNS])
+    tables = [store.read_table(r, KEY_COLUMNS).cast(keys) for r in good]
+    return marker, pa.concat_tables(tables) if tables else keys.empty_table()
 
 
 def sweep(store: Store, marker: EmbeddingMarker) -> list[str]:
     """Remove the files in a marker's folder it does not record (a killed write's, a damaged
-    one's): under the writer lock, by the one process that writes this folder. The files removed."""
+    one's) and the temporaries a kill left beside them or the marker: under the writer lock, by
+    the one process that writes these. The files removed."""
     folder = embedding_dir(marker.dataset, marker.sequence, model_key(marker.model_sha256))
     gone = [r for r in store.list(folder, "") if r not in marker.files and posixpath.dirname(r) == folder]
+    beside = (folder, posixpath.dirname(marker.path))
+    gone += [r for r in store.temporaries(beside) if posixpath.dirname(r) in beside]
     for r in gone:
         store.remove(r)
     return gone

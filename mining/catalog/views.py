@@ -18,6 +18,10 @@ mtime), so a flipped bit is an error naming the file, never a value. A catalogue
 mining job wrote (no marker, a job.json planning no window: ``store.write_sequence``
 alone) is read as listed, unchecked.
 
+``tube_embeddings`` (``embeddings.py``, written by ``mine embed``) reads the embedding files their
+markers vouch for (size and sha256, as above), the newest row per tube and model, of the tubes
+``tubes`` holds; a file that does not check out makes it fail naming the file.
+
 A table without files is an empty view with the right columns, so queries work on a
 fresh catalogue. A table with a damaged file (missing, truncated, of another size or
 sha256 than its sequence's finished marker records, or whose Parquet footer does not

@@ -46,6 +46,7 @@ from mining.export.selection import by_sequence, frames_by_tube, read_job, selec
 from mining.masks import areas
 
 FAILED = 2  # exit status: some tubes failed (named), the others were written
+ACTOR_RETRIES = 1  # ours: a dead actor restarts once and its task runs again (then its tubes fail, named)
 
 
 @dataclass
@@ -156,13 +157,16 @@ class Pool:
 
         self.ray = ray
         n, gpus = actor_count(cfg, ray.cluster_resources())
-        actor = ray.remote(max_restarts=1, max_task_retries=1, num_gpus=gpus)(EmbedWorker)
+        actor = ray.remote(max_restarts=ACTOR_RETRIES, max_task_retries=ACTOR_RETRIES, num_gpus=gpus)(EmbedWorker)
         self.actors = [actor.remote(source, model, cfg) for _ in range(n)]
 
     def run(self, tasks: list[Task]) -> Iterator[tuple[Task, EmbedResult | BaseException]]:
         if not self.use_ray:
             for t in tasks:
-                yield t, self.local.embed(t)
+                try:
+                    yield t, self.local.embed(t)
+                except MiningError as e:  # the model failing on this task's crops: its tubes fail, as on Ray
+                    yield t, e
             return
         todo, idle, busy = deque(tasks), deque(self.actors), {}
         while todo or busy:
@@ -287,8 +291,8 @@ def embed_catalogue(out: str, model: str, where: str = "selected", cfg: EmbedCon
         try:
             for task, result in pool.run(tasks):
                 if isinstance(result, BaseException):
-                    why = f"the task failed: {str(result).strip().splitlines()[-1] if str(result).strip() else type(result).__name__}"
-                    summary.failed.update({t: why for t, _, _ in task.tubes})
+                    last = (str(result).strip().splitlines() or [type(result).__name__])[-1]  # Ray's text ends with the cause
+                    summary.failed.update({t: f"its task failed: {last}" for t, _, _ in task.tubes})
                     continue
                 summary.failed.update(result.failed)
                 if result.vectors:
