@@ -166,6 +166,20 @@ def test_mine_embed_writes_one_unit_vector_per_selected_tube_with_the_models_sha
     assert all(abs(r["s"] - 1.0) < 1e-5 for r in sims)
 
 
+def test_tubes_with_the_same_views_get_the_same_vector(every_call, encoders, tmp_path):
+    # every_call's catalogue holds copies of tubes under new ids, with the same frames, boxes and masks
+    out = Path(shutil.copytree(every_call[0], tmp_path / "copies"))
+    summary = _embed(out, encoders["plain"], tubes_per_task=3)  # copies land in other tasks and batches
+    assert summary.embedded == 8 and not summary.failed
+    rows = _rows(out)
+    by_views: dict[str, list[list[float]]] = {}
+    for r in rows:
+        by_views.setdefault(r["views_key"], []).append(r["vector"])
+    assert sorted(len(v) for v in by_views.values()) == [2, 2, 2, 2]
+    assert all(v[0] == v[1] for v in by_views.values())  # identical crops, identical vectors, to the bit
+    assert len({tuple(v[0]) for v in by_views.values()}) == 4  # and other tubes, other vectors
+
+
 def test_running_again_embeds_nothing_and_a_changed_model_embeds_everything_again(cat, encoders):
     first = _embed(cat, encoders["plain"], where="selected")
     selected = len(_rows(cat, "SELECT tube_id FROM tubes WHERE selected"))
