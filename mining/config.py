@@ -61,9 +61,12 @@ class WindowConfig:
 
 @dataclass
 class EmbedConfig:
-    """``mine embed``: an image encoder the user brings, run on each tube's best views (mining/discovery/embed.py).
-    Not a job setting (a job's identity and params_hash do not change): the command's options set it."""
+    """Tube embeddings from an image encoder the user brings, run on each tube's best views
+    (mining/discovery/embed.py): ``mine embed``'s options, or with ``model_path`` set a stage at the end
+    of ``mine submit``. Not part of the job's identity or params_hash: embeddings never change the tubes."""
 
+    model_path: str = ""  # the image encoder's ONNX file ("" = no embedding stage in mine submit; mine embed --model)
+    where: str = "selected"  # ours: the tubes mine submit's stage embeds, a SQL predicate as mine export's
     preset: Annotated[str, OneOf(("clip", "dino", "imagenet"))] = "clip"  # ours: the normalisation (embed.PRESETS): CLIP's mean / std, or ImageNet's (DINO's)
     views: Count = 3  # ours: the observed frames a tube is embedded from (largest mask area × objectness)
     margin: Annotated[float, Range(0.0, 2.0)] = 0.15  # export/crops.CROP_MARGIN: context around the box, a fraction of its width / height
@@ -108,6 +111,7 @@ class JobConfig:
     export: ExportConfig = field(default_factory=ExportConfig)
     window: WindowConfig = field(default_factory=WindowConfig)
     run: RunConfig = field(default_factory=RunConfig)
+    embed: EmbedConfig = field(default_factory=EmbedConfig)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -118,6 +122,7 @@ class JobConfig:
         d = self.to_dict()
         d["source"] = {k: v for k, v in d["source"].items() if k not in ("root", "sequences")}
         d.pop("run")  # retries change how a result is reached, not the result
+        d.pop("embed")  # embeddings are written beside the tubes and never change them
         blob = json.dumps(d, sort_keys=True, default=str).encode()
         return hashlib.sha256(blob).hexdigest()[:16]
 

@@ -328,3 +328,36 @@ def test_a_resubmission_keeps_the_embeddings_and_a_new_run_moves_them_aside(base
     assert not mine(out, mode="new").failed
     assert _rows(out) == []
     assert len(list((out / "_replaced").glob("*/embeddings/_markers/*/*/*.json"))) == 1
+
+
+# -- mine submit's embedding stage (embed.model_path) ---------------------------------------------
+
+
+def test_a_bad_embedding_model_refuses_the_job_before_anything_is_written(encoders, tmp_path):
+    from _jobs import mine, small_cfg
+
+    bad = tmp_path / "bad.onnx"
+    bad.write_bytes(encoders["plain"].read_bytes()[:100])
+    out = tmp_path / "never"
+    with pytest.raises(MiningError, match=f"file {bad}: embedding model: not a readable ONNX model"):
+        mine(out, cfg=small_cfg(f'embed.model_path="{bad}"'))
+    assert not out.exists()
+
+
+@pytest.mark.slow  # the small synthetic job mined again, with the stage
+def test_the_submit_stage_embeds_the_selected_tubes_and_changes_no_tube(base_catalogue, encoders, tmp_path):
+    from _jobs import mine, small_cfg, tables
+
+    with_stage = small_cfg(f'embed.model_path="{encoders["plain"]}"', "embed.views=2")
+    assert with_stage.params_hash == small_cfg().params_hash  # embeddings are no part of the result's identity
+    out = tmp_path / "staged"
+    s = mine(out, cfg=with_stage)
+    assert not s.failed and any("tubes embedded" in line for line in s.lines()), s.lines()
+    assert tables(out) == base_catalogue[1]  # the same tubes as the job without the stage
+    selected = sorted(r["tube_id"] for r in _rows(out, "SELECT tube_id FROM tubes WHERE selected"))
+    rows = _rows(out)
+    assert sorted(r["tube_id"] for r in rows) == selected and {r["n_views"] for r in rows} <= {1, 2}
+    again = mine(out, cfg=with_stage)  # resubmitted: nothing to mine, nothing to embed
+    assert any(f"0 tubes embedded, {len(selected)} already embedded" in line for line in again.lines()), again.lines()
+    assert not mine(out).failed  # and without the stage: the same job
+    assert len(_rows(out)) == len(selected)

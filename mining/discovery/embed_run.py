@@ -25,6 +25,7 @@ from __future__ import annotations
 import os
 import sys
 from collections import deque
+from contextlib import nullcontext
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -39,7 +40,7 @@ from mining.catalog.lock import OutputLock
 from mining.catalog.rows import mask_rle
 from mining.catalog.store import Store
 from mining.catalog.views import connect
-from mining.config import EmbedConfig, SourceConfig
+from mining.config import EmbedConfig, JobConfig, SourceConfig
 from mining.discovery.embed import Encoder, best_views, settings_key, tube_vector, views_key
 from mining.errors import InputError, MiningError
 from mining.export.selection import by_sequence, frames_by_tube, read_job, selected_rows
@@ -262,9 +263,10 @@ def result_rows(task: Task, result: EmbedResult, encoder: Encoder, settings: str
 
 def embed_catalogue(out: str, model: str, where: str = "selected", cfg: EmbedConfig | None = None,
                     use_ray: bool = True, lock_wait: float = 0.0,
-                    on_ray: Callable[[], None] | None = None) -> EmbedSummary:
+                    on_ray: Callable[[], None] | None = None, lock: bool = True) -> EmbedSummary:
     """Embed the tubes of catalogue ``out`` matching ``where`` (module docstring); ``on_ray`` starts
-    Ray when there is work (``use_ray``) and none is running."""
+    Ray when there is work (``use_ray``) and none is running. ``lock`` False: the caller holds the
+    writer lock (``mine submit``'s stage)."""
     cfg = cfg or EmbedConfig()
     job = read_job(out)  # the catalogue and job.json first: a wrong --out writes nothing
     if job is None:
@@ -279,7 +281,7 @@ def embed_catalogue(out: str, model: str, where: str = "selected", cfg: EmbedCon
         tubes, frames = selected_rows(con, where)
     finally:
         con.close()
-    with OutputLock(store, lock_wait):
+    with OutputLock(store, lock_wait) if lock else nullcontext():
         tasks, markers = plan_tasks(store, tubes, frames, encoder, settings, summary, job.source.root)
         for marker in markers.values():
             embeddings.sweep(store, marker)
@@ -303,6 +305,14 @@ def embed_catalogue(out: str, model: str, where: str = "selected", cfg: EmbedCon
         finally:
             pool.shutdown()
     return summary
+
+
+def embed_after_job(cfg: JobConfig, out: str) -> EmbedSummary:
+    """``mine submit``'s embedding stage (``embed.model_path`` set), under the job's lock: on the
+    job's Ray where it started one (its workers are gone by then), else in this process."""
+    ray = sys.modules.get("ray")
+    on_ray = ray is not None and ray.is_initialized()
+    return embed_catalogue(out, cfg.embed.model_path, cfg.embed.where, cfg.embed, use_ray=on_ray, lock=False)
 
 
 def print_summary(summary: EmbedSummary) -> int:
