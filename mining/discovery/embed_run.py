@@ -17,7 +17,10 @@ Order of work, so that nothing is written for a bad model or a wrong catalogue:
 
 Actors (``EmbedWorker``): ``embed.actors`` (-1: one per GPU Ray lists, each holding
 ``embed.gpus_per_actor``, onnxruntime's CUDA provider where it has one; without GPUs, or 0, one
-per CPU, on the CPU provider; N: N actors). ``ray=False`` runs the same worker in this process.
+per CPU, on the CPU provider; N: N actors). ``use_ray=False`` runs the same worker in this process.
+
+``mine submit`` runs the same as its last stage where ``embed.model_path`` is set
+(``embed_after_job``): the model checked in its preflight, the tubes embedded under its lock.
 """
 
 from __future__ import annotations
