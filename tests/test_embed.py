@@ -160,6 +160,15 @@ def test_mine_embed_writes_one_unit_vector_per_selected_tube_with_the_models_sha
     observed = _rows(cat, "SELECT tube_id, list(frame) AS f FROM tube_frames WHERE observed GROUP BY tube_id")
     frames = {r["tube_id"]: set(r["f"]) for r in observed}
     assert all(set(r["view_frames"]) <= frames[r["tube_id"]] for r in rows)
+    # Read through pyarrow datasets (how a catalogue on an object store is read): the same rows
+    from mining.catalog.views import connect
+
+    con = connect(cat, native=False)
+    try:
+        assert con.sql("SELECT tube_id, vector FROM tube_embeddings ORDER BY 1").fetchall() == \
+            [(r["tube_id"], r["vector"]) for r in rows]
+    finally:
+        con.close()
     # Similarity is one SQL expression away
     sims = _rows(cat, "SELECT list_cosine_similarity(a.vector, b.vector) AS s FROM tube_embeddings a, tube_embeddings b "
                       "WHERE a.tube_id = b.tube_id")

@@ -52,7 +52,8 @@ EMBEDDING_SCHEMA = pa.schema([
     pa.field("view_frames", pa.list_(pa.int32()), False),  # their frames (the source's indices)
     pa.field("dim", pa.int32(), False),  # D, the vector's length
     pa.field("vector", pa.list_(pa.float32()), False),  # the tube's vector, L2 norm 1
-    pa.field("embedded_at", pa.timestamp("ms", tz="UTC"), False),
+    # When it was embedded, UTC, a plain timestamp as the labels' (every reader reads it without a zone library).
+    pa.field("embedded_at", pa.timestamp("ms"), False),
 ])
 
 

@@ -254,7 +254,7 @@ def plan_tasks(store: Store, tubes: pa.Table, frames: pa.Table, encoder: Encoder
 
 def result_rows(task: Task, result: EmbedResult, encoder: Encoder, settings: str) -> pa.Table:
     """The rows of a task's vectors (``embeddings.EMBEDDING_SCHEMA``)."""
-    now = datetime.now(timezone.utc)
+    now = datetime.now(timezone.utc).replace(tzinfo=None)  # UTC, plain (embeddings.EMBEDDING_SCHEMA)
     keys = {t: k for t, k, _ in task.tubes}
     rows = [{"tube_id": t, "dataset": task.dataset, "sequence": task.sequence, "model": encoder.path.name,
              "model_sha256": encoder.sha256, "preset": encoder.cfg.preset, "settings": settings, "views_key": keys[t],
