@@ -370,3 +370,19 @@ def test_the_submit_stage_embeds_the_selected_tubes_and_changes_no_tube(base_cat
     assert any(f"0 tubes embedded, {len(selected)} already embedded" in line for line in again.lines()), again.lines()
     assert not mine(out).failed  # and without the stage: the same job
     assert len(_rows(out)) == len(selected)
+
+
+@pytest.mark.slow  # a small synthetic job on a local Ray, with the stage
+@pytest.mark.own_process
+def test_the_submit_stage_runs_on_the_jobs_ray_one_actor_per_logical_gpu(ray_with_logical_gpus, encoders, tmp_path):
+    from _jobs import SEQ, small_cfg
+    from mining.pipeline.executors import RayExecutor
+    from mining.pipeline.submit import mine_job
+
+    cfg = small_cfg(f'embed.model_path="{encoders["plain"]}"', "embed.tubes_per_task=1")
+    s = mine_job(cfg, str(tmp_path / "ray"), [SEQ], (0, 16), executor=RayExecutor)
+    assert not s.failed
+    n = len(_rows(tmp_path / "ray", "SELECT tube_id FROM tubes WHERE selected"))
+    line = next(line for line in s.lines() if "tubes embedded" in line)
+    assert n >= 2 and f"{n} tubes embedded" in line and "2 actor(s) on GPUs [0, 1]" in line, line
+    assert len(_rows(tmp_path / "ray")) == n
