@@ -189,6 +189,18 @@ def test_tubes_with_the_same_views_get_the_same_vector(every_call, encoders, tmp
     assert len({tuple(v[0]) for v in by_views.values()}) == 4  # and other tubes, other vectors
 
 
+def test_mine_embed_takes_its_settings_from_the_jobs_embed_section_then_its_flags(cat, encoders, capsys):
+    job = json.loads((cat / "job.json").read_text())
+    job["config"]["embed"] = {"model_path": str(encoders["plain"]), "preset": "dino", "views": 1}
+    (cat / "job.json").write_text(json.dumps(job))
+    rc, out, err = cli(capsys, "embed", "--out", str(cat), "--local")
+    assert rc == 0, err
+    assert {(r["model"], r["preset"], r["n_views"]) for r in _rows(cat)} == {("plain.onnx", "dino", 1)}
+    rc, out, err = cli(capsys, "embed", "--out", str(cat), "--local", "--preset", "imagenet", "--views", "2")
+    assert rc == 0, err
+    assert {(r["preset"], r["n_views"]) for r in _rows(cat)} <= {("imagenet", 2), ("imagenet", 1)}
+
+
 def test_running_again_embeds_nothing_and_a_changed_model_embeds_everything_again(cat, encoders):
     first = _embed(cat, encoders["plain"], where="selected")
     selected = len(_rows(cat, "SELECT tube_id FROM tubes WHERE selected"))
