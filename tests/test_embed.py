@@ -169,6 +169,11 @@ def test_mine_embed_writes_one_unit_vector_per_selected_tube_with_the_models_sha
             [(r["tube_id"], r["vector"]) for r in rows]
     finally:
         con.close()
+    # A predicate that matches nothing writes nothing and exits 1, as mine export's and mine label's
+    before = files(cat)
+    assert cli(capsys, "embed", "--out", str(cat), "--model", str(encoders["plain"]), "--local",
+               "--where", "n_frames < 0")[0] == 1
+    assert files(cat) == before
     # Similarity is one SQL expression away
     sims = _rows(cat, "SELECT list_cosine_similarity(a.vector, b.vector) AS s FROM tube_embeddings a, tube_embeddings b "
                       "WHERE a.tube_id = b.tube_id")

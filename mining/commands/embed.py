@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
 
     from mining.config import EmbedConfig
     from mining.discovery.embed_run import embed_catalogue, print_summary
-    from mining.errors import ConfigError
+    from mining.errors import ConfigError, NothingMatched
     from mining.export.selection import read_job
 
     job = read_job(args.out)  # the catalogue first: a wrong --out is said before the model is looked at
@@ -85,4 +85,6 @@ def run(args: argparse.Namespace) -> int:
             import ray
 
             ray.shutdown()
+    if not summary.matched:
+        raise NothingMatched(f"no tube matches --where {cfg.where!r}; nothing embedded")
     return print_summary(summary)

@@ -203,6 +203,7 @@ class EmbedSummary:
     model: str
     model_sha256: str
     dim: int
+    matched: int = 0  # tubes the predicate selected
     embedded: int = 0
     skipped: int = 0
     failed: dict[str, str] = field(default_factory=dict)  # tube id → why
@@ -287,6 +288,9 @@ def embed_catalogue(out: str, model: str, where: str = "selected", cfg: EmbedCon
         tubes, frames = selected_rows(con, where)
     finally:
         con.close()
+    summary.matched = tubes.num_rows
+    if not summary.matched:  # nothing to do: not even the lock is taken
+        return summary
     with OutputLock(store, lock_wait) if lock else nullcontext():
         tasks, markers = plan_tasks(store, tubes, frames, encoder, settings, summary, job.source.root)
         for marker in markers.values():
