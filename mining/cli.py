@@ -56,6 +56,8 @@ COMMANDS = (  # in the order --help lists them: the top-level verbs, then the gr
     Command(None, "describe", "mining.commands.describe",
             "a descriptor for every tube (size, height, distance, motion, shape, class), for similar and group",
             names_errors=True),
+    Command(None, "embed", "mining.commands.embed",
+            "tube embeddings from an image encoder you bring (ONNX), into the tube_embeddings table", names_errors=True),
     Command(None, "similar", "mining.commands.similar",
             "find more like this: the k tubes nearest a tube by cosine distance of their descriptors",
             names_errors=True),

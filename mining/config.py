@@ -60,6 +60,27 @@ class WindowConfig:
 
 
 @dataclass
+class EmbedConfig:
+    """Tube embeddings from an image encoder the user brings, run on each tube's best views
+    (mining/discovery/embed.py): ``mine embed``'s options, or with ``model_path`` set a stage at the end
+    of ``mine submit``. Not part of the job's identity or params_hash: embeddings never change the tubes."""
+
+    model_path: str = ""  # the image encoder's ONNX file ("" = no embedding stage in mine submit; mine embed --model)
+    where: str = "selected"  # ours: the tubes mine submit's stage embeds, a SQL predicate as mine export's
+    preset: Annotated[str, OneOf(("clip", "dino", "imagenet"))] = "clip"  # ours: the normalisation (embed.PRESETS): CLIP's mean / std, or ImageNet's (DINO's)
+    views: Count = 3  # ours: the observed frames a tube is embedded from (largest mask area × objectness)
+    margin: Annotated[float, Range(0.0, 2.0)] = 0.15  # export/crops.CROP_MARGIN: context around the box, a fraction of its width / height
+    input_size: Count = 224  # CLIP ViT-B/32 and DINO ViT's input side: used where the model's H or W is symbolic
+    output: str = ""  # ours: the output read ("" = the model's first)
+    batch: Count = 32  # ours: crops a model run, where the export's batch axis is symbolic
+    tubes_per_task: Count = 64  # ours: tubes a Ray task embeds (and a file holds): what a kill can lose
+    device: Annotated[str, OneOf(("auto", "cpu", "cuda"))] = "auto"  # ours: auto = CUDA where onnxruntime has it and Ray gave a GPU
+    actors: Annotated[int, Range(-1)] = -1  # ours: -1 = one per cluster GPU, or one per CPU without GPUs; 0 = one per CPU, no GPU; N = N actors
+    gpus_per_actor: Annotated[float, Range(0.0)] = 1.0  # ours: as run.gpus_per_proposal_actor: one model per GPU
+    intra_op_num_threads: Count = 1  # ours: onnxruntime threads within an operator (Ray parallelises over actors)
+
+
+@dataclass
 class RunConfig:
     max_retries: int = 3  # ours: Ray retries of a window's task after a system failure (a dead worker or node)
     # Calibration sanity, checked for every planned sequence before a job starts
@@ -90,6 +111,7 @@ class JobConfig:
     export: ExportConfig = field(default_factory=ExportConfig)
     window: WindowConfig = field(default_factory=WindowConfig)
     run: RunConfig = field(default_factory=RunConfig)
+    embed: EmbedConfig = field(default_factory=EmbedConfig)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -100,6 +122,7 @@ class JobConfig:
         d = self.to_dict()
         d["source"] = {k: v for k, v in d["source"].items() if k not in ("root", "sequences")}
         d.pop("run")  # retries change how a result is reached, not the result
+        d.pop("embed")  # embeddings are written beside the tubes and never change them
         blob = json.dumps(d, sort_keys=True, default=str).encode()
         return hashlib.sha256(blob).hexdigest()[:16]
 

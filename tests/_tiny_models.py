@@ -204,3 +204,52 @@ def sam_decoder_onnx(path: Path, size: int = 128, channels: int = 8, n_masks: in
                helper.make_tensor_value_info("low_res_masks", T.FLOAT, [b, n_masks, low, low])]
     graph = helper.make_graph(nodes, "sam_decoder_tiny", list(inputs.values()), outputs, inits)
     return _save(graph, path)
+
+
+def encoder_onnx(path: Path, dim: int = 16, size: int | None = 32, tokens: int | None = None,
+                 batch: int | str | None = "batch", seed: int = 3, elem_type: int | None = None,
+                 out_rank: int | None = None) -> Path:
+    """An image encoder in the layout ``mine embed`` reads (mining/discovery/embed.py): input ``pixel_values``
+    (B, 3, H, W) float32 → a conv, ReLU, a global average pool and a linear map to ``dim``: output
+    ``embeds`` (B, D), or with ``tokens`` (B, T, D) whose first token is that vector and the others
+    scaled copies (a ViT's CLS token first). ``size`` None declares H and W symbolic; ``batch`` None
+    or a name declares B symbolic, an int fixes it. ``elem_type`` / ``out_rank`` make off-contract
+    models (another input type; an output of another rank)."""
+    from onnx import TensorProto as T
+    from onnx import helper, numpy_helper
+
+    rng = np.random.default_rng(seed)
+    ch = 8
+    inits = [numpy_helper.from_array(rng.normal(0, 0.5, (ch, 3, 3, 3)).astype(np.float32), "conv.w"),
+             numpy_helper.from_array(rng.normal(0, 0.1, ch).astype(np.float32), "conv.b"),
+             numpy_helper.from_array(rng.normal(0, 1.0, (ch, dim)).astype(np.float32), "fc.w"),
+             numpy_helper.from_array(rng.normal(0, 0.1, dim).astype(np.float32), "fc.b"),
+             numpy_helper.from_array(np.array([0, -1], np.int64), "flat")]
+    nodes = [helper.make_node("Conv", ["pixel_values", "conv.w", "conv.b"], ["c"], kernel_shape=[3, 3], strides=[2, 2]),
+             helper.make_node("Relu", ["c"], ["r"]),
+             helper.make_node("GlobalAveragePool", ["r"], ["g"]),
+             helper.make_node("Reshape", ["g", "flat"], ["f"]),
+             helper.make_node("MatMul", ["f", "fc.w"], ["m"]),
+             helper.make_node("Add", ["m", "fc.b"], ["vec"])]
+    b = batch
+    out_shape: list = [b, dim]
+    out = "vec"
+    if tokens:
+        scales = np.linspace(1.0, 0.2, tokens).astype(np.float32).reshape(1, tokens, 1)
+        inits += [numpy_helper.from_array(np.array([1], np.int64), "axis1"),
+                  numpy_helper.from_array(scales, "scales")]
+        nodes += [helper.make_node("Unsqueeze", ["vec", "axis1"], ["v3"]),
+                  helper.make_node("Mul", ["v3", "scales"], ["tok"])]
+        out, out_shape = "tok", [b, tokens, dim]
+    if out_rank == 4:
+        inits.append(numpy_helper.from_array(np.array([2, 3], np.int64), "axes23"))
+        nodes.append(helper.make_node("Unsqueeze", [out, "axes23"], ["v4"]))
+        out, out_shape = "v4", [*out_shape, 1, 1]
+    nodes.append(helper.make_node("Identity", [out], ["embeds"]))
+    side = size if size is not None else "height"
+    graph = helper.make_graph(
+        nodes, "encoder_tiny",
+        [helper.make_tensor_value_info("pixel_values", elem_type or T.FLOAT,
+                                       [b, 3, side, size if size is not None else "width"])],
+        [helper.make_tensor_value_info("embeds", T.FLOAT, out_shape)], inits)
+    return _save(graph, path)

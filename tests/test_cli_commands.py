@@ -15,7 +15,8 @@ from conftest import REPO
 from mining.cli import COMMANDS, GROUPS, build_parser, main
 
 
-VERBS = ("submit", "status", "query", "export", "label", "describe", "similar", "group", "render", "config", "view")
+VERBS = ("submit", "status", "query", "export", "label", "describe", "embed", "similar", "group", "render", "config",
+         "view")
 
 
 def test_every_command_module_offers_add_arguments_and_run():
@@ -85,12 +86,14 @@ def test_a_commands_refusal_is_one_line_in_its_name_or_mines_with_exit_status_2(
     assert _main(capsys, *argv) == (2, "", err)
 
 
-@pytest.mark.parametrize("command", ["query", "export", "render", "label"])
+@pytest.mark.parametrize("command", ["query", "export", "render", "label", "embed"])
 def test_a_missing_catalogue_is_said_in_the_commands_name(capsys, tmp_path, command):
     missing = tmp_path / "missing"
+    (tmp_path / "model.onnx").write_bytes(b"not read: the catalogue is looked at first")
     argv = {"query": ["query", "SELECT 1"], "export": ["export", str(tmp_path / "d"), "--format", "kitti"],
             "render": ["render", str(tmp_path / "r.mp4"), "--sequence", "0000"],
-            "label": ["label", "--where", "true", "--verdict", "object"]}[command]
+            "label": ["label", "--where", "true", "--verdict", "object"],
+            "embed": ["embed", "--model", str(tmp_path / "model.onnx"), "--local"]}[command]
     where = f"--out {missing}" if command == "label" else f"file {missing}"
     assert _main(capsys, *argv, "--out", str(missing)) == (2, "", f"mine {command}: {where}: catalogue folder not found\n")
 

@@ -46,6 +46,10 @@ ALLOWED = {
     ("query", "--limit", "0"): "0 = show every row",
     ("label", "--lock-wait", "0"): "0 s: --compact refuses at once when a submit holds the lock (the default)",
     ("export", "--margin", "0"): "no context around the box",
+    ("embed", "--margin", "0"): "no context around the box",
+    ("embed", "--actors", "-1"): "-1 = one actor per GPU Ray lists, else one per CPU (the default)",
+    ("embed", "--actors", "0"): "0 = actors on the CPUs only, one per CPU, even where Ray lists GPUs",
+    ("embed", "--lock-wait", "0"): "0 s: refuse at once when a submit holds the lock (the default)",
     ("view", "--port", "0"): "0 picks a free port",
     ("bench calibrate", "--epsilon1", "0"): "a log-odds price: 0 is the default",
     ("bench calibrate", "--epsilon1", "-1"): "a log-odds price is signed (select.price.calibrated)",
@@ -78,6 +82,7 @@ FREE_TEXT = {
     "--host": "an interface address (IP)",
     "--job": "a Ray Jobs submission id",
     "--where": "an SQL predicate (read-only, mining/catalog/views.py)",
+    "--output": "mine embed: an output name of the ONNX model, checked against the model's outputs",
     "--tag": "a free label, checked by mining/catalog/labels.check_text",
     "--untag": "a free label, checked by mining/catalog/labels.check_text",
     "--author": "a name, checked by mining/catalog/labels.check_text",
@@ -134,7 +139,8 @@ def test_every_option_is_checked_by_its_type():
 
 def test_the_walk_finds_every_command():
     names = [c for c, _ in COMMANDS]
-    assert {"submit", "status", "query", "export", "render", "config", "view", "label", "describe", "similar", "group"} \
+    assert {"submit", "status", "query", "export", "render", "config", "view", "label", "describe", "similar", "group",
+            "embed"} \
         == {c.name for c in cli_module.COMMANDS if c.group is None}
     assert {" ".join(filter(None, (c.group, c.name))) for c in cli_module.COMMANDS} == set(names)
     assert len(set(names)) == len(names)

@@ -28,8 +28,9 @@ BELOW_PIPELINE = (*STAGES, *SHARED_FLOOR, "catalog", "config")
 # The floors above the catalogue: nothing below the pipeline imports them.
 ABOVE = ("pipeline", "export", "view", "bench", "commands", "cli", "testing", "discovery")
 # Discovery (floor 6, beside the pipeline, export and viewer) reads the catalogue and no stage: it
-# works on what was mined, whatever mined it.
-DISCOVERY_MAY_IMPORT = (*SHARED_FLOOR, "catalog", "config")
+# works on what was mined, whatever mined it. The embedder crops a tube's views as the crops export
+# does and re-reads them through the job's source as every export does (export/), and nothing more.
+DISCOVERY_MAY_IMPORT = (*SHARED_FLOOR, "catalog", "config", "export")
 
 
 def _modules(root: Path):

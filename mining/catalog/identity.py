@@ -79,6 +79,7 @@ def job_identity(cfg: JobConfig, plans: Mapping[str, SequencePlan], frames: tupl
     out: dict[str, Any] = {}
     d = cfg.to_dict()
     d.pop("run")  # retries change how a result is reached, not the result (as params_hash)
+    d.pop("embed")  # embeddings are written beside the tubes and never change them (as params_hash)
     d["source"] = {k: v for k, v in d["source"].items() if k not in ("root", "sequences")}
     _flatten("config", d, out)
     out["source.root"] = root_key(cfg.source.root)

@@ -24,6 +24,9 @@ draws the same tree); ``store.py`` does the I/O on them::
     discovery/tube_descriptors/D/S/descriptors.parquet        derived by `mine describe` (derived.py): a vector per tube,
     discovery/tube_descriptors/D/S.json                       and its marker (recipe, inputs digest, sha256)
     discovery/tube_groups/groups.parquet, …/tube_groups.json  derived by `mine group`: the unknown set's groups
+    embeddings/D/S/<model key>/part-<UTC>-<hex>.parquet       tube embeddings of one model (embeddings.py), one file per
+                                                              write of `mine embed`
+    embeddings/_markers/D/S/<model key>.json                  the size and sha256 of each of those files (what readers trust)
 
 The compacted tables are what people read with their own tools, so their folders have plain
 names and their files hold ``dataset`` / ``sequence`` as strings: a default read of
@@ -74,6 +77,10 @@ LABELS = "labels"
 # Tables derived from the catalogue (derived.py: descriptors, groups): no job writes them; a
 # --new-run moves them aside with the catalogue whose tube ids they name.
 DISCOVERY = "discovery"
+# Tube embeddings (embeddings.py): `mine embed` writes them, a resubmission never touches them, a
+# --new-run moves them aside with the labels (their tube ids may name other objects).
+EMBEDDINGS = "embeddings"
+EMBEDDING_MARKERS = f"{EMBEDDINGS}/_markers"
 RUNNING = "_running"
 STITCH_ROW = "stitch"  # the ``window`` of a sequence's failed-stitch row (no window is named so: windows are S-start-end)
 CACHE_SUFFIX = ".npz.zst"  # the observation cache's format: mining/pipeline/cache.py
@@ -182,3 +189,17 @@ def done_path(dataset: str, sequence: str) -> str:
 def cache_path(w: Window, suffix: str = CACHE_SUFFIX) -> str:
     """A window's observation cache (its core frames' observations; ``pipeline/cache.py``)."""
     return f"{CACHE}/{_where(w.dataset, w.sequence, w.name)}{suffix}"
+
+
+def embedding_dir(dataset: str, sequence: str, model_key: str) -> str:
+    """The folder of one sequence's embedding files of one model (``model_key``: 16 hex digits of its sha256)."""
+    origin = "a path under --out"
+    return (f"{EMBEDDINGS}/{check_name(dataset, 'dataset', origin)}/{check_name(sequence, 'sequence', origin)}/"
+            f"{check_name(model_key, 'model key', origin)}")
+
+
+def embedding_marker(dataset: str, sequence: str, model_key: str) -> str:
+    """The record of one sequence's embedding files of one model: their sizes and sha256."""
+    origin = "a path under --out"
+    return (f"{EMBEDDING_MARKERS}/{check_name(dataset, 'dataset', origin)}/{check_name(sequence, 'sequence', origin)}/"
+            f"{check_name(model_key, 'model key', origin)}.json")

@@ -18,6 +18,10 @@ mtime), so a flipped bit is an error naming the file, never a value. A catalogue
 mining job wrote (no marker, a job.json planning no window: ``store.write_sequence``
 alone) is read as listed, unchecked.
 
+``tube_embeddings`` (``embeddings.py``, written by ``mine embed``) reads the embedding files their
+markers vouch for (size and sha256, as above), the newest row per tube and model, of the tubes
+``tubes`` holds; a file that does not check out makes it fail naming the file.
+
 A table without files is an empty view with the right columns, so queries work on a
 fresh catalogue. A table with a damaged file (missing, truncated, of another size or
 sha256 than its sequence's finished marker records, or whose Parquet footer does not
@@ -57,6 +61,7 @@ import pyarrow as pa
 import pyarrow.dataset as ds
 
 from mining.catalog import derived
+from mining.catalog.embeddings import EMBEDDING_SCHEMA, vouched_embeddings
 from mining.catalog.integrity import Damage, check_versions, unreadable_parquet, vouched_files
 from mining.catalog.labels import LABEL_SCHEMA, DamagedLabels, label_files, read_label_files
 from mining.catalog.layout import MANIFEST, PART_SUFFIX, PARTS, TABLE_DIRS, catalog_layout
@@ -297,6 +302,36 @@ def register_derived(con: duckdb.DuckDBPyConnection, store: Store) -> None:
             con.register(table, empty[table].empty_table())
 
 
+def _embedding_view(con: duckdb.DuckDBPyConnection, store: Store, native: bool) -> list[str]:
+    """The view ``tube_embeddings`` (``embeddings.py``): the newest row per tube and model over the
+    embedding files their markers vouch for, of the tubes the catalogue holds; a view that fails
+    naming the file where one does not check out. The files it reads."""
+    files, damage = vouched_embeddings(store)
+    if damage:
+        _damaged_view(con, store, "tube_embeddings", damage, EMBEDDING_SCHEMA,
+                      "table tube_embeddings is damaged: " + "; ".join(f"{store.full(d.path)} ({d.reason})"
+                                                               for d in damage[:5])
+                      + ". `mine embed` with the same model embeds their tubes again; the other tables can be queried")
+        return []
+    cols = ", ".join(f'"{n}"' for n in EMBEDDING_SCHEMA.names)
+    if not files:
+        con.register("_empty_tube_embeddings", _as_read(EMBEDDING_SCHEMA).empty_table())
+        source = "_empty_tube_embeddings"
+    elif native:
+        source = f"read_parquet([{', '.join(sql_string(store.full(f)) for f in files)}], hive_partitioning = false)"
+    else:
+        con.register("_arrow_tube_embeddings", ds.dataset([store.full(f) for f in files], filesystem=store.fs,
+                                                          format="parquet", schema=_as_read(EMBEDDING_SCHEMA)))
+        source = "_arrow_tube_embeddings"
+    # Newest per tube and model: a tube embedded again (its views changed) keeps its latest vector.
+    con.execute(f"CREATE VIEW tube_embeddings AS SELECT {cols} FROM {source} AS e "
+                "WHERE EXISTS (SELECT 1 FROM tubes AS t WHERE t.dataset = e.dataset AND t.sequence = e.sequence "
+                "AND t.tube_id = e.tube_id) "
+                "QUALIFY row_number() OVER (PARTITION BY dataset, sequence, tube_id, model_sha256 "
+                "ORDER BY embedded_at DESC) = 1")
+    return files
+
+
 def connect(out: str | Path, native: bool | None = None, memory_limit: str | None = None,
             threads: int | None = None, verify: bool = True) -> duckdb.DuckDBPyConnection:
     """An in-memory DuckDB with the catalogue's tables and views (see module docstring).
@@ -345,14 +380,16 @@ def connect(out: str | Path, native: bool | None = None, memory_limit: str | Non
     refresh_labels(con, store)
     register_derived(con, store)
     con.execute(VIEWS_SQL.read_text())
+    embedded = _embedding_view(con, store, native)
     _comment_columns(con)
     # From here on: no file access but what the views read, and no way to turn that back on.
     folders = (MANIFEST, PARTS)
-    paths = sorted({store.full(f) for t in SCHEMAS for f in vouched.files[t]}) if native else []
+    paths = sorted({store.full(f) for t in SCHEMAS for f in vouched.files[t]} | {store.full(f) for f in embedded}) \
+        if native else []
     dirs = [store.full(f) + "/" for f in folders] if native else []
     con.execute(f"SET allowed_paths = [{', '.join(map(sql_string, paths))}]")
     con.execute(f"SET allowed_directories = [{', '.join(map(sql_string, dirs))}]")
-    _READABLE[con] = _Readable(store, frozenset(f for t in SCHEMAS for f in vouched.files[t]),
+    _READABLE[con] = _Readable(store, frozenset([*(f for t in SCHEMAS for f in vouched.files[t]), *embedded]),
                                {d.path: d for ds_ in vouched.damage.values() for d in ds_}, folders)
     con.execute("SET enable_external_access = false")
     con.execute("SET autoinstall_known_extensions = false")

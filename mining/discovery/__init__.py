@@ -1,2 +1,2 @@
-"""Discovery at scale (issue 41): tube descriptors, similar tubes, groups of the unknown set,
-labels propagated from one tube to its near neighbours."""
+"""Discovery at scale (issue 41): tube descriptors and embeddings, similar tubes, groups of the
+unknown set, labels propagated from one tube to its near neighbours."""

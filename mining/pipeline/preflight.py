@@ -15,7 +15,8 @@ once, in this order:
    plausible), its range not empty. A sequence that fails is reported and left out;
    the others run. When none is left, the job fails here;
 5. the proposer, made once here: an ONNX model is opened and loaded by onnxruntime, a
-   JSON proposal folder is looked up.
+   JSON proposal folder is looked up; and the image encoder of ``embed.model_path``, where one
+   is set, checked against its contract (``discovery/embed.py``).
 
 Each failure is a MiningError whose message names the key or file, the value and the
 rule. Nothing but the probe is written before all of them pass.
@@ -190,5 +191,9 @@ def preflight(cfg: JobConfig, out: str, sequences: list[str] | None = None,
         [check_name(s, "sequence", "--sequences" if sequences else "the config's source.sequences") for s in given]
     pf = plan_sequences(cfg, sequences, frames)
     check_proposer(cfg, pf.plans)
+    if cfg.embed.model_path:  # the embedding stage's model: refused now, not after the mining
+        from mining.discovery.embed import Encoder
+
+        Encoder(cfg.embed.model_path, cfg.embed, "cpu")
     check_output(out)  # last: a job refused for anything else leaves no --out folder behind
     return pf

@@ -30,7 +30,7 @@ import pyarrow.fs as pafs
 
 from mining.catalog.identity import check_resubmit
 from mining.catalog.integrity import marker_damage, window_damage
-from mining.catalog.layout import (DISCOVERY, JOB, JOB_ENTRIES, LABELS, PART_TABLES, REPLACED, STITCH_ROW, cache_path,
+from mining.catalog.layout import (DISCOVERY, EMBEDDINGS, JOB, JOB_ENTRIES, LABELS, PART_TABLES, REPLACED, STITCH_ROW, cache_path,
                                    check_resumable, files_path, manifest_path, part_path)
 from mining.catalog.records import (FRESH_START, JobRecord, ManifestRow, SequenceMarker, Unreadable,
                                     UnreadableRecord)
@@ -93,8 +93,8 @@ def _move_aside(store: Store, run_id: str | None) -> str:
     object stores have no rename, so there the old catalogue must be removed by hand."""
     stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
     name = f"{run_id or 'unknown-run'}-{stamp}"
-    # The labels and what discovery derived go too: the new run's tube ids may name other objects.
-    present = [e for e in (*JOB_ENTRIES, LABELS, DISCOVERY) if store.fs.get_file_info(store.full(e)).type != pafs.FileType.NotFound]
+    # The labels, what discovery derived and the embeddings go too: the new run's tube ids may name other objects.
+    present = [e for e in (*JOB_ENTRIES, LABELS, DISCOVERY, EMBEDDINGS) if store.fs.get_file_info(store.full(e)).type != pafs.FileType.NotFound]
     if not store.local:
         raise ConfigError(f"{store.uri}: --new-run cannot move the old catalogue (run {run_id or 'unknown'}) aside on "
                           f"this filesystem (no rename); delete {', '.join(present)} there, or use another --out")

@@ -186,6 +186,10 @@ def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frame
         if not keep_cache:  # job end: the caches of every stitched sequence (a finished job resubmitted too)
             planned = {q: [w.name for w in ws] for q, ws in schedule.by_seq.items()}
             sweep_caches(Store(out), cfg.source.dataset, stitched(Store(out), cfg.source.dataset, planned))
+        if cfg.embed.model_path:  # the embedding stage, under the same lock: the tubes as just written
+            from mining.discovery.embed_run import embed_after_job
+
+            summary.embed = embed_after_job(cfg, out).lines()
     summary.seconds = time.perf_counter() - t0
     summary.classifiers = classifiers_line(cfg.proposals.proposer)
     summary.classify_hint = classify_hint(cfg.proposals.proposer) or ""

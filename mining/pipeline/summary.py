@@ -47,6 +47,7 @@ class Summary:
     recomputed: dict[str, str] = field(default_factory=dict)  # window → why its observation cache did not read back
     swept: list[str] = field(default_factory=list)  # temporary files an interrupted run left, removed by this one
     damaged_labels: list[str] = field(default_factory=list)  # label files --verify set aside (labels/_damaged/…)
+    embed: list[str] = field(default_factory=list)  # the embedding stage's lines (embed.model_path set)
     # Where the steps ran (executors' ``placement``): "workers" and "proposal_actors", each a
     # list of {pid, gpu_ids, node, ...}; empty for a job that ran nothing.
     placement: dict[str, list[dict]] = field(default_factory=dict)
@@ -89,6 +90,7 @@ class Summary:
                            f"every actor had work {busy['all_busy_after_s']:.1f} s in")
         if self.classify_hint:
             out.append(self.classify_hint)
+        out += self.embed
         if self.damaged_labels:  # said apart and loud: these labels are lost unless the user has a copy
             out.append(f"DAMAGED LABELS: {len(self.damaged_labels)} label file(s) did not match their sha256 and were "
                        f"moved aside, their labels lost: {', '.join(self.damaged_labels)}")
