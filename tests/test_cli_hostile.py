@@ -91,6 +91,7 @@ FREE_TEXT = {
     "tube_id": "a tube id, checked by mining/names.py (tube_id_argument) in the parser",
     "--like": "a tube id, checked by mining/names.py (tube_id_argument) in the parser",
     "--undo-like": "a tube id, checked by mining/names.py (tube_id_argument) in the parser",
+    "--model": "mine similar: an embedding model's file name or sha256 prefix, matched against tube_embeddings",
     "--sizes": "comma-separated tube counts, each checked by mining/checks.py count in the parser",
 }
 CASE_S = 10  # seconds one case may take before it counts as real work started

@@ -403,3 +403,47 @@ def test_the_submit_stage_runs_on_the_jobs_ray_one_actor_per_logical_gpu(ray_wit
     line = next(line for line in s.lines() if "tubes embedded" in line)
     assert n >= 2 and f"{n} tubes embedded" in line and "2 actor(s) on GPUs [0, 1]" in line, line
     assert len(_rows(tmp_path / "ray")) == n
+
+
+def test_mine_similar_compares_either_vector(cat, encoders, capsys):
+    """`mine similar --vector embedding` ranks by the embeddings (the tube itself first, the order
+    the stored vectors give); one model is taken without naming it, two need --model."""
+    assert cli(capsys, "similar", "--out", str(cat), "kitti/0005/x", "--vector", "embedding")[0] == 2  # none stored yet
+    _embed(cat, encoders["plain"])
+    rows = _rows(cat)
+    query = rows[0]["tube_id"]
+    rc, out, err = cli(capsys, "similar", "--out", str(cat), query, "--vector", "embedding", "--format", "json")
+    assert rc == 0, err
+    got = json.loads(out)
+    v = {r["tube_id"]: np.asarray(r["vector"]) for r in rows}
+    want = sorted(v, key=lambda t: (1.0 - float(v[t] @ v[query]), t))
+    assert [r["tube_id"] for r in got] == want and got[0]["distance"] == pytest.approx(0.0, abs=1e-6)
+    _embed(cat, encoders["tokens"])
+    rc, _, err = cli(capsys, "similar", "--out", str(cat), query, "--vector", "embedding")
+    assert rc == 2 and "2 models" in err and "--model" in err, err
+    rc, out, err = cli(capsys, "similar", "--out", str(cat), query, "--vector", "embedding", "--model", "tokens.onnx",
+                       "--format", "json")
+    assert rc == 0 and json.loads(out)[0]["tube_id"] == query, err
+    rc, _, err = cli(capsys, "similar", "--out", str(cat), query, "--model", "tokens.onnx")
+    assert rc == 2 and "--vector embedding" in err
+
+
+def test_the_tube_page_shows_the_tubes_similar_in_looks_once_embedded(cat, encoders, tmp_path):
+    """The tube page's second strip: the nearest tubes by image embedding, with the model's name;
+    no strip before anything is embedded, a note where two models are (name one: mine similar)."""
+    from conftest import json_get, serving
+
+    with serving(cat, tmp_path / "cache") as (base, _):
+        first = _rows(cat, "SELECT tube_id FROM tubes ORDER BY 1")[0]["tube_id"]
+        status, d = json_get(base, "/api/tube", {"id": first})
+        assert status == 200 and d["similar_looks"] == [] and d["similar_looks_note"] is None
+        _embed(cat, encoders["plain"])
+        status, d = json_get(base, "/api/tube", {"id": first})
+        rows = _rows(cat)
+        v = {r["tube_id"]: np.asarray(r["vector"]) for r in rows}
+        want = sorted((t for t in v if t != first), key=lambda t: (1.0 - float(v[t] @ v[first]), t))
+        assert status == 200 and d["similar_looks_model"] == "plain.onnx"
+        assert [s["tube_id"] for s in d["similar_looks"]] == want
+        _embed(cat, encoders["tokens"])
+        status, d = json_get(base, "/api/tube", {"id": first})
+        assert status == 200 and d["similar_looks"] == [] and "--model" in d["similar_looks_note"]

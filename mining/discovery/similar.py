@@ -1,4 +1,5 @@
-"""Find more like this: the k tubes nearest a tube by cosine distance over their descriptors.
+"""Find more like this: the k tubes nearest a tube by cosine distance over either vector: their
+descriptors (``tube_descriptors``) or one model's image embeddings (``tube_embeddings``).
 
 The index is exact: the descriptors, L2-normalised once, in one float32 matrix, and a query is
 one matrix-vector product and a partial sort (NumPy, BLAS on every core). Chosen by measurement
@@ -82,6 +83,7 @@ class TubeIndex:
     sequences: list[str]
     exact: ExactIndex
     row: dict[str, int]
+    model: str | None = None  # the embedding model's file name (None: the descriptors)
 
     def tube(self, k: int) -> tuple[str, str, str]:
         return self.datasets[k], self.sequences[k], self.tube_ids[k]
@@ -98,9 +100,47 @@ def open_index(store: Store) -> TubeIndex:
                      ExactIndex(vectors), {t: k for k, t in enumerate(tube_ids)})
 
 
-def descriptor_of(store: Store, index: TubeIndex, tube_id: str) -> np.ndarray:
-    """The stored descriptor of ``tube_id``; InputError (one line) for a tube the catalogue does
-    not hold, or one without a descriptor (described before it was mined)."""
+VECTORS = ("descriptor", "embedding")  # what `mine similar --vector` compares: tube_descriptors or tube_embeddings
+
+
+def embedding_index(store: Store, model: str | None = None) -> TubeIndex:
+    """The catalogue's tube embeddings of one model (``tube_embeddings``; ``model`` its file name or
+    a prefix of its sha256, needed only where several models are stored) as a ``TubeIndex``;
+    InputError (one line) where none are stored or the model is unknown or ambiguous."""
+    con = connect(store.uri)
+    try:
+        models = con.execute("SELECT model, model_sha256, count(*) FROM tube_embeddings GROUP BY ALL ORDER BY 1, 2").fetchall()
+        if not models:
+            raise InputError(f"{store.uri}: no tube embeddings: run `mine embed --out {store.uri} --model FILE.onnx` "
+                             "first (or compare descriptors: --vector descriptor)")
+        chosen = [m for m in models if model is None or model in (m[0], m[1]) or m[1].startswith(model)]
+        if len(chosen) != 1:
+            listed = ", ".join(f"{m[0]} ({m[1][:12]}, {m[2]} tubes)" for m in models)
+            raise InputError(f"--model {model!r} names {'no' if not chosen else 'more than one'} embedding model of "
+                             f"{store.uri}; its models: {listed}" if model is not None else
+                             f"{store.uri} holds embeddings of {len(models)} models ({listed}): name one with --model")
+        rows = con.execute("SELECT tube_id, dataset, sequence, vector FROM tube_embeddings WHERE model_sha256 = ? "
+                           "ORDER BY dataset, sequence, tube_id", [chosen[0][1]]).fetchall()
+    except duckdb.Error as e:
+        raise InputError(str(e).removeprefix("Invalid Input Error: ")) from None
+    finally:
+        con.close()
+    tube_ids = [r[0] for r in rows]
+    return TubeIndex(tube_ids, [r[1] for r in rows], [r[2] for r in rows],
+                     ExactIndex(np.array([r[3] for r in rows], np.float32)), {t: k for k, t in enumerate(tube_ids)},
+                     chosen[0][0])
+
+
+def vector_index(store: Store, vector: str = "descriptor", model: str | None = None) -> TubeIndex:
+    """The exact index over ``vector`` (one of VECTORS): the stored descriptors, or one model's embeddings."""
+    if vector not in VECTORS:
+        raise InputError(f"--vector {vector!r}: one of {', '.join(VECTORS)}")
+    return open_index(store) if vector == "descriptor" else embedding_index(store, model)
+
+
+def descriptor_of(store: Store, index: TubeIndex, tube_id: str, what: str = "descriptor") -> np.ndarray:
+    """The stored vector (``what``: descriptor or embedding) of ``tube_id``; InputError (one line)
+    for a tube the catalogue does not hold, or one without a vector (mined since the last run)."""
     if tube_id in index.row:
         return index.exact.unit[index.row[tube_id]]
     con = connect(store.uri)
@@ -112,8 +152,8 @@ def descriptor_of(store: Store, index: TubeIndex, tube_id: str) -> np.ndarray:
         con.close()
     if not known:
         raise InputError(f"no tube {tube_id!r} in {store.uri} (tube ids look like 'kitti/0005/0000012.003')")
-    raise InputError(f"tube {tube_id!r} has no descriptor: run `mine describe --out {store.uri}` (it describes the "
-                     "sequences mined since the last run)")
+    raise InputError(f"tube {tube_id!r} has no {what}: run `mine {'describe' if what == 'descriptor' else 'embed'} "
+                     f"--out {store.uri}` (it covers the tubes mined since the last run)")
 
 
 SHOWN = ("tube_id", "distance", "call", "category", "n_frames", "selected")  # what `mine similar` prints per tube
@@ -146,6 +186,33 @@ def similar_rows(store: Store, con: duckdb.DuckDBPyConnection, tube_id: str, k: 
     return _with_rows(con, [index.tube_ids[j] for j in found], dist), None
 
 
+_EMBEDDING_CACHE: dict[str, tuple[object, TubeIndex | None, str | None]] = {}  # root → (files, index, note)
+
+
+def similar_embedding_rows(store: Store, con: duckdb.DuckDBPyConnection, tube_id: str,
+                           k: int) -> tuple[list[dict], str | None, str | None]:
+    """(the ``k`` tubes nearest ``tube_id`` by image embedding as ``SHOWN`` dicts, the model's
+    name, why none) where the catalogue holds embeddings of exactly one model; ([], None, None)
+    where it holds none (the viewer shows no strip); ([], None, why) otherwise."""
+    from mining.catalog.embeddings import vouched_embeddings
+
+    stamp = tuple(vouched_embeddings(store)[0])
+    hit = _EMBEDDING_CACHE.get(store.root)
+    if hit is None or hit[0] != stamp:
+        try:
+            hit = (stamp, embedding_index(store) if stamp else None, None)
+        except InputError as e:
+            hit = (stamp, None, str(e))
+        _EMBEDDING_CACHE[store.root] = hit
+    _, index, why = hit
+    if index is None:
+        return [], None, why
+    if tube_id not in index.row:
+        return [], None, f"tube {tube_id!r} has no embedding: run `mine embed --out {store.uri}`"
+    found, dist = index.exact.search(index.exact.unit[index.row[tube_id]], k)
+    return _with_rows(con, [index.tube_ids[j] for j in found], dist), index.model, None
+
+
 def _with_rows(con: duckdb.DuckDBPyConnection, ids: list[str], dist: np.ndarray) -> list[dict]:
     """``SHOWN`` of each tube of ``ids`` (with its distance), in that order."""
     con.register("_found", pa.table({"tube_id": ids, "distance": pa.array(dist, pa.float32()),
@@ -160,14 +227,16 @@ def _with_rows(con: duckdb.DuckDBPyConnection, ids: list[str], dist: np.ndarray)
     return [dict(zip(SHOWN, r)) for r in result]
 
 
-def nearest(out: str | Path, tube_id: str, k: int, where: str | None = None) -> list[dict]:
+def nearest(out: str | Path, tube_id: str, k: int, where: str | None = None, vector: str = "descriptor",
+            model: str | None = None) -> list[dict]:
     """The ``k`` tubes nearest ``tube_id`` (the tube itself first, at distance 0, when ``where``
-    admits it), among those ``where`` selects: a dict per tube of ``SHOWN``."""
+    admits it), among those ``where`` selects, by ``vector`` (VECTORS; ``model``: which embedding
+    model): a dict per tube of ``SHOWN``."""
     from mining.catalog.triage import matching_tubes  # the predicate's parser, only when one is given
 
     store = Store(out)
-    index = open_index(store)
-    query = descriptor_of(store, index, tube_id)
+    index = vector_index(store, vector, model)
+    query = descriptor_of(store, index, tube_id, vector)
     rows = None
     if where is not None:
         allowed = {t[2] for t in matching_tubes(out, where)}

@@ -29,7 +29,7 @@ from mining.catalog.records import JobRecord
 from mining.catalog.store import Store
 from mining.catalog.views import connect, refresh_labels, register_derived, sql_string
 from mining.config import JobConfig
-from mining.discovery.similar import SHOWN, similar_rows
+from mining.discovery.similar import SHOWN, similar_embedding_rows, similar_rows
 from mining.errors import InputError
 from mining.formats.coco import COCO_CLASSES
 from mining.score.call import class_mode
@@ -344,7 +344,10 @@ class CatalogueBrowser:
         start = frame if frame in numbers else (best_frame(frames)["frame"] if frames else None)
         with self._lock:  # the one connection is shared by the server's threads
             similar, note = similar_rows(self.store, self.con, tube_id, SIMILAR_SHOWN + 1)
+            looks, model, looks_note = similar_embedding_rows(self.store, self.con, tube_id, SIMILAR_SHOWN + 1)
         similar = [{k: r[k] for k in SHOWN} for r in similar if r["tube_id"] != tube_id][:SIMILAR_SHOWN]
+        looks = [{k: r[k] for k in SHOWN} for r in looks if r["tube_id"] != tube_id][:SIMILAR_SHOWN]
         return {"tube": tube, "top_classes": top, "class_rule": rule, "frames": frames, "ego": self.ego_path(tube),
-                "similar": similar, "similar_note": note, "start_frame": start, "score_model": self.score_line(tube),
+                "similar": similar, "similar_note": note, "similar_looks": looks, "similar_looks_model": model,
+                "similar_looks_note": looks_note, "start_frame": start, "score_model": self.score_line(tube),
                 "where": where, "export_command": export_command(self.out, where, f"crops/{tube_id.replace('/', '_')}")}

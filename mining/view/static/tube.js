@@ -183,9 +183,10 @@ function wireLabels() {
   });
 }
 
-// The nearest tubes by descriptor (`mine describe` made them), each a thumbnail linking to its page.
-function showSimilar(similar, note) {
-  const box = document.getElementById("similar");
+// The nearest tubes by descriptor (`mine describe` made them) or by image embedding (`mine embed`),
+// each a thumbnail linking to its page.
+function showSimilar(similar, note, id = "similar") {
+  const box = document.getElementById(id);
   if (!similar.length) { box.replaceChildren(el("p", { class: "muted small", text: note || "No other tube." })); return; }
   box.replaceChildren(...similar.map(s => {
     const a = el("a", { href: `/tube?id=${encodeURIComponent(s.tube_id)}`, title: s.tube_id, class: `c-${s.call}` });
@@ -241,6 +242,11 @@ async function main() {
   document.getElementById("export").textContent = d.export_command;
   drawTrack(frames, d.ego, t.call);
   showSimilar(d.similar, d.similar_note);
+  if (d.similar_looks.length || d.similar_looks_note) {  // no strip where nothing was embedded
+    document.getElementById("similar-looks-box").hidden = false;
+    document.getElementById("similar-looks-model").textContent = d.similar_looks_model || "mine embed";
+    showSimilar(d.similar_looks, d.similar_looks_note, "similar-looks");
+  }
   document.querySelector(".swatch.tube").classList.add(`c-${t.call}`);
 
   const strip = document.getElementById("strip");
