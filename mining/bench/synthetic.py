@@ -4,7 +4,10 @@ The driver of the synthetic protocol (``mining/eval/synthetic.py``, which define
 protocol and its metrics): it runs the pipeline on the synthetic source, keeps each
 frame's ground truth compactly, and hands both to ``evaluate_synthetic``. It also keeps
 each frame's proposal masks, before and after the geometric filter, for the recall funnel
-(``mining/eval/funnel.py``: where between proposal and selection each object is lost).
+(``mining/eval/funnel.py``: where between proposal and selection each object is lost), and
+scores discovery over the tubes on unknown objects (``mining/eval/discovery.py``): the tubes
+become catalogue rows as the pipeline writes them (``catalog/rows.py``), whose descriptors and
+grouping are the product's own (``mining/discovery/``).
 """
 
 from __future__ import annotations
@@ -17,9 +20,13 @@ from collections.abc import Iterator
 import numpy as np
 
 from mining.catalog import safe_files
+from mining.catalog.rows import RunInfo, frame_rows, to_table, tube_row
 from mining.checks import count, input_file, output_file, positive_float
 from mining.config import JobConfig, load_config
 from mining.errors import InputError
+from mining.discovery.descriptors import descriptors
+from mining.discovery.groups import centre_distances, group_vectors
+from mining.eval.discovery import discovery_metrics, format_discovery
 from mining.eval.funnel import StageFrame, evaluate_funnel, format_funnel, stage_frame
 from mining.eval.synthetic import GtFrame, evaluate_synthetic, format_synthetic, gt_frame
 from mining.pipeline.arguments import add_overwrite_option
@@ -39,7 +46,8 @@ def run_synthetic(sequence: str, n_frames: int, cfg: JobConfig, start: int = 0, 
     ``n_frames`` is the source's sequence length (it fixes the world); ``stop`` defaults to it.
     ``protocol`` takes ``evaluate_synthetic``'s keyword arguments. The results carry the
     ground truth as ``results["truths"]`` (frame → GtFrame) for re-evaluation, the recall
-    funnel (``evaluate_funnel``, same protocol) as ``results["funnel"]`` and the wall time as
+    funnel (``evaluate_funnel``, same protocol) as ``results["funnel"]``, discovery over the tubes
+    on unknown objects (``discovery``) as ``results["discovery"]`` and the wall time as
     ``results["seconds"]``.
     """
     options = {k: v for k, v in cfg.source.options.items() if k != "n_frames"}
@@ -73,10 +81,24 @@ def run_synthetic(sequence: str, n_frames: int, cfg: JobConfig, start: int = 0, 
                                         groups=unary_groups(cfg.score, cfg.proposals.proposer),
                                         tube_split=results["tube_split"],
                                         **{k: v for k, v in protocol.items() if k in shared})
+    results["discovery"] = discovery(mined, results["tube_kind"], RunInfo("synthetic", sequence, "eval", "", plan.calib.bf))
     results["seconds"] = {"mine": t1 - t0, "eval": time.perf_counter() - t1}
     results["sequence"] = sequence
     results["truths"] = truths
     return mined, results
+
+
+def discovery(mined: list[MinedTube], tube_kind: dict[int, str], run: RunInfo) -> dict:
+    """``discovery_metrics`` over the selected tubes with a true kind (those on unknown objects),
+    in tube id order: their rows as the pipeline writes them, the product's descriptors of them,
+    its grouping (``group_vectors``' defaults for that many tubes) and centre distances."""
+    on = sorted((m for m in mined if m.selected and m.tube.tube_id in tube_kind), key=lambda m: m.tube.tube_id)
+    ids = [str(m.tube.tube_id) for m in on]
+    tubes = to_table([tube_row(m, t, run) for m, t in zip(on, ids)], "tubes")
+    frames = to_table([r for m, t in zip(on, ids) for r in frame_rows(m, t)], "tube_frames")
+    vectors = descriptors(tubes, frames)
+    labels, _ = group_vectors(vectors)
+    return discovery_metrics(vectors, [tube_kind[m.tube.tube_id] for m in on], labels, centre_distances(vectors, labels))
 
 
 def run_synthetic_eval(sequence: str, n_frames: int, cfg: JobConfig, json_out: str | None = None,
@@ -86,6 +108,7 @@ def run_synthetic_eval(sequence: str, n_frames: int, cfg: JobConfig, json_out: s
     print(f"synthetic {sequence}, {n_frames} frames, proposer {cfg.proposals.proposer}: "
           f"mined in {results['seconds']['mine']:.0f} s")
     print(format_synthetic(results))
+    print(format_discovery(results["discovery"]))
     print(format_funnel(results["funnel"]))
     print(classifiers_line(cfg.proposals.proposer))
     print(unary_line(cfg.score, cfg.proposals.proposer))
