@@ -14,8 +14,11 @@ from pycocotools import mask as mask_utils
 from conftest import coco_rle
 
 from mining import cli
+from mining.bench.synthetic import pool_rows, pooled_discovery
+from mining.discovery.descriptors import DESCRIPTOR_VERSION
 from mining.discovery.groups import centre_distances, group_vectors
 from mining.eval.discovery import discovery_metrics, exemplars, format_discovery, group_purity, nn_same_kind, propagation
+from mining.errors import InputError
 from mining.eval.synthetic import evaluate_synthetic
 from mining.types import FrameTruth, MinedTube, ObjectTruth, Tube, TubeCategory, TubeFrame, TubeScore
 
@@ -132,4 +135,43 @@ def test_mine_eval_synthetic_writes_a_discovery_section(tmp_path, capsys):
     for key in ("nn_same_kind", "group_purity", "propagation", "propagation_grouped", "noise_share", "nn_chance"):
         assert math.isnan(d[key]) or 0.0 <= d[key] <= 1.0, key
     assert d["groups"] >= 0 and d["labelled"] == d["groups"]
+    assert sorted(str(r["tube_id"]) for r in d["rows"]) == sorted(kinds) and all(len(r["vector"]) == 19 for r in d["rows"])
     assert "discovery over" in capsys.readouterr().out
+    # a second sequence, pooled with the first
+    second = tmp_path / "s.json"
+    assert cli.main(["eval", "synthetic", "--sequence", "0002", "--n-frames", "10", "--json", str(second),
+                     "--pool", str(out)]) == 0
+    both = json.loads(second.read_text())["discovery"]
+    assert both["pooled"]["tubes"] == both["tubes"] + d["tubes"] and both["pooled"]["pooled_with"] == ["0001"]
+    assert "pooled with 0001: discovery over" in capsys.readouterr().out
+
+
+def _result(path, sequence: str, vectors: np.ndarray, kinds: list[str], version: str = DESCRIPTOR_VERSION) -> str:
+    rows = [{"tube_id": k, "kind": kind, "group": -1, "vector": v.tolist()} for k, (kind, v) in enumerate(zip(kinds, vectors))]
+    path.write_text(json.dumps({"sequence": sequence, "discovery": {"descriptor_version": version, "rows": rows}}))
+    return str(path)
+
+
+def test_sequences_too_small_to_group_alone_are_grouped_pooled(tmp_path):
+    vectors, kinds = clusters(12)
+    thirds = [np.arange(k, 48, 3) for k in range(3)]  # each 16 tubes, 4 of a kind: no group of 10 alone
+    section = {"descriptor_version": DESCRIPTOR_VERSION,
+               "rows": [{"tube_id": int(k), "kind": kinds[k], "group": -1, "vector": vectors[k].tolist()} for k in thirds[0]]}
+    labels, _ = group_vectors(vectors[thirds[0]])
+    assert not (labels >= 0).any()  # 16 tubes, 4 of a kind: no group of 10 in one sequence
+    paths = [_result(tmp_path / f"{s}.json", s, vectors[t], [kinds[k] for k in t]) for s, t in zip(("0002", "0003"), thirds[1:])]
+    pooled = pooled_discovery(section, paths)
+    assert pooled["tubes"] == 48 and pooled["pooled_with"] == ["0002", "0003"]
+    assert pooled["groups"] == 4 and pooled["group_purity"] == 1.0 and pooled["propagation"] == 1.0
+
+
+def test_a_pool_file_of_another_recipe_or_not_a_result_is_one_line(tmp_path):
+    vectors, kinds = clusters(2)
+    old = _result(tmp_path / "old.json", "0002", vectors, kinds, version="d0-00000000")
+    with pytest.raises(InputError, match="recipe d0-00000000") as e:
+        pool_rows(old)
+    assert "\n" not in str(e.value)
+    (tmp_path / "bad.json").write_text('{"HOTA": 1}')
+    with pytest.raises(InputError, match="discovery rows") as e:
+        pool_rows(str(tmp_path / "bad.json"))
+    assert "\n" not in str(e.value) and "bad.json" in str(e.value)

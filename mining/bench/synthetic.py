@@ -24,7 +24,7 @@ from mining.catalog.rows import RunInfo, frame_rows, to_table, tube_row
 from mining.checks import count, input_file, output_file, positive_float
 from mining.config import JobConfig, load_config
 from mining.errors import InputError
-from mining.discovery.descriptors import descriptors
+from mining.discovery.descriptors import DESCRIPTOR_VERSION, descriptors
 from mining.discovery.groups import centre_distances, group_vectors
 from mining.eval.discovery import discovery_metrics, format_discovery
 from mining.eval.funnel import StageFrame, evaluate_funnel, format_funnel, stage_frame
@@ -97,18 +97,59 @@ def discovery(mined: list[MinedTube], tube_kind: dict[int, str], run: RunInfo) -
     tubes = to_table([tube_row(m, t, run) for m, t in zip(on, ids)], "tubes")
     frames = to_table([r for m, t in zip(on, ids) for r in frame_rows(m, t)], "tube_frames")
     vectors = descriptors(tubes, frames)
+    kinds = [tube_kind[m.tube.tube_id] for m in on]
     labels, _ = group_vectors(vectors)
-    return discovery_metrics(vectors, [tube_kind[m.tube.tube_id] for m in on], labels, centre_distances(vectors, labels))
+    out = discovery_metrics(vectors, kinds, labels, centre_distances(vectors, labels))
+    # the rows, so that sequences' sections can be pooled later (``pooled_discovery``)
+    return out | {"descriptor_version": DESCRIPTOR_VERSION,
+                  "rows": [{"tube_id": int(m.tube.tube_id), "kind": k, "group": int(g), "vector": v.tolist()}
+                           for m, k, g, v in zip(on, kinds, labels, vectors)]}
+
+
+def pool_rows(path: str) -> tuple[list[dict], str | None]:
+    """The discovery rows and sequence of an earlier ``--json`` result, of this descriptor recipe."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            doc = json.load(f)
+        rows, version = doc["discovery"]["rows"], doc["discovery"]["descriptor_version"]
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise InputError(f"not a `mine eval synthetic --json` result with discovery rows ({type(e).__name__})",
+                         path) from None
+    if version != DESCRIPTOR_VERSION:
+        raise InputError(f"descriptors of recipe {version}, this one is {DESCRIPTOR_VERSION}: run it again", path)
+    return rows, doc.get("sequence")
+
+
+def pooled_discovery(section: dict, paths: list[str]) -> dict:
+    """``discovery_metrics`` over this sequence's tubes and those of earlier ``--json`` results
+    (``paths``), grouped together as ``mine group`` groups a catalogue's whole unknown set."""
+    rows, sequences = list(section["rows"]), []
+    for path in paths:
+        more, sequence = pool_rows(path)
+        rows += more
+        sequences.append(sequence)
+    vectors = np.array([r["vector"] for r in rows], np.float64).reshape(len(rows), -1)
+    labels, _ = group_vectors(vectors)
+    out = discovery_metrics(vectors, [r["kind"] for r in rows], labels, centre_distances(vectors, labels))
+    return out | {"pooled_with": sequences}
 
 
 def run_synthetic_eval(sequence: str, n_frames: int, cfg: JobConfig, json_out: str | None = None,
-                       overwrite: bool = False, **protocol) -> int:
-    """`mine eval synthetic`: run, print the table, optionally write the results as JSON to ``json_out``."""
+                       overwrite: bool = False, pool: list[str] | None = None, **protocol) -> int:
+    """`mine eval synthetic`: run, print the table, optionally write the results as JSON to
+    ``json_out``; ``pool``: earlier results whose discovery rows are pooled with this sequence's."""
+    for path in pool or []:  # before the mining: a bad file is found in milliseconds, not minutes
+        pool_rows(path)
     mined, results = run_synthetic(sequence, n_frames, cfg, **protocol)
+    if pool:
+        results["discovery"]["pooled"] = pooled_discovery(results["discovery"], pool)
     print(f"synthetic {sequence}, {n_frames} frames, proposer {cfg.proposals.proposer}: "
           f"mined in {results['seconds']['mine']:.0f} s")
     print(format_synthetic(results))
     print(format_discovery(results["discovery"]))
+    if pool:
+        print("pooled with " + ", ".join(map(str, results["discovery"]["pooled"]["pooled_with"])) + ": "
+              + format_discovery(results["discovery"]["pooled"]))
     print(format_funnel(results["funnel"]))
     print(classifiers_line(cfg.proposals.proposer))
     print(unary_line(cfg.score, cfg.proposals.proposer))
@@ -139,6 +180,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="ignore objects farther than this (default: the protocol's)")
     p.add_argument("--json", type=output_file, default=None, metavar="PATH",
                    help="also write the results (metrics, tube counts, known/unknown calls) as JSON here")
+    p.add_argument("--pool", type=input_file, action="append", default=[], metavar="JSON",
+                   help="an earlier --json result of another sequence: discovery is also scored over its tubes "
+                        "and these together, grouped as one catalogue (repeatable)")
     add_overwrite_option(p, "the --json file")
 
 
@@ -148,4 +192,4 @@ def run(args: argparse.Namespace) -> int:
     if args.min_visible_px is not None:
         protocol["min_visible_px"] = args.min_visible_px
     return run_synthetic_eval(args.sequence, args.n_frames, load_config(args.config, args.set), json_out=args.json,
-                              overwrite=args.overwrite, **protocol)
+                              overwrite=args.overwrite, pool=args.pool, **protocol)
