@@ -36,6 +36,10 @@ detections that some tube detection overlaps with IoU ≥ ``iou_threshold``. Bot
 evaluation's detections (step 5) but not the one-to-one matching: they ask "was this object
 mined?", not "how well was it tracked?".
 
+**Discovery** (``discovery.py``): each unknown-split tube's true kind (``tube_kinds``: the
+unknown category it collected the most IoU on in step 3) is the truth the descriptors, groups
+and propagated labels are scored against.
+
 Run it: ``mine eval synthetic --sequence 0000 --n-frames 500 [--set KEY=VALUE ...]`` (the
 driver, which mines the sequence, is ``mining/bench/synthetic.py``).
 """
