@@ -4,7 +4,10 @@ The driver of the synthetic protocol (``mining/eval/synthetic.py``, which define
 protocol and its metrics): it runs the pipeline on the synthetic source, keeps each
 frame's ground truth compactly, and hands both to ``evaluate_synthetic``. It also keeps
 each frame's proposal masks, before and after the geometric filter, for the recall funnel
-(``mining/eval/funnel.py``: where between proposal and selection each object is lost).
+(``mining/eval/funnel.py``: where between proposal and selection each object is lost), and
+scores discovery over the tubes on unknown objects (``mining/eval/discovery.py``): the tubes
+become catalogue rows as the pipeline writes them (``catalog/rows.py``), whose descriptors and
+grouping are the product's own (``mining/discovery/``).
 """
 
 from __future__ import annotations
@@ -17,9 +20,13 @@ from collections.abc import Iterator
 import numpy as np
 
 from mining.catalog import safe_files
+from mining.catalog.rows import RunInfo, frame_rows, to_table, tube_row
 from mining.checks import count, input_file, output_file, positive_float
 from mining.config import JobConfig, load_config
 from mining.errors import InputError
+from mining.discovery.descriptors import DESCRIPTOR_VERSION, descriptors
+from mining.discovery.groups import centre_distances, group_vectors
+from mining.eval.discovery import discovery_metrics, format_discovery
 from mining.eval.funnel import StageFrame, evaluate_funnel, format_funnel, stage_frame
 from mining.eval.synthetic import GtFrame, evaluate_synthetic, format_synthetic, gt_frame
 from mining.pipeline.arguments import add_overwrite_option
@@ -39,7 +46,8 @@ def run_synthetic(sequence: str, n_frames: int, cfg: JobConfig, start: int = 0, 
     ``n_frames`` is the source's sequence length (it fixes the world); ``stop`` defaults to it.
     ``protocol`` takes ``evaluate_synthetic``'s keyword arguments. The results carry the
     ground truth as ``results["truths"]`` (frame → GtFrame) for re-evaluation, the recall
-    funnel (``evaluate_funnel``, same protocol) as ``results["funnel"]`` and the wall time as
+    funnel (``evaluate_funnel``, same protocol) as ``results["funnel"]``, discovery over the tubes
+    on unknown objects (``discovery``) as ``results["discovery"]`` and the wall time as
     ``results["seconds"]``.
     """
     options = {k: v for k, v in cfg.source.options.items() if k != "n_frames"}
@@ -73,19 +81,75 @@ def run_synthetic(sequence: str, n_frames: int, cfg: JobConfig, start: int = 0, 
                                         groups=unary_groups(cfg.score, cfg.proposals.proposer),
                                         tube_split=results["tube_split"],
                                         **{k: v for k, v in protocol.items() if k in shared})
+    results["discovery"] = discovery(mined, results["tube_kind"], RunInfo("synthetic", sequence, "eval", "", plan.calib.bf))
     results["seconds"] = {"mine": t1 - t0, "eval": time.perf_counter() - t1}
     results["sequence"] = sequence
     results["truths"] = truths
     return mined, results
 
 
+def discovery(mined: list[MinedTube], tube_kind: dict[int, str], run: RunInfo) -> dict:
+    """``discovery_metrics`` over the selected tubes with a true kind (those on unknown objects),
+    in tube id order: their rows as the pipeline writes them, the product's descriptors of them,
+    its grouping (``group_vectors``' defaults for that many tubes) and centre distances."""
+    on = sorted((m for m in mined if m.selected and m.tube.tube_id in tube_kind), key=lambda m: m.tube.tube_id)
+    ids = [str(m.tube.tube_id) for m in on]
+    tubes = to_table([tube_row(m, t, run) for m, t in zip(on, ids)], "tubes")
+    frames = to_table([r for m, t in zip(on, ids) for r in frame_rows(m, t)], "tube_frames")
+    vectors = descriptors(tubes, frames)
+    kinds = [tube_kind[m.tube.tube_id] for m in on]
+    labels, _ = group_vectors(vectors)
+    out = discovery_metrics(vectors, kinds, labels, centre_distances(vectors, labels))
+    # the rows, so that sequences' sections can be pooled later (``pooled_discovery``)
+    return out | {"descriptor_version": DESCRIPTOR_VERSION,
+                  "rows": [{"tube_id": int(m.tube.tube_id), "kind": k, "group": int(g), "vector": v.tolist()}
+                           for m, k, g, v in zip(on, kinds, labels, vectors)]}
+
+
+def pool_rows(path: str) -> tuple[list[dict], str | None]:
+    """The discovery rows and sequence of an earlier ``--json`` result, of this descriptor recipe."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            doc = json.load(f)
+        rows, version = doc["discovery"]["rows"], doc["discovery"]["descriptor_version"]
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise InputError(f"not a `mine eval synthetic --json` result with discovery rows ({type(e).__name__})",
+                         path) from None
+    if version != DESCRIPTOR_VERSION:
+        raise InputError(f"descriptors of recipe {version}, this one is {DESCRIPTOR_VERSION}: run it again", path)
+    return rows, doc.get("sequence")
+
+
+def pooled_discovery(section: dict, paths: list[str]) -> dict:
+    """``discovery_metrics`` over this sequence's tubes and those of earlier ``--json`` results
+    (``paths``), grouped together as ``mine group`` groups a catalogue's whole unknown set."""
+    rows, sequences = list(section["rows"]), []
+    for path in paths:
+        more, sequence = pool_rows(path)
+        rows += more
+        sequences.append(sequence)
+    vectors = np.array([r["vector"] for r in rows], np.float64).reshape(len(rows), -1)
+    labels, _ = group_vectors(vectors)
+    out = discovery_metrics(vectors, [r["kind"] for r in rows], labels, centre_distances(vectors, labels))
+    return out | {"pooled_with": sequences}
+
+
 def run_synthetic_eval(sequence: str, n_frames: int, cfg: JobConfig, json_out: str | None = None,
-                       overwrite: bool = False, **protocol) -> int:
-    """`mine eval synthetic`: run, print the table, optionally write the results as JSON to ``json_out``."""
+                       overwrite: bool = False, pool: list[str] | None = None, **protocol) -> int:
+    """`mine eval synthetic`: run, print the table, optionally write the results as JSON to
+    ``json_out``; ``pool``: earlier results whose discovery rows are pooled with this sequence's."""
+    for path in pool or []:  # before the mining: a bad file is found in milliseconds, not minutes
+        pool_rows(path)
     mined, results = run_synthetic(sequence, n_frames, cfg, **protocol)
+    if pool:
+        results["discovery"]["pooled"] = pooled_discovery(results["discovery"], pool)
     print(f"synthetic {sequence}, {n_frames} frames, proposer {cfg.proposals.proposer}: "
           f"mined in {results['seconds']['mine']:.0f} s")
     print(format_synthetic(results))
+    print(format_discovery(results["discovery"]))
+    if pool:
+        print("pooled with " + ", ".join(map(str, results["discovery"]["pooled"]["pooled_with"])) + ": "
+              + format_discovery(results["discovery"]["pooled"]))
     print(format_funnel(results["funnel"]))
     print(classifiers_line(cfg.proposals.proposer))
     print(unary_line(cfg.score, cfg.proposals.proposer))
@@ -116,6 +180,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="ignore objects farther than this (default: the protocol's)")
     p.add_argument("--json", type=output_file, default=None, metavar="PATH",
                    help="also write the results (metrics, tube counts, known/unknown calls) as JSON here")
+    p.add_argument("--pool", type=input_file, action="append", default=[], metavar="JSON",
+                   help="an earlier --json result of another sequence: discovery is also scored over its tubes "
+                        "and these together, grouped as one catalogue (repeatable)")
     add_overwrite_option(p, "the --json file")
 
 
@@ -125,4 +192,4 @@ def run(args: argparse.Namespace) -> int:
     if args.min_visible_px is not None:
         protocol["min_visible_px"] = args.min_visible_px
     return run_synthetic_eval(args.sequence, args.n_frames, load_config(args.config, args.set), json_out=args.json,
-                              overwrite=args.overwrite, **protocol)
+                              overwrite=args.overwrite, pool=args.pool, **protocol)

@@ -36,6 +36,10 @@ detections that some tube detection overlaps with IoU ≥ ``iou_threshold``. Bot
 evaluation's detections (step 5) but not the one-to-one matching: they ask "was this object
 mined?", not "how well was it tracked?".
 
+**Discovery** (``discovery.py``): each unknown-split tube's true kind (``tube_kinds``: the
+unknown category it collected the most IoU on in step 3) is the truth the descriptors, groups
+and propagated labels are scored against.
+
 Run it: ``mine eval synthetic --sequence 0000 --n-frames 500 [--set KEY=VALUE ...]`` (the
 driver, which mines the sequence, is ``mining/bench/synthetic.py``).
 """
@@ -188,6 +192,19 @@ def _tube_splits(frames: list[_Frame]) -> dict[int, str]:
     return {tid: ("known" if w[0] >= w[1] else "unknown") for tid, w in weight.items()}
 
 
+def tube_kinds(frames: list[_Frame], tube_split: Mapping[int, str]) -> dict[int, str]:
+    """Each unknown-split tube's true kind: the category of the evaluated unknown objects it was
+    matched to in step 3, the one it collected the most IoU on (ties: the first name in sort order)."""
+    weight: dict[int, dict[str, float]] = {}
+    for f in frames:
+        for j, g in enumerate(f.det_match):
+            tid = int(f.det_tubes[j])
+            if g >= 0 and f.evaluated[g] and not f.gt.known[g] and tube_split.get(tid) == "unknown":
+                w = weight.setdefault(tid, {})
+                w[f.gt.categories[g]] = w.get(f.gt.categories[g], 0.0) + float(f.similarity[g, j])
+    return {tid: min(w, key=lambda k: (-w[k], k)) for tid, w in weight.items()}
+
+
 def _contiguous(ids: list[np.ndarray]) -> list[np.ndarray]:
     """Arbitrary ids → 0-based contiguous ids, the same mapping over all frames."""
     uniq = np.unique(np.concatenate(ids)) if ids else np.zeros(0, np.int64)
@@ -296,6 +313,7 @@ def evaluate_synthetic(mined: Sequence[MinedTube], truths: Mapping[int, FrameTru
         "ignored_dets": ignored,
     }
     results["tube_split"] = {m.tube.tube_id: tube_split.get(m.tube.tube_id, "clutter") for m in tubes}
+    results["tube_kind"] = tube_kinds(frames, tube_split)  # the unknown tubes' true kinds (discovery's truth)
     # how the miner's own call (TubeCategory.call, one of CALLS: mining.score.call) agrees with the split
     t = results["tubes"]
     for split in ("known", "unknown"):
