@@ -197,6 +197,7 @@ def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frame
     summary.damaged_labels = damaged_labels
     summary.unplanned = {f"{cfg.source.dataset}/{seq}": error for seq, error in unplanned.items()}
     summary.clamped = [pf.clamped[seq] for seq in sorted(pf.clamped)]
+    summary.notes = [pf.notes[seq] for seq in sorted(pf.notes)]
     return summary
 
 

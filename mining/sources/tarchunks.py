@@ -193,9 +193,15 @@ def index_chunk(f: RandomFile, name: str, shown: str) -> ChunkIndex:
         tf = tarfile.open(fileobj=_Ranged(f), mode="r:")
     except tarfile.TarError as e:
         raise InputError(f"not a tar archive ({e}); RobotCar chunks are uncompressed .tar", shown) from None
-    for ti in tf:
+    ti = tf.firstmember
+    while ti is not None:
         if ti.isreg():
             idx.members[ti.name] = Member(ti.offset, ti.offset_data, ti.size)
+        try:
+            ti = tf.next()
+        except tarfile.ReadError:  # the data of the last member runs past the end: cut inside it
+            idx.cut = ti.offset
+            return idx
     end = tf.offset  # tarfile stops at the end-of-archive block, or silently where the headers stop making sense
     if f.read_at(end, TAR_BLOCK) != bytes(TAR_BLOCK):
         idx.cut = min(end, f.size)
