@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
+from _s3 import s3_folder
 from conftest import kitti_0005_stereo
 from mining.errors import InputError
 from mining.sources import open_source
@@ -119,23 +119,8 @@ def test_stride_skips_frames_and_says_so(extracted, chunks):
 
 @pytest.fixture
 def s3_root(chunks, monkeypatch):
-    """The chunks and models uploaded to a local S3-compatible server (moto's), as a URI."""
-    import pyarrow.fs as pafs
-    from moto.server import ThreadedMotoServer
-
-    for key, value in (("AWS_ACCESS_KEY_ID", "test"), ("AWS_SECRET_ACCESS_KEY", "test")):
-        monkeypatch.setenv(key, value)
-    server = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
-    server.start()
-    host, port = server.get_host_and_port()
-    uri = f"s3://robotcar/dl?endpoint_override=http://{host}:{port}&scheme=http&region=us-east-1"
-    fs, base = pafs.FileSystem.from_uri(uri + "&allow_bucket_creation=true")
-    fs.create_dir("robotcar")
-    for path in sorted(p for p in chunks.rglob("*") if p.is_file()):
-        with fs.open_output_stream(f"{base}/{path.relative_to(chunks).as_posix()}") as f:
-            f.write(path.read_bytes())
-    yield uri
-    server.stop()
+    with s3_folder(chunks, monkeypatch) as uri:
+        yield uri
 
 
 def test_chunks_on_an_object_store_read_as_the_extracted_copy(extracted, s3_root):
