@@ -20,8 +20,10 @@ from mining.testing.fixtures import robotcar_as_downloaded, write_robotcar_fixtu
 
 N_FRAMES = 8  # KITTI 0005 frames 0-7, chunks of 2: chunk ids 1-4
 TRAV = "t"
-# 2-frame windows without context: a window holds exactly the frames of one chunk
-WINDOWS = ["--set", "window.core=2", "--set", "window.context_before=0", "--set", "window.context_after=0"]
+# 4-frame windows with a frame of context: tubes cross windows and are stitched
+WINDOWS = ["--set", "window.core=4", "--set", "window.context_before=1", "--set", "window.context_after=1"]
+# without context a window holds exactly the frames of two chunks (1-2, 3-4)
+ALONE = ["--set", "window.context_before=0", "--set", "window.context_after=0"]
 # Columns that say when and by which run a row was written, not what was mined.
 RUN_COLUMNS = {"run_id", "written_at", "created_at", "mined_at"}
 
@@ -48,38 +50,46 @@ def _table(out: Path, name: str) -> list[dict]:
     return sorted(rows, key=repr)
 
 
-def _mine(out: Path, root: str, *extra: str) -> tuple[int, str]:
-    rc, stdout, stderr = submit(out, "--dataset", "oxford", "--root", root, *WINDOWS, *extra)
+def _proposals(shared_data: Path) -> list[str]:
+    # The frame numbers are the timestamp lines, i.e. KITTI 0005's: its shared 4D-GVT proposals fit.
+    folder = shared_data / "proposals_4dgvt_format" / "kitti_tracking_0005" / "top20"
+    return ["--set", 'proposals.proposer="json"', "--set", f'proposals.json.folder="{folder}"']
+
+
+def _mine(out: Path, root: str, shared_data: Path, *extra: str) -> tuple[int, str]:
+    rc, stdout, stderr = submit(out, "--dataset", "oxford", "--root", root, *WINDOWS, *_proposals(shared_data),
+                                *extra)
     return rc, stdout + stderr
 
 
 @pytest.mark.slow  # three `mine submit`s on a local Ray
-def test_chunks_local_and_on_s3_mine_the_catalogue_of_the_extracted_copy(extracted, tmp_path, s3_chunks):
+def test_chunks_local_and_on_s3_mine_the_catalogue_of_the_extracted_copy(extracted, tmp_path, s3_chunks,
+                                                                        shared_data):
     chunks, uri = s3_chunks
-    rc, shown = _mine(tmp_path / "extracted", str(extracted))
+    rc, shown = _mine(tmp_path / "extracted", str(extracted), shared_data)
     assert rc == 0, shown
     tubes = _table(tmp_path / "extracted", "tubes")
     assert tubes, "the extracted copy mines tubes"
     for name, root in (("chunks", str(chunks)), ("s3", uri)):
-        rc, shown = _mine(tmp_path / name, root)
+        rc, shown = _mine(tmp_path / name, root, shared_data)
         assert rc == 0, shown
-        assert "windows: 4 ok, 0 failed" in shown, shown
+        assert "windows: 2 ok, 0 failed" in shown, shown
         assert _table(tmp_path / name, "tubes") == tubes, name
         assert _table(tmp_path / name, "tube_frames") == _table(tmp_path / "extracted", "tube_frames"), name
 
 
 @pytest.mark.slow  # a `mine submit` on a local Ray
-def test_a_missing_chunk_fails_its_window_alone_named(extracted, tmp_path):
+def test_a_missing_chunk_fails_its_window_alone_named(extracted, tmp_path, shared_data):
     chunks = robotcar_as_downloaded(extracted, tmp_path / "chunks", TRAV)
     gone = chunks / f"{TRAV}_stereo_right_03.tar"  # frames 4 and 5
     gone.unlink()
-    rc, shown = _mine(tmp_path / "out", str(chunks))
+    rc, shown = _mine(tmp_path / "out", str(chunks), shared_data, *ALONE)
     assert rc == 1, shown
     failed = [ln for ln in shown.splitlines() if ln.startswith("FAILED")]
-    assert len(failed) == 1 and failed[0].startswith(f"FAILED {TRAV}-0000004-0000006: frame 4: chunk {gone}: missing"), shown
-    assert "windows: 3 ok, 1 failed" in shown, shown
+    assert len(failed) == 1 and failed[0].startswith(f"FAILED {TRAV}-0000004-0000008: frame 4: chunk {gone}: missing"), shown
+    assert "windows: 1 ok, 1 failed" in shown, shown
     frames = {r["frame"] for r in pq.read_table(tmp_path / "out" / "catalog" / "frames").to_pylist()}
-    assert frames == {0, 1, 2, 3, 6, 7}  # the other windows' frames are all written
+    assert frames == {0, 1, 2, 3}  # the other window's frames are all written
 
 
 def test_stride_is_reported_in_the_summary(extracted, tmp_path):
