@@ -105,6 +105,25 @@ def test_a_truncated_chunk_fails_the_frames_past_the_cut(extracted, chunks):
         src.read_frame(plan, 3)
     src.read_frame(plan, 2)
 
+    for cut in (0, 100):  # an empty download; one cut inside its first header
+        chunk.write_bytes(data[:cut])
+        src = OxfordSource(chunks)
+        plan = src.plan(TRAV)
+        for pos in (2, 3):
+            with pytest.raises(InputError, match=f"frame {pos}: chunk {chunk}, offset 0: truncated"):
+                src.read_frame(plan, pos)
+        _same_frames(OxfordSource(extracted), src, (0, 1, 4, 5))
+
+
+def test_a_chunk_that_is_no_tar_fails_its_frames_naming_why(extracted, chunks):
+    chunk = chunks / f"{TRAV}_stereo_right_01.tar"
+    chunk.write_bytes(b"\x1f\x8b" + bytes(4096))  # compressed, or anything else: no tar header to read
+    src = OxfordSource(chunks)
+    plan = src.plan(TRAV)
+    with pytest.raises(InputError, match=f"frame 1: chunk {chunk}, offset 0: not an uncompressed tar archive"):
+        src.read_frame(plan, 1)
+    _same_frames(OxfordSource(extracted), src, (2, 3, 4, 5))
+
 
 def test_stride_skips_frames_and_says_so(extracted, chunks):
     for root in (extracted, chunks):

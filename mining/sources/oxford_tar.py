@@ -110,7 +110,7 @@ class TarTraversal:
                              f"{'the other camera has' if self._other_has(camera, chunk) else 'the traversal has'} it)",
                              None, frame)
         if idx.cut is not None:
-            raise InputError(f"chunk {shown}, offset {idx.cut}: truncated: the archive stops there, before {name}",
+            raise InputError(f"chunk {shown}, offset {idx.cut}: {idx.damage}: the archive stops there, before {name}",
                              None, frame)
         raise InputError(f"chunk {shown}: holds no {name} (stereo.timestamps puts this frame in chunk {chunk})",
                          None, frame)

@@ -25,7 +25,6 @@ from pathlib import Path
 
 import pyarrow.fs as pafs
 
-from mining.errors import InputError
 from mining.files import open_regular, read_bytes
 
 # POSIX tar: every header and every member's data is padded to 512-byte blocks; the archive
@@ -161,7 +160,7 @@ class _Ranged(io.RawIOBase):
         return len(data)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Member:
     """One regular file in a tar chunk: where its header and its data start, its size."""
 
@@ -179,20 +178,24 @@ class ChunkIndex:
     size: int
     members: dict[str, Member] = field(default_factory=dict)
     cut: int | None = None
+    damage: str = "truncated"  # what happened at ``cut``, for messages
 
     def truncated(self, m: Member) -> bool:
         """Whether member ``m``'s data runs past the end of the chunk."""
         return m.offset + m.size > self.size
 
 
-def index_chunk(f: RandomFile, name: str, shown: str) -> ChunkIndex:
-    """The index of the tar archive ``f`` (file name ``name``, named ``shown`` in messages).
-    InputError when it is no tar at all (a bad first header, an empty file)."""
+def index_chunk(f: RandomFile, name: str) -> ChunkIndex:
+    """The index of the tar archive ``f`` (file name ``name``); one that is no tar from its first
+    header (an empty or cut download, another format) is an index of nothing, cut at 0."""
     idx = ChunkIndex(name, f.size)
     try:
         tf = tarfile.open(fileobj=_Ranged(f), mode="r:")
-    except tarfile.TarError as e:
-        raise InputError(f"not a tar archive ({e}); RobotCar chunks are uncompressed .tar", shown) from None
+    except tarfile.TarError as e:  # an empty or cut first header, or no tar at all: no member is readable
+        idx.cut = 0
+        if f.size >= TAR_BLOCK:
+            idx.damage = f"not an uncompressed tar archive ({e})"
+        return idx
     ti = tf.firstmember
     while ti is not None:
         if ti.isreg():
@@ -218,7 +221,7 @@ def chunk_index(root: Root, rel: str) -> ChunkIndex:
     with root.open(rel) as f:
         key = (root.show(rel), f.size, f.mtime_ns)
         if key not in _INDEXES:
-            _INDEXES[key] = index_chunk(f, posixpath.basename(rel), root.show(rel))
+            _INDEXES[key] = index_chunk(f, posixpath.basename(rel))
     return _INDEXES[key]
 
 
