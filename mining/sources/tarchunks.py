@@ -190,7 +190,7 @@ def index_chunk(f: RandomFile, name: str) -> ChunkIndex:
     header (an empty or cut download, another format) is an index of nothing, cut at 0."""
     idx = ChunkIndex(name, f.size)
     try:
-        tf = tarfile.open(fileobj=_Ranged(f), mode="r:")
+        tf = tarfile.TarFile(fileobj=_Ranged(f))  # plain tar, read: no compression to detect
     except tarfile.TarError as e:  # an empty or cut first header, or no tar at all: no member is readable
         idx.cut = 0
         if f.size >= TAR_BLOCK:

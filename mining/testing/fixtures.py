@@ -136,7 +136,7 @@ def robotcar_as_downloaded(extracted: str | Path, out_dir: str | Path, traversal
     src, out = Path(extracted) / traversal, Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     shutil.copytree(Path(extracted) / "models", out / "models", dirs_exist_ok=True)
-    chunk_of = {int(t): int(c) for t, c in (ln.split() for ln in (src / "stereo.timestamps").read_text().split("\n")
+    chunk_of = {int(t): int(c) for t, c in (ln.split() for ln in (src / "stereo.timestamps").read_bytes().decode().split("\n")
                                             if ln.strip())}
     for cam_dir in sorted((src / "stereo").iterdir()):
         by_chunk: dict[int, list[Path]] = {}
