@@ -152,3 +152,30 @@ def test_chunks_on_an_object_store_read_as_the_extracted_copy(extracted, s3_root
     clone = pickle.loads(pickle.dumps(src))
     plan = clone.plan(TRAV)
     assert clone.read_frame(plan, 4).index == 4
+
+
+def test_workers_adopt_the_planners_chunk_indexes(chunks, monkeypatch):
+    """The job carries the planning source's indexes (Source.shared_state): a worker's source
+    reads frames without scanning a chunk again, and scans one that changed since."""
+    import pickle
+
+    from mining.sources import tarchunks
+
+    planner = OxfordSource(chunks)
+    plan = planner.plan(TRAV)
+    state = pickle.loads(pickle.dumps(planner.shared_state()))  # as it travels to a worker
+    assert len(state) == 7  # 3 chunks of each camera and the timestamps' archive
+    monkeypatch.setattr(tarchunks, "_INDEXES", {})  # a worker's process
+    worker = pickle.loads(pickle.dumps(planner))
+    worker.adopt_state(state)
+    scans = []
+    real = tarchunks.index_chunk
+    monkeypatch.setattr(tarchunks, "index_chunk", lambda f, name: scans.append(name) or real(f, name))
+    for pos in range(N_FRAMES):
+        worker.read_frame(plan, pos)
+    assert scans == []
+    changed = chunks / f"{TRAV}_stereo_left_03.tar"
+    changed.write_bytes(changed.read_bytes()[:1024])  # a chunk replaced since planning: its index is made anew
+    with pytest.raises(InputError, match="truncated"):
+        worker.read_frame(plan, 5)
+    assert scans == [changed.name]

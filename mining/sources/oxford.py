@@ -47,7 +47,7 @@ from mining.files import check_regular, open_regular
 from mining.names import check_name
 from mining.sources.base import Source
 from mining.sources.oxford_tar import Located, TarTraversal, chunk_traversals
-from mining.sources.tarchunks import Root
+from mining.sources.tarchunks import Root, adopt_indexes, indexes_under
 from mining.types import SequencePlan, StereoCalib, StereoFrame
 
 # Image folder and camera model name of (left, right) for each stereo pair.
@@ -225,6 +225,14 @@ class OxfordSource(Source):
     def __getstate__(self) -> dict:
         # Shipped to workers without the LUT maps (~20 MB per 1280x960 pair) or listings; they reload.
         return {**self.__dict__, "_cameras": {}, "_tars": {}, "_chunk_of": {}}
+
+    def shared_state(self) -> object | None:
+        # The chunks' indexes: on an object store a chunk's index costs a request a member, which
+        # every worker would otherwise pay again for the chunks it reads.
+        return indexes_under(self.where) or None
+
+    def adopt_state(self, state: object) -> None:
+        adopt_indexes(state)  # type: ignore[arg-type]  # what shared_state gave
 
     @property
     def _folders(self) -> tuple[str, str]:

@@ -241,6 +241,18 @@ def chunk_index(root: Root, rel: str) -> ChunkIndex:
     return _INDEXES[key]
 
 
+def indexes_under(root: Root) -> dict[tuple[str, int, int], ChunkIndex]:
+    """The indexes this process made of chunks under ``root`` (to hand to other processes)."""
+    prefix = root.show()
+    return {k: v for k, v in _INDEXES.items() if k[0].startswith(prefix)}
+
+
+def adopt_indexes(indexes: dict[tuple[str, int, int], ChunkIndex]) -> None:
+    """Indexes another process made (``indexes_under``); each is used only while its chunk's
+    size and modification time are still those it was made from (its key)."""
+    _INDEXES.update(indexes)
+
+
 def read_member(root: Root, rel: str, member: Member) -> bytes:
     """The data of ``member`` of chunk ``rel``: one ranged read."""
     with root.open(rel) as f:
