@@ -179,3 +179,10 @@ def test_workers_adopt_the_planners_chunk_indexes(chunks, monkeypatch):
     with pytest.raises(InputError, match="truncated"):
         worker.read_frame(plan, 5)
     assert scans == [changed.name]
+
+
+def test_an_extracted_traversal_on_an_object_store_reads_too(extracted, monkeypatch):
+    with s3_folder(extracted, monkeypatch) as uri:
+        src = open_source("oxford", uri)
+        assert src.sequences() == [TRAV]
+        _same_frames(OxfordSource(extracted), src, (0, 5))
