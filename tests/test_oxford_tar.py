@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from _s3 import s3_folder
 from conftest import kitti_0005_stereo
-from mining.errors import InputError
+from mining.errors import ConfigError, InputError
 from mining.sources import open_source
 from mining.sources.oxford import OxfordSource
 from mining.testing.fixtures import robotcar_as_downloaded, write_robotcar_fixture
@@ -134,6 +134,11 @@ def test_stride_skips_frames_and_says_so(extracted, chunks):
         assert src.read_frame(plan, 1).index == 2
     full = OxfordSource(extracted)
     assert np.array_equal(src.read_frame(plan, 2).left, full.read_frame(full.plan(TRAV), 4).left)
+    plan = open_source("oxford", str(chunks), rate_hz=5.0).plan(TRAV)  # 16 Hz / 5 Hz: the nearest stride is 3
+    assert plan.frames == (0, 3) and plan.note == "rate 5 Hz of 16 Hz: stride 3: 2 of every 3 frames skipped (4 of 6)"
+    for bad in ({"rate_hz": 0.0}, {"rate_hz": 4.0, "stride": 2}, {"stride": 0}):
+        with pytest.raises(ConfigError):
+            open_source("oxford", str(chunks), **bad)
 
 
 @pytest.fixture

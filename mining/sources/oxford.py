@@ -26,12 +26,14 @@ The root may instead hold the traversal as downloaded, its tar chunks unextracte
 a pyarrow filesystem URI (``s3://…``) either way: ``oxford_tar.py``.
 
 ``stride`` (ours) keeps every N-th line of ``stereo.timestamps`` (frame indices stay the
-line numbers): the others are never read. The plan's ``note`` says how many were skipped.
+line numbers): the others are never read; ``rate_hz`` picks the stride nearest a target rate.
+The plan's ``note`` says how many were skipped.
 """
 
 from __future__ import annotations
 
 import csv
+import math
 import posixpath
 import struct
 from dataclasses import dataclass
@@ -189,7 +191,8 @@ class OxfordSource(Source):
     every image: the same pixels (tested), 6 instead of 8 bytes a pixel, remap ≈ 7 % cheaper at
     1280×960. False = the float maps (before issue 30).
 
-    ``stride`` (ours): every N-th timestamp line is planned, the others never read (module docstring).
+    ``stride`` (ours): every N-th timestamp line is planned, the others never read (module docstring);
+    ``rate_hz`` (ours) chooses that N for a target rate (the nearest whole stride to the recording's rate / it).
     """
 
     dataset = "oxford"
@@ -206,11 +209,16 @@ class OxfordSource(Source):
         allow_missing_lut: bool = False,
         lut_fixed_point: bool = True,
         stride: Count = 1,
+        rate_hz: float | None = None,
     ):
         if pair not in PAIRS:
             raise ConfigError(f"unknown RobotCar stereo pair {pair!r}; known: {sorted(PAIRS)}")
         if not (isinstance(stride, int) and stride >= 1):
             raise ConfigError(f"source.options.stride must be a whole number ≥ 1, got {stride!r}")
+        if rate_hz is not None and not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and rate_hz > 0):
+            raise ConfigError(f"source.options.rate_hz must be a number > 0, got {rate_hz!r}")
+        if rate_hz is not None and stride != 1:
+            raise ConfigError("source.options: give stride or rate_hz, not both")
         self.where = Root(root)
         self.root = Path(root) if self.where.local else str(root)
         self.pair = pair
@@ -218,6 +226,7 @@ class OxfordSource(Source):
         self.allow_missing_lut = allow_missing_lut
         self.lut_fixed_point = bool(lut_fixed_point)
         self.stride = stride
+        self.rate_hz = rate_hz
         self._cameras: dict[str, tuple[_Camera, _Camera]] = {}
         self._tars: dict[str, TarTraversal | None] = {}  # traversal → its chunks (None: extracted)
         self._chunk_of: dict[str, dict[int, int]] = {}  # traversal → µs → chunk id (the tar layout's messages)
@@ -324,7 +333,7 @@ class OxfordSource(Source):
         return out
 
     def _select(self, sequence: str, rows: list[tuple[int, int]], present: dict, downloaded: set[int],
-                extracted: bool) -> tuple[list[int], list[int], list[int], list[tuple[int, str]], int]:
+                extracted: bool, stride: int) -> tuple[list[int], list[int], list[int], list[tuple[int, str]], int]:
         """(frames, t_ns, gaps, problems, skipped by the stride) of the timestamp ``rows``."""
         lfolder, rfolder = self._folders
         frames: list[int] = []
@@ -338,7 +347,7 @@ class OxfordSource(Source):
             if chunk not in downloaded:
                 broken = True  # chunk not downloaded: a gap
                 continue
-            if line % self.stride:
+            if line % stride:
                 skipped += 1
                 continue
             name = f"{t_us}.png"
@@ -355,6 +364,14 @@ class OxfordSource(Source):
             t_ns.append(t_us * 1000)
         return frames, t_ns, gaps, problems, skipped
 
+    def _stride(self, rows: list[tuple[int, int]]) -> tuple[int, str]:
+        """The stride, and for ``rate_hz`` how it was chosen ("rate 4 Hz of 16 Hz: "): the
+        recording's rate is its median timestamp step."""
+        if self.rate_hz is None or len(rows) < 2:
+            return self.stride, ""
+        native = 1e6 / float(np.median(np.diff([t for t, _ in rows])))
+        return max(1, round(native / self.rate_hz)), f"rate {self.rate_hz:g} Hz of {native:.3g} Hz: "
+
     def survey(self, sequence: str) -> SequencePlan:
         rows = self._read_timestamps(sequence)
         tar = self._tar(sequence)
@@ -364,7 +381,8 @@ class OxfordSource(Source):
                       or f"{t_us}.png" in present[rfolder]}
         if tar is not None:  # a chunk file of either camera: downloaded, even when it turns out empty or cut
             downloaded |= {n for numbers in tar.chunks.values() for n in numbers}
-        frames, t_ns, gaps, problems, skipped = self._select(sequence, rows, present, downloaded, tar is None)
+        stride, rate = self._stride(rows)
+        frames, t_ns, gaps, problems, skipped = self._select(sequence, rows, present, downloaded, tar is None, stride)
 
         def readable(k: int) -> bool:
             locs = [present[f].get(f"{t_ns[k] // 1000}.png", False) for f in (lfolder, rfolder)]
@@ -395,8 +413,8 @@ class OxfordSource(Source):
         cams = self._load_cameras(sequence, width, height)
         self._cameras[sequence] = cams
         calib = stereo_calib(cams[0].model, cams[1].model, width, height)
-        note = (f"stride {self.stride}: {self.stride - 1} of every {self.stride} frames skipped "
-                f"({skipped} of {skipped + len(frames)})") if self.stride > 1 else ""
+        note = (f"{rate}stride {stride}: {stride - 1} of every {stride} frames skipped "
+                f"({skipped} of {skipped + len(frames)})") if stride > 1 else ""
         return SequencePlan(self.dataset, sequence, calib, tuple(frames), tuple(t_ns), tuple(gaps), tuple(problems),
                             note)
 
