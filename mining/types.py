@@ -121,6 +121,7 @@ class SequencePlan:
     t_ns: tuple[int, ...]
     gaps: tuple[int, ...] = ()
     problems: tuple[tuple[int, str], ...] = ()
+    note: str = ""  # how the source sampled the recording, for the run summary ("stride 4: …"); "" = every frame
 
     def problem_in(self, start: int = 0, stop: int | None = None) -> str | None:
         """The first problem at a position in ``[start, stop)``, or None."""

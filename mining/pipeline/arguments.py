@@ -98,7 +98,7 @@ def add_job_options(p: argparse.ArgumentParser, paths_here: bool = True) -> None
     with ``--address http://…``): then they are checked after parsing (``check_paths``), where
     the command runs, not by the parser."""
     p.add_argument("--dataset", help="kitti, kitti-raw, oxford, mcap or synthetic (default: the config's)")
-    p.add_argument("--root", type=input_path if paths_here else local_input, help="dataset root folder")
+    p.add_argument("--root", type=input_path if paths_here else local_input, help="dataset root folder or pyarrow filesystem URI (s3://…)")
     p.add_argument("--config", type=input_file if paths_here else local_input,
                    help="job config TOML (e.g. jobs/kitti.toml)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
@@ -113,7 +113,8 @@ def job_config(args: argparse.Namespace) -> JobConfig:
     if args.dataset:
         overrides.append(f"source.dataset={args.dataset!r}".replace("'", '"'))
     if args.root:
-        overrides.append(f'source.root="{Path(args.root).as_posix()}"')
+        root = args.root if "://" in args.root else Path(args.root).as_posix()  # a URI as given (Path folds its //)
+        overrides.append(f'source.root="{root}"')
     if getattr(args, "host", None):
         overrides.append(f"run.bind_host={args.host!r}".replace("'", '"'))
     cfg = load_config(args.config, overrides)

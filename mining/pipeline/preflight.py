@@ -49,6 +49,7 @@ class Preflight:
     windows: list[Window]
     failed: dict[str, str] = field(default_factory=dict)  # sequence → why it cannot be mined
     clamped: dict[str, str] = field(default_factory=dict)  # sequence → what of --frames it has (clamped_note)
+    notes: dict[str, str] = field(default_factory=dict)  # sequence → how its source sampled it (SequencePlan.note)
 
 
 
@@ -158,6 +159,9 @@ def plan_sequences(cfg: JobConfig, sequences: list[str] | None = None,
         pf.plans[seq] = plan
         if (note := clamped_note(seq, frames, len(plan))) is not None:
             pf.clamped[seq] = note
+        if plan.note:  # e.g. a stride: what was skipped, and how many frames the job reads
+            a, b = frames[0], len(plan) if frames[1] is None else min(frames[1], len(plan))
+            pf.notes[seq] = f"sequence {seq}: {plan.note}; {max(0, b - a)} frames read"
         pf.windows += plan_windows(plan, w.core, w.context_before, w.context_after, frames[0], frames[1])
     if not pf.plans:
         raise InputError("no sequence can be mined: " + "; ".join(f"{dataset}/{s}: {e}" for s, e in pf.failed.items()))

@@ -71,6 +71,7 @@ class Job:
     out: str
     run_id: str
     plans: dict[str, SequencePlan]  # sequence → (possibly sliced) plan
+    source_state: object | None = None  # the planning source's Source.shared_state, adopted by each worker's source
 
     @property
     def params_hash(self) -> str:
@@ -92,6 +93,8 @@ def job_source(job: Job) -> Source:
     key = json.dumps([s.dataset, s.root, s.options], sort_keys=True, default=str)
     if key not in _SOURCES:
         _SOURCES[key] = s.open()
+        if job.source_state is not None:
+            _SOURCES[key].adopt_state(job.source_state)
     return _SOURCES[key]
 
 

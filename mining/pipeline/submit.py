@@ -55,7 +55,7 @@ from mining.pipeline.preflight import Preflight, preflight
 from mining.pipeline.running import RunningMarkers
 from mining.pipeline.resume import read_resume, record_job, set_aside_unreadable, sweep_temporaries
 from mining.pipeline.schedule import Schedule, Step, Task
-from mining.pipeline.steps import Job, StepResult, observed_so_far, write_manifest, write_stitch_failure
+from mining.pipeline.steps import Job, StepResult, job_source, observed_so_far, write_manifest, write_stitch_failure
 from mining.pipeline.summary import Summary
 from mining.progress import StepBar
 from mining.proposals.make import classifiers_line, classify_hint
@@ -72,7 +72,8 @@ def open_job(cfg: JobConfig, out: str, sequences: list[str] | None = None,
     pf = pf if pf is not None else preflight(cfg, out, sequences, frames)
     why = {seq: (e.strip().splitlines() or ["unknown error"])[0] for seq, e in pf.failed.items()}
     record = record_job(store, cfg, pf.windows, job_identity(cfg, pf.plans, frames, list(pf.failed)), mode, why)
-    job = Job(cfg, out, record.run_id, pf.plans)
+    # what planning learnt (RobotCar: chunk indexes) goes to every worker with the job
+    job = Job(cfg, out, record.run_id, pf.plans, job_source(Job(cfg, "", "", {})).shared_state())
     return (job, Schedule(pf.windows, read_resume(store, cfg.source.dataset, pf.windows, job.params_hash, verify)),
             pf.failed)
 
@@ -197,6 +198,7 @@ def mine_job(cfg: JobConfig, out: str, sequences: list[str] | None = None, frame
     summary.damaged_labels = damaged_labels
     summary.unplanned = {f"{cfg.source.dataset}/{seq}": error for seq, error in unplanned.items()}
     summary.clamped = [pf.clamped[seq] for seq in sorted(pf.clamped)]
+    summary.notes = [pf.notes[seq] for seq in sorted(pf.notes)]
     return summary
 
 

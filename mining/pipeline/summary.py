@@ -31,6 +31,7 @@ class Summary:
     stitch_failed: dict[str, str] = field(default_factory=dict)  # "dataset/sequence" whose stitch failed → error
     unplanned: dict[str, str] = field(default_factory=dict)  # "dataset/sequence" left out by the preflight → why
     clamped: list[str] = field(default_factory=list)  # what of a --frames range past a sequence's end was mined
+    notes: list[str] = field(default_factory=list)  # how a source sampled a sequence (a stride: the frames skipped)
     frames: int = 0
     tubes: int = 0
     candidates: int = 0
@@ -67,7 +68,7 @@ class Summary:
         stitch = f"; stitch: {len(self.stitch_failed)} failed" if self.stitch_failed else ""
         out = [f"windows: {self.ok} ok, {len(self.failed)} failed, {self.skipped} already done (of {self.windows})"
                f"{stitch}",
-               *self.clamped]
+               *self.clamped, *self.notes]
         if self.nothing_to_do:  # "0 selected … 0.00 frames/s" read as a job that found nothing
             out += ["nothing left to mine: an earlier run did every window; the catalogue's tubes are as they "
                     "were (mine status, mine query)", f"time: {self.seconds:.1f} s in all"]

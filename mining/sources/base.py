@@ -43,6 +43,15 @@ class Source(ABC):
     def read_frame(self, plan: SequencePlan, position: int) -> StereoFrame:
         """Decode the frame at ``position`` in ``plan.frames``."""
 
+    def shared_state(self) -> object | None:
+        """What planning learnt that would save each worker the same work (RobotCar: the
+        indexes of its tar chunks), picklable; None when nothing. Workers get it through
+        ``adopt_state``, and must still check it against the data (a changed file is read anew)."""
+        return None
+
+    def adopt_state(self, state: object) -> None:
+        """Take ``shared_state`` from the source that planned the job."""
+
     def read(self, sequence: str | SequencePlan, start: int = 0, stop: int | None = None) -> Iterator[StereoFrame]:
         """Frames at plan positions ``[start, stop)``, decoded one at a time."""
         plan = sequence if isinstance(sequence, SequencePlan) else self.plan(sequence)

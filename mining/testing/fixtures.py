@@ -7,6 +7,8 @@ image content without shipping those datasets.
 
 from __future__ import annotations
 
+import shutil
+import tarfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -123,6 +125,37 @@ def write_robotcar_fixture(
             cv2.imwrite(str(trav / "stereo" / d / f"{t_us}.png"), raw)
     (trav / "stereo.timestamps").write_text("\n".join(lines) + "\n")
     return trav
+
+
+def robotcar_as_downloaded(extracted: str | Path, out_dir: str | Path, traversal: str, small: str = "tar") -> Path:
+    """The extracted RobotCar root ``extracted``'s ``traversal`` written under ``out_dir`` as it is
+    downloaded: ``<traversal>_stereo_<camera>_<NN>.tar`` per camera and chunk id (uncompressed,
+    members ``<traversal>/stereo/<camera>/<µs>.png``), ``models/`` copied. ``small``: "tar" puts
+    ``stereo.timestamps`` (and ``vo/vo.csv`` when there is one) in ``<traversal>_stereo_timestamps.tar``
+    (and ``<traversal>_vo.tar``), "plain" copies them as files. Returns ``out_dir``."""
+    src, out = Path(extracted) / traversal, Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    shutil.copytree(Path(extracted) / "models", out / "models", dirs_exist_ok=True)
+    chunk_of = {int(t): int(c) for t, c in (ln.split() for ln in (src / "stereo.timestamps").read_bytes().decode().split("\n")
+                                            if ln.strip())}
+    for cam_dir in sorted((src / "stereo").iterdir()):
+        by_chunk: dict[int, list[Path]] = {}
+        for png in sorted(cam_dir.glob("*.png")):
+            by_chunk.setdefault(chunk_of[int(png.stem)], []).append(png)
+        for chunk, pngs in by_chunk.items():
+            with tarfile.open(out / f"{traversal}_stereo_{cam_dir.name}_{chunk:02d}.tar", "w", format=tarfile.GNU_FORMAT) as tf:
+                for png in pngs:
+                    tf.add(png, f"{traversal}/stereo/{cam_dir.name}/{png.name}")
+    for rel, archive in (("stereo.timestamps", "stereo_timestamps"), ("vo/vo.csv", "vo")):
+        if not (src / rel).is_file():
+            continue
+        if small == "tar":
+            with tarfile.open(out / f"{traversal}_{archive}.tar", "w") as tf:
+                tf.add(src / rel, f"{traversal}/{rel}")
+        else:
+            (out / traversal / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(src / rel, out / traversal / rel)
+    return out
 
 
 # -- ROS 2 MCAP ------------------------------------------------------------------------------
