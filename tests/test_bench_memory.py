@@ -41,7 +41,7 @@ def test_a_short_job_gives_every_role_a_sample_per_window(tmp_path):
     r = measure_memory(memory_job(JobConfig(), 300), 300, tmp_path / "out", workers=2)
     assert r["frames"] == 300 and r["windows"] == 3 and r["tubes"] > 0
     roles = r["roles"]
-    assert {"driver", "workers", "ray_system", "object_store"} <= set(roles)
+    assert {"driver", "workers", "ray_raylet", "ray_gcs_server", "object_store"} <= set(roles)
     assert roles["workers"]["processes"] == 2 and roles["driver"]["processes"] == 1
     assert not r["object_store_error"]
     for role, v in roles.items():

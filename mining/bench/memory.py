@@ -13,7 +13,7 @@ bench reads VmRSS from /proc of every process the job runs, grouped by role:
 * ``workers``: the pipeline's ``ray::Worker`` actors (sum over them);
 * ``proposal_actors``: the proposal stage's actors, where a model runs on them;
 * ``ray_other``: the raylet's other children (idle workers, Ray's agents);
-* ``ray_system``: Ray's own daemons (raylet, GCS, dashboard, log monitor);
+* ``ray_raylet``, ``ray_gcs_server``, …: each of Ray's own daemons, named as Ray names them;
 * ``object_store``: the bytes in Ray's object store (``ray memory --stats-only``, MiB resolution).
 
 Per role: ``peak_mb`` (the highest sample, the stitch's included), ``slope_mb_per_1k_frames``
@@ -81,26 +81,27 @@ def _title(pid: int) -> str:
         return ""
 
 
-def ray_system_pids() -> list[int]:
-    """Ray's own daemons that this driver's ``ray.init`` started (raylet, GCS, dashboard, …)."""
+def ray_system_pids() -> dict[int, str]:
+    """pid → role (``ray_`` and Ray's name) of Ray's own daemons that this driver's ``ray.init``
+    started (raylet, GCS, dashboard, …): each its own role, so a growing one is named."""
     import ray
 
     node = ray._private.worker.global_worker.node  # noqa: SLF001 - the only handle on the daemons' pids
-    return [p.process.pid for procs in node.all_processes.values() for p in procs]
+    return {p.process.pid: f"ray_{name}" for name, procs in node.all_processes.items() for p in procs}
 
 
-def processes_by_role(driver: int, raylet: int, system: list[int]) -> dict[str, dict[int, dict[str, int]]]:
-    """role → pid → /proc status of the job's processes: ``driver``, ``ray_system`` (``system``),
-    and the ``raylet``'s children as ``workers``, ``proposal_actors`` or ``ray_other``."""
+def processes_by_role(driver: int, raylet: int, system: dict[int, str]) -> dict[str, dict[int, dict[str, int]]]:
+    """role → pid → /proc status of the job's processes: ``driver``, Ray's daemons (``system``: pid →
+    role), and the ``raylet``'s children as ``workers``, ``proposal_actors`` or ``ray_other``."""
     roles: dict[str, dict[int, dict[str, int]]] = {"driver": {}, "workers": {}, "proposal_actors": {},
-                                                    "ray_other": {}, "ray_system": {}}
-    for pid in system:
+                                                    "ray_other": {}}
+    for pid, role in system.items():
         if st := _status(pid):
-            roles["ray_system"][pid] = st
+            roles.setdefault(role, {})[pid] = st
     if st := _status(driver):
         roles["driver"][driver] = st
     for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit() or int(entry.name) in roles["ray_system"]:
+        if not entry.name.isdigit() or int(entry.name) in system:
             continue
         st = _status(int(entry.name))
         if st.get("PPid") != raylet or "VmRSS" not in st:
@@ -115,7 +116,7 @@ def processes_by_role(driver: int, raylet: int, system: list[int]) -> dict[str, 
 class MemoryProbe:
     """Samples every role's resident memory (and the object store) when asked: ``sample(frames)``."""
 
-    def __init__(self, driver: int, raylet: int, system: list[int]):
+    def __init__(self, driver: int, raylet: int, system: dict[int, str]):
         self.driver, self.raylet, self.system = driver, raylet, system
         self.samples: list[dict[str, Any]] = []  # {"frames", "at", "stitch", role: MB, …}
         self.hwm: dict[str, int] = {}  # role → highest VmHWM (bytes) of any one of its processes
