@@ -52,4 +52,5 @@ def test_a_short_job_gives_every_role_a_sample_per_window(tmp_path):
             assert v["peak_mb"] > 10 and v["peak_hwm_mb"] > 10, role  # a live process, not a zero read
     # A Python process with numpy and OpenCV holds well over 50 MB; the sum of two, more.
     assert roles["workers"]["peak_mb"] > 100
+    assert 50 < r["stitch_peak_mb"] <= roles["workers"]["peak_hwm_mb"]  # reset as the stitch began, then its own
     assert isinstance(report(r), bool)

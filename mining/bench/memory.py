@@ -122,6 +122,16 @@ class MemoryProbe:
         self.hwm: dict[str, int] = {}  # role → highest VmHWM (bytes) of any one of its processes
         self.processes: dict[str, set[int]] = {}
         self.store_error = ""
+        self.stitch_reset = True  # every worker's peak was reset before the stitch (False: a reset was refused)
+        self.stitch_peak_mb: float | None = None  # the highest worker peak from the stitch's start to its end
+
+    def reset_peaks(self) -> None:
+        """Reset every worker's VmHWM (``clear_refs`` 5), so the peak read after the stitch is the stitch's."""
+        for pid in processes_by_role(self.driver, self.raylet, self.system)["workers"]:
+            try:
+                Path(f"/proc/{pid}/clear_refs").write_text("5")
+            except OSError:
+                self.stitch_reset = False
 
     def sample(self, frames: int, stitch: bool = False) -> None:
         from mining.bench.pipeline import object_store_bytes
@@ -129,6 +139,8 @@ class MemoryProbe:
         row: dict[str, Any] = {"frames": int(frames), "at": time.time(), "stitch": stitch}
         for role, procs in processes_by_role(self.driver, self.raylet, self.system).items():
             row[role] = sum(st["VmRSS"] for st in procs.values()) / MB
+            if stitch and role == "workers" and self.stitch_reset:
+                self.stitch_peak_mb = max((st.get("VmHWM", 0) for st in procs.values()), default=0) / MB
             self.processes.setdefault(role, set()).update(procs)
             for st in procs.values():
                 self.hwm[role] = max(self.hwm.get(role, 0), st.get("VmHWM", 0), st["VmRSS"])
@@ -172,6 +184,8 @@ class SamplingExecutor:
         return self.inner.free()
 
     def submit(self, step: str, *args: Any) -> Any:
+        if step == "finalize":  # the peak from here to the stitch's end is the stitch's (nothing else runs then)
+            self.probe.reset_peaks()
         ref = self.inner.submit(step, *args)
         self.steps[ref] = step
         return ref
@@ -244,7 +258,7 @@ def measure_memory(cfg: JobConfig, frames: int, out: str | Path, workers: int) -
                     f"proposer {cfg.proposals.proposer}, {cfg.window.core}-frame windows, local Ray of {workers} "
                     "worker(s), mine submit's job with its caches swept",
             "ray_version": ray.__version__, "object_store_error": probe.store_error,
-            "load_avg": os.getloadavg(), "roles": probe.roles()}
+            "load_avg": os.getloadavg(), "stitch_peak_mb": probe.stitch_peak_mb, "roles": probe.roles()}
 
 
 def report(r: dict[str, Any]) -> bool:
@@ -259,6 +273,8 @@ def report(r: dict[str, Any]) -> bool:
         ok &= bool(np.isfinite(s) and s <= SLOPE_TARGET_MB)
         hwm = "-" if v["peak_hwm_mb"] is None else f"{v['peak_hwm_mb']:.0f}"
         print(f"  {role:<16} {v['processes']:>9} {v['peak_mb']:9.0f} {hwm:>12} {s:+15.3f} {len(v['samples']):>8}")
+    if r.get("stitch_peak_mb") is not None:
+        print(f"  the stitch's peak (the worker that ran it, VmHWM reset as it began): {r['stitch_peak_mb']:.0f} MB")
     if r["object_store_error"]:
         print(f"  object store not read: {r['object_store_error']}")
     print("  MB: resident (VmRSS), summed over the role's processes, sampled after each window's track step and "
