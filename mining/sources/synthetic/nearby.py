@@ -28,7 +28,7 @@ class Nearby:
 
     def fits(self, static_keys: np.ndarray, objects: list[Any]) -> bool:
         """Still the index of this world (the world is only ever added to while it is built)."""
-        return len(static_keys) == self.n_static and len(objects) == self.n_objects
+        return objects is self.objects and len(static_keys) == self.n_static and len(objects) == self.n_objects
 
     def static(self, lo: float, hi: float) -> np.ndarray:
         """Indices of the static faces with ``lo < key < hi``, in their stored order."""
