@@ -36,12 +36,12 @@ from typing import Any
 
 import numpy as np
 
+from mining.bench.pipeline import WORKER_TITLE, local_raylet_pid, object_store_bytes, proc_status
 from mining.catalog import safe_files
 from mining.checks import count, output_file, output_folder
 from mining.config import JobConfig
 from mining.pipeline.arguments import add_job_options, add_overwrite_option, job_config
 
-WORKER_TITLE = "ray::Worker"  # process title of the pipeline's actors (mining.pipeline.executors.Worker)
 PROPOSAL_TITLE = "ray::ProposalWorker"  # process title of the proposal stage's actors
 CHEAP_SIZE = (125, 414)  # ours: a third of KITTI's sides; at 310×94 and below no tube is found
 SLOPE_TARGET_MB = 1.0  # issue 42: every role's growth ≤ 1 MB per 1,000 frames
@@ -57,21 +57,6 @@ def slope_per_1k(frames: list[int] | np.ndarray, mb: list[float] | np.ndarray, s
     if len(f) < 2 or np.ptp(f) == 0:
         return float("nan")
     return float(np.polyfit(f, m, 1)[0] * 1000)
-
-
-def _status(pid: int) -> dict[str, int]:
-    """VmRSS and VmHWM (bytes) and PPid of a process; empty when it has gone."""
-    out: dict[str, int] = {}
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            key, _, value = line.partition(":")
-            if key in ("VmRSS", "VmHWM"):
-                out[key] = int(value.split()[0]) * 1024
-            elif key == "PPid":
-                out[key] = int(value)
-    except (FileNotFoundError, ProcessLookupError, PermissionError, ValueError):
-        return {}
-    return out
 
 
 def _title(pid: int) -> str:
@@ -96,14 +81,14 @@ def processes_by_role(driver: int, raylet: int, system: dict[int, str]) -> dict[
     roles: dict[str, dict[int, dict[str, int]]] = {"driver": {}, "workers": {}, "proposal_actors": {},
                                                     "ray_other": {}}
     for pid, role in system.items():
-        if st := _status(pid):
+        if st := proc_status(pid):
             roles.setdefault(role, {})[pid] = st
-    if st := _status(driver):
+    if st := proc_status(driver):
         roles["driver"][driver] = st
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit() or int(entry.name) in system:
             continue
-        st = _status(int(entry.name))
+        st = proc_status(int(entry.name))
         if st.get("PPid") != raylet or "VmRSS" not in st:
             continue
         title = _title(int(entry.name))
@@ -134,8 +119,6 @@ class MemoryProbe:
                 self.stitch_reset = False
 
     def sample(self, frames: int, stitch: bool = False) -> None:
-        from mining.bench.pipeline import object_store_bytes
-
         row: dict[str, Any] = {"frames": int(frames), "at": time.time(), "stitch": stitch}
         for role, procs in processes_by_role(self.driver, self.raylet, self.system).items():
             row[role] = sum(st["VmRSS"] for st in procs.values()) / MB
@@ -224,7 +207,6 @@ def memory_job(cfg: JobConfig, frames: int) -> JobConfig:
 def measure_memory(cfg: JobConfig, frames: int, out: str | Path, workers: int) -> dict[str, Any]:
     """Mine ``frames`` frames of ``cfg``'s first sequence into a fresh ``out`` on a local Ray of
     ``workers`` CPUs started here (once a process: Ray's core worker is made once), sampling."""
-    from mining.bench.pipeline import local_raylet_pid
     from mining.pipeline.localray import init_local_ray, prepare_local_ray
 
     prepare_local_ray(cfg.run.bind_host)  # before `import ray`: loopback unless run.bind_host says otherwise
