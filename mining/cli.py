@@ -104,6 +104,9 @@ COMMANDS = (  # in the order --help lists them: the top-level verbs, then the gr
                                                         "grouping 10⁵ unknown tubes"),
     Command("bench", "pipeline", "mining.bench.pipeline", "end-to-end frames/s on 1 and 2 workers, Ray overhead, worker "
                                                           "memory, catalogue size and query times (synthetic 1242×375)"),
+    Command("bench", "memory", "mining.bench.memory", "resident memory of the driver, workers, Ray's processes and "
+                                                     "the object store once per window over one long sequence "
+                                                     "(synthetic 414×125): peak and MB per 1,000 frames by role"),
     Command("bench", "looks", "mining.bench.looks", "recall@20 with the right COCO class (shared ONNX model) on "
                                                     "synthetic frames against KITTI 0005 frames 0–15, and the "
                                                     "renderer's ms per frame"),

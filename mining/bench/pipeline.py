@@ -60,7 +60,7 @@ def bench_job(cfg: JobConfig, n_frames: int, sequences: list[str], core: int = 1
     return cfg
 
 
-def _status(pid: int) -> dict[str, int]:
+def proc_status(pid: int) -> dict[str, int]:
     """VmRSS, VmHWM (bytes) and PPid of a process; empty when it has gone."""
     out: dict[str, int] = {}
     try:
@@ -90,7 +90,7 @@ def worker_processes(raylet_pid: int) -> dict[int, dict[str, int]]:
             continue
         if not title.startswith(WORKER_TITLE):
             continue
-        st = _status(int(entry.name))
+        st = proc_status(int(entry.name))
         if st.get("PPid") == raylet_pid and "VmRSS" in st:
             out[int(entry.name)] = st
     return out

@@ -105,13 +105,31 @@ def concat_parts(table: str, parts: list[tuple[str, pa.Table]]) -> pa.Table:
                      "remove it and resubmit to run its window again", path)
 
 
-def _pieces(tube_frames: pa.Table) -> dict[str, list[dict]]:
-    by_piece: dict[str, list[dict]] = defaultdict(list)
-    for row in tube_frames.to_pylist():
-        by_piece[row["tube_id"]].append(row)
-    for rows in by_piece.values():
-        rows.sort(key=lambda r: r["frame"])
-    return by_piece
+ROWS_PER_CHUNK = 4096  # ours: tube-frame rows held as dicts before they go into Arrow (a few MB)
+
+
+class _Pieces:
+    """A sequence's part tube-frame rows by piece (the part's ``tube_id``), in frame order within each
+    (a stable sort, as before). A piece's rows become dicts only when its chain is built (``rows``): the
+    whole sequence's rows as dicts at once were a large share of the stitch's memory (issue 42)."""
+
+    def __init__(self, tube_frames: pa.Table):
+        self.table = tube_frames
+        code: dict[str, int] = {}  # piece → its number, in order of first appearance
+        ids = np.array([code.setdefault(t, len(code)) for t in tube_frames.column("tube_id").to_pylist()], np.int64)
+        frame = tube_frames.column("frame").to_pylist()
+        self.order = np.lexsort((np.asarray(frame, np.int64), ids)) if len(ids) else np.zeros(0, np.int64)
+        starts = np.flatnonzero(np.r_[True, np.diff(ids[self.order]) != 0]) if len(ids) else np.zeros(0, np.int64)
+        names = list(code)
+        self.span = {names[ids[self.order[a]]]: (int(a), int(b)) for a, b in zip(starts, np.r_[starts[1:], len(ids)])}
+        window = tube_frames.column("window").to_pylist()
+        obs, observed = tube_frames.column("obs_index").to_pylist(), tube_frames.column("observed").to_pylist()
+        self.window = {p: window[self.order[a]] for p, (a, _) in self.span.items()}
+        self.keys = {p: {(frame[i], obs[i]) for i in self.order[a:b] if observed[i]} for p, (a, b) in self.span.items()}
+
+    def rows(self, piece: str) -> list[dict]:
+        a, b = self.span[piece]
+        return self.table.take(pa.array(self.order[a:b])).to_pylist()
 
 
 def _match(a_pieces: list[str], b_pieces: list[str], keys: dict[str, set], min_shared: int) -> list[tuple[str, str]]:
@@ -180,15 +198,14 @@ def stitch_sequence(windows: list[Window], tubes: pa.Table, tube_frames: pa.Tabl
                     cfg: JobConfig, run: RunInfo) -> dict[str, pa.Table]:
     """The catalogue tables of one sequence from its windows' parts."""
     frames_table, poses = chain_sequence(frames)
-    pieces = _pieces(tube_frames)
-    piece_window = {p: rows[0]["window"] for p, rows in pieces.items()}
-    keys = {p: {(r["frame"], r["obs_index"]) for r in rows if r["observed"]} for p, rows in pieces.items()}
+    pieces = _Pieces(tube_frames)
+    piece_window, keys = pieces.window, pieces.keys
     tubes, windows_of = [], []
     pos = poses.position
     for links in _chains(windows, piece_window, keys, cfg.window.stitch_min_shared, pos):
         # A frame without a position lies in no stitched window's core (a failed window's
         # core, seen as a neighbour's context): no window owns it.
-        rows = [r for p, lo, hi in links for r in pieces[p] if r["frame"] in pos and lo <= pos[r["frame"]] <= hi]
+        rows = [r for p, lo, hi in links for r in pieces.rows(p) if r["frame"] in pos and lo <= pos[r["frame"]] <= hi]
         while rows and not rows[-1]["observed"]:
             rows.pop()
         while rows and not rows[0]["observed"]:
@@ -210,7 +227,7 @@ def stitch_sequence(windows: list[Window], tubes: pa.Table, tube_frames: pa.Tabl
     # Stable ids: the first inlier names the tube; ties (one observation can start several) by inliers.
     stitched.sort(key=lambda x: (x[0].tube.inlier_key(), -x[0].score.total))
     used: dict[str, int] = defaultdict(int)
-    tube_rows, frame_rows_ = [], []
+    tube_rows, frame_rows_, frame_tables = [], [], []
     for mt, n_windows in stitched:
         first = mt.tube.frames[0]
         base = f"{run.dataset}/{run.sequence}/{first.frame:07d}.{first.obs_index:03d}"
@@ -218,5 +235,9 @@ def stitch_sequence(windows: list[Window], tubes: pa.Table, tube_frames: pa.Tabl
         used[base] += 1
         tube_rows.append(tube_row(mt, tube_id, run, n_windows))
         frame_rows_.extend(frame_rows(mt, tube_id))
-    return {"tubes": to_table(tube_rows, "tubes"), "tube_frames": to_table(frame_rows_, "tube_frames"),
+        if len(frame_rows_) >= ROWS_PER_CHUNK:  # into Arrow as it goes: never every tube frame as a dict at once
+            frame_tables.append(to_table(frame_rows_, "tube_frames"))
+            frame_rows_ = []
+    frame_tables.append(to_table(frame_rows_, "tube_frames"))
+    return {"tubes": to_table(tube_rows, "tubes"), "tube_frames": pa.concat_tables(frame_tables).combine_chunks(),
             "frames": frames_table}

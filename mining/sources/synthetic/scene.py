@@ -37,6 +37,7 @@ from mining.sources.synthetic.meshes import (
     ANIMATED, CAR_COLOURS, CAR_SHAPES, CAR_WEIGHTS, CLOTHES, EURO_PALLET_M, QUADRUPEDS, TROUSERS, build_mesh,
     part_poses, rider_height,
 )
+from mining.sources.synthetic.nearby import Nearby, keep_mesh
 from mining.sources.synthetic.textures import LANE_M, PARKING_M, Atlas
 
 if TYPE_CHECKING:
@@ -256,6 +257,8 @@ class Scene:
         self.exposure = (rng.uniform(0.9, 1.1), rng.uniform(0.05, 0.15), rng.uniform(20, 60), rng.uniform(0, 6.3))
         self.right_gain = rng.uniform(0.96, 1.04, 3)
         self.objects: list[Obj] = []
+        self.meshed: dict[int, Obj] = {}  # objects with a mesh, least recently drawn first (nearby.keep_mesh)
+        self._nearby: Nearby | None = None
         self.roles: dict = {}  # track id → scenarios.Role (staged scenarios only)
         self._build_static(np.random.default_rng([seed, 3]))
         if scenario is None:
@@ -660,6 +663,12 @@ class Scene:
                         return False
         return True
 
+    def nearby(self) -> Nearby:
+        """The index of what is near the ego (``nearby.py``), made once the world is built."""
+        if self._nearby is None or not self._nearby.fits(self.static_rows[:, R_SKEY], self.objects):
+            self._nearby = Nearby(self.static_rows[:, R_SKEY], self.objects)
+        return self._nearby
+
     def state(self, o: Obj, t: float):
         """(position (3,) map, yaw (map), distance walked, s) or None when the object is absent."""
         m = o.motion
@@ -729,11 +738,11 @@ def frame_faces(scene: Scene, t: float, view: tuple[float, float, float] | None 
     ``view`` (tan of the half field of view across and down, sideways margin): leave out the
     faces and objects no camera of the rig can see (none are left out without it)."""
     s_ego = scene.ego_arc(t)
-    key = scene.static_rows[:, R_SKEY]
-    sel = (key > s_ego - VIEW_BEHIND_M) & (key < s_ego + VIEW_AHEAD_M)
+    near = scene.nearby()
+    sel = near.static(s_ego - VIEW_BEHIND_M, s_ego + VIEW_AHEAD_M)
     M = scene.camera_map(t)
     if view is not None:
-        sel[sel] = _in_view(M, scene.static_centres[sel], scene.static_radii[sel], view)
+        sel = sel[_in_view(M, scene.static_centres[sel], scene.static_radii[sel], view)]
     verts = [scene.static_verts[sel]]
     rows = [scene.static_rows[sel]]
     # terrain: one big square below the road, texture anchored at the map origin
@@ -749,17 +758,13 @@ def frame_faces(scene: Scene, t: float, view: tuple[float, float, float] | None 
     states = {}
     # objects: local faces and, per face, which rigid motion (object pose ∘ body-part pose) moves it
     local_v, local_r, motion_of_face, Rs, ts = [], [], [], [], []
-    for o in scene.objects:
-        m = o.motion
-        if m.kind in ("static", "lane"):  # cheap range test before the exact state
-            s_guess = m.s0 + (m.v * t if m.kind == "lane" else 0.0)
-            if not (s_ego - VIEW_BEHIND_M - 20 < s_guess < s_ego + VIEW_AHEAD_M):
-                continue
+    for o in near.candidates(t, s_ego - VIEW_BEHIND_M - 20, s_ego + VIEW_AHEAD_M):  # cheap test, then the exact state
         st = scene.state(o, t)
         if st is None or not (s_ego - VIEW_BEHIND_M - 20 < st[3] < s_ego + VIEW_AHEAD_M):
             continue
         if o.faces is None:
             o.faces = build_mesh(o, scene.atlas)
+        keep_mesh(scene.meshed, o)
         pos, yaw, walked, _ = st
         if view is not None and not _in_view(M, (pos - [0.0, o.size[1] / 2, 0.0])[None],
                                              np.array([0.5 * float(np.linalg.norm(o.size)) + VIEW_SLACK_M]), view)[0]:
