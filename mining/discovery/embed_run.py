@@ -214,7 +214,8 @@ class EmbedSummary:
         out = [f"mine embed: {self.model} (sha256 {self.model_sha256[:12]}…, D = {self.dim}): {self.embedded} tubes "
                f"embedded, {self.skipped} already embedded by this model, {len(self.failed)} failed"]
         if any(a.get("gpu_ids") for a in self.placement):
-            gpus = ", ".join("+".join(a["gpu_ids"]) or "none" for a in self.placement)
+            # sorted: the actors start in whatever order Ray schedules them
+            gpus = ", ".join(sorted(("+".join(a["gpu_ids"]) or "none" for a in self.placement), key=lambda g: (len(g), g)))
             out[0] += f"; {len(self.placement)} actor(s) on GPUs [{gpus}] ({self.placement[0]['providers'][0]})"
         out += [f"  tube {t}: {why}" for t, why in sorted(self.failed.items())]
         return out
