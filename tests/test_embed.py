@@ -318,6 +318,7 @@ def ray_with_logical_gpus():
     ray.shutdown()
 
 
+@pytest.mark.slow  # starts a Ray of its own (logical GPUs)
 @pytest.mark.own_process
 def test_on_ray_one_actor_holds_each_logical_gpu_and_the_vectors_are_the_local_ones(ray_with_logical_gpus, catalogue,
                                                                                    encoders, tmp_path):

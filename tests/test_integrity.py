@@ -386,6 +386,7 @@ def _flip_a_column_name(path: Path) -> str:
     raise AssertionError(f"no single flipped bit of {path} renames a column")
 
 
+@pytest.mark.slow  # mines the catalogue again (over ~2.5 s)
 @pytest.mark.parametrize("repair", ["verify", "new-run"])
 def test_a_flipped_bit_in_a_column_name_is_damage_not_a_newer_version(base_catalogue, tmp_path, capsys, repair):
     """One flipped bit in a compacted file's column name was refused as "written by a newer

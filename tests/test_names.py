@@ -403,6 +403,7 @@ def test_a_catalogue_holding_a_name_an_older_rule_allowed_is_one_line(base_catal
     assert "'_1'" in line and "--new-run" in line and "starting with a letter or digit" in line, line
 
 
+@pytest.mark.slow  # mines the catalogue again
 def test_new_run_mines_a_catalogue_an_older_rule_named_again(base_catalogue, tmp_path):
     from _jobs import mine
 

@@ -4,11 +4,13 @@ past its window), and a mesh dropped and rebuilt draws the same frame bit for bi
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from mining.sources.synthetic import SyntheticSource
 from mining.sources.synthetic import nearby
 
 
+@pytest.mark.slow  # over ~2.5 s: renders frames of a long world
 def test_meshes_kept_are_bounded_and_a_rebuilt_mesh_draws_the_same_frame(monkeypatch):
     src = SyntheticSource(n_frames=400, width=160, height=48)
     plan = src.plan("0000")
