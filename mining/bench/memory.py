@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from mining.bench.pipeline import WORKER_TITLE, local_raylet_pid, object_store_bytes, proc_status
+from mining.bench.pipeline import WORKER_TITLE, local_raylet_pid, object_store_bytes, proc_status, start_bench_ray
 from mining.catalog import safe_files
 from mining.checks import count, output_file, output_folder
 from mining.config import JobConfig
@@ -207,21 +207,12 @@ def memory_job(cfg: JobConfig, frames: int) -> JobConfig:
 def measure_memory(cfg: JobConfig, frames: int, out: str | Path, workers: int) -> dict[str, Any]:
     """Mine ``frames`` frames of ``cfg``'s first sequence into a fresh ``out`` on a local Ray of
     ``workers`` CPUs started here (once a process: Ray's core worker is made once), sampling."""
-    from mining.pipeline.localray import init_local_ray, prepare_local_ray
-
-    prepare_local_ray(cfg.run.bind_host)  # before `import ray`: loopback unless run.bind_host says otherwise
     import ray
 
     from mining.pipeline.executors import RayExecutor
     from mining.pipeline.submit import mine_job
 
-    out = Path(out)
-    if out.exists() and any(out.iterdir()):
-        raise FileExistsError(f"{out} is not empty: the bench needs a fresh catalogue")
-    if ray.is_initialized():
-        raise RuntimeError("the bench measures a Ray of its own: this process already runs one")
-    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    init_local_ray(workers, cfg.run.bind_host, runtime_env={"env_vars": {"OPENCV_FOR_THREADS_NUM": "1"}})
+    out = start_bench_ray(cfg, out, workers)
     try:
         probe = MemoryProbe(os.getpid(), local_raylet_pid(), ray_system_pids())
         probe.sample(0)  # Ray started, nothing mined: the baseline (not in the slope either)

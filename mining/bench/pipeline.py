@@ -248,18 +248,13 @@ def child_result(args: list[str], result_json: Path, what: str) -> dict[str, Any
     return json.loads(result_json.read_text())
 
 
-def measure_run_here(cfg: JobConfig, out: str | Path, workers: int, gpus: int = 0,
-                     frames: int | None = None) -> dict[str, Any]:
-    """``measure_run`` in this process, which must not have started Ray before (and will
-    not start it again): the body of the bench's child process. ``gpus``: logical GPUs the
-    local Ray announces (the proposal stage's actors take them; a test without a GPU)."""
+def start_bench_ray(cfg: JobConfig, out: str | Path, workers: int, gpus: int = 0) -> Path:
+    """Start the local Ray of ``workers`` CPUs (and ``gpus`` logical GPUs) a bench measures in this
+    process, after checking ``out`` is a fresh catalogue and no Ray runs here yet; ``out`` as a Path."""
     from mining.pipeline.localray import init_local_ray, prepare_local_ray
 
     prepare_local_ray(cfg.run.bind_host)  # before `import ray`: loopback unless run.bind_host says otherwise
     import ray
-
-    from mining.pipeline.executors import RayExecutor
-    from mining.pipeline.submit import mine_job
 
     out = Path(out)
     if out.exists() and any(out.iterdir()):
@@ -267,9 +262,23 @@ def measure_run_here(cfg: JobConfig, out: str | Path, workers: int, gpus: int = 
     if ray.is_initialized():
         raise RuntimeError("the bench measures a Ray of its own: this process already runs one")
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    t0 = time.perf_counter()
     init_local_ray(workers, cfg.run.bind_host, runtime_env={"env_vars": {"OPENCV_FOR_THREADS_NUM": "1"}},
                    **({"num_gpus": gpus} if gpus else {}))
+    return out
+
+
+def measure_run_here(cfg: JobConfig, out: str | Path, workers: int, gpus: int = 0,
+                     frames: int | None = None) -> dict[str, Any]:
+    """``measure_run`` in this process, which must not have started Ray before (and will
+    not start it again): the body of the bench's child process. ``gpus``: logical GPUs the
+    local Ray announces (the proposal stage's actors take them; a test without a GPU)."""
+    import ray
+
+    from mining.pipeline.executors import RayExecutor
+    from mining.pipeline.submit import mine_job
+
+    t0 = time.perf_counter()
+    out = start_bench_ray(cfg, out, workers, gpus)
     init_s = time.perf_counter() - t0
     try:
         # The samplers' threads end before Ray does.
