@@ -3,6 +3,7 @@ folder uploaded to it; readers reach it by a pyarrow filesystem URI, as a user's
 
 from __future__ import annotations
 
+import urllib.request
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -24,8 +25,9 @@ def s3_folder(folder: Path, monkeypatch: pytest.MonkeyPatch, prefix: str = "dl")
         monkeypatch.setenv(key, value)
     server = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
     server.start()
+    host, port = server.get_host_and_port()
     try:
-        host, port = server.get_host_and_port()
+        _reset(host, port)  # moto keeps its buckets per process, not per server: an earlier test's would show
         uri = f"s3://{BUCKET}/{prefix}?endpoint_override=http://{host}:{port}&scheme=http&region=us-east-1"
         fs, base = pafs.FileSystem.from_uri(uri + "&allow_bucket_creation=true")
         fs.create_dir(BUCKET)
@@ -34,4 +36,10 @@ def s3_folder(folder: Path, monkeypatch: pytest.MonkeyPatch, prefix: str = "dl")
                 f.write(path.read_bytes())
         yield uri
     finally:
+        _reset(host, port)
         server.stop()
+
+
+def _reset(host: str, port: int) -> None:
+    """Empty every moto backend (its documented reset endpoint)."""
+    urllib.request.urlopen(urllib.request.Request(f"http://{host}:{port}/moto-api/reset", method="POST")).close()

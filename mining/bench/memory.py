@@ -207,12 +207,12 @@ def memory_job(cfg: JobConfig, frames: int) -> JobConfig:
 def measure_memory(cfg: JobConfig, frames: int, out: str | Path, workers: int) -> dict[str, Any]:
     """Mine ``frames`` frames of ``cfg``'s first sequence into a fresh ``out`` on a local Ray of
     ``workers`` CPUs started here (once a process: Ray's core worker is made once), sampling."""
+    out = start_bench_ray(cfg, out, workers)  # first: Ray is imported only after the bind is set
     import ray
 
     from mining.pipeline.executors import RayExecutor
     from mining.pipeline.submit import mine_job
 
-    out = start_bench_ray(cfg, out, workers)
     try:
         probe = MemoryProbe(os.getpid(), local_raylet_pid(), ray_system_pids())
         probe.sample(0)  # Ray started, nothing mined: the baseline (not in the slope either)

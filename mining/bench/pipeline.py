@@ -272,14 +272,14 @@ def measure_run_here(cfg: JobConfig, out: str | Path, workers: int, gpus: int = 
     """``measure_run`` in this process, which must not have started Ray before (and will
     not start it again): the body of the bench's child process. ``gpus``: logical GPUs the
     local Ray announces (the proposal stage's actors take them; a test without a GPU)."""
+    t0 = time.perf_counter()
+    out = start_bench_ray(cfg, out, workers, gpus)  # first: Ray is imported only after the bind is set
+    init_s = time.perf_counter() - t0
     import ray
 
     from mining.pipeline.executors import RayExecutor
     from mining.pipeline.submit import mine_job
 
-    t0 = time.perf_counter()
-    out = start_bench_ray(cfg, out, workers, gpus)
-    init_s = time.perf_counter() - t0
     try:
         # The samplers' threads end before Ray does.
         with RssSampler(local_raylet_pid()) as sampler, ObjectStoreSampler() as plasma:

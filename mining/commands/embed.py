@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 
 from mining.checks import count, input_file, path_text, real
 
@@ -65,6 +66,10 @@ def run(args: argparse.Namespace) -> int:
     started = []
 
     def on_ray() -> None:
+        from mining.pipeline.localray import init_local_ray, prepare_local_ray
+
+        if not address and "ray" not in sys.modules:
+            prepare_local_ray()  # before `import ray`: a local Ray keeps to loopback
         import ray
 
         if ray.is_initialized():
@@ -72,8 +77,6 @@ def run(args: argparse.Namespace) -> int:
         if address:
             ray.init(address=address, log_to_driver=False)
         else:
-            from mining.pipeline.localray import init_local_ray
-
             init_local_ray(args.workers)
         started.append(True)
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import ipaddress
 import os
+import sys
 from typing import Any
 
 from mining.config import parse_override
@@ -79,7 +80,10 @@ def prepare_local_ray(bind_host: str = LOOPBACK, origin: str = "the job config")
     """Check ``bind_host`` (``check_bind_host``) and, on 127.0.0.1, put Ray in single-host mode
     (before ``import ray`` where possible); returns whether it is 127.0.0.1."""
     loopback = not check_bind_host(bind_host, origin)
-    if loopback:
+    if loopback and os.environ.get(SINGLE_HOST_ENV) != "0":
+        if "ray" in sys.modules:  # Ray read the mode at import: say so on every host, not only a networked one
+            raise ConfigError(f"Ray was imported before {SINGLE_HOST_ENV}=0 was set, so it would not keep to "
+                              f"{bind_host}; set it in the environment, or run `mine submit` in a process of its own")
         os.environ[SINGLE_HOST_ENV] = "0"  # inherited by every Ray process started from here
     return loopback
 
