@@ -95,6 +95,7 @@ class RunConfig:
     # without one the models run inside the CPU workers.
     proposal_actors: Annotated[int, Range(-1)] = -1  # ours: -1 = one actor per cluster GPU when the proposer runs a network (none without GPUs); 0 = never; N = N actors
     gpus_per_proposal_actor: Annotated[float, Range(0.0)] = 1.0  # ours: one model per GPU (0 = actors on CPUs, for a test or a CPU-only pool)
+    gpu_wait_s: Annotated[float, Range(0.0)] = 900.0  # ours: how long a job asking for N proposal actors waits for a cluster's autoscaler to bring their GPUs (a cloud GPU node boots in 5-10 min)
     proposal_batch: Count = 8  # ours: frames per model call; torch batches them again by proposals.torch.batch_size
     proposal_queue: Count = 2  # ours: batches a window sends ahead: bounds the object store at workers × queue × batch left images
 

@@ -9,6 +9,7 @@ placement. Ray's GPUs here are logical (``ray.init(num_gpus=2)``): the actors ge
 from __future__ import annotations
 
 import dataclasses
+import time
 
 import numpy as np
 import pytest
@@ -16,7 +17,7 @@ from conftest import MODEL, REPO, TORCH_SMALL
 
 from mining.config import load_config
 from mining.errors import ConfigError
-from mining.pipeline.executors import proposal_actor_count
+from mining.pipeline.executors import cluster_with_gpus, proposal_actor_count
 from mining.pipeline.frames import plan_frames, plan_geometry
 from mining.pipeline.proposal_stage import LocalModels, ahead
 from mining.proposals.make import FrameProposer
@@ -116,6 +117,25 @@ def ray_with_logical_gpus():
     ray.init(num_cpus=2, num_gpus=2, include_dashboard=False, log_to_driver=False)
     yield
     ray.shutdown()
+
+
+@pytest.mark.own_process
+def test_a_job_asking_for_more_gpus_than_there_are_waits_for_the_autoscaler_then_names_the_shortfall(
+        ray_with_logical_gpus, torch_checkpoint):
+    import ray
+
+    fits = _cfg(torch_checkpoint, "run.proposal_actors=2", "run.gpu_wait_s=30")
+    t0 = time.monotonic()
+    assert cluster_with_gpus(fits, ray)["GPU"] == 2.0 and time.monotonic() - t0 < 1.0  # there: no wait
+    short = _cfg(torch_checkpoint, "run.proposal_actors=3", "run.gpu_wait_s=1.5")
+    t0 = time.monotonic()
+    resources = cluster_with_gpus(short, ray, poll_s=0.5)  # asks the (absent) autoscaler, then waits
+    assert 1.5 <= time.monotonic() - t0 < 10.0 and resources["GPU"] == 2.0
+    with pytest.raises(ConfigError, match=r"the cluster has 2 GPUs \(after waiting up to run.gpu_wait_s=1.5 s"):
+        proposal_actor_count(short, resources)
+    auto = _cfg(torch_checkpoint, "run.gpu_wait_s=30")  # -1 takes the GPUs there are, at once
+    t0 = time.monotonic()
+    assert proposal_actor_count(auto, cluster_with_gpus(auto, ray)) == 2 and time.monotonic() - t0 < 1.0
 
 
 @pytest.mark.slow  # two jobs of 16 frames on a local Ray

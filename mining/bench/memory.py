@@ -272,6 +272,8 @@ def run(args: argparse.Namespace) -> int:
     """``mine bench memory``: 0 when every role's slope holds, 1 otherwise."""
     cfg = memory_job(job_config(args), args.frames)
     workers = args.workers or len(os.sched_getaffinity(0))
+    if args.dir:
+        Path(args.dir).mkdir(parents=True, exist_ok=True)  # a --dir not there yet is made, as --out is
     with tempfile.TemporaryDirectory(prefix="bench-memory-", dir=args.dir) as tmp:
         r = measure_memory(cfg, args.frames, Path(tmp) / "out", workers)
     ok = report(r)

@@ -15,8 +15,8 @@ system failure and comes back as a failed ``StepResult``.
 from __future__ import annotations
 
 import contextlib
-
 import os
+import time
 from collections import deque
 from typing import Any, Protocol
 
@@ -128,7 +128,7 @@ class RayExecutor:
         # The proposal stage: actors holding the model parts and their GPUs; the CPU workers
         # share them round robin. Each holds GPUs for life (nothing else may take them) and
         # a CPU only to be placed (the CPU pool below keeps the cores).
-        n_models = proposal_actor_count(job.cfg, ray.cluster_resources())
+        n_models = proposal_actor_count(job.cfg, cluster_with_gpus(job.cfg, ray))
         gpus = job.cfg.run.gpus_per_proposal_actor
         model_actor = ray.remote(max_restarts=-1, max_task_retries=max_retries, num_gpus=gpus)(ProposalWorker)
         self.proposal_actors = [model_actor.remote(job.cfg.proposals) for _ in range(n_models)]
@@ -183,6 +183,33 @@ class RayExecutor:
             self.ray.kill(a)
 
 
+def cluster_with_gpus(cfg: JobConfig, ray: Any, poll_s: float = 2.0) -> dict[str, float]:
+    """The cluster's resources once it holds the GPUs ``run.proposal_actors`` = N asks for.
+
+    A cluster that scales (the launcher's or KubeRay's autoscaler) starts its GPU nodes only
+    on demand, so the job asks the autoscaler for the N actors' GPUs (``request_resources``)
+    and waits up to ``run.gpu_wait_s`` for them; without N (-1 takes what is there, 0 none),
+    or once they are there, the resources as they are. A shortfall after the wait is for
+    ``proposal_actor_count`` to name.
+    """
+    resources = ray.cluster_resources()
+    n, gpus = cfg.run.proposal_actors, cfg.run.gpus_per_proposal_actor
+
+    def enough(r: dict[str, float]) -> bool:
+        return n * gpus <= r.get("GPU", 0.0) + 1e-9
+
+    if n <= 0 or gpus <= 0 or not has_models(cfg.proposals) or enough(resources):
+        return resources
+    from ray.autoscaler.sdk import request_resources
+
+    request_resources(bundles=[{"GPU": gpus}] * n)
+    deadline = time.monotonic() + cfg.run.gpu_wait_s
+    while not enough(resources) and time.monotonic() < deadline:
+        time.sleep(min(poll_s, max(0.0, deadline - time.monotonic())))
+        resources = ray.cluster_resources()
+    return resources
+
+
 def proposal_actor_count(cfg: JobConfig, resources: dict[str, float]) -> int:
     """How many proposal actors a job starts on a cluster with ``resources`` (``run.proposal_actors``)."""
     n, gpus = cfg.run.proposal_actors, cfg.run.gpus_per_proposal_actor
@@ -194,6 +221,7 @@ def proposal_actor_count(cfg: JobConfig, resources: dict[str, float]) -> int:
     if n >= 0:
         if n * gpus > resources.get("GPU", 0.0) + 1e-9:
             raise ConfigError(f"run.proposal_actors={n} with run.gpus_per_proposal_actor={gpus}: the cluster has "
-                              f"{resources.get('GPU', 0.0):g} GPUs")
+                              f"{resources.get('GPU', 0.0):g} GPUs (after waiting up to run.gpu_wait_s="
+                              f"{cfg.run.gpu_wait_s:g} s for its autoscaler to bring more)")
         return n
     return int(resources.get("GPU", 0.0) // gpus) if gpus > 0 else 0
