@@ -76,6 +76,16 @@ def containerfile() -> str:
     return (INFRA / "Containerfile").read_text()
 
 
+def build_args(text: str) -> dict[str, str]:
+    """The Containerfile's ``ARG NAME=default`` values."""
+    return dict(re.findall(r"^ARG\s+(\w+)=(\S+)", text, flags=re.M))
+
+
+def expand_args(text: str, args: dict[str, str]) -> str:
+    """``${NAME}`` and ``$NAME`` replaced by the build arguments' values."""
+    return re.sub(r"\$\{?(\w+)\}?", lambda m: args.get(m[1], m[0]), text)
+
+
 def container_workdir() -> str:
     workdirs = re.findall(r"^WORKDIR\s+(\S+)", containerfile(), flags=re.M)
     assert workdirs, "Containerfile sets no WORKDIR"
@@ -86,8 +96,11 @@ def cluster() -> dict:
     return yaml.safe_load((INFRA / "ray-cluster.yaml").read_text())
 
 
-def rayjob() -> dict:
-    return yaml.safe_load((INFRA / "rayjob.yaml").read_text())
+RAYJOBS = ("rayjob.yaml", "rayjob-gpu.yaml")  # stereo only; a learned proposer with a GPU worker group
+
+
+def rayjob(name: str = "rayjob.yaml") -> dict:
+    return yaml.safe_load((INFRA / name).read_text())
 
 
 def repo_relative(path: str, roots: list[str]) -> PurePosixPath:
@@ -145,8 +158,9 @@ def test_extractor_finds_commands_and_rejects_a_bad_one():
         parse(["mine", "submit", "--no-such-option"])
 
 
-def test_rayjob_entrypoint_is_a_mine_submit_the_cli_accepts():
-    entrypoint = rayjob()["spec"]["entrypoint"]
+@pytest.mark.parametrize("name", RAYJOBS)
+def test_rayjob_entrypoint_is_a_mine_submit_the_cli_accepts(name):
+    entrypoint = rayjob(name)["spec"]["entrypoint"]
     cmds = mine_commands(entrypoint)
     assert [c[1] for c in cmds] == ["submit"], entrypoint
     args = parse(cmds[0])
@@ -200,10 +214,17 @@ def test_containerfile_python_matches_requires_python():
 def test_containerfile_installs_the_package_with_existing_extras():
     text = containerfile()
     text = re.sub(r"\\\n", " ", text)  # one instruction per line
-    runs = " ; ".join(re.findall(r"^RUN\s+(.*)$", text, flags=re.M))
+    raw_runs = " ; ".join(re.findall(r"^RUN\s+(.*)$", text, flags=re.M))
+    runs = expand_args(raw_runs, build_args(text))
     extras = installed_extras(runs)
     assert extras <= EXTRAS, f"extras {extras - EXTRAS} are not in pyproject.toml"
-    assert {"cluster", "onnx"} <= extras
+    assert {"cluster", "onnx"} <= extras  # the default build: the CPU image
+    # the GPU image's build line (EXTRAS=…) names extras that exist, gpu in place of onnx
+    gpu_builds = re.findall(r"--build-arg\s+EXTRAS=(\S+)", text)
+    assert gpu_builds, "the Containerfile says how its GPU image is built"
+    for b in gpu_builds:
+        gpu = installed_extras(expand_args(raw_runs, {"EXTRAS": b}))
+        assert {"cluster", "gpu"} <= gpu <= EXTRAS and "onnx" not in gpu, b
     assert "--no-cache-dir" in runs
     # the package reads schemas/ and jobs/ from the repository root: editable install
     # from the WORKDIR, with both folders copied there
@@ -236,13 +257,20 @@ def test_cluster_yaml_structure_and_setup():
     assert cfg["head_node_type"] in types
     workers = {k: v for k, v in types.items() if k != cfg["head_node_type"]}
     assert workers and all(v["max_workers"] > 0 for v in workers.values())
-    setup = " ; ".join(cfg["setup_commands"])
-    extras = installed_extras(setup)
-    assert {"cluster", "onnx"} <= extras <= EXTRAS
-    # setup installs from where file_mounts puts the repository
     remote, local = next(iter(cfg["file_mounts"].items()))
     assert local == "."
-    assert f"cd {remote}" in setup
+    # every node installs the package from where file_mounts puts the repository: the head and
+    # the CPU workers with onnxruntime's CPU build, a GPU node type with its CUDA build instead
+    node_setups = {cfg["head_node_type"]: cfg["setup_commands"] + cfg["head_setup_commands"]}
+    for name, t in workers.items():
+        node_setups[name] = cfg["setup_commands"] + t.get("worker_setup_commands", cfg["worker_setup_commands"])
+    for name, commands in node_setups.items():
+        setup = " ; ".join(commands)
+        extras = installed_extras(setup)
+        wanted = "gpu" if types[name].get("resources", {}).get("GPU") else "onnx"
+        assert {"cluster", wanted} <= extras <= EXTRAS, (name, extras)
+        assert not {"onnx", "gpu"} <= extras, f"{name}: two builds of onnxruntime"
+        assert f"cd {remote}" in setup, name
 
 
 def test_cluster_image_matches_the_pins():
@@ -251,6 +279,12 @@ def test_cluster_image_matches_the_pins():
     assert m, image
     assert m[1] == pinned("ray")
     assert f"{m[2]}.{m[3]}" == min_python()
+    for name, t in cluster()["available_node_types"].items():
+        own = t.get("docker", {}).get("worker_image")
+        if t.get("resources", {}).get("GPU"):  # Ray's CUDA image, same Ray and Python
+            assert own == image.removesuffix("-cpu") + "-gpu", name
+        else:
+            assert own is None, f"{name}: a CPU node runs the cluster's image"
 
 
 def test_cluster_workers_have_2gb_per_cpu():
@@ -271,8 +305,9 @@ def _pods(job: dict) -> list[dict]:
     return [spec["headGroupSpec"]["template"]["spec"]] + [g["template"]["spec"] for g in spec["workerGroupSpecs"]]
 
 
-def test_rayjob_structure():
-    job = rayjob()
+@pytest.mark.parametrize("name", RAYJOBS)
+def test_rayjob_structure(name):
+    job = rayjob(name)
     assert job["apiVersion"] == "ray.io/v1"
     assert job["kind"] == "RayJob"
     spec = job["spec"]
@@ -290,6 +325,15 @@ def test_rayjob_structure():
         assert g["minReplicas"] <= g["replicas"] <= g["maxReplicas"]
 
 
+def gpus_asked(container: dict) -> float:
+    """The GPUs a container asks Kubernetes for (its limit: Kubernetes takes extended resources there)."""
+    return float(container["resources"].get("limits", {}).get("nvidia.com/gpu", 0))
+
+
+def gpu_pod(group: dict) -> bool:
+    return any(gpus_asked(c) for c in group["template"]["spec"]["containers"])
+
+
 def _gib(q: str) -> float:
     m = re.fullmatch(r"(\d+(?:\.\d+)?)(Gi|Mi|G|M)?", str(q))
     assert m, q
@@ -297,28 +341,32 @@ def _gib(q: str) -> float:
     return float(m[1]) * scale
 
 
-def test_rayjob_pods_use_the_image_and_size_workers_for_2gb_per_cpu():
-    job = rayjob()
+@pytest.mark.parametrize("name", RAYJOBS)
+def test_rayjob_pods_use_the_image_and_size_workers_for_2gb_per_cpu(name):
+    job = rayjob(name)
     images = set()
     for pod in _pods(job):
         for c in pod["containers"]:
-            images.add(c["image"])
+            images |= set() if gpus_asked(c) else {c["image"]}
             r = c["resources"]
             assert r["requests"] and r["limits"], c["name"]
             assert _gib(r["requests"]["memory"]) == _gib(r["limits"]["memory"]), "memory request = limit (no OOM surprises)"
     submitter = job["spec"].get("submitterPodTemplate")
     if submitter:
         images |= {c["image"] for c in submitter["spec"]["containers"]}
-    assert len(images) == 1, f"one image (infra/Containerfile) for all pods: {images}"
+    assert len(images) == 1, f"one image (infra/Containerfile) for all pods without a GPU: {images}"
     for g in job["spec"]["rayClusterSpec"]["workerGroupSpecs"]:
         c = g["template"]["spec"]["containers"][0]
+        # the GPU pods run the same Containerfile built with EXTRAS=cluster,gpu, tagged -gpu
+        assert c["image"] == (f"{next(iter(images))}-gpu" if gpu_pod(g) else next(iter(images))), g["groupName"]
         cpus = float(c["resources"]["limits"]["cpu"])
         store = float(g["rayStartParams"].get("object-store-memory", 0.3 * _gib(c["resources"]["limits"]["memory"])))
         assert (_gib(c["resources"]["limits"]["memory"]) - store) / cpus >= 2e9
 
 
-def test_rayjob_root_is_mounted_on_head_and_workers():
-    job = rayjob()
+@pytest.mark.parametrize("name", RAYJOBS)
+def test_rayjob_root_is_mounted_on_head_and_workers(name):
+    job = rayjob(name)
     args = parse(mine_commands(job["spec"]["entrypoint"])[0])
     for pod in _pods(job):
         mounts = [m["mountPath"] for c in pod["containers"] for m in c.get("volumeMounts", [])]

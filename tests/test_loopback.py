@@ -100,7 +100,9 @@ def test_a_local_submit_listens_on_loopback_only(tmp_path):
 
 
 def test_infra_names_no_open_interface_without_saying_what_protects_it():
-    for name in ("ray-cluster.yaml", "rayjob.yaml", "networkpolicy.yaml"):
+    names = sorted(p.name for p in (REPO / "infra").glob("*.yaml"))
+    assert {"ray-cluster.yaml", "rayjob.yaml", "rayjob-gpu.yaml", "networkpolicy.yaml"} <= set(names)
+    for name in names:
         lines = (REPO / "infra" / name).read_text().splitlines()
         for i, line in enumerate(lines):
             if re.search(r"0\.0\.0\.0|\[::\]|[\"'=]::[\"']?(\s|$)", line) and not line.lstrip().startswith("#"):
