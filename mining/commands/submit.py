@@ -5,6 +5,7 @@ and ``pipeline/rayjobs.py``'s; this module parses and reports."""
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from mining.checks import MAX_WORKERS, output_folder, seconds, worker_count
 from mining.errors import ConfigError
@@ -42,9 +43,25 @@ def add_arguments(smt: argparse.ArgumentParser) -> None:
                      help="another submit is writing --out: wait up to this long for it (default: refuse at once)")
 
 
+def check_out_beside_root(out: str, root: str | None) -> None:
+    """ConfigError when the catalogue ``out`` would lie inside the source's ``root`` (local folders,
+    or one URI under another): the source's next listing would read the catalogue's folders as data."""
+    if not root or not out:
+        return
+    if "://" in out or "://" in root:  # URIs: the path before any ?options, one under the other
+        bare_out, bare_root = (u.split("?")[0].rstrip("/") for u in (out, root))
+        inside = "://" in out and "://" in root and bare_out.startswith(bare_root + "/")
+    else:
+        inside = Path(out).resolve().is_relative_to(Path(root).resolve())
+    if inside:
+        raise ConfigError(f"--out {out} lies inside the source's root {root}: the source would list the catalogue "
+                          "as data on the next submit; put the catalogue beside the data, not in it")
+
+
 def run(args: argparse.Namespace) -> int:
     """0 when every window was mined, 1 when some failed (the summary says which)."""
     cfg = job_config(args)
+    check_out_beside_root(args.out, cfg.source.root)
     if args.new_run and args.extend:
         raise ConfigError("--new-run and --extend exclude each other")
     if args.address and args.address.startswith("http"):
