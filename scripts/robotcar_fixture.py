@@ -7,6 +7,7 @@ cv2.setNumThreads(1)
 from mining.sources.synthetic import SyntheticSource
 from mining.testing.fixtures import write_robotcar_fixture
 out = Path(sys.argv[1]); n = int(sys.argv[2]); seq = sys.argv[3] if len(sys.argv) > 3 else "0000"
+out.mkdir(parents=True, exist_ok=True)  # a folder not there yet is made
 src = SyntheticSource(n_frames=max(n, 20), width=1280, height=960, fx=983.044, baseline_m=0.24, hz=16.0, sequences=[seq])
 plan = src.plan(seq)
 L, R, D = [], [], []
