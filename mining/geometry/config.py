@@ -42,6 +42,11 @@ class StereoConfig:
     # out: known recall and HOTA up, unknown recall flat), the geometry step 40.6 → 72.5 ms a frame on one core
     # (`mine bench geometry`; docs/RESULTS.md); 0 = off, REFERENCE's single half-resolution pass
     far_full_disparities: Annotated[int, Range(0), MultipleOf(16, "OpenCV SGBM searches disparities in blocks of 16")] = 32
+    # ours: the far pass matches one row in far_row_step (rows averaged, INTER_AREA) and spreads the result back:
+    # a far object's depth rests on its columns (bf / d) and the pass costs by rows. 1 = every row, the default:
+    # 2 fails the depth gate on KITTI raw LiDAR (abs-rel within 40 m 0.0368 → 0.0406); jobs/oxford.toml sets 2
+    # (RobotCar's 960 rows; docs/RESULTS.md, issue 42)
+    far_row_step: Annotated[int, Range(1)] = 1
     far_full_margin_px: Annotated[float, Range(0)] = 8.0  # ours: the far pass's own range end is unreliable (a nearer surface clips to it)
     pad_left: bool = True  # ours: pad the left border so its first num_disparities columns get matched
     max_depth_m: Positive = 90.0  # REFERENCE: points beyond 90 m depth are ignored

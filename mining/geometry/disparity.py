@@ -87,13 +87,14 @@ class StereoMatcher:
             img = cv2.copyMakeBorder(img, 0, 0, self._ndisp, 0, cv2.BORDER_REPLICATE)
         return img
 
-    def compute(self, left_rgb: np.ndarray, right_rgb: np.ndarray) -> np.ndarray:
+    def compute(self, left_rgb: np.ndarray, right_rgb: np.ndarray, vertical: int | None = None) -> np.ndarray:
         """(H, W) float32 disparity in pixels (x_left − x_right); NaN where invalid. With ``grayscale``
-        the images may be given grey already, (H, W) uint8 (the geometry stage has them: no second conversion)."""
+        the images may be given grey already, (H, W) uint8 (the geometry stage has them: no second conversion).
+        ``vertical``: match one row in that many (default: ``vertical_factor``'s)."""
         grey = self.cfg.grayscale and left_rgb.ndim == 2
         if left_rgb.shape != right_rgb.shape or not (grey or (left_rgb.ndim == 3 and left_rgb.shape[2] == 3)):
             raise ValueError(f"expected two (H, W, 3) images of equal shape, got {left_rgb.shape} and {right_rgb.shape}")
-        vertical = self.vertical_factor(left_rgb.shape[0])
+        vertical = self.vertical_factor(left_rgb.shape[0]) if vertical is None else vertical
         raw = self._sgbm.compute(self._prepare(left_rgb, vertical), self._prepare(right_rgb, vertical))
         if self.cfg.pad_left:
             raw = raw[:, self._ndisp :]
@@ -111,7 +112,7 @@ class StereoMatcher:
                 # block's margin so the band's own border does not touch them
                 r0 = max(0, int(rows[0]) - self.cfg.block_size)
                 r1 = min(disp.shape[0], int(rows[-1]) + 1 + self.cfg.block_size)
-                fine = self._far.compute(left_rgb[r0:r1], right_rgb[r0:r1])
+                fine = self._far.compute(left_rgb[r0:r1], right_rgb[r0:r1], vertical=self.cfg.far_row_step)
                 band = disp[r0:r1]
                 far = np.isfinite(fine) & small[r0:r1]
                 band[far] = fine[far]
