@@ -15,7 +15,13 @@ Worlds: each window chained poses from its own first frame, so pieces store foot
 in camera coordinates; here they move into the sequence's world, chained over all
 frames, one world per pose segment.
 
-The parts meet in ``concat_parts``: parts of different schemas (a part written by other
+The stitch streams (``stitch_windows``): the tube-frame parts are read one window at a time in
+core order, a chain the next window does not extend becomes a tube, and tubes are linked, judged and
+turned into rows group by group once no tube still to come can touch them (``stitch_held``); the
+co-selection and the final order run over the rows at the end. Its peak no longer grows with the
+sequence's tubes and their frames as objects, only with their rows (docs/RESULTS.md, issue 42).
+
+The parts meet in ``concat_parts`` / ``check_parts``: parts of different schemas (a part written by other
 code, or planted) fail the stitch naming the part file and each column that differs.
 """
 
