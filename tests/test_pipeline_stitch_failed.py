@@ -22,6 +22,7 @@ import pyarrow.parquet as pq
 import pytest
 from _jobs import TINY, TINY_WINDOWS
 from _run import ANSI, status, submit
+from _stitch_reference import reference_stitch
 
 from mining.catalog.layout import part_path
 from mining.catalog.store import Store
@@ -65,6 +66,12 @@ def test_the_stitch_leaves_out_a_failed_windows_core(tmp_path):
     frames = set(result["tube_frames"].column("frame").to_pylist())
     assert frames & set(range(*windows[0].core)) and frames & set(range(*windows[2].core))
     assert not frames & set(range(*middle.core)), "tube frames in the failed window's core"
+    run = RunInfo("synthetic", "0000", "run", cfg.params_hash)
+    for ws in (kept, windows):  # the streaming stitch writes what the batch stitch wrote (test_stitch_stream.py)
+        t = {k: pa.concat_tables([parts[k][windows.index(w)] for w in ws]) for k in parts}
+        ref = reference_stitch(ws, t["tubes"], t["tube_frames"], t["frames"], cfg, run)
+        got = stitch_sequence(ws, t["tubes"], t["tube_frames"], t["frames"], cfg, run)
+        assert all(ref[k].equals(got[k]) and ref[k].schema.equals(got[k].schema, check_metadata=True) for k in ref)
 
 
 def test_a_failed_stitch_is_a_manifest_row_that_status_shows(tmp_path):

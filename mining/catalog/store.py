@@ -166,6 +166,18 @@ class Store:
         except (pa.ArrowInvalid, OSError) as e:
             raise InputError(f"cannot read Parquet file: {e}", self.full(rel)) from None
 
+    def read_schema(self, rel: str) -> pa.Schema:
+        """One Parquet file's Arrow schema, from its footer alone (errors as ``read_table``'s)."""
+        try:
+            if self.local:
+                check_regular(self.full(rel))
+            with self.fs.open_input_file(self.full(rel)) as f:
+                return pq.ParquetFile(f).schema_arrow
+        except FileNotFoundError:
+            raise InputError("catalogue file not found", self.full(rel)) from None
+        except (pa.ArrowInvalid, OSError) as e:
+            raise InputError(f"cannot read Parquet file: {e}", self.full(rel)) from None
+
     def read_bytes(self, rel: str) -> bytes:
         try:
             with self.open_stream(rel) as f:

@@ -7,6 +7,7 @@ window judges its own tubes and the stitcher judges a sequence's stitched tubes 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -16,7 +17,7 @@ from mining.score.unary import score_tube, unary_total, unary_version, unary_wei
 from mining.select.coselect import co_select
 from mining.tubes.generate import TubeGenerator
 from mining.tubes.link import link_fragments
-from mining.types import MinedTube, TrackingFrame, Tube, TubeScore
+from mining.types import MinedTube, TrackingFrame, Tube, TubeCategory, TubeScore
 
 
 def unary(cfg: JobConfig, proposer: str | None = None) -> Callable[[Tube], TubeScore]:
@@ -34,19 +35,36 @@ def judge(tubes: list[Tube], cfg: JobConfig, proposer: str | None = None) -> lis
     """Each tube's unary score and call (``mining.score.call``: known, unknown, unclassified, or
     clutter not offered), and the co-selection over the tubes offered, at the price and overlap
     weight of the unary that scored them (``select.price`` and ``select.overlap_weight``)."""
+    each = judge_each(tubes, cfg, proposer)
+    selected = np.zeros(len(tubes), bool)
+    idx = np.flatnonzero(each.offered)
+    if len(idx):
+        selected[idx] = co_select([tubes[i] for i in idx], each.cost[idx], cfg.select, each.model)
+    return [MinedTube(t, s, c, bool(m)) for t, s, c, m in zip(tubes, each.scores, each.calls, selected)]
+
+
+@dataclass
+class Judged:
+    """What ``judge`` finds of each tube alone, before co-selection weighs them together."""
+
+    scores: list[TubeScore]
+    calls: list[TubeCategory]
+    offered: np.ndarray  # bool per tube: offered to co-selection
+    cost: np.ndarray  # the unary co-selection weighs (select.unknown_price taken off an unknown tube's)
+    model: str  # the unary's kind, as co_select names it
+
+
+def judge_each(tubes: list[Tube], cfg: JobConfig, proposer: str | None = None) -> Judged:
+    """``judge`` up to co-selection: every value here is one tube's own (the stitch judges a
+    sequence's tubes group by group with it, and co-selects them all at the end)."""
     weights = unary_weights(cfg.score, proposer or cfg.proposals.proposer)
     version = unary_version(cfg.score, weights)
     scores = [score_tube(t, cfg.score, weights, version) for t in tubes]
     cats, offered = call_tubes(tubes, cfg.score, proposer or cfg.proposals.proposer)
-    selected = np.zeros(len(tubes), bool)
-    idx = np.flatnonzero(offered)
-    if len(idx):
-        # a tube called unknown pays select.unknown_price on top of ε1 (the stored score stays the unary's)
-        unary_minus = np.array([scores[i].total - (cfg.select.unknown_price if cats[i].call == "unknown" else 0.0)
-                                for i in idx])
-        selected[idx] = co_select([tubes[i] for i in idx], unary_minus, cfg.select,
-                                  "reference" if weights is None else "calibrated")
-    return [MinedTube(t, s, c, bool(m)) for t, s, c, m in zip(tubes, scores, cats, selected)]
+    # a tube called unknown pays select.unknown_price on top of ε1 (the stored score stays the unary's)
+    cost = np.array([s.total - (cfg.select.unknown_price if c.call == "unknown" else 0.0) for s, c in zip(scores, cats)],
+                    np.float64)
+    return Judged(scores, cats, offered, cost, "reference" if weights is None else "calibrated")
 
 
 def tube_generator(cfg: JobConfig, first_id: int = 0, proposer: str | None = None) -> TubeGenerator:

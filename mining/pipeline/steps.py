@@ -31,7 +31,7 @@ from mining.config import JobConfig
 from mining.errors import InputError, MiningError
 from mining.pipeline.cache import decode_frames, encode_frames
 from mining.pipeline.proposal_stage import ModelStage
-from mining.pipeline.stitch import concat_parts, stitch_sequence
+from mining.pipeline.stitch import check_parts, concat_parts, stitch_windows
 from mining.pipeline.window import ObservedFrame, observe_window, track_window
 from mining.sources.base import Source
 from mining.types import CALLS, SequencePlan, Window
@@ -290,9 +290,12 @@ class Finalize:
         parts = {}
         for table in PART_TABLES:  # parts of differing schemas fail here, naming the file and the columns
             paths = [part_path(table, d, sequence, w.name) for w in ws]
-            parts[table] = concat_parts(table, [(store.full(p), store.read_table(p)) for p in paths])
-        out = stitch_sequence(ws, parts["tubes"], parts["tube_frames"], parts["frames"], job.cfg,
-                              job.run_info(sequence))
+            if table == "tube_frames":  # the largest: read one window at a time by the stitch, checked here
+                check_parts(table, [(store.full(p), store.read_schema(p)) for p in paths])
+            else:
+                parts[table] = concat_parts(table, [(store.full(p), store.read_table(p)) for p in paths])
+        out = stitch_windows(ws, lambda w: store.read_table(part_path("tube_frames", d, sequence, w.name)),
+                             parts["frames"], job.cfg, job.run_info(sequence))
         written = []
         for table, data in out.items():
             written += write_sequence(store, table, d, sequence, data)

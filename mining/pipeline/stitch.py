@@ -15,26 +15,34 @@ Worlds: each window chained poses from its own first frame, so pieces store foot
 in camera coordinates; here they move into the sequence's world, chained over all
 frames, one world per pose segment.
 
-The parts meet in ``concat_parts``: parts of different schemas (a part written by other
+The stitch streams (``stitch_windows``): the tube-frame parts are read one window at a time in
+core order, a chain the next window does not extend becomes a tube, and tubes are linked, judged and
+turned into rows group by group once no tube still to come can touch them (``stitch_held``); the
+co-selection and the final order run over the rows at the end. Its peak no longer grows with the
+sequence's tubes and their frames as objects, only with their rows (docs/RESULTS.md, issue 42).
+
+The parts meet in ``concat_parts`` / ``check_parts``: parts of different schemas (a part written by other
 code, or planted) fail the stitch naming the part file and each column that differs.
 """
 
 from __future__ import annotations
 
+import math
 from collections import defaultdict
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 from scipy.optimize import linear_sum_assignment
 
-from mining.catalog.rows import RunInfo, frame_rows, part_tube_frame, to_table, tube_row
+from mining.catalog.rows import RunInfo, part_tube_frame, to_table
 from mining.catalog.schema import hive_file_schema, part_schema
 from mining.config import JobConfig
 from mining.errors import InputError
 from mining.geometry.poses import chain_poses
-from mining.pipeline.mine import judge
-from mining.tubes.link import link_fragments
+from mining.pipeline.stitch_held import Held, finish
 from mining.types import Tube, Window
 
 
@@ -87,25 +95,31 @@ def concat_parts(table: str, parts: list[tuple[str, pa.Table]]) -> pa.Table:
     """The windows' parts of ``table`` (each with its file's path) as one table. Parts whose
     schemas differ cannot be stitched: an InputError names a part that differs (one that
     differs from the schema this code writes, else the first that differs from the first
-    part) and each column that differs."""
+    part) and each column that differs (``check_parts``)."""
     if not parts:
         return to_table([], table, part=True)
+    check_parts(table, [(path, t.schema) for path, t in parts])
+    return pa.concat_tables([t for _, t in parts])
+
+
+def check_parts(table: str, parts: list[tuple[str, pa.Schema]]) -> None:
+    """``concat_parts``' check on the parts' schemas alone (each with its file's path): the stitch
+    reads the tube-frame parts one window at a time, after every schema has passed."""
+    if not parts:
+        return
     first_path, first = parts[0]
-    odd = [(path, t) for path, t in parts[1:] if schema_differences(t.schema, first.schema)]
+    odd = [(path, t) for path, t in parts[1:] if schema_differences(t, first)]
     if not odd:
-        return pa.concat_tables([t for _, t in parts])
+        return
     written = part_schema(table)
-    fits = {p for p, t in parts if not schema_differences(t.schema, written)}
+    fits = {p for p, t in parts if not schema_differences(t, written)}
     path, t = next(((p, t) for p, t in parts if p not in fits), odd[0])  # the odd one out
     other_path, other = next(((p, u) for p, u in parts if p in fits), (first_path, first))  # what it should match
     if other_path == path:
         other_path, other = odd[0]
-    diff = "; ".join(schema_differences(t.schema, other.schema))
+    diff = "; ".join(schema_differences(t, other))
     raise InputError(f"this {table} part cannot be stitched with the others (there: {other_path}): {diff}; "
                      "remove it and resubmit to run its window again", path)
-
-
-ROWS_PER_CHUNK = 4096  # ours: tube-frame rows held as dicts before they go into Arrow (a few MB)
 
 
 class _Pieces:
@@ -159,85 +173,94 @@ def _splice(a: str, b: str, keys: dict[str, set], border: int, position: dict[in
     return min(shared, key=lambda p: (abs(p - border), -p))
 
 
-def _chains(windows: list[Window], piece_window: dict[str, str], keys: dict[str, set],
-            min_shared: int, position: dict[int, int]) -> list[list[tuple[str, int, int]]]:
-    """Chains of matched pieces; each link (piece, first, last plan position) it contributes.
+@dataclass
+class _Chain:
+    """A chain of matched pieces whose last piece the next window may still extend."""
 
-    The first piece starts at its window's core, the last ends with its window's core,
-    and neighbours hand over at their splice frame (the earlier piece keeps it).
-    """
-    nxt: dict[str, tuple[str, int]] = {}
-    has_prev: set[str] = set()
-    by_window: dict[str, list[str]] = defaultdict(list)
-    for p, w in sorted(piece_window.items()):
-        by_window[w].append(p)
-    order = sorted(windows, key=lambda w: w.core[0])
-    window_of = {w.name: w for w in windows}
-    for a, b in zip(order, order[1:]):
-        if a.core[1] != b.core[0]:
-            continue  # a failed window between them: nothing to stitch across
-        for pa_, pb in _match(by_window[a.name], by_window[b.name], keys, min_shared):
-            nxt[pa_] = (pb, _splice(pa_, pb, keys, a.core[1], position))
-            has_prev.add(pb)
-    chains = []
-    for p in sorted(piece_window):
-        if p in has_prev:
-            continue
-        first = window_of[piece_window[p]].core[0]
-        chain = []
-        while p in nxt:
-            q, splice = nxt[p]
-            chain.append((p, first, splice))
-            p, first = q, splice + 1
-        chain.append((p, first, window_of[piece_window[p]].core[1] - 1))
-        chains.append(chain)
-    return chains
+    name: str  # its first piece: the batch stitch ordered chains by it
+    start: int  # the plan position it starts at, its first window's core start: none of its rows is earlier
+    first: int  # the plan position its last piece's share starts at
+    last: str  # its last piece
+    rows: list[dict] = field(default_factory=list)  # its earlier pieces' shares
 
 
 def stitch_sequence(windows: list[Window], tubes: pa.Table, tube_frames: pa.Table, frames: pa.Table,
                     cfg: JobConfig, run: RunInfo) -> dict[str, pa.Table]:
-    """The catalogue tables of one sequence from its windows' parts."""
+    """The catalogue tables of one sequence from its windows' parts, all given at once
+    (``stitch_windows`` reads them one window at a time; ``tubes`` is not needed)."""
+    by_window = tube_frames.column("window")
+    return stitch_windows(windows, lambda w: tube_frames.filter(pc.equal(by_window, w.name)), frames, cfg, run)
+
+
+def stitch_windows(windows: list[Window], read_part: Callable[[Window], pa.Table], frames: pa.Table,
+                   cfg: JobConfig, run: RunInfo) -> dict[str, pa.Table]:
+    """The catalogue tables of one sequence, its windows' tube-frame parts read in core order
+    (``read_part``), each dropped once the next window's pieces are matched against it.
+
+    A chain that the next window does not extend is closed into a tube; tubes wait in
+    ``stitch_held.Held`` until no tube still to come can start before they end, then are linked,
+    judged and turned into rows group by group; the co-selection and the order run at the end
+    over the rows (``stitch_held.finish``). The output is the batch stitch's, bit for bit
+    (``tests/test_stitch_stream.py``).
+    """
     frames_table, poses = chain_sequence(frames)
-    pieces = _Pieces(tube_frames)
-    piece_window, keys = pieces.window, pieces.keys
-    tubes, windows_of = [], []
-    pos = poses.position
-    for links in _chains(windows, piece_window, keys, cfg.window.stitch_min_shared, pos):
-        # A frame without a position lies in no stitched window's core (a failed window's
-        # core, seen as a neighbour's context): no window owns it.
-        rows = [r for p, lo, hi in links for r in pieces.rows(p) if r["frame"] in pos and lo <= pos[r["frame"]] <= hi]
-        while rows and not rows[-1]["observed"]:
-            rows.pop()
-        while rows and not rows[0]["observed"]:
-            rows.pop(0)
-        if not rows:
-            continue  # owned by no window's core: a neighbour's tube seen from the context
-        windows_of.append({r["window"] for r in rows})
-        tframes = [part_tube_frame(r, poses.pose[r["frame"]]) for r in rows]
-        tubes.append(Tube(tube_id=0, segment=poses.segment[rows[0]["frame"]], frames=tframes))
-    # Judged again (score, category, co-selection) over the whole sequence's stitched tubes:
-    # a window chose among tubes cut at its context's ends, whose scores (sums over frames)
-    # were cut with them.
-    # Fragments of one object are linked here, over the sequence (``mining.tubes.link``), so
-    # where window borders fell does not matter.
-    for joined, parts in link_fragments(tubes, cfg.tubes, first_id=1):
-        tubes.append(joined)
-        windows_of.append(set().union(*(windows_of[i] for i in parts)))
-    stitched = list(zip(judge(tubes, cfg), (len(w) for w in windows_of)))
-    # Stable ids: the first inlier names the tube; ties (one observation can start several) by inliers.
-    stitched.sort(key=lambda x: (x[0].tube.inlier_key(), -x[0].score.total))
-    used: dict[str, int] = defaultdict(int)
-    tube_rows, frame_rows_, frame_tables = [], [], []
-    for mt, n_windows in stitched:
-        first = mt.tube.frames[0]
-        base = f"{run.dataset}/{run.sequence}/{first.frame:07d}.{first.obs_index:03d}"
-        tube_id = base if used[base] == 0 else f"{base}-{used[base]}"
-        used[base] += 1
-        tube_rows.append(tube_row(mt, tube_id, run, n_windows))
-        frame_rows_.extend(frame_rows(mt, tube_id))
-        if len(frame_rows_) >= ROWS_PER_CHUNK:  # into Arrow as it goes: never every tube frame as a dict at once
-            frame_tables.append(to_table(frame_rows_, "tube_frames"))
-            frame_rows_ = []
-    frame_tables.append(to_table(frame_rows_, "tube_frames"))
-    return {"tubes": to_table(tube_rows, "tubes"), "tube_frames": pa.concat_tables(frame_tables).combine_chunks(),
-            "frames": frames_table}
+    held = Held(cfg, run, poses.position)
+    order = sorted(windows, key=lambda w: w.core[0])
+    chains: dict[str, _Chain] = {}  # open chains by their last piece
+    prev, prev_pieces = None, None
+    for k, w in enumerate(order):
+        pieces = _Pieces(read_part(w))
+        matched: dict[str, tuple[str, int]] = {}
+        if prev is not None and prev.core[1] == w.core[0]:  # else a failed window between: nothing to stitch across
+            keys = {**prev_pieces.keys, **pieces.keys}
+            for a, b in _match(sorted(prev_pieces.span), sorted(pieces.span), keys, cfg.window.stitch_min_shared):
+                matched[a] = (b, _splice(a, b, keys, prev.core[1], poses.position))
+        chains = _advance(chains, matched, prev, prev_pieces, poses, held)
+        extended = {b for b, _ in matched.values()}
+        chains.update((p, _Chain(p, w.core[0], w.core[0], p)) for p in sorted(pieces.span) if p not in extended)
+        after = order[k + 1].core[0] if k + 1 < len(order) else math.inf
+        held.settle_before(min([after, *(c.start for c in chains.values())]))
+        prev, prev_pieces = w, pieces
+    _advance(chains, {}, prev, prev_pieces, poses, held)
+    held.settle_before(math.inf)
+    tubes, tube_frames = finish(held, cfg)
+    return {"tubes": tubes, "tube_frames": tube_frames, "frames": frames_table}
+
+
+def _advance(chains: dict[str, _Chain], matched: dict[str, tuple[str, int]], window: Window | None,
+             pieces: _Pieces | None, poses: SequencePoses, held: Held) -> dict[str, _Chain]:
+    """The open chains after ``window``'s pieces were matched with the next window's: a matched
+    chain takes its last piece's share up to the splice frame (the earlier piece keeps it) and
+    goes on; the others end with ``window``'s core and are closed into tubes (given to ``held``)."""
+    out = {}
+    for chain in chains.values():
+        rows = pieces.rows(chain.last)
+        if chain.last in matched:
+            nxt, splice = matched[chain.last]
+            chain.rows += _share(rows, chain.first, splice, poses.position)
+            chain.last, chain.first = nxt, splice + 1
+            out[nxt] = chain
+        else:
+            chain.rows += _share(rows, chain.first, window.core[1] - 1, poses.position)
+            _close(chain, poses, held)
+    return out
+
+
+def _share(rows: list[dict], lo: int, hi: int, position: dict[int, int]) -> list[dict]:
+    """A piece's rows between plan positions ``lo`` and ``hi``. A frame without a position lies
+    in no stitched window's core (a failed window's core, seen as a neighbour's context): no
+    window owns it."""
+    return [r for r in rows if r["frame"] in position and lo <= position[r["frame"]] <= hi]
+
+
+def _close(chain: _Chain, poses: SequencePoses, held: Held) -> None:
+    rows = chain.rows
+    while rows and not rows[-1]["observed"]:
+        rows.pop()
+    start = next((i for i, r in enumerate(rows) if r["observed"]), len(rows))
+    rows = rows[start:]
+    if not rows:
+        return  # owned by no window's core: a neighbour's tube seen from the context
+    tframes = [part_tube_frame(r, poses.pose[r["frame"]]) for r in rows]
+    held.add(chain.name, Tube(tube_id=0, segment=poses.segment[rows[0]["frame"]], frames=tframes),
+             {r["window"] for r in rows})

@@ -76,25 +76,40 @@ def overlap_pairs(tubes: list[Tube], box_iou_gate: float, overlap: str = "iou", 
     Sparse because tubes overlap only near in time: a sequence of thousands of tubes has
     few overlapping pairs, and a dense N × N matrix would not fit.
     """
+    return overlap_matrix(frame_pairs(tubes, box_iou_gate, overlap, floor), len(tubes))
+
+
+FramePairs = tuple[int, np.ndarray, np.ndarray, np.ndarray]  # frame, tube a, tube b, o_t(a, b): both orders
+
+
+def frame_pairs(tubes: list[Tube], box_iou_gate: float, overlap: str = "iou", floor: float = 0.0) -> list[FramePairs]:
+    """The gated pairs of every frame that two or more of ``tubes`` span, frames in the order
+    ``tubes`` (and each tube's frames) first meet them, pairs in row-major order of the tubes'
+    indices: the terms ``overlap_matrix`` sums. A pair's term depends on its two tubes alone, so
+    the stitch can take them group by group and put them in this order afterwards."""
     if overlap not in OVERLAPS:
         raise ConfigError(f"select.overlap: unknown overlap {overlap!r}; known: {', '.join(OVERLAPS)}")
-    n = len(tubes)
     by_frame: dict[int, list[tuple[int, object]]] = defaultdict(list)
     for i, tube in enumerate(tubes):
         for f in tube.frames:
             by_frame[f.frame].append((i, f))
-    rows_, cols_, vals_ = [], [], []
-    for entries in by_frame.values():
+    out = []
+    for frame, entries in by_frame.items():
         if len(entries) < 2:
             continue
         idx = np.array([i for i, _ in entries])
         a, b, v = _frame_overlaps(np.array([f.box for _, f in entries]), [f.rle for _, f in entries],
                                   box_iou_gate, overlap, floor)
-        rows_.append(idx[a])
-        cols_.append(idx[b])
-        vals_.append(v)
-    if not rows_:
+        out.append((frame, idx[a], idx[b], v))
+    return out
+
+
+def overlap_matrix(pairs: list[FramePairs], n: int) -> csr_matrix:
+    """``overlap_pairs``' matrix from ``frame_pairs``' terms. Summed in the order given: scipy sums
+    a pair's terms in an order that depends on that order, and the sums must not move by a bit."""
+    if not pairs:
         return csr_matrix((n, n))
+    rows_, cols_, vals_ = [p[1] for p in pairs], [p[2] for p in pairs], [p[3] for p in pairs]
     m = coo_matrix((np.concatenate(vals_), (np.concatenate(rows_), np.concatenate(cols_))), shape=(n, n)).tocsr()
     m.sum_duplicates()
     m.setdiag(0.0)
@@ -114,11 +129,15 @@ def co_select(tubes: list[Tube], scores: np.ndarray, cfg: SelectConfig, model: s
     Tubes that share no overlap do not interact, so each connected group of the overlap
     graph is its own QUBO: the same optimum, without an N × N matrix.
     """
-    n = len(tubes)
-    if not n:
+    if not len(tubes):
         return np.zeros(0, bool)
+    return select_over(overlap_pairs(tubes, cfg.box_iou_gate, cfg.overlap, cfg.overlap_floor), scores, cfg, model)
+
+
+def select_over(overlap: csr_matrix, scores: np.ndarray, cfg: SelectConfig, model: str = "reference") -> np.ndarray:
+    """``co_select`` from the tubes' summed overlaps (``overlap_pairs``), for one tube or more."""
+    n = overlap.shape[0]
     scores = np.asarray(scores, np.float64)
-    overlap = overlap_pairs(tubes, cfg.box_iou_gate, cfg.overlap, cfg.overlap_floor)
     if n <= DENSE_MAX:  # small: one dense QUBO (the solver splits it into groups itself)
         dense = overlap.toarray()
         return np.asarray(solve(build_qubo(scores, 0.5 * (dense + dense.T), cfg, model), cfg)[0], bool)
