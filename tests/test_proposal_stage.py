@@ -119,6 +119,7 @@ def ray_with_logical_gpus():
     ray.shutdown()
 
 
+@pytest.mark.slow  # starts a local Ray and waits 1.5 s on purpose
 @pytest.mark.own_process
 def test_a_job_asking_for_more_gpus_than_there_are_waits_for_the_autoscaler_then_names_the_shortfall(
         ray_with_logical_gpus, torch_checkpoint):
