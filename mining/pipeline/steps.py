@@ -287,15 +287,14 @@ class Finalize:
         job, store, t0 = self.job, self.job.store(), time.perf_counter()
         d = job.cfg.source.dataset
         ws = [w for w in windows if w.name in set(done)]
-        parts = {}
         for table in PART_TABLES:  # parts of differing schemas fail here, naming the file and the columns
             paths = [part_path(table, d, sequence, w.name) for w in ws]
-            if table == "tube_frames":  # the largest: read one window at a time by the stitch, checked here
+            if table == "frames":
+                frames = concat_parts(table, [(store.full(p), store.read_table(p)) for p in paths])
+            else:  # the tube frames are read one window at a time by the stitch; the tubes parts are not needed
                 check_parts(table, [(store.full(p), store.read_schema(p)) for p in paths])
-            else:
-                parts[table] = concat_parts(table, [(store.full(p), store.read_table(p)) for p in paths])
         out = stitch_windows(ws, lambda w: store.read_table(part_path("tube_frames", d, sequence, w.name)),
-                             parts["frames"], job.cfg, job.run_info(sequence))
+                             frames, job.cfg, job.run_info(sequence))
         written = []
         for table, data in out.items():
             written += write_sequence(store, table, d, sequence, data)
